@@ -1,0 +1,18 @@
+//! The library's error type: one enum per stage, gathered here so callers can match on the
+//! stage that failed while `?` converts between them.
+
+use crate::{codec::CodecError, raster::RasterError, store::StoreError, tin::TinError};
+
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error(transparent)]
+    Raster(#[from] RasterError),
+    #[error(transparent)]
+    Tin(#[from] TinError),
+    #[error(transparent)]
+    Codec(#[from] CodecError),
+    #[error(transparent)]
+    Store(#[from] StoreError),
+}
+
+pub type Result<T, E = Error> = std::result::Result<T, E>;

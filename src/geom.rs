@@ -1,0 +1,100 @@
+//! Plain geometry values shared by every stage: bounds, triangle meshes, point clouds and the
+//! measured errors that travel with them. No I/O, no behaviour beyond small helpers.
+
+use serde::{Deserialize, Serialize};
+
+/// Axis-aligned box in world units.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Bounds {
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+}
+
+impl Bounds {
+    /// The empty box (min = +inf, max = -inf); `extend` grows it.
+    #[must_use]
+    pub fn empty() -> Self {
+        Self { min: [f64::INFINITY; 3], max: [f64::NEG_INFINITY; 3] }
+    }
+
+    pub fn extend(&mut self, p: [f64; 3]) {
+        for a in 0..3 {
+            self.min[a] = self.min[a].min(p[a]);
+            self.max[a] = self.max[a].max(p[a]);
+        }
+    }
+
+    /// The box around `points`; `empty()` for no points.
+    #[must_use]
+    pub fn of_points(points: &[[f64; 3]]) -> Self {
+        let mut b = Self::empty();
+        for &p in points {
+            b.extend(p);
+        }
+        b
+    }
+
+    #[must_use]
+    pub fn is_valid(&self) -> bool {
+        (0..3).all(|a| self.min[a].is_finite() && self.max[a].is_finite() && self.min[a] <= self.max[a])
+    }
+
+    #[must_use]
+    pub fn size(&self) -> [f64; 3] {
+        [self.max[0] - self.min[0], self.max[1] - self.min[1], self.max[2] - self.min[2]]
+    }
+
+    #[must_use]
+    pub fn center(&self) -> [f64; 3] {
+        [
+            0.5 * (self.min[0] + self.max[0]),
+            0.5 * (self.min[1] + self.max[1]),
+            0.5 * (self.min[2] + self.max[2]),
+        ]
+    }
+}
+
+/// An indexed triangle mesh in world coordinates.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Mesh {
+    pub positions: Vec<[f64; 3]>,
+    pub triangles: Vec<[u32; 3]>,
+}
+
+/// A point cloud in world coordinates with one unit normal per point.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PointCloud {
+    pub positions: Vec<[f64; 3]>,
+    pub normals: Vec<[f32; 3]>,
+}
+
+/// Errors measured for one (tile, level), in world units.
+///
+/// For a mesh: `max`/`rms` are the vertical deviation from the full-resolution raster and `gap`
+/// is 0. For points: `max`/`rms` are the distances from the points to the surface they were
+/// baked from and `gap` is the largest distance from any surface point to its nearest point.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize, bincode::Encode, bincode::Decode)]
+pub struct Errors {
+    pub max: f64,
+    pub rms: f64,
+    pub gap: f64,
+}
+
+impl Errors {
+    /// The single geometric error a client uses for screen-space error: the worse of the
+    /// deviation and the gap.
+    #[must_use]
+    pub fn geometric(&self) -> f64 {
+        self.max.max(self.gap)
+    }
+}
+
+/// Unit normal of triangle (a, b, c) by the right-hand rule; zero for a degenerate triangle.
+#[must_use]
+pub fn triangle_normal(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> [f64; 3] {
+    let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+    let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+    let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+    let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    if len > 0.0 { [n[0] / len, n[1] / len, n[2] / len] } else { [0.0; 3] }
+}

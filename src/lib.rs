@@ -1,0 +1,16 @@
+//! terrastream: terrain heightfields → tiled, crack-free TIN meshes and point-cloud LOD levels →
+//! compact binary blobs in a tileset directory.
+//!
+//! The pure core (`tiling`, `tin`, `codec`, `lod::cpu`, `geom`) works on values and byte slices
+//! only; `raster` reads files; `store` and `bake` own the tileset directory.
+
+pub mod codec;
+mod error;
+pub mod geom;
+pub mod lod;
+pub mod raster;
+pub mod store;
+pub mod tiling;
+pub mod tin;
+
+pub use error::{Error, Result};
