@@ -18,9 +18,9 @@ impl Bounds {
     }
 
     pub fn extend(&mut self, p: [f64; 3]) {
-        for a in 0..3 {
-            self.min[a] = self.min[a].min(p[a]);
-            self.max[a] = self.max[a].max(p[a]);
+        for (a, &v) in p.iter().enumerate() {
+            self.min[a] = self.min[a].min(v);
+            self.max[a] = self.max[a].max(v);
         }
     }
 
@@ -73,7 +73,9 @@ pub struct PointCloud {
 /// For a mesh: `max`/`rms` are the vertical deviation from the full-resolution raster and `gap`
 /// is 0. For points: `max`/`rms` are the distances from the points to the surface they were
 /// baked from and `gap` is the largest distance from any surface point to its nearest point.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize, bincode::Encode, bincode::Decode)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize, bincode::Encode, bincode::Decode,
+)]
 pub struct Errors {
     pub max: f64,
     pub rms: f64,

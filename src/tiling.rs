@@ -5,7 +5,18 @@ use serde::{Deserialize, Serialize};
 
 /// A quadtree node: `z = 0` is the root; the deepest `z` holds full-resolution leaf tiles.
 #[derive(
-    Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize, bincode::Encode, bincode::Decode,
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Hash,
+    PartialOrd,
+    Ord,
+    Serialize,
+    Deserialize,
+    bincode::Encode,
+    bincode::Decode,
 )]
 pub struct TileKey {
     pub z: u8,

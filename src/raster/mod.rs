@@ -1,4 +1,4 @@
-//! Heightfield rasters: decoding (OpenEXR, 16-bit PNG, terrain-RGB/Terrarium PNG, GeoTIFF, SRTM
+//! Heightfield rasters: decoding (`OpenEXR`, 16-bit PNG, terrain-RGB/Terrarium PNG, `GeoTIFF`, SRTM
 //! HGT), georeference, size limits and no-data filling. Reads files only.
 //!
 //! CONTRACT STUB: the helper replaces the bodies; signatures are what the rest of the crate uses.
@@ -117,7 +117,7 @@ pub struct Overrides {
 pub struct LoadOptions {
     /// PNG encoding; `None` = gray16 for 16-bit gray PNGs, error for RGB PNGs without it.
     pub encoding: Option<Encoding>,
-    /// OpenEXR channel name; `None` = first float channel.
+    /// `OpenEXR` channel name; `None` = first float channel.
     pub channel: Option<String>,
     pub limits: Limits,
     pub overrides: Overrides,
