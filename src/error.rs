@@ -1,7 +1,7 @@
 //! The library's error type: one enum per stage, gathered here so callers can match on the
 //! stage that failed while `?` converts between them.
 
-use crate::{codec::CodecError, raster::RasterError, store::StoreError, tin::TinError};
+use crate::{bake::BakeError, codec::CodecError, raster::RasterError, store::StoreError, tin::TinError};
 
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
@@ -13,6 +13,8 @@ pub enum Error {
     Codec(#[from] CodecError),
     #[error(transparent)]
     Store(#[from] StoreError),
+    #[error(transparent)]
+    Bake(#[from] BakeError),
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

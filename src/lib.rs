@@ -4,8 +4,10 @@
 //! The pure core (`tiling`, `tin`, `codec`, `lod::cpu`, `geom`) works on values and byte slices
 //! only; `raster` reads files; `store` and `bake` own the tileset directory.
 
+pub mod bake;
 pub mod codec;
 mod error;
+pub mod export;
 pub mod geom;
 pub mod lod;
 pub mod raster;

@@ -1,1 +1,317 @@
-fn main() {}
+//! The `terrastream` command: argument parsing, logging and progress bars; the work is in the
+//! library.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, Subcommand, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use terrastream::bake::{self, BakeOptions, BakeSummary};
+use terrastream::raster::{self, Encoding, Limits, LoadOptions, Overrides};
+use terrastream::store::{LevelTotals, Store};
+use terrastream::tiling::TileKey;
+use terrastream::{export, tiling};
+
+#[derive(Parser)]
+#[command(version, about = "Terrain heightfields → tiled TIN + point-cloud LOD blobs, streamed over HTTP")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+    /// Log filter (e.g. info, debug, terrastream=trace).
+    #[arg(long, global = true, default_value = "warn", env = "TERRASTREAM_LOG")]
+    log: String,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Bake a heightfield raster into a tileset directory (resumes an interrupted bake).
+    Bake(BakeArgs),
+    /// Summarise a tileset: per-level totals and worst errors, or one node with --tile.
+    Inspect {
+        /// Tileset directory.
+        dir: PathBuf,
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+        /// One node, as Z/X/Y.
+        #[arg(long, value_parser = parse_key)]
+        tile: Option<TileKey>,
+    },
+    /// Decode one (tile, level) to PLY or OBJ in world coordinates.
+    Export {
+        /// Tileset directory.
+        dir: PathBuf,
+        #[arg(long, value_parser = parse_key)]
+        tile: TileKey,
+        #[arg(long)]
+        level: u8,
+        #[arg(long, value_enum, default_value_t = ExportFormat::Ply)]
+        format: ExportFormat,
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+#[derive(clap::Args)]
+struct BakeArgs {
+    /// Input raster: OpenEXR, 16-bit PNG, terrain-RGB/Terrarium PNG, GeoTIFF or SRTM .hgt.
+    input: PathBuf,
+    /// Output tileset directory (created; must be empty or an earlier bake of the same input).
+    #[arg(long)]
+    out: PathBuf,
+    /// Leaf tile size in raster cells.
+    #[arg(long, default_value_t = tiling::DEFAULT_TILE_SIZE)]
+    tile_size: u32,
+    /// TIN error bound for leaf tiles, in metres (parents scale it with their cell size).
+    #[arg(long, default_value_t = bake::DEFAULT_MAX_ERROR)]
+    max_error: f64,
+    /// Point-cloud levels below the mesh (cells of 2, 4, 8, … leaf cells).
+    #[arg(long, default_value_t = bake::DEFAULT_LEVELS)]
+    levels: u8,
+    /// How a PNG encodes heights.
+    #[arg(long, value_enum)]
+    encoding: Option<EncodingArg>,
+    /// OpenEXR channel to read (default: the first float channel).
+    #[arg(long)]
+    channel: Option<String>,
+    /// Horizontal cell size in metres (overrides the file's georeference).
+    #[arg(long)]
+    cell_size: Option<f64>,
+    /// World position of sample (0, 0) as X,Y (overrides the file's georeference).
+    #[arg(long, value_parser = parse_pair, allow_hyphen_values = true)]
+    origin: Option<(f64, f64)>,
+    /// Multiply raw sample values by this.
+    #[arg(long, allow_hyphen_values = true)]
+    z_scale: Option<f64>,
+    /// Add this to heights after scaling.
+    #[arg(long, allow_hyphen_values = true)]
+    z_offset: Option<f64>,
+    /// Refuse rasters with a side longer than this many samples.
+    #[arg(long, default_value_t = raster::DEFAULT_MAX_SIDE)]
+    max_side: u32,
+    /// Refuse rasters whose decoded heights exceed this many bytes.
+    #[arg(long, default_value_t = raster::DEFAULT_MAX_BYTES)]
+    max_bytes: u64,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// No progress bar.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum EncodingArg {
+    Gray16,
+    TerrainRgb,
+    Terrarium,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum ExportFormat {
+    Ply,
+    Obj,
+}
+
+fn parse_key(s: &str) -> Result<TileKey, String> {
+    let parts: Vec<&str> = s.split('/').collect();
+    let [z, x, y] = parts.as_slice() else {
+        return Err(format!("expected Z/X/Y, got {s:?}"));
+    };
+    let num = |v: &str, name: &str| v.parse::<u32>().map_err(|_| format!("{name} in {s:?} is not a number"));
+    let z = num(z, "Z")?;
+    Ok(TileKey::new(
+        u8::try_from(z).map_err(|_| format!("Z in {s:?} is too large"))?,
+        num(x, "X")?,
+        num(y, "Y")?,
+    ))
+}
+
+fn parse_pair(s: &str) -> Result<(f64, f64), String> {
+    let (a, b) = s.split_once(',').ok_or_else(|| format!("expected X,Y, got {s:?}"))?;
+    let f = |v: &str| v.trim().parse::<f64>().map_err(|_| format!("{v:?} is not a number"));
+    Ok((f(a)?, f(b)?))
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::try_new(&cli.log).unwrap_or_default())
+        .with_writer(std::io::stderr)
+        .init();
+    match run(cli) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Bake(args) => run_bake(&args),
+        Command::Inspect { dir, json, tile } => run_inspect(&dir, json, tile),
+        Command::Export { dir, tile, level, format, out } => {
+            let format = match format {
+                ExportFormat::Ply => export::Format::Ply,
+                ExportFormat::Obj => export::Format::Obj,
+            };
+            let n = export::export_tile(&Store::new(&dir), tile, level, format, &out)?;
+            println!("wrote {} ({n} {})", out.display(), if level == 0 { "vertices" } else { "points" });
+            Ok(())
+        }
+    }
+}
+
+struct Bar(ProgressBar);
+
+impl bake::Progress for Bar {
+    fn start(&self, total: u64, resumed: u64) {
+        self.0.set_length(total);
+        self.0.set_position(resumed);
+        self.0.reset_eta();
+        if resumed > 0 {
+            self.0.println(format!("resuming: {resumed} of {total} tiles already baked"));
+        }
+    }
+    fn node_done(&self) {
+        self.0.inc(1);
+    }
+}
+
+fn run_bake(a: &BakeArgs) -> Result<()> {
+    if let Some(n) = a.threads {
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
+    }
+    let opts = BakeOptions { tile_size: a.tile_size, max_error: a.max_error, levels: a.levels };
+    bake::check_options(&opts)?;
+    let load = LoadOptions {
+        encoding: a.encoding.map(|e| match e {
+            EncodingArg::Gray16 => Encoding::Gray16,
+            EncodingArg::TerrainRgb => Encoding::TerrainRgb,
+            EncodingArg::Terrarium => Encoding::Terrarium,
+        }),
+        channel: a.channel.clone(),
+        limits: Limits { max_side: a.max_side, max_bytes: a.max_bytes },
+        overrides: Overrides {
+            cell_size: a.cell_size,
+            origin: a.origin,
+            z_scale: a.z_scale,
+            z_offset: a.z_offset,
+        },
+    };
+    let raster = raster::load(&a.input, &load)?;
+    let name =
+        a.input.file_name().map_or_else(|| a.input.display().to_string(), |n| n.to_string_lossy().into());
+    if !a.quiet {
+        eprintln!(
+            "{name}: {}×{} {} samples, cell {:.3} × {:.3}, {} no-data filled",
+            raster.heights.width,
+            raster.heights.height,
+            raster.format,
+            raster.georef.dx.abs(),
+            raster.georef.dy.abs(),
+            raster.nodata_filled
+        );
+    }
+    let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(0) };
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} tiles  {per_sec}  ETA {eta}  {elapsed}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.enable_steady_tick(Duration::from_millis(200));
+    let progress = Bar(bar);
+    let summary = bake::bake(&raster, &name, &opts, &Store::new(&a.out), &progress)?;
+    progress.0.finish_and_clear();
+    print_summary(&summary, &a.out);
+    Ok(())
+}
+
+fn print_summary(s: &BakeSummary, out: &std::path::Path) {
+    println!(
+        "baked {} tiles ({} resumed) into {} in {:.2} s: {:.2} M samples/s, {} no-data samples filled",
+        s.nodes,
+        s.nodes_resumed,
+        out.display(),
+        s.seconds,
+        s.samples_per_second() / 1e6,
+        s.nodata_filled
+    );
+    print_levels(&s.totals);
+}
+
+fn print_levels(totals: &[LevelTotals]) {
+    println!(
+        "{:>5}  {:>6}  {:>7}  {:>11}  {:>10}  {:>12}  {:>7}  {:>10}  {:>10}  {:>10}",
+        "level",
+        "kind",
+        "tiles",
+        "vertices/pts",
+        "triangles",
+        "bytes",
+        "B/item",
+        "max err",
+        "worst rms",
+        "worst gap"
+    );
+    for (l, t) in totals.iter().enumerate() {
+        println!(
+            "{:>5}  {:>6}  {:>7}  {:>11}  {:>10}  {:>12}  {:>7.2}  {:>10.3}  {:>10.3}  {:>10.3}",
+            l,
+            if l == 0 { "mesh" } else { "points" },
+            t.tiles,
+            t.count,
+            t.triangles,
+            t.bytes,
+            t.bytes as f64 / t.count.max(1) as f64,
+            t.worst.max,
+            t.worst.rms,
+            t.worst.gap
+        );
+    }
+}
+
+fn run_inspect(dir: &std::path::Path, json: bool, tile: Option<TileKey>) -> Result<()> {
+    let store = Store::new(dir);
+    let manifest = store.manifest()?;
+    if let Some(key) = tile {
+        let Some(node) = store.node(key)? else {
+            bail!("{}: no tile {key} in this tileset (depth {})", dir.display(), manifest.depth);
+        };
+        if json {
+            println!("{}", serde_json::to_string_pretty(&node)?);
+        } else {
+            println!("tile {key}: bounds {:?} – {:?}", node.bounds.min, node.bounds.max);
+            let totals: Vec<LevelTotals> = node
+                .levels
+                .iter()
+                .map(|l| {
+                    let mut t = LevelTotals::default();
+                    t.add(l);
+                    t
+                })
+                .collect();
+            print_levels(&totals);
+        }
+        return Ok(());
+    }
+    if json {
+        println!("{}", serde_json::to_string_pretty(&manifest)?);
+    } else {
+        println!(
+            "{}: {} ({}×{} samples, {}), tile size {}, depth {}, content version {}",
+            dir.display(),
+            manifest.source.file,
+            manifest.source.width,
+            manifest.source.height,
+            manifest.source.format,
+            manifest.tile_size,
+            manifest.depth,
+            manifest.content_version
+        );
+        print_levels(&manifest.totals);
+    }
+    Ok(())
+}

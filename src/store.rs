@@ -1,7 +1,386 @@
-//! Tileset directory (work in progress).
+//! The tileset directory: layout, manifest and index chunks, atomic blob writes, resume.
+//!
+//! ```text
+//! DIR/tileset.json                  manifest, written last (its presence = a complete bake)
+//! DIR/index/{z}/{x}/{y}.json        index chunk: every node of the subtree rooted at (z, x, y),
+//!                                   SUBTREE_LEVELS deep; roots at z = 0, 4, 8, …
+//! DIR/tiles/{z}/{x}/{y}/{level}.tsb one blob per (tile, level)
+//! DIR/.bake-state.json              the options of a bake in progress (removed when complete)
+//! ```
+//!
+//! Every file is written to a temporary name in the same directory and renamed into place, so a
+//! reader (or a resumed bake) sees either the old file or the complete new one, never a torn one.
+
+use std::fs;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::geom::{Bounds, Errors};
+use crate::raster::Georef;
+use crate::tiling::TileKey;
+
+/// Manifest format name and version.
+pub const MANIFEST_FORMAT: &str = "terrastream-tileset";
+pub const MANIFEST_VERSION: u32 = 1;
+/// Levels of the quadtree held by one index chunk (1 + 4 + 16 + 64 = 85 nodes at most), so no
+/// index file grows with the dataset.
+pub const SUBTREE_LEVELS: u8 = 4;
+pub const MANIFEST_FILE: &str = "tileset.json";
+const STATE_FILE: &str = ".bake-state.json";
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
-    #[error("store: {0}")]
-    Invalid(String),
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: invalid JSON: {source}")]
+    Json { path: PathBuf, source: serde_json::Error },
+    #[error("{path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+    #[error(
+        "{path}: holds an earlier bake with different options ({what}); choose another --out or delete the directory"
+    )]
+    OptionsChanged { path: PathBuf, what: String },
+    #[error("{path}: directory is not empty and is not a terrastream tileset; refusing to write into it")]
+    NotATileset { path: PathBuf },
+    #[error("{path}: no tile {key} level {level} in this tileset")]
+    NoSuchTile { path: PathBuf, key: TileKey, level: u8 },
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
+    move |source| StoreError::Io { path: path.to_owned(), source }
+}
+
+/// What a level is and how it was made.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LevelSpec {
+    pub level: u8,
+    /// "mesh" or "points".
+    pub kind: String,
+    /// Mesh: the TIN's error bound for leaf tiles (parents scale it by their sample step).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_error: Option<f64>,
+    /// Points: the slicing cell edge in leaf cells (parents scale it by their sample step).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cell_leaf_cells: Option<u32>,
+    /// Points: the paper's texture size T3 (framebuffer pixels per full tile side).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub texture_size: Option<u32>,
+    /// Points: quantization step as a fraction of the cell edge.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub precision_per_cell: Option<u32>,
+}
+
+/// Per-level figures of one node.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct NodeLevel {
+    pub errors: Errors,
+    /// Vertices (mesh) or points.
+    pub count: u32,
+    /// Triangles (mesh only, 0 for points).
+    pub triangles: u32,
+    pub bytes: u64,
+    /// The blob's payload checksum (from its header).
+    pub checksum: u32,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NodeEntry {
+    pub key: TileKey,
+    pub bounds: Bounds,
+    pub levels: Vec<NodeLevel>,
+}
+
+/// One index chunk: the nodes of the subtree rooted at `root`, `SUBTREE_LEVELS` deep.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IndexChunk {
+    pub root: TileKey,
+    pub nodes: Vec<NodeEntry>,
+}
+
+/// Where the heights came from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SourceInfo {
+    pub file: String,
+    pub format: String,
+    pub width: u32,
+    pub height: u32,
+    pub nodata_filled: u64,
+}
+
+/// Per-level totals over the whole tileset.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct LevelTotals {
+    pub tiles: u64,
+    pub count: u64,
+    pub triangles: u64,
+    pub bytes: u64,
+    pub worst: Errors,
+}
+
+impl LevelTotals {
+    pub fn add(&mut self, l: &NodeLevel) {
+        self.tiles += 1;
+        self.count += u64::from(l.count);
+        self.triangles += u64::from(l.triangles);
+        self.bytes += l.bytes;
+        self.worst.max = self.worst.max.max(l.errors.max);
+        self.worst.rms = self.worst.rms.max(l.errors.rms);
+        self.worst.gap = self.worst.gap.max(l.errors.gap);
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    pub format: String,
+    pub version: u32,
+    /// Changes whenever any blob's content changes (a hash of every blob's checksum), so clients
+    /// may put it in URLs and cache those forever.
+    pub content_version: String,
+    pub source: SourceInfo,
+    pub frame: Georef,
+    pub tile_size: u32,
+    pub depth: u8,
+    pub subtree_levels: u8,
+    pub bounds: Bounds,
+    pub levels: Vec<LevelSpec>,
+    pub totals: Vec<LevelTotals>,
+    /// The options the tileset was baked with (what a resumed bake must match).
+    pub options: serde_json::Value,
+}
+
+/// The index chunk root holding `key`.
+#[must_use]
+pub fn chunk_root(key: TileKey) -> TileKey {
+    let dz = key.z % SUBTREE_LEVELS;
+    TileKey::new(key.z - dz, key.x >> dz, key.y >> dz)
+}
+
+/// A tileset directory.
+#[derive(Debug, Clone)]
+pub struct Store {
+    dir: PathBuf,
+}
+
+impl Store {
+    /// Opens an existing or new tileset directory (nothing is created until the first write).
+    #[must_use]
+    pub fn new(dir: &Path) -> Self {
+        Self { dir: dir.to_owned() }
+    }
+
+    #[must_use]
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    #[must_use]
+    pub fn blob_path(&self, key: TileKey, level: u8) -> PathBuf {
+        self.dir.join(format!("tiles/{}/{}/{}/{level}.tsb", key.z, key.x, key.y))
+    }
+
+    #[must_use]
+    pub fn chunk_path(&self, root: TileKey) -> PathBuf {
+        self.dir.join(format!("index/{}/{}/{}.json", root.z, root.x, root.y))
+    }
+
+    #[must_use]
+    pub fn manifest_path(&self) -> PathBuf {
+        self.dir.join(MANIFEST_FILE)
+    }
+
+    /// Prepares the directory for a bake with `options`, resuming an interrupted or complete
+    /// bake with the same options. Refuses a non-empty foreign directory and a tileset baked
+    /// with other options. Returns true when an earlier bake is being resumed.
+    pub fn begin_bake(&self, options: &serde_json::Value) -> Result<bool, StoreError> {
+        let state = self.dir.join(STATE_FILE);
+        let earlier = if state.exists() {
+            Some(read_json::<serde_json::Value>(&state)?)
+        } else if self.manifest_path().exists() {
+            Some(self.manifest()?.options)
+        } else {
+            None
+        };
+        match earlier {
+            Some(prev) if &prev == options => Ok(true),
+            Some(prev) => {
+                Err(StoreError::OptionsChanged { path: self.dir.clone(), what: diff_keys(&prev, options) })
+            }
+            None => {
+                if self.dir.exists() {
+                    let mut entries = fs::read_dir(&self.dir).map_err(io(&self.dir))?;
+                    if entries.next().is_some() {
+                        return Err(StoreError::NotATileset { path: self.dir.clone() });
+                    }
+                }
+                fs::create_dir_all(&self.dir).map_err(io(&self.dir))?;
+                write_atomic(&state, &to_json(options, &state)?)?;
+                Ok(false)
+            }
+        }
+    }
+
+    /// Marks the bake complete: writes the manifest last and drops the bake state.
+    pub fn finish_bake(&self, manifest: &Manifest) -> Result<(), StoreError> {
+        let path = self.manifest_path();
+        write_atomic(&path, &to_json(manifest, &path)?)?;
+        let state = self.dir.join(STATE_FILE);
+        match fs::remove_file(&state) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(io(&state)(e)),
+            _ => Ok(()),
+        }
+    }
+
+    pub fn write_blob(&self, key: TileKey, level: u8, bytes: &[u8]) -> Result<(), StoreError> {
+        write_atomic(&self.blob_path(key, level), bytes)
+    }
+
+    /// The blob's bytes; `Ok(None)` when it does not exist.
+    pub fn read_blob(&self, key: TileKey, level: u8) -> Result<Option<Vec<u8>>, StoreError> {
+        let path = self.blob_path(key, level);
+        match fs::read(&path) {
+            Ok(b) => Ok(Some(b)),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(e) => Err(io(&path)(e)),
+        }
+    }
+
+    pub fn write_chunk(&self, chunk: &IndexChunk) -> Result<(), StoreError> {
+        let path = self.chunk_path(chunk.root);
+        write_atomic(&path, &to_json(chunk, &path)?)
+    }
+
+    pub fn chunk(&self, root: TileKey) -> Result<IndexChunk, StoreError> {
+        read_json(&self.chunk_path(root))
+    }
+
+    pub fn manifest(&self) -> Result<Manifest, StoreError> {
+        let path = self.manifest_path();
+        let m: Manifest = read_json(&path)?;
+        if m.format != MANIFEST_FORMAT || m.version != MANIFEST_VERSION {
+            return Err(StoreError::Invalid {
+                path,
+                message: format!(
+                    "not a {MANIFEST_FORMAT} v{MANIFEST_VERSION} manifest (format {:?}, version {})",
+                    m.format, m.version
+                ),
+            });
+        }
+        Ok(m)
+    }
+
+    /// The index entry of one node.
+    pub fn node(&self, key: TileKey) -> Result<Option<NodeEntry>, StoreError> {
+        let chunk = self.chunk(chunk_root(key))?;
+        Ok(chunk.nodes.into_iter().find(|n| n.key == key))
+    }
+}
+
+fn to_json<T: Serialize>(v: &T, path: &Path) -> Result<Vec<u8>, StoreError> {
+    let mut out =
+        serde_json::to_vec_pretty(v).map_err(|source| StoreError::Json { path: path.to_owned(), source })?;
+    out.push(b'\n');
+    Ok(out)
+}
+
+fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, StoreError> {
+    let bytes = fs::read(path).map_err(io(path))?;
+    serde_json::from_slice(&bytes).map_err(|source| StoreError::Json { path: path.to_owned(), source })
+}
+
+/// The top-level keys whose values differ, for a readable error.
+fn diff_keys(a: &serde_json::Value, b: &serde_json::Value) -> String {
+    match (a.as_object(), b.as_object()) {
+        (Some(a), Some(b)) => {
+            let mut keys: Vec<&String> = a.keys().chain(b.keys()).collect();
+            keys.sort();
+            keys.dedup();
+            let diff: Vec<String> = keys
+                .into_iter()
+                .filter(|k| a.get(*k) != b.get(*k))
+                .map(|k| {
+                    let show = |v: Option<&serde_json::Value>| v.map_or("none".into(), ToString::to_string);
+                    format!("{k}: {} → {}", show(a.get(k)), show(b.get(k)))
+                })
+                .collect();
+            diff.join(", ")
+        }
+        _ => "options".into(),
+    }
+}
+
+/// Writes `bytes` to `path` via a temporary file in the same directory, synced, then renamed.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), StoreError> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    fs::create_dir_all(dir).map_err(io(dir))?;
+    let mut tmp = tempfile_in(dir, path)?;
+    let result = (|| {
+        tmp.1.write_all(bytes)?;
+        tmp.1.sync_data()
+    })();
+    if let Err(e) = result {
+        let _ = fs::remove_file(&tmp.0);
+        return Err(io(path)(e));
+    }
+    drop(tmp.1);
+    fs::rename(&tmp.0, path).map_err(|e| {
+        let _ = fs::remove_file(&tmp.0);
+        io(path)(e)
+    })
+}
+
+fn tempfile_in(dir: &Path, path: &Path) -> Result<(PathBuf, fs::File), StoreError> {
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("file");
+    for attempt in 0..100u32 {
+        let tmp = dir.join(format!(".{name}.{}.{attempt}.tmp", std::process::id()));
+        match fs::OpenOptions::new().write(true).create_new(true).open(&tmp) {
+            Ok(f) => return Ok((tmp, f)),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}
+            Err(e) => return Err(io(&tmp)(e)),
+        }
+    }
+    Err(StoreError::Invalid { path: path.to_owned(), message: "could not create a temporary file".into() })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chunk_roots() {
+        assert_eq!(chunk_root(TileKey::new(0, 0, 0)), TileKey::new(0, 0, 0));
+        assert_eq!(chunk_root(TileKey::new(3, 7, 5)), TileKey::new(0, 0, 0));
+        assert_eq!(chunk_root(TileKey::new(4, 9, 3)), TileKey::new(4, 9, 3));
+        assert_eq!(chunk_root(TileKey::new(6, 9, 3)), TileKey::new(4, 2, 0));
+    }
+
+    #[test]
+    fn atomic_write_replaces_and_leaves_no_temp() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a/b/c.bin");
+        write_atomic(&p, b"one").unwrap();
+        write_atomic(&p, b"two").unwrap();
+        assert_eq!(fs::read(&p).unwrap(), b"two");
+        let names: Vec<_> =
+            fs::read_dir(p.parent().unwrap()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names.len(), 1);
+    }
+
+    #[test]
+    fn begin_bake_refuses_foreign_dirs_and_changed_options() {
+        let dir = tempfile::tempdir().unwrap();
+        fs::write(dir.path().join("notes.txt"), "mine").unwrap();
+        let s = Store::new(dir.path());
+        assert!(matches!(s.begin_bake(&serde_json::json!({})), Err(StoreError::NotATileset { .. })));
+
+        let out = dir.path().join("ts");
+        let s = Store::new(&out);
+        let a = serde_json::json!({"max_error": 1.0, "levels": 4});
+        assert!(!s.begin_bake(&a).unwrap());
+        assert!(s.begin_bake(&a).unwrap());
+        let b = serde_json::json!({"max_error": 2.0, "levels": 4});
+        let err = s.begin_bake(&b).unwrap_err().to_string();
+        assert!(err.contains("max_error: 1.0 → 2.0"), "{err}");
+    }
 }

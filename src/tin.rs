@@ -1,7 +1,578 @@
-//! Greedy error-driven TIN (work in progress).
+//! Greedy error-driven triangulation of one node's height samples (Garland–Heckbert insertion
+//! on a Delaunay triangulation from `spade`), crack-free borders, and the measured vertical error
+//! of a mesh against the full-resolution raster. Pure: values in, values out.
+//!
+//! Borders: the vertices on each node edge are chosen from that edge's samples alone, by a 1-D
+//! greedy simplification of the edge profile with the same error bound. Both neighbours of an
+//! edge see the same samples, so they choose the same vertices and the shared edge is the same
+//! polyline on both sides: no cracks, by construction. Interior insertion never adds a border
+//! sample (the border polyline already meets the bound there), so the hull stays as chosen.
+
+use spade::handles::{FixedFaceHandle, FixedVertexHandle, InnerTag};
+use spade::{DelaunayTriangulation, HasPosition, InsertionError, Point2, Triangulation};
+
+use crate::geom::Errors;
+use crate::tiling::{NodeGrid, Span};
 
 #[derive(Debug, thiserror::Error)]
 pub enum TinError {
-    #[error("tin: {0}")]
-    Invalid(String),
+    #[error("tin: {heights} heights given for a {cols}×{rows} sample grid")]
+    SizeMismatch { heights: usize, cols: usize, rows: usize },
+    #[error("tin: need at least 2×2 samples, got {cols}×{rows}")]
+    TooSmall { cols: usize, rows: usize },
+    #[error("tin: max error must be finite and ≥ 0, got {0}")]
+    BadMaxError(f64),
+    #[error("tin: non-finite height at sample ({col}, {row})")]
+    NonFinite { col: u32, row: u32 },
+    #[error("tin: triangulation failed: {0:?}")]
+    Insertion(InsertionError),
+    #[error("tin: the mesh leaves {missing} of {total} raster samples uncovered")]
+    Uncovered { missing: u64, total: u64 },
+}
+
+/// A TIN over a node grid: vertices are (column, row) indices into the `NodeGrid` (so every
+/// vertex is an actual raster sample), triangles are counter-clockwise in (col, row) space.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Tin {
+    pub vertices: Vec<[u32; 2]>,
+    pub triangles: Vec<[u32; 3]>,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Vertex {
+    pos: Point2<f64>,
+    i: u32,
+    j: u32,
+}
+
+impl HasPosition for Vertex {
+    type Scalar = f64;
+    fn position(&self) -> Point2<f64> {
+        self.pos
+    }
+}
+
+/// The worst sample of a face: (error, row, col). Larger error first; ties go to the lowest
+/// (row, col) so the build is deterministic.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Candidate {
+    err: f64,
+    i: u32,
+    j: u32,
+    /// A vertex of the face, where spade's point location starts.
+    hint: u32,
+}
+
+impl Candidate {
+    fn beats(&self, o: &Self) -> bool {
+        self.err.total_cmp(&o.err).then(o.j.cmp(&self.j)).then(o.i.cmp(&self.i)).is_gt()
+    }
+}
+
+/// A max-heap of face indices keyed by each face's candidate, with O(log n) update and removal
+/// of any face: an insertion changes exactly the faces of the new vertex's star, and those are
+/// re-keyed in place, so the heap never holds stale entries.
+#[derive(Debug, Default)]
+struct FaceHeap {
+    heap: Vec<u32>,
+    pos: Vec<u32>,
+    key: Vec<Candidate>,
+}
+
+impl FaceHeap {
+    const NONE: u32 = u32::MAX;
+
+    fn set(&mut self, face: usize, cand: Option<Candidate>) {
+        if face >= self.pos.len() {
+            self.pos.resize(face + 1, Self::NONE);
+            self.key.resize(face + 1, Candidate { err: 0.0, i: 0, j: 0, hint: 0 });
+        }
+        let p = self.pos[face];
+        match (cand, p) {
+            (Some(c), Self::NONE) => {
+                self.key[face] = c;
+                self.heap.push(face as u32);
+                self.pos[face] = (self.heap.len() - 1) as u32;
+                self.up(self.heap.len() - 1);
+            }
+            (Some(c), p) => {
+                self.key[face] = c;
+                let p = self.up(p as usize);
+                self.down(p);
+            }
+            (None, Self::NONE) => {}
+            (None, p) => self.remove_at(p as usize),
+        }
+    }
+
+    fn peek(&self) -> Option<(usize, Candidate)> {
+        self.heap.first().map(|&f| (f as usize, self.key[f as usize]))
+    }
+
+    fn remove_at(&mut self, p: usize) {
+        let last = self.heap.len() - 1;
+        self.swap(p, last);
+        if let Some(f) = self.heap.pop() {
+            self.pos[f as usize] = Self::NONE;
+        }
+        if p < self.heap.len() {
+            let p = self.up(p);
+            self.down(p);
+        }
+    }
+
+    fn better(&self, a: usize, b: usize) -> bool {
+        self.key[self.heap[a] as usize].beats(&self.key[self.heap[b] as usize])
+    }
+
+    fn swap(&mut self, a: usize, b: usize) {
+        self.heap.swap(a, b);
+        self.pos[self.heap[a] as usize] = a as u32;
+        self.pos[self.heap[b] as usize] = b as u32;
+    }
+
+    fn up(&mut self, mut p: usize) -> usize {
+        while p > 0 {
+            let parent = (p - 1) / 2;
+            if !self.better(p, parent) {
+                break;
+            }
+            self.swap(p, parent);
+            p = parent;
+        }
+        p
+    }
+
+    fn down(&mut self, mut p: usize) {
+        loop {
+            let (l, r) = (2 * p + 1, 2 * p + 2);
+            let mut best = p;
+            if l < self.heap.len() && self.better(l, best) {
+                best = l;
+            }
+            if r < self.heap.len() && self.better(r, best) {
+                best = r;
+            }
+            if best == p {
+                return;
+            }
+            self.swap(p, best);
+            p = best;
+        }
+    }
+}
+
+/// Builds the TIN of `heights` (row-major over `grid.rows × grid.cols`) so that every sample is
+/// within `max_error` (vertical, in height units) of the mesh.
+pub fn build(grid: &NodeGrid, heights: &[f32], max_error: f64) -> Result<Tin, TinError> {
+    let (nc, nr) = (grid.cols.len(), grid.rows.len());
+    if nc < 2 || nr < 2 {
+        return Err(TinError::TooSmall { cols: nc, rows: nr });
+    }
+    if heights.len() != nc * nr {
+        return Err(TinError::SizeMismatch { heights: heights.len(), cols: nc, rows: nr });
+    }
+    if !max_error.is_finite() || max_error < 0.0 {
+        return Err(TinError::BadMaxError(max_error));
+    }
+    if let Some(k) = heights.iter().position(|h| !h.is_finite()) {
+        return Err(TinError::NonFinite { col: grid.cols[k % nc], row: grid.rows[k / nc] });
+    }
+    let (ax, ay) = (Axis::of(&grid.cols), Axis::of(&grid.rows));
+    let xs: Vec<f64> = grid.cols.iter().map(|&c| f64::from(c)).collect();
+    let ys: Vec<f64> = grid.rows.iter().map(|&r| f64::from(r)).collect();
+    let h = |i: usize, j: usize| f64::from(heights[j * nc + i]);
+
+    let mut tri: DelaunayTriangulation<Vertex> = DelaunayTriangulation::new();
+    let insert = |tri: &mut DelaunayTriangulation<Vertex>, i: usize, j: usize| {
+        tri.insert(Vertex { pos: Point2::new(xs[i], ys[j]), i: i as u32, j: j as u32 })
+            .map_err(TinError::Insertion)
+    };
+    // Borders: bottom and top rows, left and right columns; corners appear twice, and spade
+    // keeps the first insertion of a position.
+    let row_profile = |j: usize| (0..nc).map(|i| (xs[i], h(i, j))).collect::<Vec<_>>();
+    let col_profile = |i: usize| (0..nr).map(|j| (ys[j], h(i, j))).collect::<Vec<_>>();
+    for j in [0, nr - 1] {
+        for i in simplify_profile(&row_profile(j), max_error) {
+            insert(&mut tri, i, j)?;
+        }
+    }
+    for i in [0, nc - 1] {
+        for j in simplify_profile(&col_profile(i), max_error) {
+            insert(&mut tri, i, j)?;
+        }
+    }
+
+    let scan_face = |tri: &DelaunayTriangulation<Vertex>, face: FixedFaceHandle<InnerTag>| {
+        let f = tri.face(face);
+        let vs = f.vertices();
+        let p = vs.map(|v| {
+            let d = v.data();
+            [xs[d.i as usize], ys[d.j as usize], h(d.i as usize, d.j as usize)]
+        });
+        let mut best: Option<(f64, u32, u32)> = None;
+        scan_triangle(p, &ax, &ay, |i, j, z| {
+            if i == 0 || j == 0 || i == nc - 1 || j == nr - 1 {
+                return;
+            }
+            let e = (h(i, j) - z).abs();
+            if e > max_error && best.is_none_or(|(b, _, _)| e > b) {
+                best = Some((e, i as u32, j as u32));
+            }
+        });
+        let hint = vs[0].fix().index() as u32;
+        best.map(|(err, i, j)| Candidate { err, i, j, hint })
+    };
+
+    let mut heap = FaceHeap::default();
+    for face in tri.fixed_inner_faces() {
+        heap.set(face.index(), scan_face(&tri, face));
+    }
+    let mut star = Vec::new();
+    while let Some((_, c)) = heap.peek() {
+        let hint = FixedVertexHandle::from_index(c.hint as usize);
+        let v = tri
+            .insert_with_hint(
+                Vertex { pos: Point2::new(xs[c.i as usize], ys[c.j as usize]), i: c.i, j: c.j },
+                hint,
+            )
+            .map_err(TinError::Insertion)?;
+        // Every face an insertion creates (by splitting or by the flips that follow) is incident
+        // to the new vertex, so its star is all that needs a new scan.
+        star.clear();
+        star.extend(tri.vertex(v).out_edges().filter_map(|e| e.face().as_inner()).map(|f| f.fix()));
+        for &f in &star {
+            heap.set(f.index(), scan_face(&tri, f));
+        }
+        // The popped face is always in the star (the new vertex lies in it), so it was re-keyed.
+    }
+
+    let vertices = tri.vertices().map(|v| [v.data().i, v.data().j]).collect();
+    let triangles = tri.inner_faces().map(|f| f.vertices().map(|v| v.fix().index() as u32)).collect();
+    Ok(Tin { vertices, triangles })
+}
+
+/// Indices of the samples kept by greedy simplification of a 1-D profile `(t, h)` so that linear
+/// interpolation between kept samples is within `max_error` of every sample. Endpoints are kept.
+#[must_use]
+pub fn simplify_profile(profile: &[(f64, f64)], max_error: f64) -> Vec<usize> {
+    let n = profile.len();
+    if n <= 2 {
+        return (0..n).collect();
+    }
+    let mut keep = vec![false; n];
+    keep[0] = true;
+    keep[n - 1] = true;
+    // Splitting a segment only depends on that segment, so a stack gives the same result as a
+    // global priority order would.
+    let mut stack = vec![(0, n - 1)];
+    while let Some((a, b)) = stack.pop() {
+        let (ta, ha) = profile[a];
+        let (tb, hb) = profile[b];
+        let mut worst: Option<(f64, usize)> = None;
+        for (k, &(t, hk)) in profile.iter().enumerate().take(b).skip(a + 1) {
+            let z = ha + (hb - ha) * (t - ta) / (tb - ta);
+            let e = (hk - z).abs();
+            if e > max_error && worst.is_none_or(|(w, _)| e > w) {
+                worst = Some((e, k));
+            }
+        }
+        if let Some((_, k)) = worst {
+            keep[k] = true;
+            stack.push((a, k));
+            stack.push((k, b));
+        }
+    }
+    (0..n).filter(|&k| keep[k]).collect()
+}
+
+/// A sorted axis of sample positions: regular steps from `start`, except that the last position
+/// may be closer to the one before (a node clipped at the raster edge). Index look-ups are O(1).
+#[derive(Debug, Clone, Copy)]
+pub struct Axis {
+    start: f64,
+    step: f64,
+    n: usize,
+    last: f64,
+}
+
+impl Axis {
+    /// The axis of `positions`, which must be `start + k·step` for all but the last entry.
+    #[must_use]
+    pub fn of(positions: &[u32]) -> Self {
+        let n = positions.len();
+        let start = positions.first().map_or(0.0, |&p| f64::from(p));
+        let step = if n >= 2 { f64::from(positions[1]) - start } else { 1.0 };
+        let last = positions.last().map_or(0.0, |&p| f64::from(p));
+        Self { start, step, n, last }
+    }
+
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    #[must_use]
+    pub fn at(&self, i: usize) -> f64 {
+        if i + 1 == self.n { self.last } else { self.start + i as f64 * self.step }
+    }
+
+    /// Index of the first position ≥ `v` (`len()` if none).
+    fn first_ge(&self, v: f64) -> usize {
+        if self.n == 0 || v <= self.start {
+            return 0;
+        }
+        let k = ((v - self.start) / self.step).ceil();
+        if k < (self.n - 1) as f64 {
+            k as usize
+        } else if v <= self.last {
+            self.n - 1
+        } else {
+            self.n
+        }
+    }
+
+    /// Number of positions ≤ `v`.
+    fn count_le(&self, v: f64) -> usize {
+        if self.n == 0 || v < self.start {
+            return 0;
+        }
+        if v >= self.last {
+            return self.n;
+        }
+        let k = ((v - self.start) / self.step).floor() as usize + 1;
+        k.min(self.n - 1)
+    }
+}
+
+/// Calls `f(i, j, z)` for every grid sample `(xs.at(i), ys.at(j))` inside or on triangle `p`
+/// (x, y, z), with `z` the triangle's plane at that sample.
+pub fn scan_triangle(p: [[f64; 3]; 3], xs: &Axis, ys: &Axis, mut f: impl FnMut(usize, usize, f64)) {
+    const EPS: f64 = 1e-9;
+    let [a, b, c] = p;
+    let det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+    if det == 0.0 || !det.is_finite() {
+        return;
+    }
+    // z = a.z + gx·(x − a.x) + gy·(y − a.y)
+    let gx = ((b[2] - a[2]) * (c[1] - a[1]) - (c[2] - a[2]) * (b[1] - a[1])) / det;
+    let gy = ((c[2] - a[2]) * (b[0] - a[0]) - (b[2] - a[2]) * (c[0] - a[0])) / det;
+    let j0 = ys.first_ge(a[1].min(b[1]).min(c[1]) - EPS);
+    let j1 = ys.count_le(a[1].max(b[1]).max(c[1]) + EPS);
+    let edges = [(a, b), (b, c), (c, a)].map(|(u, v)| if u[1] <= v[1] { (u, v) } else { (v, u) });
+    for j in j0..j1 {
+        let y = ys.at(j);
+        let mut xl = f64::INFINITY;
+        let mut xr = f64::NEG_INFINITY;
+        for (lo, hi) in edges {
+            if y < lo[1] - EPS || y > hi[1] + EPS {
+                continue;
+            }
+            if hi[1] - lo[1] <= EPS {
+                xl = xl.min(lo[0].min(hi[0]));
+                xr = xr.max(lo[0].max(hi[0]));
+            } else {
+                let t = ((y - lo[1]) / (hi[1] - lo[1])).clamp(0.0, 1.0);
+                let x = lo[0] + t * (hi[0] - lo[0]);
+                xl = xl.min(x);
+                xr = xr.max(x);
+            }
+        }
+        if xl > xr {
+            continue;
+        }
+        let zrow = a[2] + gy * (y - a[1]);
+        for i in xs.first_ge(xl - EPS)..xs.count_le(xr + EPS) {
+            f(i, j, zrow + gx * (xs.at(i) - a[0]));
+        }
+    }
+}
+
+/// Vertical error of a mesh against every full-resolution sample of `span`.
+///
+/// `positions` are (col, row, height) in full-resolution sample coordinates; `heights` holds the
+/// span's samples row-major. Every sample is counted once (shared edges are not counted twice),
+/// and a sample no triangle covers is an error: a node's mesh must cover its whole span.
+pub fn measure_vertical(
+    positions: &[[f64; 3]],
+    triangles: &[[u32; 3]],
+    span: Span,
+    heights: &[f32],
+) -> Result<Errors, TinError> {
+    let (nc, nr) = (span.cols() as usize, span.rows() as usize);
+    if heights.len() != nc * nr {
+        return Err(TinError::SizeMismatch { heights: heights.len(), cols: nc, rows: nr });
+    }
+    let xs = Axis { start: f64::from(span.col0), step: 1.0, n: nc, last: f64::from(span.col1) };
+    let ys = Axis { start: f64::from(span.row0), step: 1.0, n: nr, last: f64::from(span.row1) };
+    let mut seen = vec![false; nc * nr];
+    let (mut max, mut sum2, mut count) = (0.0f64, 0.0f64, 0u64);
+    for t in triangles {
+        let p = t.map(|k| positions.get(k as usize).copied().unwrap_or([f64::NAN; 3]));
+        scan_triangle(p, &xs, &ys, |i, j, z| {
+            let k = j * nc + i;
+            if !seen[k] {
+                seen[k] = true;
+                let e = (f64::from(heights[k]) - z).abs();
+                max = max.max(e);
+                sum2 += e * e;
+                count += 1;
+            }
+        });
+    }
+    let total = (nc * nr) as u64;
+    if count != total {
+        return Err(TinError::Uncovered { missing: total - count, total });
+    }
+    Ok(Errors { max, rms: (sum2 / total as f64).sqrt(), gap: 0.0 })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tiling::{Pyramid, TileKey};
+
+    /// A deterministic rough terrain: a few sines plus hashed noise.
+    fn terrain(w: u32, h: u32, seed: u64) -> Vec<f32> {
+        let mut out = Vec::with_capacity((w * h) as usize);
+        for r in 0..h {
+            for c in 0..w {
+                let (x, y) = (f64::from(c), f64::from(r));
+                let mut v = 40.0 * (x / 23.0).sin() * (y / 31.0).cos() + 15.0 * ((x + 2.0 * y) / 9.0).sin();
+                let mut s = seed ^ (u64::from(c) << 32 | u64::from(r));
+                s = s.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+                s ^= s >> 29;
+                v += (s % 1000) as f64 / 500.0;
+                out.push(v as f32);
+            }
+        }
+        out
+    }
+
+    fn grid(w: u32, h: u32) -> NodeGrid {
+        NodeGrid { cols: (0..w).collect(), rows: (0..h).collect() }
+    }
+
+    fn positions(g: &NodeGrid, heights: &[f32], tin: &Tin) -> Vec<[f64; 3]> {
+        tin.vertices
+            .iter()
+            .map(|&[i, j]| {
+                let z = heights[j as usize * g.cols.len() + i as usize];
+                [f64::from(g.cols[i as usize]), f64::from(g.rows[j as usize]), f64::from(z)]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn max_error_holds_at_every_sample() {
+        for (w, h, e) in [(65, 65, 0.5), (100, 37, 2.0), (2, 2, 0.0), (33, 2, 0.1), (40, 40, 0.0)] {
+            let hs = terrain(w, h, 7);
+            let g = grid(w, h);
+            let tin = build(&g, &hs, e).unwrap();
+            let span = Span { col0: 0, col1: w - 1, row0: 0, row1: h - 1 };
+            let err = measure_vertical(&positions(&g, &hs, &tin), &tin.triangles, span, &hs).unwrap();
+            assert!(err.max <= e + 1e-9, "{w}×{h} at {e}: measured {}", err.max);
+            assert!(err.rms <= err.max);
+        }
+    }
+
+    #[test]
+    fn flat_terrain_needs_only_corners() {
+        let g = grid(50, 30);
+        let tin = build(&g, &vec![3.0; 50 * 30], 0.01).unwrap();
+        assert_eq!(tin.vertices.len(), 4);
+        assert_eq!(tin.triangles.len(), 2);
+    }
+
+    #[test]
+    fn neighbour_tiles_share_border_vertices() {
+        let (w, h) = (300, 260);
+        let hs = terrain(w, h, 3);
+        let p = Pyramid::new(w, h, 64).unwrap();
+        let tin_of = |key: TileKey| {
+            let g = p.grid(key);
+            let mut vals = Vec::new();
+            for &r in &g.rows {
+                for &c in &g.cols {
+                    vals.push(hs[(r * w + c) as usize]);
+                }
+            }
+            let tin = build(&g, &vals, 1.0).unwrap();
+            let pts: Vec<(u32, u32)> =
+                tin.vertices.iter().map(|&[i, j]| (g.cols[i as usize], g.rows[j as usize])).collect();
+            pts
+        };
+        for z in 0..=p.depth {
+            let (nx, ny) = p.nodes_at(z);
+            for y in 0..ny {
+                for x in 0..nx {
+                    let a = tin_of(TileKey::new(z, x, y));
+                    if x + 1 < nx {
+                        let b = tin_of(TileKey::new(z, x + 1, y));
+                        let edge = p.span(TileKey::new(z, x, y)).col1;
+                        let mut ea: Vec<_> = a.iter().filter(|v| v.0 == edge).collect();
+                        let mut eb: Vec<_> = b.iter().filter(|v| v.0 == edge).collect();
+                        ea.sort();
+                        eb.sort();
+                        assert_eq!(ea, eb, "vertical edge at z={z} x={x} y={y}");
+                    }
+                    if y + 1 < ny {
+                        let b = tin_of(TileKey::new(z, x, y + 1));
+                        let edge = p.span(TileKey::new(z, x, y)).row1;
+                        let mut ea: Vec<_> = a.iter().filter(|v| v.1 == edge).collect();
+                        let mut eb: Vec<_> = b.iter().filter(|v| v.1 == edge).collect();
+                        ea.sort();
+                        eb.sort();
+                        assert_eq!(ea, eb, "horizontal edge at z={z} x={x} y={y}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn deterministic() {
+        let hs = terrain(129, 129, 11);
+        let g = grid(129, 129);
+        assert_eq!(build(&g, &hs, 0.7).unwrap(), build(&g, &hs, 0.7).unwrap());
+    }
+
+    #[test]
+    fn rejects_bad_input() {
+        let g = grid(3, 3);
+        assert!(matches!(build(&g, &[0.0; 8], 1.0), Err(TinError::SizeMismatch { .. })));
+        assert!(matches!(build(&g, &[0.0; 9], -1.0), Err(TinError::BadMaxError(_))));
+        let mut hs = [0.0f32; 9];
+        hs[4] = f32::NAN;
+        assert!(matches!(build(&g, &hs, 1.0), Err(TinError::NonFinite { col: 1, row: 1 })));
+    }
+
+    #[test]
+    fn profile_simplification_bounds_error() {
+        let prof: Vec<(f64, f64)> =
+            (0..200).map(|k| (f64::from(k), (f64::from(k) / 7.0).sin() * 10.0)).collect();
+        let keep = simplify_profile(&prof, 0.25);
+        assert_eq!(keep.first(), Some(&0));
+        assert_eq!(keep.last(), Some(&199));
+        for w in keep.windows(2) {
+            let (a, b) = (prof[w[0]], prof[w[1]]);
+            for &(t, h) in &prof[w[0]..=w[1]] {
+                let z = a.1 + (b.1 - a.1) * (t - a.0) / (b.0 - a.0);
+                assert!((h - z).abs() <= 0.25 + 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn uncovered_samples_are_reported() {
+        let pos = [[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [0.0, 4.0, 0.0]];
+        let span = Span { col0: 0, col1: 4, row0: 0, row1: 4 };
+        let err = measure_vertical(&pos, &[[0, 1, 2]], span, &[0.0; 25]).unwrap_err();
+        assert!(matches!(err, TinError::Uncovered { missing: 10, total: 25 }));
+    }
 }

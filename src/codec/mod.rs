@@ -3,6 +3,8 @@
 use crate::geom::{Bounds, Errors, Mesh, PointCloud};
 use crate::tiling::TileKey;
 
+pub const FORMAT_VERSION: u16 = 1;
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, bincode::Encode, bincode::Decode)]
 pub enum Kind {
     Mesh,

@@ -1,0 +1,426 @@
+//! The bake pipeline: a loaded raster → per node a TIN (level 0) and point levels (1..=K) →
+//! blobs and index chunks in a tileset directory, in parallel over nodes, resumable.
+//!
+//! Per node: read its sample grid through the `WindowReader`, build the TIN with the node's
+//! error bound, convert to world coordinates and quantize exactly as the blob stores it, then
+//! measure everything on the quantized geometry (the errors a client sees are the errors of the
+//! bytes it receives). Point levels are baked from the quantized mesh.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::codec::{self, Quantization};
+use crate::geom::{Bounds, Errors, Mesh, PointCloud};
+use crate::lod;
+use crate::raster::{Georef, LoadedRaster, WindowReader};
+use crate::store::{
+    IndexChunk, LevelSpec, LevelTotals, MANIFEST_FORMAT, MANIFEST_VERSION, Manifest, NodeEntry, NodeLevel,
+    SUBTREE_LEVELS, SourceInfo, Store, chunk_root,
+};
+use crate::tiling::{Pyramid, TileKey};
+use crate::tin;
+
+/// Default TIN error bound for leaf tiles, in metres.
+pub const DEFAULT_MAX_ERROR: f64 = 1.0;
+/// Default number of point levels below the mesh.
+pub const DEFAULT_LEVELS: u8 = 4;
+/// Mesh heights are quantized to this fraction of the node's error bound.
+pub const MESH_Z_STEPS_PER_ERROR: f64 = 64.0;
+/// Point positions are quantized to this fraction of the level's cell edge.
+pub const POINT_STEPS_PER_CELL: u32 = 64;
+/// Most point levels a bake may ask for (cells of 2^16 leaf cells are larger than any raster).
+pub const MAX_LEVELS: u8 = 16;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BakeOptions {
+    pub tile_size: u32,
+    pub max_error: f64,
+    pub levels: u8,
+}
+
+impl Default for BakeOptions {
+    fn default() -> Self {
+        Self {
+            tile_size: crate::tiling::DEFAULT_TILE_SIZE,
+            max_error: DEFAULT_MAX_ERROR,
+            levels: DEFAULT_LEVELS,
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum BakeError {
+    #[error("bake: {0}")]
+    Options(String),
+    #[error("bake: {0}")]
+    Tiling(#[from] crate::tiling::TilingError),
+    #[error("bake: tile {key}: {source}")]
+    Tin { key: TileKey, source: tin::TinError },
+    #[error("bake: tile {key} level {level}: {source}")]
+    Codec { key: TileKey, level: u8, source: codec::CodecError },
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
+}
+
+/// Progress of a bake, reported as nodes complete (from any worker thread).
+pub trait Progress: Sync {
+    fn start(&self, total_nodes: u64, resumed_nodes: u64);
+    fn node_done(&self);
+}
+
+/// A `Progress` that reports nothing.
+pub struct NoProgress;
+impl Progress for NoProgress {
+    fn start(&self, _: u64, _: u64) {}
+    fn node_done(&self) {}
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct BakeSummary {
+    pub nodes: u64,
+    pub nodes_resumed: u64,
+    pub samples: u64,
+    pub nodata_filled: u64,
+    pub totals: Vec<LevelTotals>,
+    pub seconds: f64,
+}
+
+impl BakeSummary {
+    #[must_use]
+    pub fn samples_per_second(&self) -> f64 {
+        self.samples as f64 / self.seconds.max(1e-9)
+    }
+}
+
+/// The world frame of a node sample grid.
+struct Frame<'a> {
+    g: &'a Georef,
+}
+
+impl Frame<'_> {
+    fn world(&self, col: f64, row: f64, z: f64) -> [f64; 3] {
+        [self.g.x0 + col * self.g.dx, self.g.y0 + row * self.g.dy, z]
+    }
+    fn cell(&self) -> f64 {
+        self.g.dx.abs().max(self.g.dy.abs())
+    }
+}
+
+/// Validates options before anything is written.
+pub fn check_options(opts: &BakeOptions) -> Result<(), BakeError> {
+    if !opts.max_error.is_finite() || opts.max_error < 0.0 {
+        return Err(BakeError::Options(format!(
+            "--max-error must be a finite number ≥ 0, got {}",
+            opts.max_error
+        )));
+    }
+    if opts.levels > MAX_LEVELS {
+        return Err(BakeError::Options(format!(
+            "--levels must be at most {MAX_LEVELS}, got {}",
+            opts.levels
+        )));
+    }
+    if opts.tile_size < 2 || opts.tile_size > 65_536 {
+        return Err(BakeError::Options(format!(
+            "--tile-size must be 2 to 65536 cells, got {}",
+            opts.tile_size
+        )));
+    }
+    Ok(())
+}
+
+/// The level table of a bake.
+#[must_use]
+pub fn level_specs(opts: &BakeOptions) -> Vec<LevelSpec> {
+    let mut out = vec![LevelSpec {
+        level: 0,
+        kind: "mesh".into(),
+        max_error: Some(opts.max_error),
+        cell_leaf_cells: None,
+        texture_size: None,
+        precision_per_cell: None,
+    }];
+    for l in 1..=opts.levels {
+        let cells = 1u32 << l;
+        out.push(LevelSpec {
+            level: l,
+            kind: "points".into(),
+            max_error: None,
+            cell_leaf_cells: Some(cells),
+            texture_size: Some(opts.tile_size.div_ceil(cells)),
+            precision_per_cell: Some(POINT_STEPS_PER_CELL),
+        });
+    }
+    out
+}
+
+/// Bakes `raster` into `store`. Resumes a bake with the same options, keeping complete nodes.
+pub fn bake(
+    raster: &LoadedRaster,
+    source_name: &str,
+    opts: &BakeOptions,
+    store: &Store,
+    progress: &dyn Progress,
+) -> Result<BakeSummary, BakeError> {
+    check_options(opts)?;
+    let t0 = Instant::now();
+    let hf = &raster.heights;
+    let pyramid = Pyramid::new(hf.width, hf.height, opts.tile_size)?;
+    let options_json = serde_json::json!({
+        "tile_size": opts.tile_size,
+        "max_error": opts.max_error,
+        "levels": opts.levels,
+        "frame": raster.georef,
+        "source": { "file": source_name, "width": hf.width, "height": hf.height, "crc32": heights_crc(&hf.data) },
+        "format_version": codec::FORMAT_VERSION,
+    });
+    store.begin_bake(&options_json)?;
+
+    // Larger nodes first: parents measure against more full-resolution samples, so starting them
+    // early keeps both cores busy until the end.
+    let nodes = pyramid.nodes();
+    let resumed: Vec<Option<NodeEntry>> =
+        nodes.par_iter().map(|&k| existing_node(store, k, opts.levels)).collect();
+    let resumed_count = resumed.iter().filter(|r| r.is_some()).count() as u64;
+    progress.start(nodes.len() as u64, resumed_count);
+    let failures = AtomicU64::new(0);
+    let entries: Vec<NodeEntry> = nodes
+        .par_iter()
+        .zip(resumed.into_par_iter())
+        .map(|(&key, prev)| {
+            if let Some(entry) = prev {
+                return Ok(entry);
+            }
+            if failures.load(Ordering::Relaxed) > 0 {
+                return Err(None);
+            }
+            let r = bake_node(&pyramid, hf, &raster.georef, key, opts, store);
+            progress.node_done();
+            r.map_err(|e| {
+                failures.fetch_add(1, Ordering::Relaxed);
+                Some(e)
+            })
+        })
+        .collect::<Result<_, Option<BakeError>>>()
+        .map_err(|e| {
+            e.unwrap_or_else(|| BakeError::Options("bake stopped after an earlier failure".into()))
+        })?;
+
+    // Index chunks, then the manifest last.
+    let mut chunks: std::collections::BTreeMap<TileKey, Vec<NodeEntry>> = std::collections::BTreeMap::new();
+    let mut totals = vec![LevelTotals::default(); usize::from(opts.levels) + 1];
+    let mut bounds = Bounds::empty();
+    let mut hasher = crc32fast::Hasher::new();
+    for e in &entries {
+        for (t, l) in totals.iter_mut().zip(&e.levels) {
+            t.add(l);
+            // Every blob's checksum, in node order, names this exact content.
+            hasher.update(&l.checksum.to_le_bytes());
+        }
+        bounds.extend(e.bounds.min);
+        bounds.extend(e.bounds.max);
+        chunks.entry(chunk_root(e.key)).or_default().push(e.clone());
+    }
+    for (root, nodes) in chunks {
+        store.write_chunk(&IndexChunk { root, nodes })?;
+    }
+    let manifest = Manifest {
+        format: MANIFEST_FORMAT.into(),
+        version: MANIFEST_VERSION,
+        content_version: format!("{:08x}", hasher.finalize()),
+        source: SourceInfo {
+            file: source_name.into(),
+            format: raster.format.clone(),
+            width: hf.width,
+            height: hf.height,
+            nodata_filled: raster.nodata_filled,
+        },
+        frame: raster.georef,
+        tile_size: opts.tile_size,
+        depth: pyramid.depth,
+        subtree_levels: SUBTREE_LEVELS,
+        bounds,
+        levels: level_specs(opts),
+        totals: totals.clone(),
+        options: options_json,
+    };
+    store.finish_bake(&manifest)?;
+    Ok(BakeSummary {
+        nodes: nodes.len() as u64,
+        nodes_resumed: resumed_count,
+        samples: u64::from(hf.width) * u64::from(hf.height),
+        nodata_filled: raster.nodata_filled,
+        totals,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+fn heights_crc(data: &[f32]) -> String {
+    let mut h = crc32fast::Hasher::new();
+    for chunk in data.chunks(4096) {
+        let bytes: Vec<u8> = chunk.iter().flat_map(|v| v.to_le_bytes()).collect();
+        h.update(&bytes);
+    }
+    format!("{:08x}", h.finalize())
+}
+
+/// A node whose every level blob is present and decodes as that node and level is complete:
+/// its index entry is rebuilt from the blob headers.
+fn existing_node(store: &Store, key: TileKey, levels: u8) -> Option<NodeEntry> {
+    let mut out = Vec::new();
+    let mut bounds = None;
+    for level in 0..=levels {
+        let bytes = store.read_blob(key, level).ok()??;
+        let h = codec::decode_header(&bytes).ok()?;
+        if h.key != key || h.level != level {
+            return None;
+        }
+        bounds.get_or_insert(Bounds { min: h.bounds[0], max: h.bounds[1] });
+        out.push(NodeLevel {
+            errors: h.errors,
+            count: h.vertex_count,
+            triangles: h.triangle_count,
+            bytes: bytes.len() as u64,
+            checksum: h.checksum,
+        });
+    }
+    Some(NodeEntry { key, bounds: bounds?, levels: out })
+}
+
+/// Everything one node's bake produces, before it is written.
+pub struct NodeBake {
+    pub key: TileKey,
+    pub bounds: Bounds,
+    pub mesh: Mesh,
+    pub mesh_errors: Errors,
+    pub points: Vec<(PointCloud, Errors)>,
+}
+
+/// Bakes one node in memory: TIN, quantization, measured errors, point levels. Pure apart from
+/// reading the raster window.
+pub fn bake_node_geometry(
+    pyramid: &Pyramid,
+    reader: &dyn WindowReader,
+    georef: &Georef,
+    key: TileKey,
+    opts: &BakeOptions,
+) -> Result<(NodeBake, Vec<Quantization>), BakeError> {
+    let frame = Frame { g: georef };
+    let step = pyramid.step(key.z);
+    let grid = pyramid.grid(key);
+    let mut heights = Vec::new();
+    reader.read_window(&grid.cols, &grid.rows, &mut heights);
+    let node_error = opts.max_error * f64::from(step);
+    let t = tin::build(&grid, &heights, node_error).map_err(|source| BakeError::Tin { key, source })?;
+
+    // World mesh, counter-clockwise seen from +z whatever the signs of dx and dy.
+    let nc = grid.cols.len();
+    let mut mesh = Mesh {
+        positions: t
+            .vertices
+            .iter()
+            .map(|&[i, j]| {
+                let z = f64::from(heights[j as usize * nc + i as usize]);
+                frame.world(f64::from(grid.cols[i as usize]), f64::from(grid.rows[j as usize]), z)
+            })
+            .collect(),
+        triangles: t.triangles,
+    };
+    if georef.dx * georef.dy < 0.0 {
+        for tri in &mut mesh.triangles {
+            tri.swap(1, 2);
+        }
+    }
+    let span = pyramid.span(key);
+    let mut bounds = Bounds::of_points(&mesh.positions);
+    for (c, r) in [(span.col0, span.row0), (span.col1, span.row1)] {
+        let p = frame.world(f64::from(c), f64::from(r), bounds.min[2]);
+        bounds.extend(p);
+    }
+    let mesh_q = Quantization {
+        xy_step: frame.cell(),
+        z_step: (node_error / MESH_Z_STEPS_PER_ERROR)
+            .max(f64::from(f32::EPSILON) * bounds.max[2].abs().max(1.0)),
+    };
+    mesh.positions = codec::quantize_positions(&mesh.positions, &bounds, mesh_q);
+
+    // Measured against every full-resolution sample the node covers, in sample coordinates.
+    let cols: Vec<u32> = (span.col0..=span.col1).collect();
+    let rows: Vec<u32> = (span.row0..=span.row1).collect();
+    let mut full = Vec::new();
+    reader.read_window(&cols, &rows, &mut full);
+    let sample_space: Vec<[f64; 3]> = mesh
+        .positions
+        .iter()
+        .map(|p| [(p[0] - georef.x0) / georef.dx, (p[1] - georef.y0) / georef.dy, p[2]])
+        .map(|p| [p[0].round(), p[1].round(), p[2]])
+        .collect();
+    let mesh_errors = tin::measure_vertical(&sample_space, &mesh.triangles, span, &full)
+        .map_err(|source| BakeError::Tin { key, source })?;
+    drop(full);
+
+    let mut quants = vec![mesh_q];
+    let mut points = Vec::new();
+    for level in 1..=opts.levels {
+        let cell = frame.cell() * f64::from(step) * f64::from(1u32 << level);
+        let origin = [bounds.min[0], bounds.min[1], (bounds.min[2] / cell).floor() * cell];
+        let mut pc = lod::cpu::bake_points(&mesh, origin, cell);
+        let q = Quantization {
+            xy_step: cell / f64::from(POINT_STEPS_PER_CELL),
+            z_step: cell / f64::from(POINT_STEPS_PER_CELL),
+        };
+        pc.positions = codec::quantize_positions(&pc.positions, &bounds, q);
+        let errors = lod::cpu::measure_points(&mesh, &pc, cell);
+        quants.push(q);
+        points.push((pc, errors));
+    }
+    Ok((NodeBake { key, bounds, mesh, mesh_errors, points }, quants))
+}
+
+fn bake_node(
+    pyramid: &Pyramid,
+    reader: &dyn WindowReader,
+    georef: &Georef,
+    key: TileKey,
+    opts: &BakeOptions,
+    store: &Store,
+) -> Result<NodeEntry, BakeError> {
+    let (nb, quants) = bake_node_geometry(pyramid, reader, georef, key, opts)?;
+    let codec_err = |level: u8| move |source| BakeError::Codec { key, level, source };
+    let mut levels = Vec::with_capacity(nb.points.len() + 1);
+    let mesh_blob =
+        codec::encode_mesh(key, 0, &nb.bounds, quants[0], &nb.mesh, nb.mesh_errors).map_err(codec_err(0))?;
+    let mut blobs = vec![mesh_blob];
+    levels.push(NodeLevel {
+        errors: nb.mesh_errors,
+        count: nb.mesh.positions.len() as u32,
+        triangles: nb.mesh.triangles.len() as u32,
+        bytes: 0,
+        checksum: 0,
+    });
+    for (k, (pc, errors)) in nb.points.iter().enumerate() {
+        let level = k as u8 + 1;
+        blobs.push(
+            codec::encode_points(key, level, &nb.bounds, quants[k + 1], pc, *errors)
+                .map_err(codec_err(level))?,
+        );
+        levels.push(NodeLevel {
+            errors: *errors,
+            count: pc.positions.len() as u32,
+            triangles: 0,
+            bytes: 0,
+            checksum: 0,
+        });
+    }
+    // Mesh last: a node counts as complete on resume only when all its levels exist, and the
+    // order makes an interrupted node's missing blob the cheap one to notice.
+    for (level, bytes) in blobs.iter().enumerate().rev() {
+        store.write_blob(key, level as u8, bytes)?;
+        levels[level].bytes = bytes.len() as u64;
+        levels[level].checksum = codec::decode_header(bytes).map_err(codec_err(level as u8))?.checksum;
+    }
+    Ok(NodeEntry { key, bounds: nb.bounds, levels })
+}
