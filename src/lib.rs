@@ -12,6 +12,7 @@ pub mod geom;
 pub mod lod;
 pub mod raster;
 pub mod store;
+pub mod synth;
 pub mod tiling;
 pub mod tin;
 

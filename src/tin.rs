@@ -52,31 +52,37 @@ impl HasPosition for Vertex {
     }
 }
 
-/// The worst sample of a face: (error, row, col). Larger error first; ties go to the lowest
-/// (row, col) so the build is deterministic.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// The worst sample of a face. `rank` packs (error as f32 bits, !sample index) so one integer
+/// comparison orders by larger error first, ties to the lowest (row, col): the build is
+/// deterministic, and heap entries stay 16 bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct Candidate {
-    err: f64,
-    i: u32,
-    j: u32,
+    rank: u64,
     /// A vertex of the face, where spade's point location starts.
     hint: u32,
 }
 
 impl Candidate {
+    fn new(err: f64, sample: u32, hint: u32) -> Self {
+        // err ≥ 0, and the bits of non-negative floats order like the floats.
+        Self { rank: (u64::from((err as f32).to_bits()) << 32) | u64::from(!sample), hint }
+    }
+    fn sample(self) -> u32 {
+        !(self.rank as u32)
+    }
     fn beats(&self, o: &Self) -> bool {
-        self.err.total_cmp(&o.err).then(o.j.cmp(&self.j)).then(o.i.cmp(&self.i)).is_gt()
+        self.rank > o.rank
     }
 }
 
-/// A max-heap of face indices keyed by each face's candidate, with O(log n) update and removal
-/// of any face: an insertion changes exactly the faces of the new vertex's star, and those are
-/// re-keyed in place, so the heap never holds stale entries.
+/// A max-heap of faces keyed by each face's candidate, with O(log n) update and removal of any
+/// face: an insertion changes exactly the faces of the new vertex's star, and those are re-keyed
+/// in place, so the heap never holds stale entries. Keys live inline in the heap array so that
+/// sifting compares without chasing indices.
 #[derive(Debug, Default)]
 struct FaceHeap {
-    heap: Vec<u32>,
+    heap: Vec<(Candidate, u32)>,
     pos: Vec<u32>,
-    key: Vec<Candidate>,
 }
 
 impl FaceHeap {
@@ -85,18 +91,16 @@ impl FaceHeap {
     fn set(&mut self, face: usize, cand: Option<Candidate>) {
         if face >= self.pos.len() {
             self.pos.resize(face + 1, Self::NONE);
-            self.key.resize(face + 1, Candidate { err: 0.0, i: 0, j: 0, hint: 0 });
         }
         let p = self.pos[face];
         match (cand, p) {
             (Some(c), Self::NONE) => {
-                self.key[face] = c;
-                self.heap.push(face as u32);
+                self.heap.push((c, face as u32));
                 self.pos[face] = (self.heap.len() - 1) as u32;
                 self.up(self.heap.len() - 1);
             }
             (Some(c), p) => {
-                self.key[face] = c;
+                self.heap[p as usize].0 = c;
                 let p = self.up(p as usize);
                 self.down(p);
             }
@@ -105,14 +109,14 @@ impl FaceHeap {
         }
     }
 
-    fn peek(&self) -> Option<(usize, Candidate)> {
-        self.heap.first().map(|&f| (f as usize, self.key[f as usize]))
+    fn peek(&self) -> Option<Candidate> {
+        self.heap.first().map(|e| e.0)
     }
 
     fn remove_at(&mut self, p: usize) {
         let last = self.heap.len() - 1;
         self.swap(p, last);
-        if let Some(f) = self.heap.pop() {
+        if let Some((_, f)) = self.heap.pop() {
             self.pos[f as usize] = Self::NONE;
         }
         if p < self.heap.len() {
@@ -122,13 +126,13 @@ impl FaceHeap {
     }
 
     fn better(&self, a: usize, b: usize) -> bool {
-        self.key[self.heap[a] as usize].beats(&self.key[self.heap[b] as usize])
+        self.heap[a].0.beats(&self.heap[b].0)
     }
 
     fn swap(&mut self, a: usize, b: usize) {
         self.heap.swap(a, b);
-        self.pos[self.heap[a] as usize] = a as u32;
-        self.pos[self.heap[b] as usize] = b as u32;
+        self.pos[self.heap[a].1 as usize] = a as u32;
+        self.pos[self.heap[b].1 as usize] = b as u32;
     }
 
     fn up(&mut self, mut p: usize) -> usize {
@@ -211,17 +215,14 @@ pub fn build(grid: &NodeGrid, heights: &[f32], max_error: f64) -> Result<Tin, Ti
             [xs[d.i as usize], ys[d.j as usize], h(d.i as usize, d.j as usize)]
         });
         let mut best: Option<(f64, u32, u32)> = None;
-        scan_triangle(p, &ax, &ay, |i, j, z| {
-            if i == 0 || j == 0 || i == nc - 1 || j == nr - 1 {
-                return;
-            }
+        scan_triangle(p, &ax, &ay, true, |i, j, z| {
             let e = (h(i, j) - z).abs();
             if e > max_error && best.is_none_or(|(b, _, _)| e > b) {
                 best = Some((e, i as u32, j as u32));
             }
         });
         let hint = vs[0].fix().index() as u32;
-        best.map(|(err, i, j)| Candidate { err, i, j, hint })
+        best.map(|(err, i, j)| Candidate::new(err, j * nc as u32 + i, hint))
     };
 
     let mut heap = FaceHeap::default();
@@ -229,11 +230,12 @@ pub fn build(grid: &NodeGrid, heights: &[f32], max_error: f64) -> Result<Tin, Ti
         heap.set(face.index(), scan_face(&tri, face));
     }
     let mut star = Vec::new();
-    while let Some((_, c)) = heap.peek() {
+    while let Some(c) = heap.peek() {
         let hint = FixedVertexHandle::from_index(c.hint as usize);
+        let (ci, cj) = (c.sample() % nc as u32, c.sample() / nc as u32);
         let v = tri
             .insert_with_hint(
-                Vertex { pos: Point2::new(xs[c.i as usize], ys[c.j as usize]), i: c.i, j: c.j },
+                Vertex { pos: Point2::new(xs[ci as usize], ys[cj as usize]), i: ci, j: cj },
                 hint,
             )
             .map_err(TinError::Insertion)?;
@@ -327,9 +329,12 @@ impl Axis {
         if self.n == 0 || v <= self.start {
             return 0;
         }
-        let k = ((v - self.start) / self.step).ceil();
-        if k < (self.n - 1) as f64 {
-            k as usize
+        // v > start here, so the quotient is positive and truncation is floor (no libm call).
+        let q = (v - self.start) / self.step;
+        let t = q as usize;
+        let k = if (t as f64) < q { t + 1 } else { t };
+        if k < self.n - 1 {
+            k
         } else if v <= self.last {
             self.n - 1
         } else {
@@ -345,14 +350,16 @@ impl Axis {
         if v >= self.last {
             return self.n;
         }
-        let k = ((v - self.start) / self.step).floor() as usize + 1;
+        let k = ((v - self.start) / self.step) as usize + 1;
         k.min(self.n - 1)
     }
 }
 
 /// Calls `f(i, j, z)` for every grid sample `(xs.at(i), ys.at(j))` inside or on triangle `p`
-/// (x, y, z), with `z` the triangle's plane at that sample.
-pub fn scan_triangle(p: [[f64; 3]; 3], xs: &Axis, ys: &Axis, mut f: impl FnMut(usize, usize, f64)) {
+/// (x, y, z), with `z` the triangle's plane at that sample. With `inner`, samples on the first
+/// and last row and column are skipped. Rows are walked with the triangle's exact x-span, so the
+/// cost is the triangle's area plus one span computation per row.
+pub fn scan_triangle(p: [[f64; 3]; 3], xs: &Axis, ys: &Axis, inner: bool, mut f: impl FnMut(usize, usize, f64)) {
     const EPS: f64 = 1e-9;
     let [a, b, c] = p;
     let det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
@@ -362,8 +369,10 @@ pub fn scan_triangle(p: [[f64; 3]; 3], xs: &Axis, ys: &Axis, mut f: impl FnMut(u
     // z = a.z + gx·(x − a.x) + gy·(y − a.y)
     let gx = ((b[2] - a[2]) * (c[1] - a[1]) - (c[2] - a[2]) * (b[1] - a[1])) / det;
     let gy = ((c[2] - a[2]) * (b[0] - a[0]) - (b[2] - a[2]) * (c[0] - a[0])) / det;
-    let j0 = ys.first_ge(a[1].min(b[1]).min(c[1]) - EPS);
-    let j1 = ys.count_le(a[1].max(b[1]).max(c[1]) + EPS);
+    let (lo, hi) = (usize::from(inner), |n: usize| if inner { n.saturating_sub(1) } else { n });
+    let j0 = ys.first_ge(a[1].min(b[1]).min(c[1]) - EPS).max(lo);
+    let j1 = ys.count_le(a[1].max(b[1]).max(c[1]) + EPS).min(hi(ys.len()));
+    let iend = hi(xs.len());
     let edges = [(a, b), (b, c), (c, a)].map(|(u, v)| if u[1] <= v[1] { (u, v) } else { (v, u) });
     for j in j0..j1 {
         let y = ys.at(j);
@@ -387,7 +396,7 @@ pub fn scan_triangle(p: [[f64; 3]; 3], xs: &Axis, ys: &Axis, mut f: impl FnMut(u
             continue;
         }
         let zrow = a[2] + gy * (y - a[1]);
-        for i in xs.first_ge(xl - EPS)..xs.count_le(xr + EPS) {
+        for i in xs.first_ge(xl - EPS).max(lo)..xs.count_le(xr + EPS).min(iend) {
             f(i, j, zrow + gx * (xs.at(i) - a[0]));
         }
     }
@@ -414,7 +423,7 @@ pub fn measure_vertical(
     let (mut max, mut sum2, mut count) = (0.0f64, 0.0f64, 0u64);
     for t in triangles {
         let p = t.map(|k| positions.get(k as usize).copied().unwrap_or([f64::NAN; 3]));
-        scan_triangle(p, &xs, &ys, |i, j, z| {
+        scan_triangle(p, &xs, &ys, false, |i, j, z| {
             let k = j * nc + i;
             if !seen[k] {
                 seen[k] = true;

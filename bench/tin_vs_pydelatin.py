@@ -1,0 +1,60 @@
+#!/usr/bin/env python3
+"""TIN benchmark: terrastream's tin::build next to pydelatin on the same heights, same run.
+
+For each max error, both are timed (best of 3), their vertex counts compared, and both meshes'
+max errors verified by the same code (terrastream's measure_vertical over every sample).
+
+    pip install pydelatin numpy pillow
+    python3 bench/tin_vs_pydelatin.py [fuji.png] [max errors…]
+"""
+import json
+import os
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+from PIL import Image
+from pydelatin import Delatin
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+DATA = os.environ.get("TERRASTREAM_DATA", os.path.join(ROOT, "..", "shared", "data"))
+
+
+def main():
+    png = sys.argv[1] if len(sys.argv) > 1 else os.path.join(DATA, "fuji.png")
+    errors = [float(e) for e in sys.argv[2:]] or [1.0, 10.0, 30.0]
+    subprocess.run(["cargo", "build", "--release", "--quiet", "--example", "tin_fuji"], cwd=ROOT, check=True)
+    exe = os.path.join(ROOT, "target", "release", "examples", "tin_fuji")
+
+    rgb = np.asarray(Image.open(png).convert("RGB")).astype(np.float64)
+    heights = (-10000 + (rgb[..., 0] * 65536 + rgb[..., 1] * 256 + rgb[..., 2]) * 0.1).astype(np.float32)
+    print(f"{os.path.basename(png)}: {heights.shape[1]}×{heights.shape[0]} samples, "
+          f"{heights.min():.1f}–{heights.max():.1f} m\n")
+    print(f"{'max err':>8} | {'terrastream':>26} | {'pydelatin':>26} | {'time ratio':>10} {'vertex ratio':>12}")
+    print(f"{'':>8} | {'vertices':>9} {'s':>7} {'meas.':>8} | {'vertices':>9} {'s':>7} {'meas.':>8} |")
+    for e in errors:
+        ours = json.loads(subprocess.run([exe, png, str(e)], check=True, capture_output=True, text=True).stdout)
+        best = float("inf")
+        for _ in range(3):
+            t = time.perf_counter()
+            d = Delatin(heights, max_error=e)
+            verts, tris = d.vertices, d.triangles
+            best = min(best, time.perf_counter() - t)
+        with tempfile.NamedTemporaryFile(suffix=".bin", delete=False) as f:
+            f.write(struct.pack("<II", len(verts), len(tris)))
+            f.write(np.asarray(verts[:, :2], dtype="<f8").tobytes())
+            f.write(np.asarray(tris, dtype="<u4").tobytes())
+        theirs = json.loads(subprocess.run([exe, png, "--measure", f.name], check=True, capture_output=True,
+                                           text=True).stdout)
+        os.unlink(f.name)
+        print(f"{e:>8g} | {ours['vertices']:>9} {ours['seconds']:>7.3f} {ours['measured_max_error']:>8.3f} | "
+              f"{len(verts):>9} {best:>7.3f} {theirs['measured_max_error']:>8.3f} | "
+              f"{ours['seconds'] / best:>10.2f} {ours['vertices'] / len(verts):>12.3f}")
+    print("\ntime ratio < 1: terrastream faster; vertex ratio: terrastream / pydelatin (target within 5%)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,184 @@
+//! End-to-end bakes through the `terrastream` binary and the library: real rasters in, tileset
+//! directories out; errors, crack-free borders, determinism and resume checked on the result.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use terrastream::codec::{self, Geometry};
+use terrastream::store::Store;
+use terrastream::tiling::{Pyramid, TileKey};
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_terrastream"))
+}
+
+fn fuji() -> PathBuf {
+    terrastream::raster::test_data_dir().join("fuji.png")
+}
+
+fn run_ok(cmd: &mut Command) -> String {
+    let out = cmd.output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "command failed: {cmd:?}\n{stderr}");
+    String::from_utf8(out.stdout).unwrap()
+}
+
+fn run_err(cmd: &mut Command) -> String {
+    let out = cmd.output().unwrap();
+    assert!(!out.status.success(), "command should fail: {cmd:?}");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// Every file under `dir` with its bytes, by relative path.
+fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
+    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<String, Vec<u8>>) {
+        for e in std::fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                walk(root, &p, out);
+            } else {
+                out.insert(p.strip_prefix(root).unwrap().display().to_string(), std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    let mut out = BTreeMap::new();
+    walk(dir, dir, &mut out);
+    out
+}
+
+fn bake_fuji(out: &Path) -> String {
+    run_ok(bin().args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "128"]).args(
+        ["--max-error", "2", "--levels", "3", "--out"],
+    ).arg(out).arg(fuji()))
+}
+
+fn decode(store: &Store, key: TileKey, level: u8) -> codec::Blob {
+    codec::decode(&store.read_blob(key, level).unwrap().unwrap()).unwrap()
+}
+
+#[test]
+fn fuji_bake_errors_borders_determinism_resume() {
+    let tmp = tempfile::tempdir().unwrap();
+    let a = tmp.path().join("a");
+    let summary = bake_fuji(&a);
+    assert!(summary.contains("baked 21 tiles"), "{summary}");
+
+    let store = Store::new(&a);
+    let m = store.manifest().unwrap();
+    assert_eq!((m.source.width, m.source.height, m.tile_size, m.depth), (512, 512, 128, 2));
+    let pyramid = Pyramid::new(512, 512, 128).unwrap();
+    let mut meshes = BTreeMap::new();
+    for key in pyramid.nodes() {
+        let node = store.node(key).unwrap().unwrap();
+        assert_eq!(node.levels.len(), 4);
+        let step = f64::from(pyramid.step(key.z));
+        let blob = decode(&store, key, 0);
+        // The TIN bound scales with the node's sample step; z quantization adds at most half a
+        // step of max_error / 64.
+        let bound = 2.0 * step * (1.0 + 1.0 / 128.0) + 1e-6;
+        assert!(node.levels[0].errors.max <= bound, "{key}: {} > {bound}", node.levels[0].errors.max);
+        assert!(node.levels[0].errors.max > 0.0);
+        assert_eq!(blob.header.errors, node.levels[0].errors);
+        for l in 1..4u8 {
+            let pts = decode(&store, key, l);
+            let e = node.levels[usize::from(l)].errors;
+            let cell = 30.0 * step * f64::from(1u32 << l);
+            assert!(matches!(pts.geometry, Geometry::Points(ref p) if !p.positions.is_empty()));
+            assert!(e.max < cell, "{key} level {l}: point distance {} vs cell {cell}", e.max);
+            assert!(e.gap < 2.0 * cell, "{key} level {l}: gap {} vs cell {cell}", e.gap);
+        }
+        let Geometry::Mesh(mesh) = blob.geometry else { panic!("level 0 of {key} is not a mesh") };
+        meshes.insert(key, mesh);
+    }
+    // Crack-free: neighbours at the same depth have identical vertices on their shared edge.
+    for (key, mesh) in &meshes {
+        for (dx, dy) in [(1, 0), (0, 1)] {
+            let Some(other) = meshes.get(&TileKey::new(key.z, key.x + dx, key.y + dy)) else { continue };
+            let span = pyramid.span(*key);
+            let (axis, edge) = if dx == 1 { (0, f64::from(span.col1) * 30.0) } else { (1, f64::from(span.row1) * 30.0) };
+            let on_edge = |m: &terrastream::geom::Mesh| {
+                let mut v: Vec<[u64; 3]> = m
+                    .positions
+                    .iter()
+                    .filter(|p| (p[axis] - edge).abs() < 1e-6)
+                    .map(|p| p.map(f64::to_bits))
+                    .collect();
+                v.sort_unstable();
+                v
+            };
+            let (ea, eb) = (on_edge(mesh), on_edge(other));
+            assert!(ea.len() >= 2, "{key}: no vertices on its edge");
+            assert_eq!(ea, eb, "{key}: border vertices differ from its neighbour's");
+        }
+    }
+
+    // Deterministic: a second bake is byte-identical.
+    let b = tmp.path().join("b");
+    bake_fuji(&b);
+    let (ta, tb) = (tree(&a), tree(&b));
+    assert_eq!(ta.keys().collect::<Vec<_>>(), tb.keys().collect::<Vec<_>>());
+    assert!(ta == tb, "two bakes of the same input differ");
+
+    // Resume: delete some blobs and the manifest, bake again, get the same tree.
+    std::fs::remove_file(b.join("tileset.json")).unwrap();
+    std::fs::remove_file(store_blob(&b, TileKey::new(2, 1, 2), 0)).unwrap();
+    std::fs::remove_file(store_blob(&b, TileKey::new(0, 0, 0), 3)).unwrap();
+    std::fs::remove_dir_all(b.join("index")).unwrap();
+    let summary = bake_fuji(&b);
+    assert!(summary.contains("(19 resumed)"), "{summary}");
+    assert!(tree(&b) == ta, "resumed bake differs from a fresh one");
+
+    // A bake over it with other options is refused and changes nothing.
+    let err = run_err(bin().args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30"]).arg("--out").arg(&b).arg(fuji()));
+    assert!(err.contains("different options"), "{err}");
+    assert!(tree(&b) == ta);
+
+    // inspect and export work on the result.
+    let text = run_ok(bin().arg("inspect").arg(&a));
+    assert!(text.contains("mesh") && text.contains("points"), "{text}");
+    let json: serde_json::Value = serde_json::from_str(&run_ok(bin().arg("inspect").arg(&a).arg("--json"))).unwrap();
+    assert_eq!(json["depth"], 2);
+    let node: serde_json::Value =
+        serde_json::from_str(&run_ok(bin().arg("inspect").arg(&a).args(["--json", "--tile", "1/1/0"]))).unwrap();
+    assert_eq!(node["levels"].as_array().unwrap().len(), 4);
+    let ply = tmp.path().join("t.ply");
+    run_ok(bin().arg("export").arg(&a).args(["--tile", "2/3/3", "--level", "0", "--format", "ply", "--out"]).arg(&ply));
+    let head = std::fs::read(&ply).unwrap();
+    let n = meshes[&TileKey::new(2, 3, 3)].positions.len();
+    assert!(String::from_utf8_lossy(&head[..200]).contains(&format!("element vertex {n}")));
+    let obj = tmp.path().join("p.obj");
+    run_ok(bin().arg("export").arg(&a).args(["--tile", "0/0/0", "--level", "2", "--format", "obj", "--out"]).arg(&obj));
+    assert!(std::fs::read_to_string(&obj).unwrap().contains("\nvn "));
+}
+
+fn store_blob(dir: &Path, key: TileKey, level: u8) -> PathBuf {
+    Store::new(dir).blob_path(key, level)
+}
+
+#[test]
+fn bad_inputs_fail_cleanly_and_write_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let missing = tmp.path().join("nope.png");
+    let err = run_err(bin().arg("bake").arg(&missing).arg("--out").arg(&out));
+    assert!(err.contains("nope.png"), "{err}");
+    assert!(!out.exists());
+
+    let garbage = tmp.path().join("garbage.tif");
+    std::fs::write(&garbage, b"II*\0garbage garbage").unwrap();
+    let err = run_err(bin().arg("bake").arg(&garbage).arg("--out").arg(&out));
+    assert!(err.contains("garbage.tif"), "{err}");
+    assert!(!out.exists());
+
+    let err = run_err(bin().arg("bake").arg(fuji()).args(["--encoding", "terrain-rgb", "--max-side", "100", "--out"]).arg(&out));
+    assert!(err.contains("fuji.png"), "{err}");
+    assert!(!out.exists());
+
+    let err = run_err(bin().arg("bake").arg(fuji()).args(["--encoding", "terrain-rgb", "--max-error", "-1", "--out"]).arg(&out));
+    assert!(err.contains("max-error"), "{err}");
+    assert!(!out.exists());
+
+    let err = run_err(bin().arg("inspect").arg(tmp.path()));
+    assert!(err.contains("tileset.json"), "{err}");
+}
