@@ -21,55 +21,64 @@ fn neighbours(i: usize, width: usize, height: usize) -> impl Iterator<Item = usi
     })
 }
 
+/// Cell states: valid since the last pass, no-data not yet reached, no-data in the current or
+/// next wavefront. One byte per cell keeps the bookkeeping at a quarter of the data's size.
+const VALID: u8 = 0;
+const MISSING: u8 = 1;
+const QUEUED: u8 = 2;
+
 /// Fills every non-finite sample of the row-major `width × height` grid `data` in place and
 /// returns how many were filled; `None` when no sample is valid (nothing to fill from).
 pub(super) fn fill_nodata(width: usize, height: usize, data: &mut [f32]) -> Option<u64> {
     debug_assert_eq!(data.len(), width * height);
-    let mut valid: Vec<bool> = data.iter().map(|v| v.is_finite()).collect();
-    let missing = valid.iter().filter(|&&v| !v).count();
-    if missing == 0 {
+    // The common case (no holes) costs one scan and no allocation.
+    if data.iter().all(|v| v.is_finite()) {
         return Some(0);
     }
+    let mut state: Vec<u8> = data.iter().map(|v| if v.is_finite() { VALID } else { MISSING }).collect();
+    let missing = data.iter().filter(|v| !v.is_finite()).count();
     if missing == data.len() {
         return None;
     }
 
-    // `queued` marks cells already in some wavefront, so each enters exactly once.
-    let mut queued = vec![false; data.len()];
-    let mut front: Vec<usize> =
-        (0..data.len()).filter(|&i| !valid[i] && neighbours(i, width, height).any(|j| valid[j])).collect();
+    let mut front: Vec<usize> = (0..data.len())
+        .filter(|&i| state[i] == MISSING && neighbours(i, width, height).any(|j| state[j] == VALID))
+        .collect();
     for &i in &front {
-        queued[i] = true;
+        state[i] = QUEUED;
     }
     let mut fresh = Vec::new();
+    let mut next = Vec::new();
     while !front.is_empty() {
         fresh.clear();
         fresh.extend(front.iter().map(|&i| {
             let (sum, n) = neighbours(i, width, height)
-                .filter(|&j| valid[j])
+                .filter(|&j| state[j] == VALID)
                 .fold((0.0_f64, 0_u32), |(s, n), j| (s + f64::from(data[j]), n + 1));
             // Every cell in the front has a valid neighbour by construction, so n ≥ 1.
             (sum / f64::from(n.max(1))) as f32
         }));
         for (&i, &v) in front.iter().zip(&fresh) {
             data[i] = v;
-            valid[i] = true;
+            state[i] = VALID;
         }
-        let mut next = Vec::new();
+        next.clear();
         for &i in &front {
             for j in neighbours(i, width, height) {
-                if !valid[j] && !queued[j] {
-                    queued[j] = true;
+                if state[j] == MISSING {
+                    state[j] = QUEUED;
                     next.push(j);
                 }
             }
         }
-        front = next;
+        std::mem::swap(&mut front, &mut next);
     }
     Some(missing as u64)
 }
 
 #[cfg(test)]
+// A failed unwrap is the test failing; exact float comparisons are of exactly representable values.
+#[allow(clippy::unwrap_used, clippy::float_cmp)]
 mod tests {
     use super::fill_nodata;
 

@@ -503,6 +503,7 @@ pub fn test_data_dir() -> PathBuf {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 pub(crate) mod test_util {
     //! Helpers shared by the format tests: temp files and default options.
 
@@ -525,5 +526,287 @@ pub(crate) mod test_util {
     pub fn assert_names_path(e: &RasterError, path: &Path) {
         let msg = e.to_string();
         assert!(msg.starts_with(&format!("{}: ", path.display())), "{msg}");
+    }
+}
+
+#[cfg(test)]
+// A failed unwrap is the test failing; exact float comparisons are of exactly representable values.
+#[allow(clippy::unwrap_used, clippy::float_cmp)]
+mod tests {
+    use std::time::Instant;
+
+    use image::{ImageBuffer, Luma};
+
+    use super::test_util::{assert_names_path, write};
+    use super::*;
+
+    fn gray16(dir: &Path, w: u32, h: u32, data: Vec<u16>) -> PathBuf {
+        let p = dir.join("g.png");
+        ImageBuffer::<Luma<u16>, _>::from_raw(w, h, data).unwrap().save(&p).unwrap();
+        p
+    }
+
+    /// A small valid file: 0 = 16-bit PNG, 1 = `GeoTIFF` (i16, georeferenced, nodata), 2 = EXR.
+    fn valid_file(kind: usize) -> Vec<u8> {
+        let (w, h) = (9_u32, 7_u32);
+        let vals: Vec<u16> = (0..w * h).map(|i| (i * 37 % 1000) as u16).collect();
+        let mut out = std::io::Cursor::new(Vec::new());
+        match kind {
+            0 => {
+                let img = ImageBuffer::<Luma<u16>, _>::from_raw(w, h, vals).unwrap();
+                img.write_to(&mut out, image::ImageFormat::Png).unwrap();
+            }
+            1 => {
+                use tiff::encoder::{TiffEncoder, colortype::GrayI16};
+                use tiff::tags::Tag;
+                let data: Vec<i16> = vals.iter().map(|&v| v as i16 - 500).collect();
+                let mut enc = TiffEncoder::new(&mut out).unwrap();
+                let mut img = enc.new_image::<GrayI16>(w, h).unwrap();
+                img.rows_per_strip(3).unwrap();
+                let e = img.encoder();
+                e.write_tag(Tag::ModelPixelScaleTag, &[10.0, 10.0, 0.0][..]).unwrap();
+                e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, 5.0, 50.0, 0.0][..]).unwrap();
+                e.write_tag(Tag::GeoKeyDirectoryTag, &[1_u16, 1, 0, 1, 1024, 0, 1, 2][..]).unwrap();
+                e.write_tag(Tag::GdalNodata, "-500").unwrap();
+                img.write_data(&data).unwrap();
+            }
+            _ => {
+                use exr::prelude::{
+                    AnyChannel, AnyChannels, FlatSamples, Layer, LayerAttributes, WritableImage,
+                };
+                let z = FlatSamples::F32(vals.iter().map(|&v| f32::from(v)).collect());
+                let layer = Layer::new(
+                    (w as usize, h as usize),
+                    LayerAttributes::default(),
+                    exr::prelude::Encoding::SMALL_LOSSLESS,
+                    AnyChannels::sort(vec![AnyChannel::new("Z", z)].into()),
+                );
+                exr::prelude::Image::from_layer(layer).write().to_buffered(&mut out).unwrap();
+            }
+        }
+        out.into_inner()
+    }
+
+    #[test]
+    fn fuji_terrain_rgb() {
+        let path = test_data_dir().join("fuji.png");
+        let opts = LoadOptions { encoding: Some(Encoding::TerrainRgb), ..LoadOptions::default() };
+        let r = load(&path, &opts).unwrap();
+        assert_eq!((r.heights.width, r.heights.height), (512, 512));
+        assert_eq!(r.format, "png-terrain-rgb");
+        assert_eq!(r.nodata_filled, 0);
+        let min = r.heights.data.iter().copied().fold(f32::INFINITY, f32::min);
+        let max = r.heights.data.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        assert!((13.0..14.5).contains(&min), "min {min}");
+        assert!((3750.0..3752.0).contains(&max), "max {max}");
+        assert_eq!(r.georef, Georef::default());
+    }
+
+    #[test]
+    fn fuji_without_encoding_asks_for_it() {
+        let path = test_data_dir().join("fuji.png");
+        let e = load(&path, &LoadOptions::default()).unwrap_err();
+        assert!(matches!(e, RasterError::MissingEncoding { .. }), "{e}");
+        assert!(e.to_string().contains("--encoding terrain-rgb|terrarium"), "{e}");
+        assert_names_path(&e, &path);
+    }
+
+    #[test]
+    fn missing_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("nope.png");
+        let e = load(&p, &LoadOptions::default()).unwrap_err();
+        assert!(matches!(e, RasterError::Io { .. }), "{e}");
+        assert_names_path(&e, &p);
+    }
+
+    #[test]
+    fn unknown_magic_and_empty_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "x.dem", b"hello world, not a raster");
+        let e = load(&p, &LoadOptions::default()).unwrap_err();
+        assert!(matches!(e, RasterError::UnknownFormat { .. }), "{e}");
+        assert!(e.to_string().contains("68 65 6c 6c"), "{e}");
+        assert_names_path(&e, &p);
+        let p = write(dir.path(), "empty.png", b"");
+        let e = load(&p, &LoadOptions::default()).unwrap_err();
+        assert!(e.to_string().contains("empty"), "{e}");
+    }
+
+    #[test]
+    fn magic_wins_over_extension() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = gray16(dir.path(), 2, 1, vec![5, 6]);
+        let renamed = dir.path().join("N35E138.hgt");
+        std::fs::rename(&p, &renamed).unwrap();
+        let r = load(&renamed, &LoadOptions::default()).unwrap();
+        assert_eq!(r.format, "png-gray16");
+    }
+
+    #[test]
+    fn overrides_apply_on_top() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = gray16(dir.path(), 2, 2, vec![0, 100, 200, 300]);
+        let overrides = Overrides {
+            cell_size: Some(30.0),
+            origin: Some((1000.0, -5.0)),
+            z_scale: Some(0.5),
+            z_offset: Some(-10.0),
+        };
+        let r = load(&p, &LoadOptions { overrides, ..LoadOptions::default() }).unwrap();
+        let g = r.georef;
+        assert_eq!((g.x0, g.y0, g.dx, g.dy, g.z0, g.dz), (1000.0, -5.0, 30.0, 30.0, -10.0, 0.5));
+        assert_eq!(r.heights.data, [-10.0, 40.0, 90.0, 140.0]);
+    }
+
+    #[test]
+    fn cell_size_keeps_signs() {
+        let mut g = Georef { dx: 2.0, dy: -2.0, ..Georef::default() };
+        apply_overrides(&mut g, &Overrides { cell_size: Some(5.0), ..Overrides::default() });
+        assert_eq!((g.dx, g.dy), (5.0, -5.0));
+    }
+
+    #[test]
+    fn bad_overrides_are_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = gray16(dir.path(), 1, 1, vec![1]);
+        let cases = [
+            Overrides { cell_size: Some(0.0), ..Overrides::default() },
+            Overrides { cell_size: Some(-1.0), ..Overrides::default() },
+            Overrides { cell_size: Some(f64::NAN), ..Overrides::default() },
+            Overrides { z_scale: Some(0.0), ..Overrides::default() },
+            Overrides { z_scale: Some(f64::INFINITY), ..Overrides::default() },
+            Overrides { z_offset: Some(f64::NAN), ..Overrides::default() },
+            Overrides { origin: Some((0.0, f64::NEG_INFINITY)), ..Overrides::default() },
+        ];
+        for overrides in cases {
+            let e = load(&p, &LoadOptions { overrides, ..LoadOptions::default() }).unwrap_err();
+            assert!(matches!(e, RasterError::BadOverride { .. }), "{e}");
+            assert_names_path(&e, &p);
+        }
+    }
+
+    #[test]
+    fn z_overflow_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = gray16(dir.path(), 1, 1, vec![60_000]);
+        let overrides = Overrides { z_scale: Some(1e36), ..Overrides::default() };
+        let e = load(&p, &LoadOptions { overrides, ..LoadOptions::default() }).unwrap_err();
+        assert!(matches!(e, RasterError::HeightOverflow { .. }), "{e}");
+    }
+
+    #[test]
+    fn size_checks() {
+        let p = Path::new("a.tif");
+        let l = Limits { max_side: 100, max_bytes: 4 * 50 * 50 };
+        assert!(check_size(p, 50, 50, l).is_ok());
+        assert!(matches!(check_size(p, 0, 5, l), Err(RasterError::ZeroSize { .. })));
+        assert!(matches!(check_size(p, 101, 1, l), Err(RasterError::TooLarge { .. })));
+        assert!(matches!(check_size(p, 51, 50, l), Err(RasterError::TooLarge { .. })));
+        assert!(matches!(
+            check_size(p, u64::MAX, u64::MAX, Limits::default()),
+            Err(RasterError::TooLarge { .. })
+        ));
+    }
+
+    #[test]
+    fn limits_apply_to_png() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = gray16(dir.path(), 8, 4, vec![1; 32]);
+        let limits = Limits { max_side: 7, max_bytes: DEFAULT_MAX_BYTES };
+        let start = Instant::now();
+        let e = load(&p, &LoadOptions { limits, ..LoadOptions::default() }).unwrap_err();
+        assert!(matches!(e, RasterError::TooLarge { width: 8, height: 4, .. }), "{e}");
+        assert!(start.elapsed().as_secs() < 2);
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(96))]
+
+        /// Arbitrary bytes behind each magic number decode or fail with an error, never panic;
+        /// tight limits keep a random header from asking for gigabytes.
+        #[test]
+        fn arbitrary_bytes_never_panic(kind in 0_usize..4, body in proptest::collection::vec(proptest::num::u8::ANY, 0..600)) {
+            let dir = tempfile::tempdir().unwrap();
+            let magic: &[u8] = [PNG_MAGIC, EXR_MAGIC, TIFF_MAGICS[0], TIFF_MAGICS[1]][kind];
+            let mut bytes = magic.to_vec();
+            bytes.extend_from_slice(&body);
+            let p = write(dir.path(), "fuzz.bin", &bytes);
+            let limits = Limits { max_side: 4096, max_bytes: 16 << 20 };
+            if let Ok(r) = load(&p, &LoadOptions { limits, encoding: Some(Encoding::Terrarium), ..LoadOptions::default() }) {
+                proptest::prop_assert!(r.heights.data.iter().all(|v| v.is_finite()));
+            }
+        }
+
+        /// Valid small files with a few bytes corrupted (and maybe cut short) decode or fail
+        /// with an error, never panic.
+        #[test]
+        fn mutated_files_never_panic(
+            kind in 0_usize..3,
+            flips in proptest::collection::vec((proptest::num::usize::ANY, 1_u8..=255), 1..6),
+            cut in proptest::option::of(proptest::num::usize::ANY),
+        ) {
+            let mut bytes = valid_file(kind);
+            let n = bytes.len();
+            for (at, x) in flips {
+                bytes[at % n] ^= x;
+            }
+            if let Some(c) = cut {
+                bytes.truncate(c % n);
+            }
+            let dir = tempfile::tempdir().unwrap();
+            let p = write(dir.path(), "fuzz.bin", &bytes);
+            let limits = Limits { max_side: 4096, max_bytes: 16 << 20 };
+            let opts = LoadOptions { limits, encoding: Some(Encoding::Gray16), ..LoadOptions::default() };
+            if let Ok(r) = load(&p, &opts) {
+                proptest::prop_assert!(r.heights.data.iter().all(|v| v.is_finite()));
+            }
+        }
+
+        /// Filling leaves valid samples alone, fills every hole within the valid range, and
+        /// counts exactly the holes.
+        #[test]
+        fn fill_invariants(w in 1_usize..12, h in 1_usize..12, seed in proptest::collection::vec(proptest::num::u8::ANY, 144)) {
+            let orig: Vec<f32> = (0..w * h).map(|i| if seed[i] % 3 == 0 { f32::NAN } else { f32::from(seed[i]) }).collect();
+            let holes = orig.iter().filter(|v| v.is_nan()).count() as u64;
+            let mut d = orig.clone();
+            match fill::fill_nodata(w, h, &mut d) {
+                None => proptest::prop_assert_eq!(holes, (w * h) as u64),
+                Some(n) => {
+                    proptest::prop_assert_eq!(n, holes);
+                    for (a, b) in orig.iter().zip(&d) {
+                        proptest::prop_assert!(b.is_finite() && (0.0..=255.0).contains(b));
+                        if a.is_finite() {
+                            proptest::prop_assert_eq!(a, b);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn metres_per_degree_matches_known_values() {
+        let (lon, lat) = metres_per_degree(0.0);
+        assert!((lat - 110_574.0).abs() < 2.0 && (lon - 111_319.0).abs() < 2.0, "{lon} {lat}");
+        let (lon, lat) = metres_per_degree(45.0);
+        assert!((lat - 111_132.0).abs() < 2.0 && (lon - 78_847.0).abs() < 2.0, "{lon} {lat}");
+    }
+
+    #[test]
+    fn geographic_mapping_uses_central_latitude() {
+        let g = base_georef(
+            Path::new("x"),
+            FileGeoref::Geographic { lon0: 10.0, lat0: 46.0, dlon: 0.5, dlat: -0.5 },
+            5,
+        )
+        .unwrap();
+        let m = g.geographic.unwrap();
+        let (m_lon, m_lat) = metres_per_degree(45.0);
+        assert_eq!((m.metres_per_deg_lon, m.metres_per_deg_lat), (m_lon, m_lat));
+        assert_eq!((g.x0, g.y0), (0.0, 0.0));
+        assert!((g.dx - 0.5 * m_lon).abs() < 1e-9 && (g.dy + 0.5 * m_lat).abs() < 1e-9);
+        let e = base_georef(Path::new("x"), FileGeoref::Projected { x0: 0.0, y0: 0.0, dx: 0.0, dy: 1.0 }, 1);
+        assert!(matches!(e, Err(RasterError::BadGeoref { .. })));
     }
 }

@@ -124,3 +124,130 @@ pub(super) fn decode(
         format: "exr",
     })
 }
+
+#[cfg(test)]
+// A failed unwrap is the test failing; exact float comparisons are of exactly representable values.
+#[allow(clippy::unwrap_used, clippy::float_cmp)]
+mod tests {
+    use std::path::{Path, PathBuf};
+    use std::time::Instant;
+
+    use exr::prelude::{
+        AnyChannel, AnyChannels, FlatSamples, Image, Layer, LayerAttributes, WritableImage, f16,
+    };
+
+    use super::super::test_util::{assert_names_path, load, write};
+    use super::super::{LoadOptions, RasterError, load as load_with};
+
+    /// Writes a `w × h` EXR with the given channels (the writer sorts them by name).
+    fn write_exr(dir: &Path, w: usize, h: usize, channels: Vec<AnyChannel<FlatSamples>>) -> PathBuf {
+        let p = dir.join("h.exr");
+        let layer = Layer::new(
+            (w, h),
+            LayerAttributes::default(),
+            exr::prelude::Encoding::SMALL_LOSSLESS,
+            AnyChannels::sort(channels.into()),
+        );
+        Image::from_layer(layer).write().to_file(&p).unwrap();
+        p
+    }
+
+    fn three_channels(dir: &Path) -> PathBuf {
+        let z: Vec<f32> = (0..12).map(|i| i as f32 * 1.5).collect();
+        write_exr(
+            dir,
+            4,
+            3,
+            vec![
+                AnyChannel::new("Z", FlatSamples::F32(z)),
+                AnyChannel::new(
+                    "H",
+                    FlatSamples::F16((0..12).map(|i| f16::from_f32(i as f32 + 0.5)).collect()),
+                ),
+                AnyChannel::new("B", FlatSamples::U32(vec![7; 12])),
+            ],
+        )
+    }
+
+    fn with_channel(p: &Path, name: &str) -> Result<super::super::LoadedRaster, RasterError> {
+        load_with(p, &LoadOptions { channel: Some(name.to_owned()), ..LoadOptions::default() })
+    }
+
+    #[test]
+    fn default_is_first_float_channel() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = three_channels(dir.path());
+        let r = load(&p).unwrap();
+        assert_eq!((r.heights.width, r.heights.height, r.format.as_str()), (4, 3, "exr"));
+        assert_eq!(r.heights.data, (0..12).map(|i| i as f32 + 0.5).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn channel_by_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = three_channels(dir.path());
+        let r = with_channel(&p, "Z").unwrap();
+        assert_eq!(r.heights.get(3, 2), 16.5);
+        // A u32 channel named explicitly is read as values.
+        assert_eq!(with_channel(&p, "B").unwrap().heights.data, [7.0; 12]);
+        let e = with_channel(&p, "height").unwrap_err();
+        assert!(matches!(e, RasterError::ChannelNotFound { .. }), "{e}");
+        assert!(e.to_string().contains("B (u32), H (f16), Z (f32)"), "{e}");
+        assert_names_path(&e, &p);
+    }
+
+    #[test]
+    fn no_float_channel() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write_exr(dir.path(), 2, 2, vec![AnyChannel::new("id", FlatSamples::U32(vec![1; 4]))]);
+        let e = load(&p).unwrap_err();
+        assert!(matches!(e, RasterError::NoFloatChannel { .. }), "{e}");
+        assert!(e.to_string().contains("id (u32)"), "{e}");
+    }
+
+    #[test]
+    fn nan_and_inf_are_filled() {
+        let dir = tempfile::tempdir().unwrap();
+        let z = vec![1.0, 2.0, 3.0, f32::NAN, 5.0, f32::INFINITY, 7.0, 8.0, 9.0];
+        let p = write_exr(dir.path(), 3, 3, vec![AnyChannel::new("Z", FlatSamples::F32(z))]);
+        let r = load(&p).unwrap();
+        assert_eq!(r.nodata_filled, 2);
+        // (0,1): neighbours 1, 2, 5, 7, 8 → 4.6; (2,1): 2, 3, 5, 8, 9 → 5.4.
+        assert!((r.heights.get(0, 1) - 4.6).abs() < 1e-5, "{:?}", r.heights.data);
+        assert!((r.heights.get(2, 1) - 5.4).abs() < 1e-5, "{:?}", r.heights.data);
+        let all_nan =
+            write_exr(dir.path(), 2, 1, vec![AnyChannel::new("Z", FlatSamples::F32(vec![f32::NAN; 2]))]);
+        assert!(matches!(load(&all_nan), Err(RasterError::AllNoData { .. })));
+    }
+
+    #[test]
+    fn truncated() {
+        let dir = tempfile::tempdir().unwrap();
+        let z: Vec<f32> = (0..64 * 64).map(|i| (i as f32).sin()).collect();
+        let p = write_exr(dir.path(), 64, 64, vec![AnyChannel::new("Z", FlatSamples::F32(z))]);
+        let bytes = std::fs::read(&p).unwrap();
+        for cut in [6, 50, bytes.len() / 2, bytes.len() - 10] {
+            let t = write(dir.path(), "cut.exr", &bytes[..cut]);
+            let e = load(&t).unwrap_err();
+            assert!(matches!(e, RasterError::Corrupt { .. }), "cut {cut}: {e}");
+            assert_names_path(&e, &t);
+        }
+    }
+
+    #[test]
+    fn huge_declared_size_fails_fast() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write_exr(dir.path(), 2, 2, vec![AnyChannel::new("Z", FlatSamples::F32(vec![1.0; 4]))]);
+        let mut bytes = std::fs::read(&p).unwrap();
+        // dataWindow is a box2i: xmin, ymin, xmax, ymax (i32 LE) after name, type and size.
+        let key = b"dataWindow\0box2i\0";
+        let at = bytes.windows(key.len()).position(|w| w == key).unwrap() + key.len() + 4;
+        bytes[at + 8..at + 12].copy_from_slice(&99_999_i32.to_le_bytes());
+        bytes[at + 12..at + 16].copy_from_slice(&99_999_i32.to_le_bytes());
+        let t = write(dir.path(), "huge.exr", &bytes);
+        let start = Instant::now();
+        let e = load(&t).unwrap_err();
+        assert!(matches!(e, RasterError::TooLarge { width: 100_000, height: 100_000, .. }), "{e}");
+        assert!(start.elapsed().as_millis() < 500);
+    }
+}
