@@ -1,8 +1,20 @@
 //! Heightfield rasters: decoding (`OpenEXR`, 16-bit PNG, terrain-RGB/Terrarium PNG, `GeoTIFF`, SRTM
 //! HGT), georeference, size limits and no-data filling. Reads files only.
 //!
-//! CONTRACT STUB: the helper replaces the bodies; signatures are what the rest of the crate uses.
+//! [`load`] detects the format (magic bytes first, `.hgt` by extension), lets the format's
+//! decoder check the declared size against [`Limits`] before anything large is allocated, fills
+//! no-data samples from their neighbours ([`fill`]), maps geographic rasters to a local metric
+//! frame, and applies the user's [`Overrides`]. Every failure is a [`RasterError`] whose message
+//! starts with the file path.
 
+mod fill;
+mod geotiff;
+mod hgt;
+mod openexr;
+mod png;
+
+use std::fs::File;
+use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -66,6 +78,27 @@ pub struct GeographicMapping {
     pub metres_per_deg_lat: f64,
 }
 
+impl GeographicMapping {
+    /// Builds the mapping for a `rows`-row raster, taking the metres per degree at its central
+    /// latitude so the distortion is spread evenly over the raster.
+    #[must_use]
+    pub fn new(lon0: f64, lat0: f64, dlon: f64, dlat: f64, rows: u32) -> Self {
+        let centre = lat0 + dlat * (f64::from(rows.max(1)) - 1.0) / 2.0;
+        let (m_lon, m_lat) = metres_per_degree(centre);
+        Self { lon0, lat0, dlon, dlat, metres_per_deg_lon: m_lon, metres_per_deg_lat: m_lat }
+    }
+}
+
+/// Metres per degree of (longitude, latitude) at latitude `lat_deg` on the WGS84 ellipsoid
+/// (the usual truncated series; good to ~1 cm per degree).
+#[must_use]
+pub fn metres_per_degree(lat_deg: f64) -> (f64, f64) {
+    let phi = lat_deg.to_radians();
+    let lat = 111_132.954 - 559.822 * (2.0 * phi).cos() + 1.175 * (4.0 * phi).cos();
+    let lon = 111_412.84 * phi.cos() - 93.5 * (3.0 * phi).cos();
+    (lon, lat)
+}
+
 /// World frame: `x = x0 + col·dx`, `y = y0 + row·dy`, `z = z0 + value·dz` (z already applied to
 /// `Heightfield::data`, recorded for the manifest).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -78,6 +111,13 @@ pub struct Georef {
     pub dz: f64,
     /// Present when the source was in degrees.
     pub geographic: Option<GeographicMapping>,
+}
+
+impl Default for Georef {
+    /// The frame of a raster without georeference: unit cells, origin at sample (0, 0).
+    fn default() -> Self {
+        Self { x0: 0.0, y0: 0.0, dx: 1.0, dy: 1.0, z0: 0.0, dz: 1.0, geographic: None }
+    }
 }
 
 /// How a PNG's channels encode height.
@@ -101,6 +141,14 @@ pub struct Limits {
 impl Default for Limits {
     fn default() -> Self {
         Self { max_side: DEFAULT_MAX_SIDE, max_bytes: DEFAULT_MAX_BYTES }
+    }
+}
+
+impl Limits {
+    /// Budget for a decoder's own allocations: decoders hold up to 8 bytes per sample (RGBA16,
+    /// f64) where we keep 4, plus room for their headers and scratch buffers.
+    fn decoder_bytes(self) -> u64 {
+        self.max_bytes.saturating_mul(2).saturating_add(64 << 20)
     }
 }
 
@@ -134,13 +182,631 @@ pub struct LoadedRaster {
     pub format: String,
 }
 
+/// Everything that can go wrong loading a raster. Every message starts with the file path.
 #[derive(Debug, thiserror::Error)]
 pub enum RasterError {
-    #[error("{path}: {message}")]
-    Invalid { path: PathBuf, message: String },
+    /// The file could not be opened or read.
+    #[error("{}: cannot read file: {source}", path.display())]
+    Io { path: PathBuf, source: std::io::Error },
+    /// Neither the magic bytes nor the extension name a supported format.
+    #[error(
+        "{}: unrecognized raster format ({reason}); expected PNG, TIFF/GeoTIFF, OpenEXR or SRTM .hgt",
+        path.display()
+    )]
+    UnknownFormat { path: PathBuf, reason: String },
+    /// The data is truncated or inconsistent.
+    #[error("{}: corrupt or truncated {format} file: {message}", path.display())]
+    Corrupt { path: PathBuf, format: &'static str, message: String },
+    /// A valid file using a feature this loader does not handle (sample type, band count, ...).
+    #[error("{}: unsupported {format} file: {message}", path.display())]
+    Unsupported { path: PathBuf, format: &'static str, message: String },
+    /// The raster declares a zero width or height.
+    #[error("{}: raster has zero size ({width}×{height} samples)", path.display())]
+    ZeroSize { path: PathBuf, width: u64, height: u64 },
+    /// The declared size exceeds [`Limits`]; detected from the header, before decoding.
+    #[error(
+        "{}: raster of {width}×{height} samples exceeds the limits (at most {max_side} samples per \
+         side and {max_bytes} decoded bytes at 4 bytes per sample)",
+        path.display()
+    )]
+    TooLarge { path: PathBuf, width: u64, height: u64, max_side: u32, max_bytes: u64 },
+    /// Every sample is no-data, so there is nothing to fill from.
+    #[error("{}: every one of the {samples} samples is no-data", path.display())]
+    AllNoData { path: PathBuf, samples: u64 },
+    /// An RGB(A) PNG was given without saying how its channels encode height.
+    #[error(
+        "{}: PNG is {color} but no height encoding was given; pass --encoding terrain-rgb|terrarium",
+        path.display()
+    )]
+    MissingEncoding { path: PathBuf, color: String },
+    /// The requested encoding does not fit the PNG's colour type.
+    #[error("{}: encoding {encoding:?} does not apply to a {color} PNG", path.display())]
+    EncodingMismatch { path: PathBuf, encoding: Encoding, color: String },
+    /// The requested `OpenEXR` channel does not exist.
+    #[error("{}: no channel named \"{name}\"; available channels: {available}", path.display())]
+    ChannelNotFound { path: PathBuf, name: String, available: String },
+    /// No `OpenEXR` channel holds floats and none was named.
+    #[error("{}: no f32 or f16 channel to read heights from; available channels: {available}", path.display())]
+    NoFloatChannel { path: PathBuf, available: String },
+    /// An SRTM file whose name does not say where it lies.
+    #[error(
+        "{}: cannot georeference SRTM .hgt from file name \"{name}\"; expected a name like \
+         N35E138.hgt or s12w077.hgt",
+        path.display()
+    )]
+    HgtName { path: PathBuf, name: String },
+    /// An SRTM file whose length matches neither 1201² nor 3601² samples.
+    #[error(
+        "{}: SRTM .hgt file is {len} bytes; expected 2884802 (1201², 3 arc-second) or 25934402 \
+         (3601², 1 arc-second)",
+        path.display()
+    )]
+    HgtLength { path: PathBuf, len: u64 },
+    /// The file's own georeference is unusable (zero or non-finite cell size, ...).
+    #[error("{}: invalid georeference in file: {message}", path.display())]
+    BadGeoref { path: PathBuf, message: String },
+    /// A user override is zero, negative where a size is meant, or not finite.
+    #[error("{}: invalid {what} override {value}: must be {requirement}", path.display())]
+    BadOverride { path: PathBuf, what: &'static str, value: f64, requirement: &'static str },
+    /// The z scale/offset pushed heights beyond the f32 range.
+    #[error(
+        "{}: heights overflow f32 after z scale {dz} and offset {z0} (raw range {min}..{max})",
+        path.display()
+    )]
+    HeightOverflow { path: PathBuf, z0: f64, dz: f64, min: f32, max: f32 },
+}
+
+impl RasterError {
+    pub(crate) fn corrupt(path: &Path, format: &'static str, message: impl Into<String>) -> Self {
+        Self::Corrupt { path: path.to_owned(), format, message: message.into() }
+    }
+
+    pub(crate) fn unsupported(path: &Path, format: &'static str, message: impl Into<String>) -> Self {
+        Self::Unsupported { path: path.to_owned(), format, message: message.into() }
+    }
+
+    pub(crate) fn io(path: &Path, source: std::io::Error) -> Self {
+        Self::Io { path: path.to_owned(), source }
+    }
+}
+
+/// Georeference as the file states it, before the metric mapping and the overrides.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum FileGeoref {
+    /// No georeference: unit cells at the origin.
+    None,
+    /// Sample (0, 0) centre at (x0, y0), steps dx, dy in the file's (metric) units.
+    Projected { x0: f64, y0: f64, dx: f64, dy: f64 },
+    /// Sample (0, 0) centre at (lon0, lat0) degrees, steps dlon, dlat degrees.
+    Geographic { lon0: f64, lat0: f64, dlon: f64, dlat: f64 },
+}
+
+/// What a format decoder hands back: raw sample values (no-data already turned into NaN) and
+/// the file's georeference.
+#[derive(Debug)]
+struct Decoded {
+    width: u32,
+    height: u32,
+    values: Vec<f32>,
+    georef: FileGeoref,
+    format: &'static str,
+}
+
+/// Checks a declared raster size against `limits`; decoders call it with the header's
+/// dimensions before they allocate or decode.
+fn check_size(path: &Path, width: u64, height: u64, limits: Limits) -> Result<(), RasterError> {
+    if width == 0 || height == 0 {
+        return Err(RasterError::ZeroSize { path: path.to_owned(), width, height });
+    }
+    let too_large = width > u64::from(limits.max_side)
+        || height > u64::from(limits.max_side)
+        || width.saturating_mul(height).saturating_mul(4) > limits.max_bytes;
+    if too_large {
+        return Err(RasterError::TooLarge {
+            path: path.to_owned(),
+            width,
+            height,
+            max_side: limits.max_side,
+            max_bytes: limits.max_bytes,
+        });
+    }
+    Ok(())
+}
+
+const PNG_MAGIC: &[u8] = b"\x89PNG\r\n\x1a\n";
+const EXR_MAGIC: &[u8] = &[0x76, 0x2f, 0x31, 0x01];
+const TIFF_MAGICS: [&[u8]; 4] = [b"II*\0", b"MM\0*", b"II+\0", b"MM\0+"];
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Format {
+    Png,
+    Tiff,
+    Exr,
+    Hgt,
+}
+
+/// Magic bytes decide; the `.hgt` extension is the fallback because SRTM files have no header.
+fn detect(path: &Path, head: &[u8]) -> Result<Format, RasterError> {
+    if head.starts_with(PNG_MAGIC) {
+        return Ok(Format::Png);
+    }
+    if head.starts_with(EXR_MAGIC) {
+        return Ok(Format::Exr);
+    }
+    if TIFF_MAGICS.iter().any(|m| head.starts_with(m)) {
+        return Ok(Format::Tiff);
+    }
+    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("hgt")) {
+        return Ok(Format::Hgt);
+    }
+    let reason = if head.is_empty() {
+        "the file is empty".to_owned()
+    } else {
+        let hex: Vec<String> = head.iter().take(8).map(|b| format!("{b:02x}")).collect();
+        format!("first bytes {}", hex.join(" "))
+    };
+    Err(RasterError::UnknownFormat { path: path.to_owned(), reason })
 }
 
 /// Loads, validates and fills a raster file.
-pub fn load(path: &Path, _opts: &LoadOptions) -> Result<LoadedRaster, RasterError> {
-    Err(RasterError::Invalid { path: path.to_owned(), message: "not implemented yet".into() })
+///
+/// Errors: [`RasterError`], each naming the file: unreadable or unrecognized file, corrupt or
+/// truncated data, unsupported sample type or band count, zero size, a declared size over
+/// `opts.limits`, all samples no-data, an unusable georeference or override.
+pub fn load(path: &Path, opts: &LoadOptions) -> Result<LoadedRaster, RasterError> {
+    validate_overrides(path, &opts.overrides)?;
+    let mut file = File::open(path).map_err(|e| RasterError::io(path, e))?;
+    let mut head = Vec::with_capacity(8);
+    (&mut file).take(8).read_to_end(&mut head).map_err(|e| RasterError::io(path, e))?;
+    let format = detect(path, &head)?;
+    file.seek(SeekFrom::Start(0)).map_err(|e| RasterError::io(path, e))?;
+    let reader = BufReader::new(file);
+    let decoded = match format {
+        Format::Png => png::decode(path, reader, opts)?,
+        Format::Tiff => geotiff::decode(path, reader, opts.limits)?,
+        Format::Exr => openexr::decode(path, reader, opts)?,
+        Format::Hgt => hgt::decode(path, reader, opts.limits)?,
+    };
+    finish(path, decoded, &opts.overrides)
+}
+
+/// Shared tail of every format: fill no-data, build the world frame, apply z.
+fn finish(path: &Path, decoded: Decoded, overrides: &Overrides) -> Result<LoadedRaster, RasterError> {
+    let Decoded { width, height, mut values, georef, format } = decoded;
+    // Decoders allocate exactly width·height; a mismatch would be a decoder bug, reported
+    // rather than indexed past.
+    if values.len() as u64 != u64::from(width) * u64::from(height) {
+        return Err(RasterError::corrupt(
+            path,
+            format,
+            format!("decoded {} samples for a {width}×{height} raster", values.len()),
+        ));
+    }
+    let nodata_filled = fill::fill_nodata(width as usize, height as usize, &mut values)
+        .ok_or_else(|| RasterError::AllNoData { path: path.to_owned(), samples: values.len() as u64 })?;
+
+    let mut frame = base_georef(path, georef, height)?;
+    apply_overrides(&mut frame, overrides);
+    apply_z(path, &mut values, &frame)?;
+
+    Ok(LoadedRaster {
+        heights: Heightfield { width, height, data: values },
+        georef: frame,
+        nodata_filled,
+        format: format.to_owned(),
+    })
+}
+
+fn base_georef(path: &Path, georef: FileGeoref, rows: u32) -> Result<Georef, RasterError> {
+    let bad = |message: String| RasterError::BadGeoref { path: path.to_owned(), message };
+    let usable_step = |s: f64| s.is_finite() && s != 0.0;
+    match georef {
+        FileGeoref::None => Ok(Georef::default()),
+        FileGeoref::Projected { x0, y0, dx, dy } => {
+            if !(usable_step(dx) && usable_step(dy) && x0.is_finite() && y0.is_finite()) {
+                return Err(bad(format!("origin ({x0}, {y0}), cell size ({dx}, {dy})")));
+            }
+            Ok(Georef { x0, y0, dx, dy, ..Georef::default() })
+        }
+        FileGeoref::Geographic { lon0, lat0, dlon, dlat } => {
+            if !(usable_step(dlon) && usable_step(dlat) && lon0.is_finite() && lat0.is_finite()) {
+                return Err(bad(format!("origin ({lon0}°, {lat0}°), cell size ({dlon}°, {dlat}°)")));
+            }
+            let last_lat = lat0 + dlat * f64::from(rows.saturating_sub(1));
+            if lat0.abs() > 90.0 || last_lat.abs() > 90.0 {
+                return Err(bad(format!("latitudes {lat0}°..{last_lat}° leave the range ±90°")));
+            }
+            let m = GeographicMapping::new(lon0, lat0, dlon, dlat, rows);
+            Ok(Georef {
+                x0: 0.0,
+                y0: 0.0,
+                dx: dlon * m.metres_per_deg_lon,
+                dy: dlat * m.metres_per_deg_lat,
+                geographic: Some(m),
+                ..Georef::default()
+            })
+        }
+    }
+}
+
+fn validate_overrides(path: &Path, o: &Overrides) -> Result<(), RasterError> {
+    let bad = |what, value, requirement| RasterError::BadOverride {
+        path: path.to_owned(),
+        what,
+        value,
+        requirement,
+    };
+    // A negative cell size would silently mirror the raster; the signs come from the file.
+    if let Some(c) = o.cell_size
+        && !(c.is_finite() && c > 0.0)
+    {
+        return Err(bad("cell size", c, "finite and positive"));
+    }
+    if let Some((x, y)) = o.origin {
+        for v in [x, y] {
+            if !v.is_finite() {
+                return Err(bad("origin", v, "finite"));
+            }
+        }
+    }
+    if let Some(s) = o.z_scale
+        && !(s.is_finite() && s != 0.0)
+    {
+        return Err(bad("z scale", s, "finite and non-zero"));
+    }
+    if let Some(z) = o.z_offset
+        && !z.is_finite()
+    {
+        return Err(bad("z offset", z, "finite"));
+    }
+    Ok(())
+}
+
+fn apply_overrides(g: &mut Georef, o: &Overrides) {
+    if let Some(c) = o.cell_size {
+        g.dx = c.copysign(g.dx);
+        g.dy = c.copysign(g.dy);
+    }
+    if let Some((x, y)) = o.origin {
+        g.x0 = x;
+        g.y0 = y;
+    }
+    g.dz = o.z_scale.unwrap_or(1.0);
+    g.z0 = o.z_offset.unwrap_or(0.0);
+}
+
+/// Applies `z = z0 + value·dz` in f64 and rejects results that no longer fit in f32, so the
+/// "never NaN/inf" promise of [`Heightfield`] survives the user's scale.
+fn apply_z(path: &Path, values: &mut [f32], g: &Georef) -> Result<(), RasterError> {
+    let (mut min, mut max) = (f32::INFINITY, f32::NEG_INFINITY);
+    let mut overflow = false;
+    for v in values.iter_mut() {
+        min = min.min(*v);
+        max = max.max(*v);
+        let z = (g.z0 + f64::from(*v) * g.dz) as f32;
+        overflow |= !z.is_finite();
+        *v = z;
+    }
+    if overflow {
+        return Err(RasterError::HeightOverflow { path: path.to_owned(), z0: g.z0, dz: g.dz, min, max });
+    }
+    Ok(())
+}
+
+/// Directory of the shared test data (`fuji.png`, ...): `$TERRASTREAM_DATA`, else
+/// `../shared/data` beside the crate.
+#[doc(hidden)]
+#[must_use]
+pub fn test_data_dir() -> PathBuf {
+    std::env::var_os("TERRASTREAM_DATA")
+        .map_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"), PathBuf::from)
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+pub(crate) mod test_util {
+    //! Helpers shared by the format tests: temp files and default options.
+
+    use std::path::{Path, PathBuf};
+
+    use super::{LoadOptions, LoadedRaster, RasterError};
+
+    /// Writes `bytes` to `name` inside `dir` and returns the path.
+    pub fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
+        let p = dir.join(name);
+        std::fs::write(&p, bytes).unwrap();
+        p
+    }
+
+    pub fn load(path: &Path) -> Result<LoadedRaster, RasterError> {
+        super::load(path, &LoadOptions::default())
+    }
+
+    /// The error's message must start with the path, as every `RasterError` promises.
+    pub fn assert_names_path(e: &RasterError, path: &Path) {
+        let msg = e.to_string();
+        assert!(msg.starts_with(&format!("{}: ", path.display())), "{msg}");
+    }
+}
+
+#[cfg(test)]
+// A failed unwrap is the test failing; exact float comparisons are of exactly representable values.
+#[allow(clippy::unwrap_used, clippy::float_cmp)]
+mod tests {
+    use std::time::Instant;
+
+    use image::{ImageBuffer, Luma};
+
+    use super::test_util::{assert_names_path, write};
+    use super::*;
+
+    fn gray16(dir: &Path, w: u32, h: u32, data: Vec<u16>) -> PathBuf {
+        let p = dir.join("g.png");
+        ImageBuffer::<Luma<u16>, _>::from_raw(w, h, data).unwrap().save(&p).unwrap();
+        p
+    }
+
+    /// A small valid file: 0 = 16-bit PNG, 1 = `GeoTIFF` (i16, georeferenced, nodata), 2 = EXR.
+    fn valid_file(kind: usize) -> Vec<u8> {
+        let (w, h) = (9_u32, 7_u32);
+        let vals: Vec<u16> = (0..w * h).map(|i| (i * 37 % 1000) as u16).collect();
+        let mut out = std::io::Cursor::new(Vec::new());
+        match kind {
+            0 => {
+                let img = ImageBuffer::<Luma<u16>, _>::from_raw(w, h, vals).unwrap();
+                img.write_to(&mut out, image::ImageFormat::Png).unwrap();
+            }
+            1 => {
+                use tiff::encoder::{TiffEncoder, colortype::GrayI16};
+                use tiff::tags::Tag;
+                let data: Vec<i16> = vals.iter().map(|&v| v as i16 - 500).collect();
+                let mut enc = TiffEncoder::new(&mut out).unwrap();
+                let mut img = enc.new_image::<GrayI16>(w, h).unwrap();
+                img.rows_per_strip(3).unwrap();
+                let e = img.encoder();
+                e.write_tag(Tag::ModelPixelScaleTag, &[10.0, 10.0, 0.0][..]).unwrap();
+                e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, 5.0, 50.0, 0.0][..]).unwrap();
+                e.write_tag(Tag::GeoKeyDirectoryTag, &[1_u16, 1, 0, 1, 1024, 0, 1, 2][..]).unwrap();
+                e.write_tag(Tag::GdalNodata, "-500").unwrap();
+                img.write_data(&data).unwrap();
+            }
+            _ => {
+                use exr::prelude::{
+                    AnyChannel, AnyChannels, FlatSamples, Layer, LayerAttributes, WritableImage,
+                };
+                let z = FlatSamples::F32(vals.iter().map(|&v| f32::from(v)).collect());
+                let layer = Layer::new(
+                    (w as usize, h as usize),
+                    LayerAttributes::default(),
+                    exr::prelude::Encoding::SMALL_LOSSLESS,
+                    AnyChannels::sort(vec![AnyChannel::new("Z", z)].into()),
+                );
+                exr::prelude::Image::from_layer(layer).write().to_buffered(&mut out).unwrap();
+            }
+        }
+        out.into_inner()
+    }
+
+    #[test]
+    fn fuji_terrain_rgb() {
+        let path = test_data_dir().join("fuji.png");
+        let opts = LoadOptions { encoding: Some(Encoding::TerrainRgb), ..LoadOptions::default() };
+        let r = load(&path, &opts).unwrap();
+        assert_eq!((r.heights.width, r.heights.height), (512, 512));
+        assert_eq!(r.format, "png-terrain-rgb");
+        assert_eq!(r.nodata_filled, 0);
+        let min = r.heights.data.iter().copied().fold(f32::INFINITY, f32::min);
+        let max = r.heights.data.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        assert!((13.0..14.5).contains(&min), "min {min}");
+        assert!((3750.0..3752.0).contains(&max), "max {max}");
+        assert_eq!(r.georef, Georef::default());
+    }
+
+    #[test]
+    fn fuji_without_encoding_asks_for_it() {
+        let path = test_data_dir().join("fuji.png");
+        let e = load(&path, &LoadOptions::default()).unwrap_err();
+        assert!(matches!(e, RasterError::MissingEncoding { .. }), "{e}");
+        assert!(e.to_string().contains("--encoding terrain-rgb|terrarium"), "{e}");
+        assert_names_path(&e, &path);
+    }
+
+    #[test]
+    fn missing_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("nope.png");
+        let e = load(&p, &LoadOptions::default()).unwrap_err();
+        assert!(matches!(e, RasterError::Io { .. }), "{e}");
+        assert_names_path(&e, &p);
+    }
+
+    #[test]
+    fn unknown_magic_and_empty_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "x.dem", b"hello world, not a raster");
+        let e = load(&p, &LoadOptions::default()).unwrap_err();
+        assert!(matches!(e, RasterError::UnknownFormat { .. }), "{e}");
+        assert!(e.to_string().contains("68 65 6c 6c"), "{e}");
+        assert_names_path(&e, &p);
+        let p = write(dir.path(), "empty.png", b"");
+        let e = load(&p, &LoadOptions::default()).unwrap_err();
+        assert!(e.to_string().contains("empty"), "{e}");
+    }
+
+    #[test]
+    fn magic_wins_over_extension() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = gray16(dir.path(), 2, 1, vec![5, 6]);
+        let renamed = dir.path().join("N35E138.hgt");
+        std::fs::rename(&p, &renamed).unwrap();
+        let r = load(&renamed, &LoadOptions::default()).unwrap();
+        assert_eq!(r.format, "png-gray16");
+    }
+
+    #[test]
+    fn overrides_apply_on_top() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = gray16(dir.path(), 2, 2, vec![0, 100, 200, 300]);
+        let overrides = Overrides {
+            cell_size: Some(30.0),
+            origin: Some((1000.0, -5.0)),
+            z_scale: Some(0.5),
+            z_offset: Some(-10.0),
+        };
+        let r = load(&p, &LoadOptions { overrides, ..LoadOptions::default() }).unwrap();
+        let g = r.georef;
+        assert_eq!((g.x0, g.y0, g.dx, g.dy, g.z0, g.dz), (1000.0, -5.0, 30.0, 30.0, -10.0, 0.5));
+        assert_eq!(r.heights.data, [-10.0, 40.0, 90.0, 140.0]);
+    }
+
+    #[test]
+    fn cell_size_keeps_signs() {
+        let mut g = Georef { dx: 2.0, dy: -2.0, ..Georef::default() };
+        apply_overrides(&mut g, &Overrides { cell_size: Some(5.0), ..Overrides::default() });
+        assert_eq!((g.dx, g.dy), (5.0, -5.0));
+    }
+
+    #[test]
+    fn bad_overrides_are_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = gray16(dir.path(), 1, 1, vec![1]);
+        let cases = [
+            Overrides { cell_size: Some(0.0), ..Overrides::default() },
+            Overrides { cell_size: Some(-1.0), ..Overrides::default() },
+            Overrides { cell_size: Some(f64::NAN), ..Overrides::default() },
+            Overrides { z_scale: Some(0.0), ..Overrides::default() },
+            Overrides { z_scale: Some(f64::INFINITY), ..Overrides::default() },
+            Overrides { z_offset: Some(f64::NAN), ..Overrides::default() },
+            Overrides { origin: Some((0.0, f64::NEG_INFINITY)), ..Overrides::default() },
+        ];
+        for overrides in cases {
+            let e = load(&p, &LoadOptions { overrides, ..LoadOptions::default() }).unwrap_err();
+            assert!(matches!(e, RasterError::BadOverride { .. }), "{e}");
+            assert_names_path(&e, &p);
+        }
+    }
+
+    #[test]
+    fn z_overflow_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = gray16(dir.path(), 1, 1, vec![60_000]);
+        let overrides = Overrides { z_scale: Some(1e36), ..Overrides::default() };
+        let e = load(&p, &LoadOptions { overrides, ..LoadOptions::default() }).unwrap_err();
+        assert!(matches!(e, RasterError::HeightOverflow { .. }), "{e}");
+    }
+
+    #[test]
+    fn size_checks() {
+        let p = Path::new("a.tif");
+        let l = Limits { max_side: 100, max_bytes: 4 * 50 * 50 };
+        assert!(check_size(p, 50, 50, l).is_ok());
+        assert!(matches!(check_size(p, 0, 5, l), Err(RasterError::ZeroSize { .. })));
+        assert!(matches!(check_size(p, 101, 1, l), Err(RasterError::TooLarge { .. })));
+        assert!(matches!(check_size(p, 51, 50, l), Err(RasterError::TooLarge { .. })));
+        assert!(matches!(
+            check_size(p, u64::MAX, u64::MAX, Limits::default()),
+            Err(RasterError::TooLarge { .. })
+        ));
+    }
+
+    #[test]
+    fn limits_apply_to_png() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = gray16(dir.path(), 8, 4, vec![1; 32]);
+        let limits = Limits { max_side: 7, max_bytes: DEFAULT_MAX_BYTES };
+        let start = Instant::now();
+        let e = load(&p, &LoadOptions { limits, ..LoadOptions::default() }).unwrap_err();
+        assert!(matches!(e, RasterError::TooLarge { width: 8, height: 4, .. }), "{e}");
+        assert!(start.elapsed().as_secs() < 2);
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(96))]
+
+        /// Arbitrary bytes behind each magic number decode or fail with an error, never panic;
+        /// tight limits keep a random header from asking for gigabytes.
+        #[test]
+        fn arbitrary_bytes_never_panic(kind in 0_usize..4, body in proptest::collection::vec(proptest::num::u8::ANY, 0..600)) {
+            let dir = tempfile::tempdir().unwrap();
+            let magic: &[u8] = [PNG_MAGIC, EXR_MAGIC, TIFF_MAGICS[0], TIFF_MAGICS[1]][kind];
+            let mut bytes = magic.to_vec();
+            bytes.extend_from_slice(&body);
+            let p = write(dir.path(), "fuzz.bin", &bytes);
+            let limits = Limits { max_side: 4096, max_bytes: 16 << 20 };
+            if let Ok(r) = load(&p, &LoadOptions { limits, encoding: Some(Encoding::Terrarium), ..LoadOptions::default() }) {
+                proptest::prop_assert!(r.heights.data.iter().all(|v| v.is_finite()));
+            }
+        }
+
+        /// Valid small files with a few bytes corrupted (and maybe cut short) decode or fail
+        /// with an error, never panic.
+        #[test]
+        fn mutated_files_never_panic(
+            kind in 0_usize..3,
+            flips in proptest::collection::vec((proptest::num::usize::ANY, 1_u8..=255), 1..6),
+            cut in proptest::option::of(proptest::num::usize::ANY),
+        ) {
+            let mut bytes = valid_file(kind);
+            let n = bytes.len();
+            for (at, x) in flips {
+                bytes[at % n] ^= x;
+            }
+            if let Some(c) = cut {
+                bytes.truncate(c % n);
+            }
+            let dir = tempfile::tempdir().unwrap();
+            let p = write(dir.path(), "fuzz.bin", &bytes);
+            let limits = Limits { max_side: 4096, max_bytes: 16 << 20 };
+            let opts = LoadOptions { limits, encoding: Some(Encoding::Gray16), ..LoadOptions::default() };
+            if let Ok(r) = load(&p, &opts) {
+                proptest::prop_assert!(r.heights.data.iter().all(|v| v.is_finite()));
+            }
+        }
+
+        /// Filling leaves valid samples alone, fills every hole within the valid range, and
+        /// counts exactly the holes.
+        #[test]
+        fn fill_invariants(w in 1_usize..12, h in 1_usize..12, seed in proptest::collection::vec(proptest::num::u8::ANY, 144)) {
+            let orig: Vec<f32> = (0..w * h).map(|i| if seed[i] % 3 == 0 { f32::NAN } else { f32::from(seed[i]) }).collect();
+            let holes = orig.iter().filter(|v| v.is_nan()).count() as u64;
+            let mut d = orig.clone();
+            match fill::fill_nodata(w, h, &mut d) {
+                None => proptest::prop_assert_eq!(holes, (w * h) as u64),
+                Some(n) => {
+                    proptest::prop_assert_eq!(n, holes);
+                    for (a, b) in orig.iter().zip(&d) {
+                        proptest::prop_assert!(b.is_finite() && (0.0..=255.0).contains(b));
+                        if a.is_finite() {
+                            proptest::prop_assert_eq!(a, b);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn metres_per_degree_matches_known_values() {
+        let (lon, lat) = metres_per_degree(0.0);
+        assert!((lat - 110_574.0).abs() < 2.0 && (lon - 111_319.0).abs() < 2.0, "{lon} {lat}");
+        let (lon, lat) = metres_per_degree(45.0);
+        assert!((lat - 111_132.0).abs() < 2.0 && (lon - 78_847.0).abs() < 2.0, "{lon} {lat}");
+    }
+
+    #[test]
+    fn geographic_mapping_uses_central_latitude() {
+        let g = base_georef(
+            Path::new("x"),
+            FileGeoref::Geographic { lon0: 10.0, lat0: 46.0, dlon: 0.5, dlat: -0.5 },
+            5,
+        )
+        .unwrap();
+        let m = g.geographic.unwrap();
+        let (m_lon, m_lat) = metres_per_degree(45.0);
+        assert_eq!((m.metres_per_deg_lon, m.metres_per_deg_lat), (m_lon, m_lat));
+        assert_eq!((g.x0, g.y0), (0.0, 0.0));
+        assert!((g.dx - 0.5 * m_lon).abs() < 1e-9 && (g.dy + 0.5 * m_lat).abs() < 1e-9);
+        let e = base_georef(Path::new("x"), FileGeoref::Projected { x0: 0.0, y0: 0.0, dx: 0.0, dy: 1.0 }, 1);
+        assert!(matches!(e, Err(RasterError::BadGeoref { .. })));
+    }
 }

@@ -1,0 +1,541 @@
+//! TIFF/`GeoTIFF` heightfields via the `tiff` crate: one band of any integer or float sample type,
+//! in strips or tiles, with the georeference taken from `ModelPixelScale` + `ModelTiepoint` (or a
+//! rotation-free `ModelTransformation`), the model type (projected or geographic) from the
+//! `GeoKeyDirectory`, and the no-data value from `GDAL_NODATA`.
+//!
+//! Pixel convention: `GeoTIFF` places raster coordinate (0, 0) at the outer corner of the first
+//! pixel when `GTRasterTypeGeoKey` is `PixelIsArea` (the default) and at its centre for
+//! `PixelIsPoint`. Our frame puts `x0, y0` at the *centre* of sample (0, 0), so `PixelIsArea`
+//! files are shifted by half a cell. Angular units are assumed to be degrees.
+
+use std::io::{Read, Seek};
+use std::path::Path;
+
+use tiff::decoder::{Decoder, DecodingResult};
+use tiff::tags::Tag;
+use tiff::{ColorType, TiffError, TiffFormatError};
+
+use super::{Decoded, FileGeoref, Limits, RasterError, check_size};
+
+const FORMAT: &str = "TIFF";
+
+const GT_MODEL_TYPE: u16 = 1024;
+const GT_RASTER_TYPE: u16 = 1025;
+const MODEL_PROJECTED: u16 = 1;
+const MODEL_GEOGRAPHIC: u16 = 2;
+const RASTER_PIXEL_IS_POINT: u16 = 2;
+
+fn map_err(path: &Path, e: TiffError) -> RasterError {
+    match e {
+        TiffError::FormatError(TiffFormatError::InvalidDimensions(w, h)) if w == 0 || h == 0 => {
+            RasterError::ZeroSize { path: path.to_owned(), width: w.into(), height: h.into() }
+        }
+        TiffError::UnsupportedError(u) => RasterError::unsupported(path, FORMAT, u.to_string()),
+        TiffError::LimitsExceeded => {
+            RasterError::unsupported(path, FORMAT, "a tag or chunk exceeds the decoder's memory limits")
+        }
+        TiffError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            RasterError::corrupt(path, FORMAT, format!("unexpected end of file ({io})"))
+        }
+        TiffError::IoError(io) => RasterError::io(path, io),
+        other => RasterError::corrupt(path, FORMAT, other.to_string()),
+    }
+}
+
+/// `GTModelTypeGeoKey` and `GTRasterTypeGeoKey` from a `GeoKeyDirectory`; keys stored outside
+/// the directory (location ≠ 0) are not short values and are skipped.
+fn geokeys(dir: &[u16]) -> (Option<u16>, Option<u16>) {
+    let count = dir.get(3).map_or(0, |&n| usize::from(n));
+    let (mut model, mut raster) = (None, None);
+    for key in dir.get(4..).unwrap_or(&[]).chunks_exact(4).take(count) {
+        if key[1] == 0 {
+            match key[0] {
+                GT_MODEL_TYPE => model = Some(key[3]),
+                GT_RASTER_TYPE => raster = Some(key[3]),
+                _ => {}
+            }
+        }
+    }
+    (model, raster)
+}
+
+/// The affine map from raster coordinates (I, J) to model (X, Y) without rotation:
+/// `X = ax + I·sx`, `Y = ay + J·sy`.
+struct Affine {
+    ax: f64,
+    sx: f64,
+    ay: f64,
+    sy: f64,
+}
+
+fn affine<R: Read + Seek>(path: &Path, dec: &mut Decoder<R>) -> Result<Option<Affine>, RasterError> {
+    let f64s = |dec: &mut Decoder<R>, tag| -> Result<Option<Vec<f64>>, RasterError> {
+        dec.find_tag(tag)
+            .and_then(|v| v.map(tiff::decoder::ifd::Value::into_f64_vec).transpose())
+            .map_err(|e| map_err(path, e))
+    };
+    let scale = f64s(dec, Tag::ModelPixelScaleTag)?;
+    let tie = f64s(dec, Tag::ModelTiepointTag)?;
+    let transform = f64s(dec, Tag::ModelTransformationTag)?;
+    let short = |what: &str| RasterError::corrupt(path, FORMAT, format!("{what} tag has too few values"));
+    match (scale, tie, transform) {
+        (Some(scale), tie, _) => {
+            let &[sx, sy, ..] = scale.as_slice() else { return Err(short("ModelPixelScale")) };
+            // No tiepoint: raster (0, 0) sits at the model origin.
+            let (i, j, x, y) = match tie.as_deref() {
+                None => (0.0, 0.0, 0.0, 0.0),
+                Some(&[i, j, _, x, y, ..]) => (i, j, x, y),
+                Some(_) => return Err(short("ModelTiepoint")),
+            };
+            Ok(Some(Affine { ax: x - i * sx, sx, ay: y + j * sy, sy: -sy }))
+        }
+        (None, _, Some(m)) => {
+            if m.len() < 16 {
+                return Err(short("ModelTransformation"));
+            }
+            if m[1] != 0.0 || m[4] != 0.0 {
+                return Err(RasterError::unsupported(
+                    path,
+                    FORMAT,
+                    "rotated or sheared ModelTransformation; resample to a north-up grid first",
+                ));
+            }
+            Ok(Some(Affine { ax: m[3], sx: m[0], ay: m[7], sy: m[5] }))
+        }
+        (None, Some(_), None) => Err(RasterError::unsupported(
+            path,
+            FORMAT,
+            "tiepoints without ModelPixelScale (ground control points); warp to a regular grid first",
+        )),
+        (None, None, None) => Ok(None),
+    }
+}
+
+fn nodata<R: Read + Seek>(path: &Path, dec: &mut Decoder<R>) -> Result<Option<f64>, RasterError> {
+    let Some(value) = dec.find_tag(Tag::GdalNodata).map_err(|e| map_err(path, e))? else { return Ok(None) };
+    let text = value.into_string().map_err(|e| map_err(path, e))?;
+    let trimmed = text.trim_matches(|c: char| c == '\0' || c.is_whitespace());
+    trimmed.parse::<f64>().map(Some).map_err(|_| {
+        RasterError::corrupt(path, FORMAT, format!("GDAL_NODATA value \"{trimmed}\" is not a number"))
+    })
+}
+
+/// Converts samples to f32, turning the no-data value into NaN. Integers compare exactly; floats
+/// also compare after rounding both to f32, because the nodata text (e.g. "-3.4028235e+38")
+/// is often a rounded print of the stored f32.
+#[allow(clippy::float_cmp)] // the no-data marker is an exact value by definition
+fn to_values<T: Copy>(samples: &[T], nodata: Option<f64>, exact: impl Fn(T) -> f64, float: bool) -> Vec<f32> {
+    let nd32 = nodata.map(|n| n as f32);
+    samples
+        .iter()
+        .map(|&s| {
+            let v = exact(s);
+            let f = v as f32;
+            let is_nodata = nodata.is_some_and(|n| v == n || (float && Some(f) == nd32));
+            if is_nodata { f32::NAN } else { f }
+        })
+        .collect()
+}
+
+/// Decodes a TIFF file whose signature was already checked.
+pub(super) fn decode(path: &Path, reader: impl Read + Seek, limits: Limits) -> Result<Decoded, RasterError> {
+    let dec = Decoder::new(reader).map_err(|e| map_err(path, e))?;
+    let mut tiff_limits = tiff::decoder::Limits::default();
+    tiff_limits.decoding_buffer_size = usize::try_from(limits.decoder_bytes()).unwrap_or(usize::MAX);
+    let mut dec = dec.with_limits(tiff_limits);
+
+    let (width, height) = dec.dimensions().map_err(|e| map_err(path, e))?;
+    check_size(path, width.into(), height.into(), limits)?;
+
+    let bands: u16 = dec.find_tag_unsigned(Tag::SamplesPerPixel).map_err(|e| map_err(path, e))?.unwrap_or(1);
+    if bands != 1 {
+        return Err(RasterError::unsupported(
+            path,
+            FORMAT,
+            format!("{bands} bands per pixel; only single-band heightfields are supported"),
+        ));
+    }
+    match dec.colortype().map_err(|e| map_err(path, e))? {
+        ColorType::Gray(8 | 16 | 32 | 64) => {}
+        ColorType::Gray(bits) => {
+            return Err(RasterError::unsupported(
+                path,
+                FORMAT,
+                format!("{bits}-bit samples; expected 8, 16, 32 or 64 bits"),
+            ));
+        }
+        other => {
+            return Err(RasterError::unsupported(
+                path,
+                FORMAT,
+                format!("colour type {other:?}; expected a single grayscale band"),
+            ));
+        }
+    }
+
+    let nodata = nodata(path, &mut dec)?;
+    let affine = affine(path, &mut dec)?;
+    let keys = dec.find_tag(Tag::GeoKeyDirectoryTag).map_err(|e| map_err(path, e))?;
+    let (model, raster) = match keys {
+        Some(v) => geokeys(&v.into_u16_vec().map_err(|e| map_err(path, e))?),
+        None => (None, None),
+    };
+
+    let georef = match affine {
+        None => FileGeoref::None,
+        Some(a) => {
+            let off = if raster == Some(RASTER_PIXEL_IS_POINT) { 0.0 } else { 0.5 };
+            let (x0, y0) = (a.ax + off * a.sx, a.ay + off * a.sy);
+            match model {
+                None | Some(MODEL_PROJECTED) => FileGeoref::Projected { x0, y0, dx: a.sx, dy: a.sy },
+                Some(MODEL_GEOGRAPHIC) => {
+                    FileGeoref::Geographic { lon0: x0, lat0: y0, dlon: a.sx, dlat: a.sy }
+                }
+                Some(other) => {
+                    return Err(RasterError::unsupported(
+                        path,
+                        FORMAT,
+                        format!("GTModelTypeGeoKey {other}; expected 1 (projected) or 2 (geographic)"),
+                    ));
+                }
+            }
+        }
+    };
+
+    let values = match dec.read_image().map_err(|e| map_err(path, e))? {
+        DecodingResult::U8(v) => to_values(&v, nodata, f64::from, false),
+        DecodingResult::U16(v) => to_values(&v, nodata, f64::from, false),
+        DecodingResult::U32(v) => to_values(&v, nodata, f64::from, false),
+        DecodingResult::U64(v) => to_values(&v, nodata, |s| s as f64, false),
+        DecodingResult::I8(v) => to_values(&v, nodata, f64::from, false),
+        DecodingResult::I16(v) => to_values(&v, nodata, f64::from, false),
+        DecodingResult::I32(v) => to_values(&v, nodata, f64::from, false),
+        DecodingResult::I64(v) => to_values(&v, nodata, |s| s as f64, false),
+        DecodingResult::F16(v) => to_values(&v, nodata, f64::from, true),
+        DecodingResult::F32(v) => to_values(&v, nodata, f64::from, true),
+        DecodingResult::F64(v) => to_values(&v, nodata, |s| s, true),
+    };
+    Ok(Decoded { width, height, values, georef, format: "geotiff" })
+}
+
+#[cfg(test)]
+// A failed unwrap is the test failing; exact float comparisons are of exactly representable values.
+#[allow(clippy::unwrap_used, clippy::float_cmp)]
+mod tests {
+    use std::io::Cursor;
+    use std::path::{Path, PathBuf};
+    use std::time::Instant;
+
+    use tiff::encoder::{TiffEncoder, colortype};
+    use tiff::tags::Tag;
+
+    use super::super::test_util::{assert_names_path, load, write};
+    use super::super::{FileGeoref, GeographicMapping, Georef, RasterError, metres_per_degree};
+
+    /// `GeoTIFF` tags to attach to a test image.
+    #[derive(Default)]
+    struct Geo<'a> {
+        scale: Option<[f64; 3]>,
+        tie: Option<[f64; 6]>,
+        transform: Option<[f64; 16]>,
+        keys: Option<&'a [u16]>,
+        nodata: Option<&'a str>,
+    }
+
+    fn geokeys(model: u16, raster: u16) -> Vec<u16> {
+        vec![1, 1, 0, 2, 1024, 0, 1, model, 1025, 0, 1, raster]
+    }
+
+    /// Writes a strip TIFF of colour type `C` with the given `GeoTIFF` tags.
+    fn strip_tiff<C: colortype::ColorType>(
+        dir: &Path,
+        w: u32,
+        h: u32,
+        data: &[C::Inner],
+        geo: &Geo,
+    ) -> PathBuf
+    where
+        [C::Inner]: tiff::encoder::TiffValue,
+    {
+        let mut buf = Cursor::new(Vec::new());
+        let mut enc = TiffEncoder::new(&mut buf).unwrap();
+        let mut img = enc.new_image::<C>(w, h).unwrap();
+        img.rows_per_strip(2).unwrap();
+        let e = img.encoder();
+        if let Some(s) = geo.scale {
+            e.write_tag(Tag::ModelPixelScaleTag, &s[..]).unwrap();
+        }
+        if let Some(t) = geo.tie {
+            e.write_tag(Tag::ModelTiepointTag, &t[..]).unwrap();
+        }
+        if let Some(m) = geo.transform {
+            e.write_tag(Tag::ModelTransformationTag, &m[..]).unwrap();
+        }
+        if let Some(k) = geo.keys {
+            e.write_tag(Tag::GeoKeyDirectoryTag, k).unwrap();
+        }
+        if let Some(n) = geo.nodata {
+            e.write_tag(Tag::GdalNodata, n).unwrap();
+        }
+        img.write_data(data).unwrap();
+        write(dir, "t.tif", &buf.into_inner())
+    }
+
+    /// Writes a tiled u16 TIFF by hand (the encoder only writes strips): `tile`² tiles, edge
+    /// tiles padded as the format requires.
+    fn tiled_tiff(dir: &Path, w: u32, h: u32, tile: u32, data: &[u16]) -> PathBuf {
+        let mut buf = Cursor::new(Vec::new());
+        let mut enc = TiffEncoder::new(&mut buf).unwrap();
+        let mut d = enc.image_directory().unwrap();
+        let (mut offsets, mut counts) = (Vec::new(), Vec::new());
+        for ty in 0..h.div_ceil(tile) {
+            for tx in 0..w.div_ceil(tile) {
+                let mut t = vec![0_u16; (tile * tile) as usize];
+                for r in 0..tile {
+                    for c in 0..tile {
+                        let (col, row) = (tx * tile + c, ty * tile + r);
+                        if col < w && row < h {
+                            t[(r * tile + c) as usize] = data[(row * w + col) as usize];
+                        }
+                    }
+                }
+                offsets.push(d.write_data(&t[..]).unwrap() as u32);
+                counts.push(tile * tile * 2);
+            }
+        }
+        d.write_tag(Tag::ImageWidth, w).unwrap();
+        d.write_tag(Tag::ImageLength, h).unwrap();
+        d.write_tag(Tag::BitsPerSample, 16_u16).unwrap();
+        d.write_tag(Tag::SamplesPerPixel, 1_u16).unwrap();
+        d.write_tag(Tag::PhotometricInterpretation, 1_u16).unwrap();
+        d.write_tag(Tag::Compression, 1_u16).unwrap();
+        d.write_tag(Tag::TileWidth, tile).unwrap();
+        d.write_tag(Tag::TileLength, tile).unwrap();
+        d.write_tag(Tag::TileOffsets, &offsets[..]).unwrap();
+        d.write_tag(Tag::TileByteCounts, &counts[..]).unwrap();
+        d.finish().unwrap();
+        write(dir, "tiled.tif", &buf.into_inner())
+    }
+
+    /// A header-only strip TIFF declaring `w × h` u16 samples (one tiny strip).
+    fn declared_tiff(dir: &Path, w: u32, h: u32) -> PathBuf {
+        let mut buf = Cursor::new(Vec::new());
+        let mut enc = TiffEncoder::new(&mut buf).unwrap();
+        let mut d = enc.image_directory().unwrap();
+        let off = d.write_data(&[0_u16][..]).unwrap() as u32;
+        d.write_tag(Tag::ImageWidth, w).unwrap();
+        d.write_tag(Tag::ImageLength, h).unwrap();
+        d.write_tag(Tag::BitsPerSample, 16_u16).unwrap();
+        d.write_tag(Tag::SamplesPerPixel, 1_u16).unwrap();
+        d.write_tag(Tag::PhotometricInterpretation, 1_u16).unwrap();
+        d.write_tag(Tag::RowsPerStrip, h.max(1)).unwrap();
+        d.write_tag(Tag::StripOffsets, &[off][..]).unwrap();
+        d.write_tag(Tag::StripByteCounts, &[2_u32][..]).unwrap();
+        d.finish().unwrap();
+        write(dir, "declared.tif", &buf.into_inner())
+    }
+
+    #[test]
+    fn projected_pixel_is_area() {
+        let dir = tempfile::tempdir().unwrap();
+        let data: Vec<i16> = (0..12).map(|i| i * 100 - 300).collect();
+        let keys = geokeys(1, 1);
+        let geo = Geo {
+            scale: Some([30.0, 30.0, 0.0]),
+            tie: Some([0.0, 0.0, 0.0, 500_000.0, 4_000_000.0, 0.0]),
+            keys: Some(&keys),
+            ..Geo::default()
+        };
+        let p = strip_tiff::<colortype::GrayI16>(dir.path(), 4, 3, &data, &geo);
+        let r = load(&p).unwrap();
+        assert_eq!(r.format, "geotiff");
+        assert_eq!(r.heights.data, data.iter().map(|&v| f32::from(v)).collect::<Vec<_>>());
+        let g = r.georef;
+        assert_eq!((g.x0, g.y0, g.dx, g.dy), (500_015.0, 3_999_985.0, 30.0, -30.0));
+        assert_eq!(g.geographic, None);
+    }
+
+    #[test]
+    fn pixel_is_point_and_no_geokeys() {
+        let dir = tempfile::tempdir().unwrap();
+        let keys = geokeys(1, 2);
+        let tie = [1.0, 1.0, 0.0, 100.0, 200.0, 0.0];
+        let geo = Geo { scale: Some([2.0, 2.0, 0.0]), tie: Some(tie), keys: Some(&keys), ..Geo::default() };
+        let p = strip_tiff::<colortype::Gray16>(dir.path(), 2, 2, &[1, 2, 3, 4], &geo);
+        let g = load(&p).unwrap().georef;
+        assert_eq!((g.x0, g.y0, g.dx, g.dy), (98.0, 202.0, 2.0, -2.0));
+        // Without geokeys: projected, PixelIsArea.
+        let geo = Geo { scale: Some([2.0, 2.0, 0.0]), tie: Some(tie), ..Geo::default() };
+        let p = strip_tiff::<colortype::Gray16>(dir.path(), 2, 2, &[1, 2, 3, 4], &geo);
+        let g = load(&p).unwrap().georef;
+        assert_eq!((g.x0, g.y0, g.dx, g.dy), (99.0, 201.0, 2.0, -2.0));
+    }
+
+    #[test]
+    fn model_transformation() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut m = [0.0; 16];
+        (m[0], m[3], m[5], m[7], m[15]) = (10.0, 1000.0, -10.0, 5000.0, 1.0);
+        let geo = Geo { transform: Some(m), ..Geo::default() };
+        let p = strip_tiff::<colortype::Gray32Float>(dir.path(), 2, 1, &[1.5, 2.5], &geo);
+        let r = load(&p).unwrap();
+        assert_eq!(r.heights.data, [1.5, 2.5]);
+        let g = r.georef;
+        assert_eq!((g.x0, g.y0, g.dx, g.dy), (1005.0, 4995.0, 10.0, -10.0));
+        m[1] = 0.5;
+        let geo = Geo { transform: Some(m), ..Geo::default() };
+        let p = strip_tiff::<colortype::Gray32Float>(dir.path(), 2, 1, &[1.5, 2.5], &geo);
+        assert!(matches!(load(&p), Err(RasterError::Unsupported { .. })));
+    }
+
+    #[test]
+    fn geographic_maps_to_metres() {
+        let dir = tempfile::tempdir().unwrap();
+        let keys = geokeys(2, 1);
+        let step = 1.0 / 3600.0;
+        let geo = Geo {
+            scale: Some([step, step, 0.0]),
+            tie: Some([0.0, 0.0, 0.0, 138.0, 36.0, 0.0]),
+            keys: Some(&keys),
+            ..Geo::default()
+        };
+        let p = strip_tiff::<colortype::Gray16>(dir.path(), 3, 3, &[1; 9], &geo);
+        let g = load(&p).unwrap().georef;
+        let m = g.geographic.unwrap();
+        let (lon0, lat0) = (138.0 + step / 2.0, 36.0 - step / 2.0);
+        let expect = GeographicMapping::new(lon0, lat0, step, -step, 3);
+        assert_eq!(m, expect);
+        let (m_lon, m_lat) = metres_per_degree(lat0 - step);
+        assert!((m.metres_per_deg_lon - m_lon).abs() < 1e-9 && (m.metres_per_deg_lat - m_lat).abs() < 1e-9);
+        assert_eq!((g.x0, g.y0), (0.0, 0.0));
+        assert!((g.dx - step * m_lon).abs() < 1e-9 && (g.dy + step * m_lat).abs() < 1e-9);
+        assert!((g.dx - 25.0).abs() < 0.5, "about 25 m per arc-second of longitude at 36°N: {}", g.dx);
+    }
+
+    #[test]
+    fn gdal_nodata_is_filled() {
+        let dir = tempfile::tempdir().unwrap();
+        let nd = -9999.0_f32;
+        let data = [1.0, 2.0, 3.0, 4.0, nd, 6.0, 7.0, 8.0, 9.0, nd, nd, nd];
+        let geo = Geo { nodata: Some("-9999"), ..Geo::default() };
+        let p = strip_tiff::<colortype::Gray32Float>(dir.path(), 3, 4, &data, &geo);
+        let r = load(&p).unwrap();
+        assert_eq!(r.nodata_filled, 4);
+        assert!((r.heights.get(1, 1) - 5.0).abs() < 1e-6);
+        // Bottom row: pass 1 sees row 2 (7, 8, 9) only.
+        assert!((r.heights.get(0, 3) - 7.5).abs() < 1e-6);
+        assert!((r.heights.get(1, 3) - 8.0).abs() < 1e-6);
+        assert!((r.heights.get(2, 3) - 8.5).abs() < 1e-6);
+        assert_eq!(r.georef, Georef::default());
+        // f32 nodata printed as its shortest f32 form (not exact in f64) still matches.
+        let data = [f32::MIN, 1.0];
+        let geo = Geo { nodata: Some(" -3.4028235e+38 "), ..Geo::default() };
+        let p = strip_tiff::<colortype::Gray32Float>(dir.path(), 2, 1, &data, &geo);
+        let r = load(&p).unwrap();
+        assert_eq!((r.nodata_filled, r.heights.data.clone()), (1, vec![1.0, 1.0]));
+    }
+
+    #[test]
+    fn integer_nodata_and_all_nodata() {
+        let dir = tempfile::tempdir().unwrap();
+        let geo = Geo { nodata: Some("-32768"), ..Geo::default() };
+        let p = strip_tiff::<colortype::GrayI16>(dir.path(), 2, 1, &[-32768, 12], &geo);
+        assert_eq!(load(&p).unwrap().heights.data, [12.0, 12.0]);
+        let p = strip_tiff::<colortype::GrayI16>(dir.path(), 2, 2, &[-32768; 4], &geo);
+        let e = load(&p).unwrap_err();
+        assert!(matches!(e, RasterError::AllNoData { samples: 4, .. }), "{e}");
+        assert_names_path(&e, &p);
+        let geo = Geo { nodata: Some("none"), ..Geo::default() };
+        let p = strip_tiff::<colortype::GrayI16>(dir.path(), 2, 1, &[1, 2], &geo);
+        assert!(matches!(load(&p), Err(RasterError::Corrupt { .. })));
+    }
+
+    #[test]
+    fn nan_samples_are_filled() {
+        let dir = tempfile::tempdir().unwrap();
+        let p =
+            strip_tiff::<colortype::Gray32Float>(dir.path(), 3, 1, &[2.0, f32::NAN, 4.0], &Geo::default());
+        let r = load(&p).unwrap();
+        assert_eq!((r.nodata_filled, r.heights.data), (1, vec![2.0, 3.0, 4.0]));
+    }
+
+    #[test]
+    fn sample_types() {
+        let dir = tempfile::tempdir().unwrap();
+        let g = Geo::default();
+        let p = strip_tiff::<colortype::Gray8>(dir.path(), 2, 1, &[0, 255], &g);
+        assert_eq!(load(&p).unwrap().heights.data, [0.0, 255.0]);
+        let p = strip_tiff::<colortype::GrayI32>(dir.path(), 2, 1, &[-100_000, 7], &g);
+        assert_eq!(load(&p).unwrap().heights.data, [-100_000.0, 7.0]);
+        let p = strip_tiff::<colortype::Gray64Float>(dir.path(), 2, 1, &[0.25, -1.5], &g);
+        assert_eq!(load(&p).unwrap().heights.data, [0.25, -1.5]);
+        let p = strip_tiff::<colortype::Gray16>(dir.path(), 2, 1, &[65_535, 1], &g);
+        assert_eq!(load(&p).unwrap().heights.data, [65_535.0, 1.0]);
+    }
+
+    #[test]
+    fn tiled_with_padding() {
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (20, 20);
+        let data: Vec<u16> = (0..w * h).map(|i| (i * 3) as u16).collect();
+        let p = tiled_tiff(dir.path(), w, h, 16, &data);
+        let r = load(&p).unwrap();
+        assert_eq!((r.heights.width, r.heights.height), (w, h));
+        assert_eq!(r.heights.data, data.iter().map(|&v| f32::from(v)).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn three_bands_unsupported() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = strip_tiff::<colortype::RGB8>(dir.path(), 2, 1, &[1, 2, 3, 4, 5, 6], &Geo::default());
+        let e = load(&p).unwrap_err();
+        assert!(matches!(e, RasterError::Unsupported { .. }), "{e}");
+        assert!(e.to_string().contains("3 bands"), "{e}");
+        assert_names_path(&e, &p);
+    }
+
+    #[test]
+    fn huge_declared_size_fails_fast() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = declared_tiff(dir.path(), 100_000, 100_000);
+        let start = Instant::now();
+        let e = load(&p).unwrap_err();
+        assert!(matches!(e, RasterError::TooLarge { width: 100_000, height: 100_000, .. }), "{e}");
+        assert!(start.elapsed().as_millis() < 500);
+        assert_names_path(&e, &p);
+    }
+
+    #[test]
+    fn zero_size() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = declared_tiff(dir.path(), 0, 5);
+        let e = load(&p).unwrap_err();
+        assert!(matches!(e, RasterError::ZeroSize { .. }), "{e}");
+        assert_names_path(&e, &p);
+    }
+
+    #[test]
+    fn truncated_and_garbage() {
+        let dir = tempfile::tempdir().unwrap();
+        let data: Vec<u16> = (0..400).collect();
+        let p = strip_tiff::<colortype::Gray16>(dir.path(), 20, 20, &data, &Geo::default());
+        let bytes = std::fs::read(&p).unwrap();
+        // The encoder writes strips first and the IFD last; cutting anywhere loses one or both.
+        for cut in [4, 9, 300, bytes.len() - 20] {
+            let t = write(dir.path(), "cut.tif", &bytes[..cut]);
+            let e = load(&t).unwrap_err();
+            assert!(matches!(e, RasterError::Corrupt { .. }), "cut {cut}: {e}");
+            assert_names_path(&e, &t);
+        }
+        let t = write(dir.path(), "garbage.tif", b"II*\0\xff\xff\xff\x7fgarbage");
+        assert!(matches!(load(&t), Err(RasterError::Corrupt { .. })));
+    }
+
+    #[test]
+    fn geokey_parsing_tolerates_short_directories() {
+        assert_eq!(super::geokeys(&[]), (None, None));
+        assert_eq!(super::geokeys(&[1, 1, 0, 5, 1024, 0, 1]), (None, None));
+        assert_eq!(super::geokeys(&[1, 1, 0, 1, 1024, 0, 1, 2]), (Some(2), None));
+        let _ = FileGeoref::None;
+    }
+}

@@ -1,0 +1,181 @@
+//! SRTM `.hgt` tiles: headerless big-endian i16 grids of 1201² (3 arc-second) or 3601²
+//! (1 arc-second) samples covering one degree, with −32768 marking voids. The size comes from the
+//! file length and the position from the file name (`N35E138.hgt`: the south-west corner), since
+//! the file carries nothing else. Row 0 is the northern edge and the edge rows/columns are shared
+//! with the neighbouring tiles, hence the `side − 1` steps per degree.
+
+use std::io::Read;
+use std::path::Path;
+
+use super::{Decoded, FileGeoref, Limits, RasterError, check_size};
+
+const VOID: i16 = i16::MIN;
+
+/// (samples per side, arc-seconds per sample) for a file of `len` bytes.
+fn side_for_len(len: u64) -> Option<u32> {
+    [1201_u32, 3601].into_iter().find(|&s| u64::from(s) * u64::from(s) * 2 == len)
+}
+
+/// South-west corner (lat, lon) in whole degrees from a name like `N35E138.hgt` or
+/// `s12w077.SRTMGL1.hgt`.
+fn corner_from_name(name: &str) -> Option<(i32, i32)> {
+    let b = name.as_bytes();
+    if b.len() < 7 || !(b.len() == 7 || b[7] == b'.') {
+        return None;
+    }
+    let digits = |s: &[u8]| -> Option<i32> {
+        s.iter().try_fold(0_i32, |acc, &c| c.is_ascii_digit().then(|| acc * 10 + i32::from(c - b'0')))
+    };
+    let lat = digits(&b[1..3])?;
+    let lon = digits(&b[4..7])?;
+    let lat = match b[0].to_ascii_uppercase() {
+        b'N' if lat <= 89 => lat,
+        b'S' if (1..=90).contains(&lat) => -lat,
+        _ => return None,
+    };
+    let lon = match b[3].to_ascii_uppercase() {
+        b'E' if lon <= 179 => lon,
+        b'W' if (1..=180).contains(&lon) => -lon,
+        _ => return None,
+    };
+    Some((lat, lon))
+}
+
+/// Decodes an SRTM tile chosen by its `.hgt` extension.
+pub(super) fn decode(path: &Path, mut reader: impl Read, limits: Limits) -> Result<Decoded, RasterError> {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let (south, west) = corner_from_name(&name)
+        .ok_or_else(|| RasterError::HgtName { path: path.to_owned(), name: name.clone() })?;
+    let len = std::fs::metadata(path).map_err(|e| RasterError::io(path, e))?.len();
+    let side = side_for_len(len).ok_or(RasterError::HgtLength { path: path.to_owned(), len })?;
+    check_size(path, side.into(), side.into(), limits)?;
+
+    let mut bytes = vec![0_u8; len as usize];
+    reader.read_exact(&mut bytes).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::UnexpectedEof {
+            RasterError::corrupt(path, "SRTM .hgt", "file shrank while being read")
+        } else {
+            RasterError::io(path, e)
+        }
+    })?;
+    let values = bytes
+        .chunks_exact(2)
+        .map(|c| match i16::from_be_bytes([c[0], c[1]]) {
+            VOID => f32::NAN,
+            v => f32::from(v),
+        })
+        .collect();
+
+    let step = 1.0 / f64::from(side - 1);
+    let georef = FileGeoref::Geographic {
+        lon0: f64::from(west),
+        lat0: f64::from(south) + 1.0,
+        dlon: step,
+        dlat: -step,
+    };
+    Ok(Decoded { width: side, height: side, values, georef, format: "hgt" })
+}
+
+#[cfg(test)]
+// A failed unwrap is the test failing; exact float comparisons are of exactly representable values.
+#[allow(clippy::unwrap_used, clippy::float_cmp)]
+mod tests {
+    use super::super::test_util::{assert_names_path, load, write};
+    use super::super::{GeographicMapping, LoadOptions, RasterError, load as load_with, metres_per_degree};
+    use super::{Limits, corner_from_name};
+
+    /// Big-endian i16 samples of a `side²` tile: value = row·10 + col % 7, voids where `void`.
+    fn tile(side: usize, void: impl Fn(usize, usize) -> bool) -> Vec<u8> {
+        let mut out = Vec::with_capacity(side * side * 2);
+        for row in 0..side {
+            for col in 0..side {
+                let v = if void(col, row) { i16::MIN } else { (row * 10 + col % 7) as i16 };
+                out.extend_from_slice(&v.to_be_bytes());
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn names() {
+        assert_eq!(corner_from_name("N35E138.hgt"), Some((35, 138)));
+        assert_eq!(corner_from_name("s12w077.HGT"), Some((-12, -77)));
+        assert_eq!(corner_from_name("N00E000.SRTMGL1.hgt"), Some((0, 0)));
+        for bad in [
+            "foo.hgt",
+            "N35E13.hgt",
+            "X35E138.hgt",
+            "N35Q138.hgt",
+            "N95E138.hgt",
+            "N35E181.hgt",
+            "N35E138x.hgt",
+            "",
+        ] {
+            assert_eq!(corner_from_name(bad), None, "{bad}");
+        }
+    }
+
+    #[test]
+    fn three_arc_second_tile_with_voids() {
+        let dir = tempfile::tempdir().unwrap();
+        let voids = |c: usize, r: usize| (c == 5 && r == 5) || (r == 1200 && c < 3);
+        let p = write(dir.path(), "N35E138.hgt", &tile(1201, voids));
+        let r = load(&p).unwrap();
+        assert_eq!((r.heights.width, r.heights.height, r.format.as_str()), (1201, 1201, "hgt"));
+        assert_eq!(r.heights.get(0, 0), 0.0);
+        assert_eq!(r.heights.get(6, 3), 36.0);
+        assert_eq!(r.nodata_filled, 4);
+        // (5, 5): neighbours are rows 4..6, cols 4..6 → mean of 44,45,46,54,56,64,65,66 = 55.
+        assert!((r.heights.get(5, 5) - 55.0).abs() < 1e-4);
+        // Bottom-left corner void run: (2, 1200) first from (1..3, 1199) and (3, 1200).
+        assert!(r.heights.data.iter().all(|v| v.is_finite()));
+
+        let g = r.georef;
+        let m = g.geographic.unwrap();
+        let step = 1.0 / 1200.0;
+        assert_eq!(m, GeographicMapping::new(138.0, 36.0, step, -step, 1201));
+        let (m_lon, m_lat) = metres_per_degree(35.5);
+        assert!((m.metres_per_deg_lon - m_lon).abs() < 1e-9 && (m.metres_per_deg_lat - m_lat).abs() < 1e-9);
+        assert!((g.dx - step * m_lon).abs() < 1e-9 && (g.dy + step * m_lat).abs() < 1e-9);
+        assert!((g.dx - 75.6).abs() < 0.5 && (g.dy + 92.4).abs() < 0.5, "{} {}", g.dx, g.dy);
+    }
+
+    #[test]
+    fn one_arc_second_tile_southern_western() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "s12w077.HGT", &tile(3601, |_, _| false));
+        let r = load(&p).unwrap();
+        assert_eq!((r.heights.width, r.heights.height), (3601, 3601));
+        let m = r.georef.geographic.unwrap();
+        assert_eq!((m.lon0, m.lat0, m.dlon, m.dlat), (-77.0, -11.0, 1.0 / 3600.0, -1.0 / 3600.0));
+    }
+
+    #[test]
+    fn limits_checked_from_length() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "N35E138.hgt", &tile(1201, |_, _| false));
+        let limits = Limits { max_side: 1000, ..Limits::default() };
+        let e = load_with(&p, &LoadOptions { limits, ..LoadOptions::default() }).unwrap_err();
+        assert!(matches!(e, RasterError::TooLarge { width: 1201, .. }), "{e}");
+    }
+
+    #[test]
+    fn malformed() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "N35E138.hgt", &[0; 1000]);
+        let e = load(&p).unwrap_err();
+        assert!(matches!(e, RasterError::HgtLength { len: 1000, .. }), "{e}");
+        assert_names_path(&e, &p);
+        let p = write(dir.path(), "N35E138.hgt", &[]);
+        assert!(matches!(load(&p), Err(RasterError::HgtLength { len: 0, .. })));
+
+        let p = write(dir.path(), "elevation.hgt", &tile(1201, |_, _| false));
+        let e = load(&p).unwrap_err();
+        assert!(matches!(e, RasterError::HgtName { .. }), "{e}");
+        assert_names_path(&e, &p);
+
+        let p = write(dir.path(), "N01W001.hgt", &tile(1201, |_, _| true));
+        let e = load(&p).unwrap_err();
+        assert!(matches!(e, RasterError::AllNoData { samples: 1_442_401, .. }), "{e}");
+    }
+}
