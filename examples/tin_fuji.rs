@@ -37,8 +37,9 @@ fn main() -> anyhow::Result<()> {
                 [c, row, z(c, row)]
             })
             .collect();
-        let tris: Vec<[u32; 3]> =
-            (0..nt).map(|k| std::array::from_fn(|a| u32_at(8 + nv * 16 + k * 12 + a * 4).unwrap_or(0))).collect();
+        let tris: Vec<[u32; 3]> = (0..nt)
+            .map(|k| std::array::from_fn(|a| u32_at(8 + nv * 16 + k * 12 + a * 4).unwrap_or(0)))
+            .collect();
         let e = tin::measure_vertical(&pos, &tris, span, hs)?;
         println!("{{\"measured_max_error\": {}, \"rms\": {}}}", e.max, e.rms);
         return Ok(());

@@ -38,6 +38,23 @@ enum Command {
         #[arg(long, value_parser = parse_key)]
         tile: Option<TileKey>,
     },
+    /// Write a deterministic synthetic terrain as a float32 GeoTIFF (for tests and benchmarks).
+    Synth {
+        /// Output .tif file.
+        #[arg(long)]
+        out: PathBuf,
+        /// Width in samples.
+        #[arg(long, default_value_t = 1025)]
+        width: u32,
+        /// Height in samples (default: the width).
+        #[arg(long)]
+        height: Option<u32>,
+        /// Cell size in metres.
+        #[arg(long, default_value_t = 10.0)]
+        cell_size: f64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
     /// Decode one (tile, level) to PLY or OBJ in world coordinates.
     Export {
         /// Tileset directory.
@@ -153,6 +170,22 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Bake(args) => run_bake(&args),
         Command::Inspect { dir, json, tile } => run_inspect(&dir, json, tile),
+        Command::Synth { out, width, height, cell_size, seed } => {
+            let height = height.unwrap_or(width);
+            if width < 2 || height < 2 || u64::from(width) * u64::from(height) > 1 << 30 {
+                bail!("--width/--height must be 2 or more and at most 2^30 samples together");
+            }
+            if !(cell_size.is_finite() && cell_size > 0.0) {
+                bail!("--cell-size must be a positive number");
+            }
+            let heights = terrastream::synth::terrain(width, height, seed);
+            let bytes =
+                raster::geotiff::encode_f32(width, height, &heights, (0.0, 0.0), (cell_size, -cell_size))
+                    .with_context(|| format!("{}: encoding GeoTIFF", out.display()))?;
+            terrastream::store::write_atomic(&out, &bytes)?;
+            println!("wrote {} ({width}×{height} samples, {cell_size} m cells, seed {seed})", out.display());
+            Ok(())
+        }
         Command::Export { dir, tile, level, format, out } => {
             let format = match format {
                 ExportFormat::Ply => export::Format::Ply,
@@ -239,7 +272,18 @@ fn print_summary(s: &BakeSummary, out: &std::path::Path) {
         s.samples_per_second() / 1e6,
         s.nodata_filled
     );
+    if let Some(mib) = peak_rss_mib() {
+        println!("peak memory (RSS): {mib:.0} MiB");
+    }
     print_levels(&s.totals);
+}
+
+/// The process's peak resident memory, where the OS reports it (Linux).
+fn peak_rss_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
 }
 
 fn print_levels(totals: &[LevelTotals]) {

@@ -22,7 +22,9 @@ pub fn terrain(width: u32, height: u32, seed: u64) -> Vec<f32> {
 }
 
 fn hash(ix: i64, iy: i64, seed: u64) -> f64 {
-    let mut h = seed ^ (ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (iy as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+    let mut h = seed
+        ^ (ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (iy as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
     h ^= h >> 33;
     h = h.wrapping_mul(0xFF51_AFD7_ED55_8CCD);
     h ^= h >> 33;
@@ -61,7 +63,8 @@ fn fbm(x: f64, y: f64, seed: u64, octaves: u32) -> f64 {
 fn ridged(x: f64, y: f64, seed: u64, octaves: u32) -> f64 {
     let (mut sum, mut amp, mut freq, mut norm, mut weight) = (0.0, 1.0, 1.0, 0.0, 1.0);
     for o in 0..octaves {
-        let n = 1.0 - (2.0 * value_noise(x * freq, y * freq, seed.wrapping_add(101 + u64::from(o))) - 1.0).abs();
+        let n =
+            1.0 - (2.0 * value_noise(x * freq, y * freq, seed.wrapping_add(101 + u64::from(o))) - 1.0).abs();
         let n = n * n * weight;
         weight = n.clamp(0.0, 1.0);
         sum += amp * n;

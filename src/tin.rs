@@ -359,7 +359,13 @@ impl Axis {
 /// (x, y, z), with `z` the triangle's plane at that sample. With `inner`, samples on the first
 /// and last row and column are skipped. Rows are walked with the triangle's exact x-span, so the
 /// cost is the triangle's area plus one span computation per row.
-pub fn scan_triangle(p: [[f64; 3]; 3], xs: &Axis, ys: &Axis, inner: bool, mut f: impl FnMut(usize, usize, f64)) {
+pub fn scan_triangle(
+    p: [[f64; 3]; 3],
+    xs: &Axis,
+    ys: &Axis,
+    inner: bool,
+    mut f: impl FnMut(usize, usize, f64),
+) {
     const EPS: f64 = 1e-9;
     let [a, b, c] = p;
     let det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);

@@ -48,9 +48,13 @@ fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
 }
 
 fn bake_fuji(out: &Path) -> String {
-    run_ok(bin().args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "128"]).args(
-        ["--max-error", "2", "--levels", "3", "--out"],
-    ).arg(out).arg(fuji()))
+    run_ok(
+        bin()
+            .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "128"])
+            .args(["--max-error", "2", "--levels", "3", "--out"])
+            .arg(out)
+            .arg(fuji()),
+    )
 }
 
 fn decode(store: &Store, key: TileKey, level: u8) -> codec::Blob {
@@ -96,7 +100,8 @@ fn fuji_bake_errors_borders_determinism_resume() {
         for (dx, dy) in [(1, 0), (0, 1)] {
             let Some(other) = meshes.get(&TileKey::new(key.z, key.x + dx, key.y + dy)) else { continue };
             let span = pyramid.span(*key);
-            let (axis, edge) = if dx == 1 { (0, f64::from(span.col1) * 30.0) } else { (1, f64::from(span.row1) * 30.0) };
+            let (axis, edge) =
+                if dx == 1 { (0, f64::from(span.col1) * 30.0) } else { (1, f64::from(span.row1) * 30.0) };
             let on_edge = |m: &terrastream::geom::Mesh| {
                 let mut v: Vec<[u64; 3]> = m
                     .positions
@@ -130,25 +135,45 @@ fn fuji_bake_errors_borders_determinism_resume() {
     assert!(tree(&b) == ta, "resumed bake differs from a fresh one");
 
     // A bake over it with other options is refused and changes nothing.
-    let err = run_err(bin().args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30"]).arg("--out").arg(&b).arg(fuji()));
+    let err = run_err(
+        bin()
+            .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30"])
+            .arg("--out")
+            .arg(&b)
+            .arg(fuji()),
+    );
     assert!(err.contains("different options"), "{err}");
     assert!(tree(&b) == ta);
 
     // inspect and export work on the result.
     let text = run_ok(bin().arg("inspect").arg(&a));
     assert!(text.contains("mesh") && text.contains("points"), "{text}");
-    let json: serde_json::Value = serde_json::from_str(&run_ok(bin().arg("inspect").arg(&a).arg("--json"))).unwrap();
+    let json: serde_json::Value =
+        serde_json::from_str(&run_ok(bin().arg("inspect").arg(&a).arg("--json"))).unwrap();
     assert_eq!(json["depth"], 2);
     let node: serde_json::Value =
-        serde_json::from_str(&run_ok(bin().arg("inspect").arg(&a).args(["--json", "--tile", "1/1/0"]))).unwrap();
+        serde_json::from_str(&run_ok(bin().arg("inspect").arg(&a).args(["--json", "--tile", "1/1/0"])))
+            .unwrap();
     assert_eq!(node["levels"].as_array().unwrap().len(), 4);
     let ply = tmp.path().join("t.ply");
-    run_ok(bin().arg("export").arg(&a).args(["--tile", "2/3/3", "--level", "0", "--format", "ply", "--out"]).arg(&ply));
+    run_ok(
+        bin()
+            .arg("export")
+            .arg(&a)
+            .args(["--tile", "2/3/3", "--level", "0", "--format", "ply", "--out"])
+            .arg(&ply),
+    );
     let head = std::fs::read(&ply).unwrap();
     let n = meshes[&TileKey::new(2, 3, 3)].positions.len();
     assert!(String::from_utf8_lossy(&head[..200]).contains(&format!("element vertex {n}")));
     let obj = tmp.path().join("p.obj");
-    run_ok(bin().arg("export").arg(&a).args(["--tile", "0/0/0", "--level", "2", "--format", "obj", "--out"]).arg(&obj));
+    run_ok(
+        bin()
+            .arg("export")
+            .arg(&a)
+            .args(["--tile", "0/0/0", "--level", "2", "--format", "obj", "--out"])
+            .arg(&obj),
+    );
     assert!(std::fs::read_to_string(&obj).unwrap().contains("\nvn "));
 }
 
@@ -171,11 +196,23 @@ fn bad_inputs_fail_cleanly_and_write_nothing() {
     assert!(err.contains("garbage.tif"), "{err}");
     assert!(!out.exists());
 
-    let err = run_err(bin().arg("bake").arg(fuji()).args(["--encoding", "terrain-rgb", "--max-side", "100", "--out"]).arg(&out));
+    let err = run_err(
+        bin()
+            .arg("bake")
+            .arg(fuji())
+            .args(["--encoding", "terrain-rgb", "--max-side", "100", "--out"])
+            .arg(&out),
+    );
     assert!(err.contains("fuji.png"), "{err}");
     assert!(!out.exists());
 
-    let err = run_err(bin().arg("bake").arg(fuji()).args(["--encoding", "terrain-rgb", "--max-error", "-1", "--out"]).arg(&out));
+    let err = run_err(
+        bin()
+            .arg("bake")
+            .arg(fuji())
+            .args(["--encoding", "terrain-rgb", "--max-error", "-1", "--out"])
+            .arg(&out),
+    );
     assert!(err.contains("max-error"), "{err}");
     assert!(!out.exists());
 

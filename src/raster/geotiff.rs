@@ -218,6 +218,31 @@ pub(super) fn decode(path: &Path, reader: impl Read + Seek, limits: Limits) -> R
     Ok(Decoded { width, height, values, georef, format: "geotiff" })
 }
 
+/// Encodes a single-band float32 GeoTIFF (strips, projected, PixelIsPoint) whose sample (0, 0)
+/// lies at (`x0`, `y0`) with cell steps `dx`, `dy` (dy < 0 for north-up). Bytes out, no I/O:
+/// used for generated test and benchmark terrain.
+pub fn encode_f32(
+    width: u32,
+    height: u32,
+    data: &[f32],
+    (x0, y0): (f64, f64),
+    (dx, dy): (f64, f64),
+) -> Result<Vec<u8>, TiffError> {
+    use tiff::encoder::{TiffEncoder, colortype};
+    let mut buf = std::io::Cursor::new(Vec::new());
+    let mut enc = TiffEncoder::new(&mut buf)?;
+    let mut img = enc.new_image::<colortype::Gray32Float>(width, height)?;
+    img.rows_per_strip(64.min(height))?;
+    let e = img.encoder();
+    // GeoTIFF scales rows by −ScaleY from the tiepoint, so ScaleY = −dy (positive = north-up).
+    e.write_tag(Tag::ModelPixelScaleTag, &[dx.abs(), -dy, 0.0][..])?;
+    e.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, x0, y0, 0.0][..])?;
+    // Version 1.1.0, 2 keys: GTModelType = projected (1), GTRasterType = PixelIsPoint (2).
+    e.write_tag(Tag::GeoKeyDirectoryTag, &[1u16, 1, 0, 2, 1024, 0, 1, 1, 1025, 0, 1, 2][..])?;
+    img.write_data(data)?;
+    Ok(buf.into_inner())
+}
+
 #[cfg(test)]
 // A failed unwrap is the test failing; exact float comparisons are of exactly representable values.
 #[allow(clippy::unwrap_used, clippy::float_cmp)]

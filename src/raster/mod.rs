@@ -8,7 +8,7 @@
 //! starts with the file path.
 
 mod fill;
-mod geotiff;
+pub mod geotiff;
 mod hgt;
 mod openexr;
 mod png;
