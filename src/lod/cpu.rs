@@ -860,8 +860,8 @@ fn fill_axis(cells: &[(CellKey, Acc)], axis: usize, fills: &mut FastMap<CellKey,
 
 #[cfg(test)]
 // Exact float equality is what the fixed-point definition promises, so tests assert it; the
-// index loops mirror the per-axis formulas of the module doc.
-#[allow(clippy::float_cmp, clippy::needless_range_loop)]
+// index loops mirror the per-axis formulas of the module doc; unwrap is fine in tests.
+#[allow(clippy::float_cmp, clippy::needless_range_loop, clippy::unwrap_used)]
 mod tests {
     use super::*;
     use crate::lod::measure::point_triangle_dist2;
