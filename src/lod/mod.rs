@@ -2,3 +2,5 @@
 //! slicing. `cpu` is the reference implementation.
 
 pub mod cpu;
+mod fasthash;
+mod measure;

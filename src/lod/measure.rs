@@ -1,0 +1,453 @@
+//! Error measurement of a point level against the mesh it was baked from (see
+//! [`super::cpu::measure_points`] for the definitions). Uniform hash grids of triangles and of
+//! points make the nearest-item queries local: each query visits rings of grid cells around
+//! itself, nearest first, and stops as soon as nothing outside the visited box can be closer.
+
+use super::fasthash::FastMap;
+use crate::geom::{Bounds, Errors, Mesh, PointCloud};
+
+/// Cap on the grid cells all triangle bounding boxes may cover together, as a multiple of the
+/// item count (with a floor): a mesh of few huge triangles measured at a tiny `cell` would
+/// otherwise fill memory with bounding-box cells; the grid is coarsened instead.
+const GRID_BUDGET_PER_ITEM: f64 = 8.0;
+const GRID_BUDGET_MIN: f64 = (1u64 << 20) as f64;
+
+/// Queries whose cell index would exceed this (absurdly far from the mesh) are answered by a
+/// linear scan instead of ring search, so index arithmetic never overflows.
+const MAX_QUERY_INDEX: f64 = (1u64 << 40) as f64;
+
+type V3 = [f64; 3];
+
+#[inline]
+fn sub(a: V3, b: V3) -> V3 {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+#[inline]
+fn dot(a: V3, b: V3) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[inline]
+fn cross(a: V3, b: V3) -> V3 {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+
+#[inline]
+fn axpy(a: V3, t: f64, d: V3) -> V3 {
+    [a[0] + t * d[0], a[1] + t * d[1], a[2] + t * d[2]]
+}
+
+#[inline]
+fn dist2(a: V3, b: V3) -> f64 {
+    let d = sub(a, b);
+    dot(d, d)
+}
+
+/// Squared distance from `p` to segment `ab` (a point when a == b).
+fn segment_dist2(p: V3, a: V3, b: V3) -> f64 {
+    let ab = sub(b, a);
+    let len2 = dot(ab, ab);
+    let t = if len2 > 0.0 { (dot(sub(p, a), ab) / len2).clamp(0.0, 1.0) } else { 0.0 };
+    dist2(p, axpy(a, t, ab))
+}
+
+/// Squared distance from `p` to the closed triangle `t` (Ericson, Real-Time Collision
+/// Detection §5.1.5). Degenerate triangles (collinear or coincident vertices) divide by zero in
+/// that method, so they are measured as their three edges instead.
+pub(crate) fn point_triangle_dist2(p: V3, t: &[V3; 3]) -> f64 {
+    let [a, b, c] = *t;
+    let ab = sub(b, a);
+    let ac = sub(c, a);
+    let n = cross(ab, ac);
+    let n2 = dot(n, n);
+    if n2 <= 1e-24 * dot(ab, ab) * dot(ac, ac) || !n2.is_finite() {
+        return segment_dist2(p, a, b).min(segment_dist2(p, b, c)).min(segment_dist2(p, c, a));
+    }
+    let ap = sub(p, a);
+    let d1 = dot(ab, ap);
+    let d2 = dot(ac, ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return dist2(p, a);
+    }
+    let bp = sub(p, b);
+    let d3 = dot(ab, bp);
+    let d4 = dot(ac, bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return dist2(p, b);
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return dist2(p, axpy(a, d1 / (d1 - d3), ab));
+    }
+    let cp = sub(p, c);
+    let d5 = dot(ab, cp);
+    let d6 = dot(ac, cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return dist2(p, c);
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return dist2(p, axpy(a, d2 / (d2 - d6), ac));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        return dist2(p, axpy(b, (d4 - d3) / ((d4 - d3) + (d5 - d6)), sub(c, b)));
+    }
+    let denom = 1.0 / (va + vb + vc);
+    let q = axpy(axpy(a, vb * denom, ab), vc * denom, ac);
+    dist2(p, q)
+}
+
+/// A sparse uniform grid: items listed per cell in one flat array (CSR), so building it costs
+/// one sort instead of one allocation per cell.
+struct HashGrid {
+    origin: V3,
+    h: f64,
+    /// Cell → range in `items`.
+    cells: FastMap<[i64; 3], (u32, u32)>,
+    items: Vec<u32>,
+    /// Inclusive index box of the occupied cells.
+    lo: [i64; 3],
+    hi: [i64; 3],
+}
+
+impl HashGrid {
+    #[inline]
+    fn coord(origin: V3, h: f64, p: V3) -> [f64; 3] {
+        [((p[0] - origin[0]) / h).floor(), ((p[1] - origin[1]) / h).floor(), ((p[2] - origin[2]) / h).floor()]
+    }
+
+    /// Builds from (item, inclusive index box) pairs.
+    fn build(origin: V3, h: f64, boxes: impl Iterator<Item = (u32, [i64; 3], [i64; 3])>) -> Self {
+        let mut pairs: Vec<([i64; 3], u32)> = Vec::new();
+        let mut lo = [i64::MAX; 3];
+        let mut hi = [i64::MIN; 3];
+        for (item, a, b) in boxes {
+            for z in a[2]..=b[2] {
+                for y in a[1]..=b[1] {
+                    for x in a[0]..=b[0] {
+                        pairs.push(([x, y, z], item));
+                    }
+                }
+            }
+            for d in 0..3 {
+                lo[d] = lo[d].min(a[d]);
+                hi[d] = hi[d].max(b[d]);
+            }
+        }
+        pairs.sort_unstable();
+        let mut cells = FastMap::default();
+        cells.reserve(pairs.len() / 2 + 1);
+        let mut items = Vec::with_capacity(pairs.len());
+        let mut start = 0usize;
+        while start < pairs.len() {
+            let key = pairs[start].0;
+            let mut end = start;
+            while end < pairs.len() && pairs[end].0 == key {
+                items.push(pairs[end].1);
+                end += 1;
+            }
+            cells.insert(key, (start as u32, end as u32));
+            start = end;
+        }
+        Self { origin, h, cells, items, lo, hi }
+    }
+
+    fn is_empty(&self) -> bool {
+        self.items.is_empty()
+    }
+
+    /// Smallest `dist2(q, item)` over all items, found by ring search. Returns early, with some
+    /// value ≤ `stop2`, as soon as an item within `sqrt(stop2)` is found (pass 0 for the exact
+    /// nearest). `dist2` measures one item; `all` is the item count, for the linear fallback.
+    fn nearest2(&self, q: V3, stop2: f64, all: u32, dist2: impl Fn(u32) -> f64) -> f64 {
+        let mut best = f64::INFINITY;
+        if self.is_empty() {
+            return best;
+        }
+        let c = Self::coord(self.origin, self.h, q);
+        if c.iter().any(|v| !v.is_finite() || v.abs() > MAX_QUERY_INDEX) {
+            return (0..all).map(&dist2).fold(best, f64::min);
+        }
+        let c = [c[0] as i64, c[1] as i64, c[2] as i64];
+        // Rings closer than the occupied box are empty: start at the first that reaches it.
+        let r0 = (0..3).map(|d| (self.lo[d] - c[d]).max(c[d] - self.hi[d]).max(0)).max().unwrap_or(0);
+        let mut r = r0;
+        loop {
+            self.visit_ring(c, r, |item| {
+                best = best.min(dist2(item));
+            });
+            if best <= stop2 {
+                return best;
+            }
+            // Everything not yet visited lies outside the box of rings 0..=r: bound its distance
+            // by the nearest face of that box that does not already contain the occupied box.
+            let mut bound = f64::INFINITY;
+            let mut covered = true;
+            for d in 0..3 {
+                if c[d] - r > self.lo[d] {
+                    covered = false;
+                    bound = bound.min(q[d] - (self.origin[d] + (c[d] - r) as f64 * self.h));
+                }
+                if c[d] + r < self.hi[d] {
+                    covered = false;
+                    bound = bound.min(self.origin[d] + (c[d] + r + 1) as f64 * self.h - q[d]);
+                }
+            }
+            if covered {
+                return best;
+            }
+            let bound = bound.max(0.0);
+            if best <= bound * bound {
+                return best;
+            }
+            r += 1;
+        }
+    }
+
+    /// Calls `f` for every item in the cells at Chebyshev distance exactly `r` from `c`,
+    /// restricted to the occupied box.
+    fn visit_ring(&self, c: [i64; 3], r: i64, mut f: impl FnMut(u32)) {
+        let z0 = (c[2] - r).max(self.lo[2]);
+        let z1 = (c[2] + r).min(self.hi[2]);
+        let y0 = (c[1] - r).max(self.lo[1]);
+        let y1 = (c[1] + r).min(self.hi[1]);
+        let x0 = (c[0] - r).max(self.lo[0]);
+        let x1 = (c[0] + r).min(self.hi[0]);
+        let mut cell = |x: i64, y: i64, z: i64| {
+            if let Some(&(s, e)) = self.cells.get(&[x, y, z]) {
+                for &item in &self.items[s as usize..e as usize] {
+                    f(item);
+                }
+            }
+        };
+        for z in z0..=z1 {
+            let z_on = (z - c[2]).abs() == r;
+            for y in y0..=y1 {
+                if z_on || (y - c[1]).abs() == r {
+                    for x in x0..=x1 {
+                        cell(x, y, z);
+                    }
+                } else {
+                    // Interior of the shell's cross-section: only its two x walls.
+                    if c[0] - r >= x0 {
+                        cell(c[0] - r, y, z);
+                    }
+                    if r > 0 && c[0] + r <= x1 {
+                        cell(c[0] + r, y, z);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Valid triangles of `mesh` as vertex triples: indices in range, coordinates finite.
+fn valid_triangles(mesh: &Mesh) -> Vec<[V3; 3]> {
+    mesh.triangles
+        .iter()
+        .filter_map(|t| {
+            let v = [
+                *mesh.positions.get(t[0] as usize)?,
+                *mesh.positions.get(t[1] as usize)?,
+                *mesh.positions.get(t[2] as usize)?,
+            ];
+            v.iter().flatten().all(|c| c.is_finite()).then_some(v)
+        })
+        .collect()
+}
+
+/// Calls `f` with surface samples of triangle `t` at spacing ≤ `s`: points along its three
+/// edges (vertices included) and rows parallel to its longest edge, one row per ≤ `s` of
+/// height, each sampled at ≤ `s`. Rows parallel to the longest edge keep slivers cheap: the
+/// count grows with area/s² + perimeter/s, not with (longest edge/s)².
+fn sample_triangle(t: &[V3; 3], s: f64, mut f: impl FnMut(V3)) {
+    let segments = |len: f64| (len / s).ceil().max(1.0) as u64;
+    let mut edge_len = [0.0; 3];
+    for e in 0..3 {
+        let a = t[e];
+        let d = sub(t[(e + 1) % 3], a);
+        edge_len[e] = dot(d, d).sqrt();
+        let n = segments(edge_len[e]);
+        for i in 0..n {
+            f(axpy(a, i as f64 / n as f64, d));
+        }
+    }
+    // Longest edge e: p0 → p1, apex opposite.
+    let e = (0..3).fold(0, |m, i| if edge_len[i] > edge_len[m] { i } else { m });
+    let (p0, p1, apex) = (t[e], t[(e + 1) % 3], t[(e + 2) % 3]);
+    let len = edge_len[e];
+    if len <= 0.0 {
+        return;
+    }
+    let height = cross(sub(p1, p0), sub(apex, p0));
+    let height = dot(height, height).sqrt() / len;
+    let rows = segments(height);
+    // Row 0 is the longest edge, sampled above; the last row degenerates to the apex.
+    for j in 1..rows {
+        let w = j as f64 / rows as f64;
+        let a = axpy(p0, w, sub(apex, p0));
+        let b = axpy(p1, w, sub(apex, p1));
+        let d = sub(b, a);
+        let n = segments((1.0 - w) * len);
+        for i in 0..=n {
+            f(axpy(a, i as f64 / n as f64, d));
+        }
+    }
+}
+
+/// See [`super::cpu::measure_points`].
+pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
+    let tris = valid_triangles(mesh);
+    if tris.is_empty() {
+        return Errors::default();
+    }
+    let mut bounds = Bounds::empty();
+    for t in &tris {
+        for &v in t {
+            bounds.extend(v);
+        }
+    }
+    let size = bounds.size();
+    let diag = dot(size, size).sqrt();
+    let pts: Vec<V3> = points.positions.iter().copied().filter(|p| p.iter().all(|c| c.is_finite())).collect();
+    if pts.is_empty() {
+        return Errors { max: 0.0, rms: 0.0, gap: diag };
+    }
+
+    let base = if cell.is_finite() && cell > 0.0 {
+        cell
+    } else if diag > 0.0 {
+        diag / 256.0
+    } else {
+        1.0
+    };
+    let mut h = base;
+    let origin = bounds.min;
+    let tri_box = |t: &[V3; 3], h: f64| {
+        let b = Bounds::of_points(t);
+        let a = HashGrid::coord(origin, h, b.min);
+        let c = HashGrid::coord(origin, h, b.max);
+        ([a[0] as i64, a[1] as i64, a[2] as i64], [c[0] as i64, c[1] as i64, c[2] as i64])
+    };
+    let budget = (GRID_BUDGET_PER_ITEM * (tris.len() + pts.len()) as f64).max(GRID_BUDGET_MIN);
+    loop {
+        let cells: f64 = tris
+            .iter()
+            .map(|t| {
+                let (a, b) = tri_box(t, h);
+                (0..3).map(|d| (b[d] - a[d] + 1) as f64).product::<f64>()
+            })
+            .sum();
+        if cells <= budget {
+            break;
+        }
+        h *= 2.0;
+    }
+
+    let tri_grid = HashGrid::build(
+        origin,
+        h,
+        tris.iter().enumerate().map(|(i, t)| {
+            let (a, b) = tri_box(t, h);
+            (i as u32, a, b)
+        }),
+    );
+    let pt_grid = HashGrid::build(
+        origin,
+        h,
+        pts.iter().enumerate().map(|(i, &p)| {
+            // Absurdly far points are clamped into a remote cell so indices stay in range; the
+            // ring search's bounds are taken from the cells, so queries stay correct.
+            let c = HashGrid::coord(origin, h, p).map(|v| v.clamp(-MAX_QUERY_INDEX, MAX_QUERY_INDEX) as i64);
+            (i as u32, c, c)
+        }),
+    );
+
+    let mut max2 = 0.0f64;
+    let mut sum2 = 0.0f64;
+    for &p in &pts {
+        let d2 = tri_grid.nearest2(p, 0.0, tris.len() as u32, |i| point_triangle_dist2(p, &tris[i as usize]));
+        max2 = max2.max(d2);
+        sum2 += d2;
+    }
+
+    // Only samples farther than the current gap can raise it, so each query may stop at the
+    // first point within the gap found so far.
+    let s = base / 4.0;
+    let mut gap2 = 0.0f64;
+    for t in &tris {
+        sample_triangle(t, s, |q| {
+            let d2 = pt_grid.nearest2(q, gap2, pts.len() as u32, |i| dist2(q, pts[i as usize]));
+            gap2 = gap2.max(d2);
+        });
+    }
+
+    Errors { max: max2.sqrt(), rms: (sum2 / pts.len() as f64).sqrt(), gap: gap2.sqrt() }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn brute_segment_tri(p: V3, t: &[V3; 3]) -> f64 {
+        // Dense barycentric sampling: an upper bound converging to the true distance.
+        let n = 400;
+        let mut best = f64::INFINITY;
+        for i in 0..=n {
+            for j in 0..=(n - i) {
+                let (u, v) = (f64::from(i) / f64::from(n), f64::from(j) / f64::from(n));
+                let q = axpy(axpy(t[0], u, sub(t[1], t[0])), v, sub(t[2], t[0]));
+                best = best.min(dist2(p, q));
+            }
+        }
+        best.sqrt()
+    }
+
+    #[test]
+    fn point_triangle_matches_dense_sampling() {
+        let t = [[0.0, 0.0, 0.0], [4.0, 0.5, 1.0], [1.0, 3.0, -0.5]];
+        let probes = [
+            [1.0, 1.0, 2.0],
+            [-2.0, -1.0, 0.0],
+            [5.0, 1.0, 1.0],
+            [1.0, 4.0, 0.0],
+            [3.0, 3.0, 3.0],
+            [2.0, -2.0, 0.0],
+            [1.5, 1.0, 0.3],
+        ];
+        for p in probes {
+            let exact = point_triangle_dist2(p, &t).sqrt();
+            let approx = brute_segment_tri(p, &t);
+            assert!(exact <= approx + 1e-12 && approx - exact < 0.02, "{p:?}: {exact} vs {approx}");
+        }
+    }
+
+    #[test]
+    fn degenerate_triangles_measure_as_segments() {
+        let line = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]];
+        assert!((point_triangle_dist2([1.0, 1.0, 0.0], &line) - 1.0).abs() < 1e-12);
+        let dot3 = [[1.0, 1.0, 1.0]; 3];
+        assert!((point_triangle_dist2([1.0, 1.0, 3.0], &dot3) - 4.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn samples_cover_a_sliver_within_spacing() {
+        let t = [[0.0, 0.0, 0.0], [100.0, 0.0, 0.0], [50.0, 0.3, 0.0]];
+        let s = 0.25;
+        let mut samples = Vec::new();
+        sample_triangle(&t, s, |q| samples.push(q));
+        // Area/s² + perimeter/s is ~ 240 + 800; (longest/s)² would be 160,000.
+        assert!(samples.len() < 2_000, "{}", samples.len());
+        for i in 0..=1000 {
+            let x = f64::from(i) * 0.1;
+            let top = if x <= 50.0 { 0.3 * x / 50.0 } else { 0.3 * (100.0 - x) / 50.0 };
+            for y in [0.0, top * 0.5, top] {
+                let q = [x, y, 0.0];
+                let d = samples.iter().map(|&p| dist2(p, q)).fold(f64::INFINITY, f64::min).sqrt();
+                assert!(d <= s, "{q:?}: {d}");
+            }
+        }
+    }
+}
