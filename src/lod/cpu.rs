@@ -577,10 +577,8 @@ impl Edge {
     fn new(a: [f64; 2], b: [f64; 2]) -> Self {
         let du = b[0] - a[0];
         let dv = b[1] - a[1];
-        // Non-short-circuit `|` and `&` throughout: these outcomes are data-dependent coin
-        // flips, and selects are cheaper than mispredicted branches.
-        let tie = (dv < 0.0) | ((dv == 0.0) & (du > 0.0));
-        let forward = (a[0] < b[0]) | ((a[0] == b[0]) & (a[1] <= b[1]));
+        let tie = dv < 0.0 || (dv == 0.0 && du > 0.0);
+        let forward = (a[0], a[1]) <= (b[0], b[1]);
         let (p, q) = if forward { (a, b) } else { (b, a) };
         let sign = if forward { 1.0 } else { -1.0 };
         Self { p, d: [q[0] - p[0], q[1] - p[1]], sign, tie }
@@ -600,7 +598,7 @@ impl Edge {
 
     #[inline]
     fn covers(&self, e: f64) -> bool {
-        (e > 0.0) | ((e == 0.0) & self.tie)
+        e > 0.0 || (e == 0.0 && self.tie)
     }
 }
 
@@ -710,7 +708,7 @@ fn rasterize(
                 edges[1].sign * (ay[1] - edges[1].d[1] * (x - edges[1].p[0])),
                 edges[2].sign * (ay[2] - edges[2].d[1] * (x - edges[2].p[0])),
             ];
-            if !(edges[0].covers(e[0]) & edges[1].covers(e[1]) & edges[2].covers(e[2])) {
+            if !(edges[0].covers(e[0]) && edges[1].covers(e[1]) && edges[2].covers(e[2])) {
                 continue;
             }
             let sum = e[0] + e[1] + e[2];
