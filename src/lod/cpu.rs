@@ -104,10 +104,11 @@
 //!
 //! # Cost
 //!
-//! Time grows with the number of fragments, about the mesh's surface area / cell² times the
-//! sum of the absolute normal components, plus the pixel bounding-box rows of each triangle;
-//! memory with the occupied cells, never with the bounding volume. Nothing here allocates per
-//! fragment or runs in parallel: callers parallelise over tiles.
+//! Time grows with the triangle count (a setup per triangle and view) and the fragment count,
+//! about the mesh's surface area / cell² times the sum of its absolute normal components.
+//! Fragments go to one flat buffer (16 bytes each, twice during the radix sort that groups
+//! them by cell), so memory follows the fragments and occupied cells, never the bounding
+//! volume. Nothing allocates per fragment or runs in parallel: callers parallelise over tiles.
 
 use std::hash::{Hash, Hasher};
 
@@ -321,7 +322,7 @@ impl CellKey {
 impl Hash for CellKey {
     #[inline]
     fn hash<H: Hasher>(&self, state: &mut H) {
-        // Two words instead of three field writes: this runs once per fragment.
+        // Two words instead of three field writes.
         state.write_u64((u64::from(self.k as u32) << 32) | u64::from(self.j as u32));
         state.write_u32(self.i as u32);
     }
