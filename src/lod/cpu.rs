@@ -104,10 +104,11 @@
 //!
 //! # Cost
 //!
-//! Time grows with the number of fragments, about the mesh's surface area / cell² times the
-//! sum of the absolute normal components, plus the pixel bounding-box rows of each triangle;
-//! memory with the occupied cells, never with the bounding volume. Nothing here allocates per
-//! fragment or runs in parallel: callers parallelise over tiles.
+//! Time grows with the triangle count (a setup per triangle and view) and the fragment count,
+//! about the mesh's surface area / cell² times the sum of its absolute normal components.
+//! Fragments go to one flat buffer (16 bytes each, twice during the radix sort that groups
+//! them by cell), so memory follows the fragments and occupied cells, never the bounding
+//! volume. Nothing allocates per fragment or runs in parallel: callers parallelise over tiles.
 
 use std::hash::{Hash, Hasher};
 
@@ -130,7 +131,7 @@ const POS_MASK: i64 = (1i64 << POSITION_FRACTION_BITS) - 1;
 const POS_HALF: u64 = 1u64 << (POSITION_FRACTION_BITS - 1);
 const NORMAL_ONE: f64 = (1u64 << NORMAL_FRACTION_BITS) as f64;
 /// Quantized normal components are clamped to ±(2^15 − 1) so they fit an `i16`.
-const NORMAL_MAX: f64 = NORMAL_ONE - 1.0;
+const NORMAL_LIMIT: i64 = (1 << NORMAL_FRACTION_BITS) - 1;
 
 /// Options of one bake.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -220,46 +221,42 @@ pub fn bake_cells(
         })
         .collect();
 
-    // Triangles as rasterized: canonical rotation, grid-unit vertices, quantized normal.
-    let mut tris: Vec<([[f64; 3]; 3], [i16; 3])> = Vec::with_capacity(mesh.triangles.len());
-    let mut lo = [i64::MAX; 3];
-    let mut hi = [i64::MIN; 3];
-    for tri in &mesh.triangles {
-        // Rotate so the smallest index leads; orientation (and so the normal) is kept.
-        let lead = if tri[0] <= tri[1] && tri[0] <= tri[2] {
-            0
-        } else if tri[1] <= tri[2] {
-            1
-        } else {
-            2
-        };
-        let ids = [tri[lead], tri[(lead + 1) % 3], tri[(lead + 2) % 3]];
-        let lookup = |id: u32| grid.get(id as usize).copied().flatten();
-        let (Some(g0), Some(g1), Some(g2)) = (lookup(ids[0]), lookup(ids[1]), lookup(ids[2])) else {
-            stats.skipped_triangles += 1;
-            continue;
-        };
-        let world = ids.map(|id| mesh.positions[id as usize]);
-        let n = triangle_normal(world[0], world[1], world[2]);
-        let nq = n.map(|c| (c * NORMAL_ONE + 0.5).floor().clamp(-NORMAL_MAX, NORMAL_MAX) as i16);
-        for g in [g0, g1, g2] {
+    // First pass: the cell box (for the key codec) and the fragment estimate (the three
+    // projected areas, in pixels), so the second pass rasterizes into one right-sized buffer
+    // without keeping per-triangle data around.
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    let mut area = 0.0;
+    let mut valid = 0usize;
+    for (_, g) in valid_triangles(mesh, &grid) {
+        for v in g {
             for d in 0..3 {
-                lo[d] = lo[d].min(floor_i64(g[d]));
-                hi[d] = hi[d].max(floor_i64(g[d]));
+                lo[d] = lo[d].min(v[d]);
+                hi[d] = hi[d].max(v[d]);
             }
         }
-        tris.push(([g0, g1, g2], nq));
+        let u = [g[1][0] - g[0][0], g[1][1] - g[0][1], g[1][2] - g[0][2]];
+        let v = [g[2][0] - g[0][0], g[2][1] - g[0][1], g[2][2] - g[0][2]];
+        area += 0.5
+            * ((u[1] * v[2] - u[2] * v[1]).abs()
+                + (u[2] * v[0] - u[0] * v[2]).abs()
+                + (u[0] * v[1] - u[1] * v[0]).abs());
+        valid += 1;
     }
+    stats.skipped_triangles = mesh.triangles.len() - valid;
+    // Capped so absurd inputs do not reserve absurd memory up front.
+    let estimate = ((area * 1.1) as usize + 64).min(1 << 24);
 
-    // Every cell index lies within the vertices' floor box; one cell of margin besides.
-    let lo = lo.map(|v| v - 1);
-    let hi = hi.map(|v| v + 1);
-    let cells = if tris.is_empty() {
+    let cells = if valid == 0 {
         Vec::new()
-    } else if let Some(codec) = PackedCodec::new(lo, hi) {
-        accumulate(&codec, &tris, &mut stats)
     } else {
-        accumulate(&WideCodec, &tris, &mut stats)
+        // Every cell index lies within the vertices' floor box; one cell of margin besides.
+        let lo = [floor_i64(lo[0]) - 1, floor_i64(lo[1]) - 1, floor_i64(lo[2]) - 1];
+        let hi = [floor_i64(hi[0]) + 1, floor_i64(hi[1]) + 1, floor_i64(hi[2]) + 1];
+        match PackedCodec::new(lo, hi) {
+            Some(codec) => accumulate(&codec, mesh, &grid, estimate, &mut stats),
+            None => accumulate(&WideCodec, mesh, &grid, estimate, &mut stats),
+        }
     };
     stats.occupied = cells.len();
 
@@ -325,7 +322,7 @@ impl CellKey {
 impl Hash for CellKey {
     #[inline]
     fn hash<H: Hasher>(&self, state: &mut H) {
-        // Two words instead of three field writes: this runs once per fragment.
+        // Two words instead of three field writes.
         state.write_u64((u64::from(self.k as u32) << 32) | u64::from(self.j as u32));
         state.write_u32(self.i as u32);
     }
@@ -393,7 +390,8 @@ impl Codec for PackedCodec {
 
     #[inline]
     fn encode(&self, idx: [i32; 3], axis: usize) -> u64 {
-        let rel = [0, 1, 2].map(|d| (i64::from(idx[d]) - self.min[d]) as u64);
+        let rel = |d: usize| (i64::from(idx[d]) - self.min[d]) as u64;
+        let rel = [rel(0), rel(1), rel(2)];
         let cell = (((rel[2] << self.bits[1]) | rel[1]) << self.bits[0]) | rel[0];
         (cell << 2) | axis as u64
     }
@@ -492,30 +490,49 @@ fn radix_sort(frags: &mut Vec<Frag<u64>>, lo_bit: u32, bits: u32) {
     }
 }
 
+/// The bakeable triangles of `mesh`, each rotated so its smallest vertex index leads
+/// (orientation, and so the normal, kept), with its vertices in grid units.
+fn valid_triangles<'a>(
+    mesh: &'a Mesh,
+    grid: &'a [Option<[f64; 3]>],
+) -> impl Iterator<Item = ([u32; 3], [[f64; 3]; 3])> + 'a {
+    mesh.triangles.iter().filter_map(move |tri| {
+        let lead = if tri[0] <= tri[1] && tri[0] <= tri[2] {
+            0
+        } else if tri[1] <= tri[2] {
+            1
+        } else {
+            2
+        };
+        let ids = [tri[lead], tri[(lead + 1) % 3], tri[(lead + 2) % 3]];
+        let g = |id: u32| grid.get(id as usize).copied().flatten();
+        Some((ids, [g(ids[0])?, g(ids[1])?, g(ids[2])?]))
+    })
+}
+
 /// Rasterizes every triangle in the three views and sums the fragments per cell; returns the
 /// occupied cells sorted by `(k, j, i)`.
 fn accumulate<C: Codec>(
     codec: &C,
-    tris: &[([[f64; 3]; 3], [i16; 3])],
+    mesh: &Mesh,
+    grid: &[Option<[f64; 3]>],
+    estimate: usize,
     stats: &mut BakeStats,
 ) -> Vec<(CellKey, Acc)> {
-    // The three projected areas (in pixels) estimate the fragment count, to size the buffer
-    // once; capped so absurd inputs do not reserve absurd memory up front.
-    let area: f64 = tris
-        .iter()
-        .map(|(g, _)| {
-            let u = [g[1][0] - g[0][0], g[1][1] - g[0][1], g[1][2] - g[0][2]];
-            let v = [g[2][0] - g[0][0], g[2][1] - g[0][1], g[2][2] - g[0][2]];
-            0.5 * ((u[1] * v[2] - u[2] * v[1]).abs()
-                + (u[2] * v[0] - u[0] * v[2]).abs()
-                + (u[0] * v[1] - u[1] * v[0]).abs())
-        })
-        .sum();
-    let mut frags: Vec<Frag<C::Key>> = Vec::with_capacity(((area * 1.1) as usize + 64).min(1 << 24));
-    for (g, n) in tris {
+    let mut frags: Vec<Frag<C::Key>> = Vec::with_capacity(estimate);
+    for (ids, g) in valid_triangles(mesh, grid) {
+        let world = [
+            mesh.positions[ids[0] as usize],
+            mesh.positions[ids[1] as usize],
+            mesh.positions[ids[2] as usize],
+        ];
+        let n = triangle_normal(world[0], world[1], world[2]);
+        let quantize = |c: f64| floor_i64(c * NORMAL_ONE + 0.5).clamp(-NORMAL_LIMIT, NORMAL_LIMIT) as i16;
+        let n = [quantize(n[0]), quantize(n[1]), quantize(n[2])];
+        let ranges = centre_ranges(&g);
         for axis in 0..3 {
-            stats.fragments[axis] += rasterize(g, axis, |idx, q| {
-                frags.push(Frag { key: codec.encode(idx, axis), q, n: *n });
+            stats.fragments[axis] += rasterize(&g, &ranges, axis, |idx, q| {
+                frags.push(Frag { key: codec.encode(idx, axis), q, n });
             });
         }
     }
@@ -562,7 +579,9 @@ impl Edge {
         let du = b[0] - a[0];
         let dv = b[1] - a[1];
         let tie = dv < 0.0 || (dv == 0.0 && du > 0.0);
-        let (p, q, sign) = if (a[0], a[1]) <= (b[0], b[1]) { (a, b, 1.0) } else { (b, a, -1.0) };
+        let forward = (a[0], a[1]) <= (b[0], b[1]);
+        let (p, q) = if forward { (a, b) } else { (b, a) };
+        let sign = if forward { 1.0 } else { -1.0 };
         Self { p, d: [q[0] - p[0], q[1] - p[1]], sign, tie }
     }
 
@@ -624,25 +643,37 @@ fn row_span(p: &[[f64; 2]; 3], y: f64, i0: i64, i1: i64) -> (i64, i64) {
     ((ceil_i64(lo - 0.5) - 1).max(i0), (floor_i64(hi - 0.5) + 1).min(i1))
 }
 
+/// The pixel-centre index ranges of triangle `g` (grid units) along each axis: centres
+/// `c + ½` inside `[min, max]`, so `c` from `⌈min − ½⌉` to `⌊max − ½⌋`. Each view uses two of
+/// the three, so they are computed once per triangle.
+fn centre_ranges(g: &[[f64; 3]; 3]) -> [(i64, i64); 3] {
+    let range = |c: usize| {
+        let lo = g[0][c].min(g[1][c]).min(g[2][c]);
+        let hi = g[0][c].max(g[1][c]).max(g[2][c]);
+        (ceil_i64(lo - 0.5), floor_i64(hi - 0.5))
+    };
+    [range(0), range(1), range(2)]
+}
+
 /// Rasterizes triangle `g` (grid units) in the view along `axis`, passing each fragment's cell
-/// index and offset along `axis` to `emit`; returns the fragment count.
-fn rasterize(g: &[[f64; 3]; 3], axis: usize, mut emit: impl FnMut([i32; 3], u16)) -> u64 {
+/// index and offset along `axis` to `emit`; returns the fragment count. `ranges` is
+/// [`centre_ranges`] of `g`.
+fn rasterize(
+    g: &[[f64; 3]; 3],
+    ranges: &[(i64, i64); 3],
+    axis: usize,
+    mut emit: impl FnMut([i32; 3], u16),
+) -> u64 {
     let (ua, va) = ((axis + 1) % 3, (axis + 2) % 3);
-    let p = g.map(|q| [q[ua], q[va]]);
-    let umin = p[0][0].min(p[1][0]).min(p[2][0]);
-    let umax = p[0][0].max(p[1][0]).max(p[2][0]);
-    let vmin = p[0][1].min(p[1][1]).min(p[2][1]);
-    let vmax = p[0][1].max(p[1][1]).max(p[2][1]);
-    // Pixel centres c + ½ inside [min, max]: c from ⌈min − ½⌉ to ⌊max − ½⌋. Most triangles of
-    // a level are a pixel or two across, and many cover no centre in some view: leave early.
-    let i0 = ceil_i64(umin - 0.5);
-    let i1 = floor_i64(umax - 0.5);
-    let j0 = ceil_i64(vmin - 0.5);
-    let j1 = floor_i64(vmax - 0.5);
+    let ((i0, i1), (j0, j1)) = (ranges[ua], ranges[va]);
+    // Most triangles of a level are a pixel or two across, and many cover no pixel centre in
+    // some view: leave before any edge setup.
     if i0 > i1 || j0 > j1 {
         return 0;
     }
-    let mut d = g.map(|q| q[axis]);
+    // Explicit arrays rather than `array::map`, which does not always inline in this loop.
+    let p = [[g[0][ua], g[0][va]], [g[1][ua], g[1][va]], [g[2][ua], g[2][va]]];
+    let mut d = [g[0][axis], g[1][axis], g[2][axis]];
     // Edge i is opposite vertex i, so its edge function is vertex i's barycentric weight.
     let mut edges = [Edge::new(p[1], p[2]), Edge::new(p[2], p[0]), Edge::new(p[0], p[1])];
     let area = edges[2].eval(p[2][0], p[2][1]);
@@ -665,9 +696,19 @@ fn rasterize(g: &[[f64; 3]; 3], axis: usize, mut emit: impl FnMut([i32; 3], u16)
     for pj in j0..=j1 {
         let y = pj as f64 + 0.5;
         let (ia, ib) = if narrow { row_span(&p, y, i0, i1) } else { (i0, i1) };
+        // The y half of each edge function, once per row (the same operations as `eval`).
+        let ay = [
+            edges[0].d[0] * (y - edges[0].p[1]),
+            edges[1].d[0] * (y - edges[1].p[1]),
+            edges[2].d[0] * (y - edges[2].p[1]),
+        ];
         for pi in ia..=ib {
             let x = pi as f64 + 0.5;
-            let e = [edges[0].eval(x, y), edges[1].eval(x, y), edges[2].eval(x, y)];
+            let e = [
+                edges[0].sign * (ay[0] - edges[0].d[1] * (x - edges[0].p[0])),
+                edges[1].sign * (ay[1] - edges[1].d[1] * (x - edges[1].p[0])),
+                edges[2].sign * (ay[2] - edges[2].d[1] * (x - edges[2].p[0])),
+            ];
             if !(edges[0].covers(e[0]) && edges[1].covers(e[1]) && edges[2].covers(e[2])) {
                 continue;
             }
@@ -694,8 +735,9 @@ fn rasterize(g: &[[f64; 3]; 3], axis: usize, mut emit: impl FnMut([i32; 3], u16)
 fn finish(key: CellKey, a: &Acc, origin: [f64; 3], cell: f64, filled: bool) -> BakedCell {
     let index = key.index();
     let denom = a.count.max(1) as f64 * POS_ONE;
-    let position = [0, 1, 2].map(|d| origin[d] + (f64::from(index[d]) + a.pos[d] as f64 / denom) * cell);
-    let n = a.normal.map(|c| c as f64);
+    let coord = |d: usize| origin[d] + (f64::from(index[d]) + a.pos[d] as f64 / denom) * cell;
+    let position = [coord(0), coord(1), coord(2)];
+    let n = [a.normal[0] as f64, a.normal[1] as f64, a.normal[2] as f64];
     let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
     let normal = if len > 0.0 {
         [(n[0] / len) as f32, (n[1] / len) as f32, (n[2] / len) as f32]

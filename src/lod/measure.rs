@@ -99,13 +99,39 @@ pub(crate) fn point_triangle_dist2(p: V3, t: &[V3; 3]) -> f64 {
     dist2(p, q)
 }
 
+/// `⌊x⌋`, by a truncating cast where that is exact: `f64::floor` is a libm call on baseline
+/// x86-64, and this runs three times per query.
+#[inline]
+fn floor(x: f64) -> f64 {
+    if x.abs() < 4_503_599_627_370_496.0 {
+        let t = x as i64 as f64;
+        if t > x { t - 1.0 } else { t }
+    } else {
+        x
+    }
+}
+
+/// A grid cell index; hashed as three words (the array's own `Hash` goes through a byte
+/// slice, several times slower).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct GridKey([i64; 3]);
+
+impl std::hash::Hash for GridKey {
+    #[inline]
+    fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
+        state.write_u64(self.0[0] as u64);
+        state.write_u64(self.0[1] as u64);
+        state.write_u64(self.0[2] as u64);
+    }
+}
+
 /// A sparse uniform grid: items listed per cell in one flat array (CSR), so building it costs
 /// one sort instead of one allocation per cell.
 struct HashGrid {
     origin: V3,
     h: f64,
     /// Cell → range in `items`.
-    cells: FastMap<[i64; 3], (u32, u32)>,
+    cells: FastMap<GridKey, (u32, u32)>,
     items: Vec<u32>,
     /// Inclusive index box of the occupied cells.
     lo: [i64; 3],
@@ -115,7 +141,7 @@ struct HashGrid {
 impl HashGrid {
     #[inline]
     fn coord(origin: V3, h: f64, p: V3) -> [f64; 3] {
-        [((p[0] - origin[0]) / h).floor(), ((p[1] - origin[1]) / h).floor(), ((p[2] - origin[2]) / h).floor()]
+        [floor((p[0] - origin[0]) / h), floor((p[1] - origin[1]) / h), floor((p[2] - origin[2]) / h)]
     }
 
     /// Builds from (item, inclusive index box) pairs.
@@ -148,7 +174,7 @@ impl HashGrid {
                 items.push(pairs[end].1);
                 end += 1;
             }
-            cells.insert(key, (start as u32, end as u32));
+            cells.insert(GridKey(key), (start as u32, end as u32));
             start = end;
         }
         Self { origin, h, cells, items, lo, hi }
@@ -216,7 +242,7 @@ impl HashGrid {
         let x0 = (c[0] - r).max(self.lo[0]);
         let x1 = (c[0] + r).min(self.hi[0]);
         let mut cell = |x: i64, y: i64, z: i64| {
-            if let Some(&(s, e)) = self.cells.get(&[x, y, z]) {
+            if let Some(&(s, e)) = self.cells.get(&GridKey([x, y, z])) {
                 for &item in &self.items[s as usize..e as usize] {
                     f(item);
                 }
@@ -243,9 +269,14 @@ impl HashGrid {
     }
 }
 
-/// Valid triangles of `mesh` as vertex triples: indices in range, coordinates finite.
-fn valid_triangles(mesh: &Mesh) -> Vec<[V3; 3]> {
-    mesh.triangles
+/// Valid triangles of `mesh` (indices in range, coordinates finite) as vertex triples, with
+/// which of their edges `(v0, v1)`, `(v1, v2)`, `(v2, v0)` they own for gap sampling. An edge
+/// shared by two triangles is sampled once: by the triangle where it runs from the smaller
+/// vertex index to the larger, or by every triangle holding it when no triangle runs it that
+/// way (a border edge, or inconsistent orientation).
+fn valid_triangles(mesh: &Mesh) -> Vec<([V3; 3], [bool; 3])> {
+    let valid: Vec<([u32; 3], [V3; 3])> = mesh
+        .triangles
         .iter()
         .filter_map(|t| {
             let v = [
@@ -253,25 +284,42 @@ fn valid_triangles(mesh: &Mesh) -> Vec<[V3; 3]> {
                 *mesh.positions.get(t[1] as usize)?,
                 *mesh.positions.get(t[2] as usize)?,
             ];
-            v.iter().flatten().all(|c| c.is_finite()).then_some(v)
+            v.iter().flatten().all(|c| c.is_finite()).then_some((*t, v))
+        })
+        .collect();
+    let edge = |a: u32, b: u32| (u64::from(a) << 32) | u64::from(b);
+    let mut rising: Vec<u64> = valid
+        .iter()
+        .flat_map(|(t, _)| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
+        .filter(|(a, b)| a < b)
+        .map(|(a, b)| edge(a, b))
+        .collect();
+    rising.sort_unstable();
+    valid
+        .into_iter()
+        .map(|(t, v)| {
+            let owns = |a: u32, b: u32| a < b || rising.binary_search(&edge(b, a)).is_err();
+            (v, [owns(t[0], t[1]), owns(t[1], t[2]), owns(t[2], t[0])])
         })
         .collect()
 }
 
-/// Calls `f` with surface samples of triangle `t` at spacing ≤ `s`: points along its three
-/// edges (vertices included) and rows parallel to its longest edge, one row per ≤ `s` of
-/// height, each sampled at ≤ `s`. Rows parallel to the longest edge keep slivers cheap: the
+/// Calls `f` with surface samples of triangle `t` at spacing ≤ `s`: points along the edges
+/// it owns (both vertices included) and rows parallel to its longest edge, one row per ≤ `s`
+/// of height, each sampled at ≤ `s`. Rows parallel to the longest edge keep slivers cheap: the
 /// count grows with area/s² + perimeter/s, not with (longest edge/s)².
-fn sample_triangle(t: &[V3; 3], s: f64, mut f: impl FnMut(V3)) {
+fn sample_triangle(t: &[V3; 3], owned: [bool; 3], s: f64, mut f: impl FnMut(V3)) {
     let segments = |len: f64| (len / s).ceil().max(1.0) as u64;
     let mut edge_len = [0.0; 3];
     for e in 0..3 {
         let a = t[e];
         let d = sub(t[(e + 1) % 3], a);
         edge_len[e] = dot(d, d).sqrt();
-        let n = segments(edge_len[e]);
-        for i in 0..n {
-            f(axpy(a, i as f64 / n as f64, d));
+        if owned[e] {
+            let n = segments(edge_len[e]);
+            for i in 0..=n {
+                f(axpy(a, i as f64 / n as f64, d));
+            }
         }
     }
     // Longest edge e: p0 → p1, apex opposite.
@@ -304,7 +352,7 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
         return Errors::default();
     }
     let mut bounds = Bounds::empty();
-    for t in &tris {
+    for (t, _) in &tris {
         for &v in t {
             bounds.extend(v);
         }
@@ -336,7 +384,7 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
         let cells: f64 = tris
             .iter()
             .map(|t| {
-                let (a, b) = tri_box(t, h);
+                let (a, b) = tri_box(&t.0, h);
                 (0..3).map(|d| (b[d] - a[d] + 1) as f64).product::<f64>()
             })
             .sum();
@@ -350,7 +398,7 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
         origin,
         h,
         tris.iter().enumerate().map(|(i, t)| {
-            let (a, b) = tri_box(t, h);
+            let (a, b) = tri_box(&t.0, h);
             (i as u32, a, b)
         }),
     );
@@ -368,7 +416,8 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
     let mut max2 = 0.0f64;
     let mut sum2 = 0.0f64;
     for &p in &pts {
-        let d2 = tri_grid.nearest2(p, 0.0, tris.len() as u32, |i| point_triangle_dist2(p, &tris[i as usize]));
+        let d2 =
+            tri_grid.nearest2(p, 0.0, tris.len() as u32, |i| point_triangle_dist2(p, &tris[i as usize].0));
         max2 = max2.max(d2);
         sum2 += d2;
     }
@@ -377,8 +426,8 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
     // first point within the gap found so far.
     let s = base / 4.0;
     let mut gap2 = 0.0f64;
-    for t in &tris {
-        sample_triangle(t, s, |q| {
+    for (t, owned) in &tris {
+        sample_triangle(t, *owned, s, |q| {
             let d2 = pt_grid.nearest2(q, gap2, pts.len() as u32, |i| dist2(q, pts[i as usize]));
             gap2 = gap2.max(d2);
         });
@@ -437,7 +486,7 @@ mod tests {
         let t = [[0.0, 0.0, 0.0], [100.0, 0.0, 0.0], [50.0, 0.3, 0.0]];
         let s = 0.25;
         let mut samples = Vec::new();
-        sample_triangle(&t, s, |q| samples.push(q));
+        sample_triangle(&t, [true; 3], s, |q| samples.push(q));
         // Area/s² + perimeter/s is ~ 240 + 800; (longest/s)² would be 160,000.
         assert!(samples.len() < 2_000, "{}", samples.len());
         for i in 0..=1000 {
