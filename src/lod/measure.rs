@@ -132,6 +132,9 @@ struct HashGrid {
     h: f64,
     /// Cell → range in `items`.
     cells: FastMap<GridKey, (u32, u32)>,
+    /// The same ranges as a dense array over the occupied box, when that box is small enough
+    /// (terrain tiles): an index computation instead of a hash look-up per visited cell.
+    dense: Option<Vec<(u32, u32)>>,
     items: Vec<u32>,
     /// Inclusive index box of the occupied cells.
     lo: [i64; 3],
@@ -146,21 +149,56 @@ impl HashGrid {
 
     /// Builds from (item, inclusive index box) pairs.
     fn build(origin: V3, h: f64, boxes: impl Iterator<Item = (u32, [i64; 3], [i64; 3])>) -> Self {
-        let mut pairs: Vec<([i64; 3], u32)> = Vec::new();
+        let boxes: Vec<(u32, [i64; 3], [i64; 3])> = boxes.collect();
         let mut lo = [i64::MAX; 3];
         let mut hi = [i64::MIN; 3];
-        for (item, a, b) in boxes {
-            for z in a[2]..=b[2] {
-                for y in a[1]..=b[1] {
-                    for x in a[0]..=b[0] {
-                        pairs.push(([x, y, z], item));
-                    }
-                }
-            }
+        let mut pairs_len = 0u64;
+        for (_, a, b) in &boxes {
             for d in 0..3 {
                 lo[d] = lo[d].min(a[d]);
                 hi[d] = hi[d].max(b[d]);
             }
+            pairs_len += (0..3).map(|d| (b[d] - a[d] + 1).max(0) as u64).product::<u64>();
+        }
+        let dims: Vec<u64> = (0..3).map(|d| (hi[d] - lo[d] + 1).max(0) as u64).collect();
+        let volume = dims.iter().product::<u64>();
+        let each_cell = |a: &[i64; 3], b: &[i64; 3], f: &mut dyn FnMut([i64; 3])| {
+            for z in a[2]..=b[2] {
+                for y in a[1]..=b[1] {
+                    for x in a[0]..=b[0] {
+                        f([x, y, z]);
+                    }
+                }
+            }
+        };
+        if !boxes.is_empty() && volume <= (4 * pairs_len).max(1 << 16) {
+            // Dense: a counting sort over the occupied box, no hashing and no comparison sort.
+            let index = |c: [i64; 3]| {
+                (((c[2] - lo[2]) as u64 * dims[1] + (c[1] - lo[1]) as u64) * dims[0] + (c[0] - lo[0]) as u64)
+                    as usize
+            };
+            let mut start = vec![0u32; volume as usize + 1];
+            for (_, a, b) in &boxes {
+                each_cell(a, b, &mut |c| start[index(c) + 1] += 1);
+            }
+            for k in 1..start.len() {
+                start[k] += start[k - 1];
+            }
+            let mut fill = start.clone();
+            let mut items = vec![0u32; pairs_len as usize];
+            for (item, a, b) in &boxes {
+                each_cell(a, b, &mut |c| {
+                    let slot = &mut fill[index(c)];
+                    items[*slot as usize] = *item;
+                    *slot += 1;
+                });
+            }
+            let dense = start.windows(2).map(|w| (w[0], w[1])).collect();
+            return Self { origin, h, cells: FastMap::default(), dense: Some(dense), items, lo, hi };
+        }
+        let mut pairs: Vec<([i64; 3], u32)> = Vec::with_capacity(pairs_len as usize);
+        for (item, a, b) in &boxes {
+            each_cell(a, b, &mut |c| pairs.push((c, *item)));
         }
         pairs.sort_unstable();
         let mut cells = FastMap::default();
@@ -177,7 +215,7 @@ impl HashGrid {
             cells.insert(GridKey(key), (start as u32, end as u32));
             start = end;
         }
-        Self { origin, h, cells, items, lo, hi }
+        Self { origin, h, cells, dense: None, items, lo, hi }
     }
 
     fn is_empty(&self) -> bool {
@@ -241,8 +279,16 @@ impl HashGrid {
         let y1 = (c[1] + r).min(self.hi[1]);
         let x0 = (c[0] - r).max(self.lo[0]);
         let x1 = (c[0] + r).min(self.hi[0]);
+        let (nx, ny) = (self.hi[0] - self.lo[0] + 1, self.hi[1] - self.lo[1] + 1);
         let mut cell = |x: i64, y: i64, z: i64| {
-            if let Some(&(s, e)) = self.cells.get(&GridKey([x, y, z])) {
+            let range = match &self.dense {
+                // Ring cells are clamped to the occupied box, so the index is in range.
+                Some(d) => d
+                    .get((((z - self.lo[2]) * ny + (y - self.lo[1])) * nx + (x - self.lo[0])) as usize)
+                    .copied(),
+                None => self.cells.get(&GridKey([x, y, z])).copied(),
+            };
+            if let Some((s, e)) = range {
                 for &item in &self.items[s as usize..e as usize] {
                     f(item);
                 }
@@ -305,7 +351,7 @@ fn valid_triangles(mesh: &Mesh) -> Vec<([V3; 3], [bool; 3])> {
 }
 
 /// Calls `f` with surface samples of triangle `t` at spacing ≤ `s`: points along the edges
-/// it owns (both vertices included) and rows parallel to its longest edge, one row per ≤ `s`
+/// it owns (its vertices excluded: the caller samples every mesh vertex once) and rows parallel to its longest edge, one row per ≤ `s`
 /// of height, each sampled at ≤ `s`. Rows parallel to the longest edge keep slivers cheap: the
 /// count grows with area/s² + perimeter/s, not with (longest edge/s)².
 fn sample_triangle(t: &[V3; 3], owned: [bool; 3], s: f64, mut f: impl FnMut(V3)) {
@@ -316,8 +362,9 @@ fn sample_triangle(t: &[V3; 3], owned: [bool; 3], s: f64, mut f: impl FnMut(V3))
         let d = sub(t[(e + 1) % 3], a);
         edge_len[e] = dot(d, d).sqrt();
         if owned[e] {
+            // Endpoints are mesh vertices, which the caller samples once each.
             let n = segments(edge_len[e]);
-            for i in 0..=n {
+            for i in 1..n {
                 f(axpy(a, i as f64 / n as f64, d));
             }
         }
@@ -426,6 +473,18 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
     // first point within the gap found so far.
     let s = base / 4.0;
     let mut gap2 = 0.0f64;
+    let mut used = vec![false; mesh.positions.len()];
+    for t in &mesh.triangles {
+        for &v in t {
+            if let Some(u) = used.get_mut(v as usize) {
+                *u = true;
+            }
+        }
+    }
+    for (q, _) in mesh.positions.iter().zip(&used).filter(|(p, u)| **u && p.iter().all(|c| c.is_finite())) {
+        let d2 = pt_grid.nearest2(*q, gap2, pts.len() as u32, |i| dist2(*q, pts[i as usize]));
+        gap2 = gap2.max(d2);
+    }
     for (t, owned) in &tris {
         sample_triangle(t, *owned, s, |q| {
             let d2 = pt_grid.nearest2(q, gap2, pts.len() as u32, |i| dist2(q, pts[i as usize]));
