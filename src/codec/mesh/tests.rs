@@ -1,0 +1,199 @@
+use proptest::prelude::*;
+
+use super::*;
+use crate::codec::testdata::{Rng, canonical_positions, canonical_triangles, greedy_tin, synthetic};
+use crate::codec::{Quantization, quantize_positions};
+use crate::geom::Bounds;
+
+fn frame_for(m: &Mesh, xy_step: f64, z_step: f64) -> (Frame, Bounds, Quantization) {
+    let mut b = Bounds::of_points(&m.positions);
+    if !b.is_valid() {
+        b = Bounds { min: [0.0; 3], max: [1.0; 3] };
+    }
+    let q = Quantization { xy_step, z_step };
+    (Frame::new(&b, q).unwrap(), b, q)
+}
+
+/// Encodes and decodes; checks the decoded mesh has the quantized input's triangles and
+/// vertices, and returns the mode used and the raw size.
+fn round_trip(m: &Mesh, xy_step: f64, z_step: f64) -> (u8, usize) {
+    let (frame, b, q) = frame_for(m, xy_step, z_step);
+    let raw = encode(&frame, m).unwrap();
+    let back = decode(&frame, m.positions.len(), m.triangles.len(), &raw).unwrap();
+    let snapped = Mesh { positions: quantize_positions(&m.positions, &b, q), triangles: m.triangles.clone() };
+    assert_eq!(canonical_triangles(&back), canonical_triangles(&snapped));
+    assert_eq!(canonical_positions(&back.positions), canonical_positions(&snapped.positions));
+    assert_eq!(encode(&frame, m).unwrap(), raw, "deterministic");
+    (raw[0], raw.len())
+}
+
+fn grid_delaunay(rng: &mut Rng, w: u32, n: usize) -> Mesh {
+    use spade::{DelaunayTriangulation, Point2, Triangulation};
+    let mut dt: DelaunayTriangulation<Point2<f64>> = DelaunayTriangulation::new();
+    for p in [[0, 0], [w, 0], [0, w], [w, w]] {
+        dt.insert(Point2::new(f64::from(p[0]), f64::from(p[1]))).unwrap();
+    }
+    for _ in 0..n {
+        let (x, y) = (rng.below(u64::from(w) + 1), rng.below(u64::from(w) + 1));
+        dt.insert(Point2::new(x as f64, y as f64)).unwrap();
+    }
+    let positions = dt
+        .vertices()
+        .map(|v| {
+            let p = v.position();
+            [p.x * 10.0, p.y * 10.0, 100.0 + (p.x * 0.3).sin() * 20.0 + p.y * 0.5]
+        })
+        .collect();
+    let triangles = dt.inner_faces().map(|f| f.vertices().map(|v| v.fix().index() as u32)).collect();
+    Mesh { positions, triangles }
+}
+
+#[test]
+fn empty_mesh() {
+    assert_eq!(round_trip(&Mesh::default(), 1.0, 1.0).0, MODE_SWEEP_FORWARD);
+}
+
+#[test]
+fn lone_vertices() {
+    let m = Mesh { positions: vec![[0.0, 0.0, 0.0], [3.0, 1.0, 2.0], [1.0, 2.0, 5.0]], triangles: vec![] };
+    round_trip(&m, 1.0, 1.0);
+}
+
+#[test]
+fn single_triangle_both_windings() {
+    let positions = vec![[0.0, 0.0, 1.0], [4.0, 0.0, 2.0], [0.0, 4.0, 3.0]];
+    let ccw = Mesh { positions: positions.clone(), triangles: vec![[0, 1, 2]] };
+    let cw = Mesh { positions, triangles: vec![[0, 2, 1]] };
+    // A lone triangle fits either sweep direction.
+    assert_ne!(round_trip(&ccw, 1.0, 0.5).0, MODE_GENERAL);
+    assert_ne!(round_trip(&cw, 1.0, 0.5).0, MODE_GENERAL);
+}
+
+#[test]
+fn greedy_tin_uses_sweep() {
+    let hf = synthetic(65, 65, 30.0);
+    let m = greedy_tin(&hf, 2.0);
+    assert!(m.positions.len() > 100);
+    let (mode, size) = round_trip(&m, 30.0, 0.1);
+    assert_eq!(mode, MODE_SWEEP_FORWARD);
+    assert!(size < 8 * m.positions.len(), "{size} bytes raw for {} vertices", m.positions.len());
+    // A clockwise copy sweeps too.
+    let cw = Mesh {
+        positions: m.positions.clone(),
+        triangles: m.triangles.iter().map(|t| [t[0], t[2], t[1]]).collect(),
+    };
+    assert_ne!(round_trip(&cw, 30.0, 0.1).0, MODE_GENERAL);
+}
+
+#[test]
+fn random_grid_delaunay_uses_sweep() {
+    let mut rng = Rng(7);
+    for n in [0, 1, 5, 40, 300] {
+        let m = grid_delaunay(&mut rng, 64, n);
+        assert_eq!(round_trip(&m, 10.0, 0.01).0, MODE_SWEEP_FORWARD, "n = {n}");
+    }
+}
+
+#[test]
+fn input_order_does_not_matter_for_sweep() {
+    let mut rng = Rng(3);
+    let m = grid_delaunay(&mut rng, 50, 200);
+    let (frame, _, _) = frame_for(&m, 10.0, 0.01);
+    // Reverse vertex numbering and triangle order, rotate every triangle.
+    let n = m.positions.len() as u32;
+    let shuffled = Mesh {
+        positions: m.positions.iter().rev().copied().collect(),
+        triangles: m.triangles.iter().rev().map(|t| [n - 1 - t[1], n - 1 - t[2], n - 1 - t[0]]).collect(),
+    };
+    assert_eq!(encode(&frame, &m).unwrap(), encode(&frame, &shuffled).unwrap());
+}
+
+#[test]
+fn non_planar_mesh_uses_general() {
+    // A closed tetrahedron: not a planar triangulation of its x, y.
+    let m = Mesh {
+        positions: vec![[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [0.0, 4.0, 0.0], [1.0, 1.0, 4.0]],
+        triangles: vec![[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]],
+    };
+    assert_eq!(round_trip(&m, 1.0, 1.0).0, MODE_GENERAL);
+}
+
+#[test]
+fn degenerate_and_duplicate_triangles_use_general() {
+    let m = Mesh {
+        positions: vec![[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [0.0, 4.0, 0.0], [0.0, 4.0, 9.0]],
+        triangles: vec![[0, 1, 2], [0, 1, 2], [1, 1, 2], [2, 2, 2], [3, 0, 1]],
+    };
+    assert_eq!(round_trip(&m, 1.0, 1.0).0, MODE_GENERAL);
+}
+
+#[test]
+fn general_mesh_keeps_unreferenced_vertices() {
+    let mut rng = Rng(11);
+    let mut m = Mesh::default();
+    for _ in 0..200 {
+        m.positions.push([rng.unit() * 100.0, rng.unit() * 100.0, rng.unit() * 100.0]);
+    }
+    for _ in 0..150 {
+        m.triangles.push([0, 1, 2].map(|_| rng.below(120) as u32));
+    }
+    assert_eq!(round_trip(&m, 0.01, 0.01).0, MODE_GENERAL);
+}
+
+#[test]
+fn corrupt_payloads_are_errors() {
+    let hf = synthetic(33, 33, 30.0);
+    let m = greedy_tin(&hf, 1.0);
+    let (frame, _, _) = frame_for(&m, 30.0, 0.1);
+    let raw = encode(&frame, &m).unwrap();
+    let (v, t) = (m.positions.len(), m.triangles.len());
+    assert!(decode(&frame, v + 1, t, &raw).is_err());
+    assert!(decode(&frame, v, t + 1, &raw).is_err());
+    assert!(decode(&frame, v, t.saturating_sub(1), &raw).is_err());
+    assert!(decode(&frame, v, t, &raw[..raw.len() - 1]).is_err());
+    let mut bad = raw.clone();
+    bad[0] = 9;
+    assert!(decode(&frame, v, t, &bad).is_err());
+}
+
+fn arb_mesh() -> impl Strategy<Value = Mesh> {
+    (1usize..40).prop_flat_map(|n| {
+        (
+            proptest::collection::vec((0u8..16, 0u8..16, 0u16..1000), n),
+            proptest::collection::vec([0..n as u32, 0..n as u32, 0..n as u32], 0..60),
+        )
+            .prop_map(|(p, triangles)| Mesh {
+                positions: p
+                    .into_iter()
+                    .map(|(x, y, z)| [f64::from(x), f64::from(y), f64::from(z) * 0.25])
+                    .collect(),
+                triangles,
+            })
+    })
+}
+
+proptest! {
+    #[test]
+    fn any_mesh_round_trips(m in arb_mesh()) {
+        round_trip(&m, 1.0, 0.25);
+    }
+
+    #[test]
+    fn random_payloads_never_panic(raw in proptest::collection::vec(any::<u8>(), 0..200), v in 0usize..50, t in 0usize..50) {
+        let frame = Frame::new(&Bounds { min: [0.0; 3], max: [100.0; 3] }, Quantization { xy_step: 1.0, z_step: 1.0 }).unwrap();
+        let _ = decode(&frame, v, t, &raw);
+    }
+
+    #[test]
+    fn mutated_payloads_never_panic(seed in any::<u64>(), flips in 1usize..8) {
+        let mut rng = Rng(seed);
+        let m = grid_delaunay(&mut rng, 30, 40);
+        let (frame, _, _) = frame_for(&m, 10.0, 0.01);
+        let mut raw = encode(&frame, &m).unwrap();
+        for _ in 0..flips {
+            let i = rng.below(raw.len() as u64) as usize;
+            raw[i] ^= 1 << rng.below(8);
+        }
+        let _ = decode(&frame, m.positions.len(), m.triangles.len(), &raw);
+    }
+}
