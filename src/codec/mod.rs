@@ -8,29 +8,29 @@
 //! | offset | size | field | meaning |
 //! |---:|---:|---|---|
 //! | 0 | 4 | magic | `b"TSB1"` ([`MAGIC`]) |
-//! | 4 | 4 | header_len `u32` | 128 ([`HEADER_LEN`]); anything else is rejected |
-//! | 8 | 2 | version `u16` | 1 ([`FORMAT_VERSION`]); read before the rest of the header |
-//! | 10 | 4 | kind `u32` | 0 = mesh, 1 = points |
-//! | 14 | 1 | key.z `u8` | tile key |
-//! | 15 | 4 | key.x `u32` | |
-//! | 19 | 4 | key.y `u32` | |
-//! | 23 | 1 | level `u8` | 0 = TIN mesh, 1.. = point levels |
-//! | 24 | 48 | bounds `[[f64; 3]; 2]` | min x, y, z then max x, y, z (world units) |
-//! | 72 | 8 | xy_step `f64` | quantization step of x and y |
-//! | 80 | 8 | z_step `f64` | quantization step of z |
-//! | 88 | 4 | vertex_count `u32` | mesh vertices, or points |
-//! | 92 | 4 | triangle_count `u32` | mesh triangles; 0 for points |
-//! | 96 | 24 | errors `[f64; 3]` | measured `max`, `rms`, `gap` ([`Errors`]) |
-//! | 120 | 4 | raw_len `u32` | payload size after zstd decompression |
-//! | 124 | 4 | payload_len `u32` | payload size as stored |
-//! | 128 | 4 | checksum `u32` | CRC-32 (IEEE, `crc32fast`) of the stored payload |
-//! | 132 | 4 | header_checksum `u32` | CRC-32 of bytes 0..132 |
-//! | 136 | payload_len | payload | one zstd frame (level [`ZSTD_LEVEL`]) |
+//! | 4 | 4 | `header_len: u32` | 128 ([`HEADER_LEN`]); anything else is rejected |
+//! | 8 | 2 | `version: u16` | 1 ([`FORMAT_VERSION`]); checked before the rest of the header |
+//! | 10 | 4 | `kind: u32` | 0 = mesh, 1 = points |
+//! | 14 | 1 | `key.z: u8` | tile key |
+//! | 15 | 4 | `key.x: u32` | |
+//! | 19 | 4 | `key.y: u32` | |
+//! | 23 | 1 | `level: u8` | 0 = TIN mesh, 1.. = point levels |
+//! | 24 | 48 | `bounds: [[f64; 3]; 2]` | min x, y, z then max x, y, z (world units) |
+//! | 72 | 8 | `xy_step: f64` | quantization step of x and y |
+//! | 80 | 8 | `z_step: f64` | quantization step of z |
+//! | 88 | 4 | `vertex_count: u32` | mesh vertices, or points |
+//! | 92 | 4 | `triangle_count: u32` | mesh triangles; 0 for points |
+//! | 96 | 24 | `errors: [f64; 3]` | measured `max`, `rms`, `gap` ([`Errors`]) |
+//! | 120 | 4 | `raw_len: u32` | total size of the payload's streams once decompressed |
+//! | 124 | 4 | `payload_len: u32` | payload size as stored |
+//! | 128 | 4 | `checksum: u32` | CRC-32 (IEEE, `crc32fast`) of the stored payload |
+//! | 132 | 4 | `header_checksum: u32` | CRC-32 of bytes 0..132 |
+//! | 136 | `payload_len` | payload | see below |
 //!
 //! Bytes 8..136 are exactly [`BlobHeader`] encoded by `bincode` 2 with fixed-width
 //! little-endian integers (so `kind` is a `u32` variant index). [`decode_header`] needs only the
 //! first [`PREFIX_LEN`] bytes and checks the header checksum, so a store can read the measured
-//! errors without touching the payload; [`decode`] additionally checks that the blob is exactly
+//! errors without touching the payload; [`decode`] also checks that the blob is exactly
 //! `136 + payload_len` bytes long and that the payload checksum matches.
 //!
 //! # Quantization
@@ -42,43 +42,54 @@
 //! client may trust the header bounds for culling. A TIN's vertices lie on the raster grid, so
 //! with `xy_step` equal to the cell size their x and y are exact.
 //!
-//! # Payload (after zstd)
+//! # Payload
 //!
-//! `mode u8 | stream_count u8 | stream_len u32 × stream_count | streams…` — each stream holds
-//! one kind of value so zstd models one statistic at a time. Varints are unsigned LEB128;
-//! "signed" varints are zigzag-mapped first.
+//! `mode: u8 | count: u8 | count × (method: u8, raw_len: u32, stored_len: u32) | stored bytes`.
+//! The payload is a set of byte streams, each holding one kind of value, stored one after the
+//! other; `method` 1 means the stream is one zstd frame (level [`ZSTD_LEVEL`]), 0 that it is
+//! stored as is (when zstd would not shrink it). The `raw_len`s add up to the header's.
+//!
+//! Values are coded as *varints* (unsigned LEB128), *signed* varints (zigzag, then LEB128), or
+//! *bucketed* into a pair of streams: a symbol byte and verbatim low bits (LSB first, last byte
+//! zero-padded). For an unsigned `u` (signed values are zigzagged first) the symbol is `u` when
+//! `u < 4`, else `4 + 4·(b − 3) + t` with `b` the bit length of `u` and `t` the two bits below
+//! its leading one; the `b − 3` remaining low bits go to the bit stream. This keeps the skewed
+//! part of residuals in bytes zstd codes near their entropy.
 //!
 //! **Mesh, modes 0 and 1 ("sweep", for planar TINs).** Vertices are sorted by `(qy, qx)` (x, y
-//! must be distinct). Streams: `gaps` — per vertex, the increase of `qy·(qmax_x + 1) + qx` over
-//! the previous vertex (the first: its value); `runs` — per vertex a varint `k`; `positions` —
-//! per vertex a signed varint; `z` — per vertex a signed residual. Connectivity is rebuilt by a
-//! sweep that keeps a *front* (a list of vertices, possibly repeated): vertex `v` with `k = 0`
-//! is inserted into the front at index `p`; with `k = 1` it hangs from `w = f[p]`, which becomes
-//! `w, v, w`; with `k ≥ 2` it closes the `k − 1` triangles over the front entries `f[p..p+k]`
-//! (emitted `[f[i], f[i+1], v]` in mode 0, `[f[i+1], f[i], v]` in mode 1) and replaces the
-//! interior `f[p+1..p+k−1]` by `v`. `p` is coded relative to the index of the previous vertex
-//! in the front. z is coded as the residual from a prediction: the mean of the planes
-//! through each new triangle's neighbour across its front edge, evaluated at `v`'s (x, y);
-//! without such neighbours, the mean z of the front vertices it connects to, else the previous
-//! vertex's z. (The exact predictor is `mesh::predict_z`; it is part of the format.)
+//! must be distinct). Streams: `gaps` (varint per vertex: the increase of
+//! `qy·(qmax_x + 1) + qx` over the previous vertex, the first its value), `runs` (varint `k`
+//! per vertex), `positions` (signed varint `d` per vertex), `z` and `z bits` (bucketed signed
+//! residual per vertex). Connectivity is rebuilt by a sweep that keeps a *front*, a list of
+//! vertices (possibly repeated). For vertex `v`, `p = anchor + d` where `anchor` is a front index
+//! derived from the geometry (`mesh::anchor`: the front edge right below `v`, or the previous
+//! vertex's index); then `k = 0` inserts `v` at `p`; `k = 1` hangs `v` from `w = f[p]`, which
+//! becomes `w, v, w`; `k ≥ 2` closes the `k − 1` triangles over `f[p..p+k]` (emitted
+//! `[f[i], f[i+1], v]` in mode 0, `[f[i+1], f[i], v]` in mode 1) and replaces the interior
+//! `f[p+1..p+k−1]` by `v`. z is the residual from a prediction (`mesh::predict_z`): the mean of
+//! the planes through each closed triangle's neighbour across its front edge, evaluated at `v`'s
+//! x, y; without such neighbours the mean z of the front vertices it joins, else the previous
+//! vertex's z. The anchor and the predictor are part of the format.
 //!
 //! **Mesh, mode 2 ("general", any indexed mesh).** Triangles in input order, vertices numbered by
-//! first use. Streams: `codes` (one byte per triangle), `fifo` (bytes), `explicit` (varints),
-//! `x`, `y`, `z` (signed residuals). A 16-entry FIFO of recent directed edges and one of recent
-//! vertices are kept: code `c < 48` means the triangle shares the reverse of FIFO edge `c % 16`
-//! and its third vertex is new (`c / 16 = 0`), a vertex FIFO entry (`1`, index in `fifo`) or an
-//! explicit index (`2`, `next − 1 − index` in `explicit`); codes `48..75` give the three vertices'
-//! classes in base 3. New vertices are predicted by the parallelogram rule across the shared
-//! edge, or by the previous new vertex; unreferenced vertices follow at the end.
+//! first use. Streams: `codes` (a byte per triangle), `fifo` (bytes), `explicit` (varints), and
+//! bucketed signed residuals for `x`, `y`, `z` (two streams each). A 16-entry FIFO of recent
+//! directed edges and one of recent vertices are kept: code `c < 48` means the triangle shares
+//! the reverse of FIFO edge `c % 16` and its third vertex is new (`c / 16 = 0`), a vertex FIFO
+//! entry (`1`, index in `fifo`) or an explicit index (`2`, `next − 1 − index` in `explicit`);
+//! codes `48..75` give the three vertices' classes in base 3. New vertices are predicted by the
+//! parallelogram rule across the shared edge, or by the previous new vertex; unreferenced
+//! vertices follow at the end.
 //!
-//! **Points, mode 0.** The first stream holds parameters (varints): per-axis base and stride of
-//! the quantized coordinates (their minimum and the GCD of offsets from it, so points on a
-//! lattice cost nothing for the lattice), and a shift `s`. Lattice x, y are split into a cell
-//! (`>> s`) and a fine part; points are sorted by (cell y, cell x, z, fine y, fine x, normal).
-//! Streams: `rows` (cell-row delta, cells in row − 1), `cells` (cell x delta), `counts` (points in
-//! cell − 1), `fine x`, `fine y` (bytes, only when `s > 0`), `z` (signed residuals from a
-//! median-edge prediction over the left, upper and upper-left cells), `nu`, `nv` (octahedral
-//! normal bytes as wrapping residuals from the same prediction).
+//! **Points, mode 0.** Streams: `params` (varints: per-axis base and stride of the quantized
+//! coordinates — their minimum and the GCD of the offsets from it, so points on a lattice cost
+//! nothing for the lattice — and a shift `s ≤ 8`), `rows` (per occupied cell row: row delta,
+//! cells − 1), `cells` (per cell: x delta), `counts` (per cell: points − 1), `fine x`, `fine y`
+//! (a byte per point, only when `s > 0`), `z` and `z bits` (bucketed signed residuals), `nu`, `nv`
+//! (octahedral normal bytes as wrapping residuals). Lattice x, y are split into a cell (`>> s`)
+//! and a fine part; points are sorted by (cell y, cell x, z, fine y, fine x, normal). The first
+//! point of a cell is predicted from the cells left, above and above-left (z: median edge
+//! detector; normal: mean of left and above), the others from the point below them in the cell.
 //!
 //! # Order
 //!
@@ -91,15 +102,14 @@
 //!
 //! Every function returns [`CodecError`]; decoding any byte string returns `Ok` or `Err`, never
 //! panics, and allocates in proportion to the bytes actually present (counts are capped by
-//! [`MAX_ELEMENTS`] and decompression by `raw_len` ≤ [`MAX_RAW_LEN`]).
+//! [`MAX_ELEMENTS`] and checked against stream sizes; each zstd frame is decompressed
+//! incrementally up to its declared size; `raw_len` ≤ [`MAX_RAW_LEN`]).
 
 mod mesh;
 mod points;
 mod stream;
 #[cfg(test)]
 mod testdata;
-
-use std::io::Read;
 
 use crate::geom::{Bounds, Errors, Mesh, PointCloud};
 use crate::tiling::TileKey;
@@ -124,7 +134,7 @@ pub const MAX_QUANT: i64 = (1 << 31) - 1;
 /// and served many times, and zstd decodes at the same speed whatever the level.
 pub const ZSTD_LEVEL: i32 = 19;
 /// Largest zstd window accepted when decoding (level 19 never uses more than 2^23).
-const ZSTD_WINDOW_LOG_MAX: u32 = 24;
+pub(crate) const ZSTD_WINDOW_LOG_MAX: u32 = 24;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, bincode::Encode, bincode::Decode)]
 pub enum Kind {
@@ -274,8 +284,7 @@ impl Frame {
         let mut qmax = [0i64; 3];
         for a in 0..3 {
             let steps = ((bounds.max[a] - bounds.min[a]) / step[a]).round();
-            // The negated test also rejects NaN.
-            if !(steps <= MAX_QUANT as f64) {
+            if steps.is_nan() || steps > MAX_QUANT as f64 {
                 return Err(CodecError::QuantizationRange { axis: a, steps });
             }
             qmax[a] = steps as i64;
@@ -292,7 +301,7 @@ impl Frame {
         for a in 0..3 {
             let v = ((p[a] - self.min[a]) / self.step[a]).round();
             // Compared as floats first so a huge value cannot saturate into range.
-            if !(v >= 0.0 && v <= self.qmax[a] as f64) {
+            if v.is_nan() || v < 0.0 || v > self.qmax[a] as f64 {
                 return Err(CodecError::OutOfBounds { index, position: p });
             }
             q[a] = v as i64;
@@ -330,7 +339,7 @@ fn check_count(what: &'static str, count: usize) -> Result<u32, CodecError> {
     })
 }
 
-/// Compresses `raw` and writes magic, header and payload.
+/// Writes magic, header and payload.
 #[allow(clippy::too_many_arguments)]
 fn assemble(
     kind: Kind,
@@ -341,12 +350,13 @@ fn assemble(
     vertex_count: u32,
     triangle_count: u32,
     errors: Errors,
-    raw: &[u8],
+    packed: &stream::Packed,
 ) -> Result<Vec<u8>, CodecError> {
     let too_large =
         |count: usize| CodecError::TooLarge { what: "payload bytes", count, max: MAX_RAW_LEN as usize };
-    let raw_len = u32::try_from(raw.len()).ok().filter(|&n| n <= MAX_RAW_LEN).ok_or(too_large(raw.len()))?;
-    let payload = zstd::bulk::compress(raw, ZSTD_LEVEL).map_err(CodecError::Compress)?;
+    let payload = packed.payload.as_slice();
+    let raw_len =
+        u32::try_from(packed.raw_len).ok().filter(|&n| n <= MAX_RAW_LEN).ok_or(too_large(packed.raw_len))?;
     let payload_len = u32::try_from(payload.len()).map_err(|_| too_large(payload.len()))?;
     let header = BlobHeader {
         version: FORMAT_VERSION,
@@ -360,7 +370,7 @@ fn assemble(
         errors,
         raw_len,
         payload_len,
-        checksum: crc32fast::hash(&payload),
+        checksum: crc32fast::hash(payload),
         header_checksum: 0,
     };
     let mut out = Vec::with_capacity(PREFIX_LEN + payload.len());
@@ -372,7 +382,7 @@ fn assemble(
     }
     let crc = crc32fast::hash(&out[..PREFIX_LEN - 4]);
     out[PREFIX_LEN - 4..].copy_from_slice(&crc.to_le_bytes());
-    out.extend_from_slice(&payload);
+    out.extend_from_slice(payload);
     Ok(out)
 }
 
@@ -390,8 +400,8 @@ pub fn encode_mesh(
     check_errors(errors)?;
     let v = check_count("vertices", mesh.positions.len())?;
     let t = check_count("triangles", mesh.triangles.len())?;
-    let raw = mesh::encode(&frame, mesh)?;
-    assemble(Kind::Mesh, key, level, bounds, q, v, t, errors, &raw)
+    let packed = mesh::encode(&frame, mesh)?;
+    assemble(Kind::Mesh, key, level, bounds, q, v, t, errors, &packed)
 }
 
 /// Encodes a point cloud with its normals. Errors: as [`encode_mesh`], plus a normal count that
@@ -407,8 +417,8 @@ pub fn encode_points(
     let frame = Frame::new(bounds, q)?;
     check_errors(errors)?;
     let n = check_count("points", points.positions.len())?;
-    let raw = points::encode(&frame, points)?;
-    assemble(Kind::Points, key, level, bounds, q, n, 0, errors, &raw)
+    let packed = points::encode(&frame, points)?;
+    assemble(Kind::Points, key, level, bounds, q, n, 0, errors, &packed)
 }
 
 /// Reads and validates the header from the first [`PREFIX_LEN`] bytes (more may follow and are
@@ -463,21 +473,6 @@ pub fn decode_header(bytes: &[u8]) -> Result<BlobHeader, CodecError> {
     Ok(header)
 }
 
-/// Decompresses exactly `raw_len` bytes, never holding more than `raw_len + 1`.
-fn decompress(payload: &[u8], raw_len: usize) -> Result<Vec<u8>, CodecError> {
-    let mut decoder =
-        zstd::stream::read::Decoder::with_buffer(payload).map_err(CodecError::Decompress)?.single_frame();
-    decoder.window_log_max(ZSTD_WINDOW_LOG_MAX).map_err(CodecError::Decompress)?;
-    // Grow as data arrives rather than trusting raw_len up front: a forged header cannot make us
-    // reserve memory the payload does not fill.
-    let mut raw = Vec::with_capacity(raw_len.min(1 << 20));
-    decoder.take(raw_len as u64 + 1).read_to_end(&mut raw).map_err(CodecError::Decompress)?;
-    if raw.len() != raw_len {
-        return Err(CodecError::RawLength { declared: raw_len, actual: raw.len() });
-    }
-    Ok(raw)
-}
-
 /// Decodes a whole blob. Errors: everything [`decode_header`] reports, a length other than the
 /// header announces, a payload checksum mismatch, and corrupt payloads.
 pub fn decode(bytes: &[u8]) -> Result<Blob, CodecError> {
@@ -494,12 +489,12 @@ pub fn decode(bytes: &[u8]) -> Result<Blob, CodecError> {
     if computed != header.checksum {
         return Err(CodecError::PayloadChecksum { found: header.checksum, computed });
     }
-    let raw = decompress(payload, header.raw_len as usize)?;
     let frame = Frame::new(&header.bounds(), header.quant)?;
-    let (v, t) = (header.vertex_count as usize, header.triangle_count as usize);
+    let (v, t, raw_len) =
+        (header.vertex_count as usize, header.triangle_count as usize, header.raw_len as usize);
     let geometry = match header.kind {
-        Kind::Mesh => Geometry::Mesh(mesh::decode(&frame, v, t, &raw)?),
-        Kind::Points => Geometry::Points(points::decode(&frame, v, &raw)?),
+        Kind::Mesh => Geometry::Mesh(mesh::decode(&frame, v, t, payload, raw_len)?),
+        Kind::Points => Geometry::Points(points::decode(&frame, v, payload, raw_len)?),
     };
     Ok(Blob { header, geometry })
 }

@@ -2,6 +2,9 @@
 //! stand-in for the `tin` stage, enough to give realistic vertex layouts), voxel-walk point
 //! clouds (a stand-in for `lod`), and a Cesium quantized-mesh-1.0 writer for size comparisons.
 
+// Exact float equality is the point of these tests: decoding must be bit-exact.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::float_cmp)]
+
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 use std::io::Write;
@@ -22,18 +25,6 @@ pub struct Heights {
 impl Heights {
     pub fn at(&self, c: usize, r: usize) -> f64 {
         self.z[r * self.w + c]
-    }
-
-    /// Height at fractional grid coordinates, bilinear.
-    pub fn sample(&self, x: f64, y: f64) -> f64 {
-        let cx = x.clamp(0.0, (self.w - 1) as f64);
-        let cy = y.clamp(0.0, (self.h - 1) as f64);
-        let (c0, r0) = (cx.floor() as usize, cy.floor() as usize);
-        let (c1, r1) = ((c0 + 1).min(self.w - 1), (r0 + 1).min(self.h - 1));
-        let (fx, fy) = (cx - c0 as f64, cy - r0 as f64);
-        let top = self.at(c0, r0) * (1.0 - fx) + self.at(c1, r0) * fx;
-        let bot = self.at(c0, r1) * (1.0 - fx) + self.at(c1, r1) * fx;
-        top * (1.0 - fy) + bot * fy
     }
 
     /// Unit surface normal at a grid sample, by central differences.
@@ -196,13 +187,14 @@ pub fn greedy_tin(hf: &Heights, max_error: f64) -> Mesh {
 /// Voxel walk: one point per voxel of edge `cell_m` that the surface passes through. With
 /// `centres` the point is the voxel centre (a lattice); otherwise the mean of the raster samples
 /// in the voxel (continuous positions). Normals are the surface normals at a nearby sample.
-pub fn voxel_points(hf: &Heights, cell_m: f64, centres: bool) -> PointCloud {
+pub fn voxel_points(hf: &Heights, normals: Option<&[[f32; 3]]>, cell_m: f64, centres: bool) -> PointCloud {
     let k = (cell_m / hf.cell).round().max(1.0) as usize;
     let mut pc = PointCloud::default();
     for j in 0..hf.h.div_ceil(k) {
         for i in 0..hf.w.div_ceil(k) {
             // Samples of the column, bucketed by voxel layer.
-            let mut layers: std::collections::BTreeMap<i64, (f64, f64, f64, usize)> = Default::default();
+            let mut layers: std::collections::BTreeMap<i64, (f64, f64, f64, usize)> =
+                std::collections::BTreeMap::default();
             for r in j * k..((j + 1) * k + 1).min(hf.h) {
                 for c in i * k..((i + 1) * k + 1).min(hf.w) {
                     let z = hf.at(c, r);
@@ -227,16 +219,77 @@ pub fn voxel_points(hf: &Heights, cell_m: f64, centres: bool) -> PointCloud {
                     ((p[1] / hf.cell).round() as usize).min(hf.h - 1),
                 );
                 pc.positions.push(p);
-                pc.normals.push(hf.normal(c, r));
+                pc.normals.push(normals.map_or_else(|| hf.normal(c, r), |n| n[r * hf.w + c]));
             }
         }
     }
     pc
 }
 
+/// A TIN's surface sampled on the raster grid: heights, and per sample the normal of the
+/// triangle over it (what a point level baked from the TIN sees).
+pub fn tin_surface(hf: &Heights, mesh: &Mesh) -> (Heights, Vec<[f32; 3]>) {
+    let mut z = hf.z.clone();
+    let mut normals = vec![[0.0f32, 0.0, 1.0]; hf.w * hf.h];
+    for t in &mesh.triangles {
+        let p = t.map(|i| mesh.positions[i as usize]);
+        let g = p.map(|v| [v[0] / hf.cell, v[1] / hf.cell, v[2]]);
+        let n = crate::geom::triangle_normal(p[0], p[1], p[2]).map(|v| v as f32);
+        let d = (g[1][0] - g[0][0]) * (g[2][1] - g[0][1]) - (g[1][1] - g[0][1]) * (g[2][0] - g[0][0]);
+        if d == 0.0 {
+            continue;
+        }
+        let x0 = g.iter().map(|v| v[0]).fold(f64::MAX, f64::min) as usize;
+        let x1 = g.iter().map(|v| v[0]).fold(f64::MIN, f64::max) as usize;
+        let y0 = g.iter().map(|v| v[1]).fold(f64::MAX, f64::min) as usize;
+        let y1 = g.iter().map(|v| v[1]).fold(f64::MIN, f64::max) as usize;
+        for r in y0..=y1 {
+            for c in x0..=x1 {
+                let (x, y) = (c as f64, r as f64);
+                let b1 = ((x - g[0][0]) * (g[2][1] - g[0][1]) - (y - g[0][1]) * (g[2][0] - g[0][0])) / d;
+                let b2 = ((g[1][0] - g[0][0]) * (y - g[0][1]) - (g[1][1] - g[0][1]) * (x - g[0][0])) / d;
+                let b0 = 1.0 - b1 - b2;
+                if b0 < -1e-9 || b1 < -1e-9 || b2 < -1e-9 {
+                    continue;
+                }
+                z[r * hf.w + c] = b0 * g[0][2] + b1 * g[1][2] + b2 * g[2][2];
+                normals[r * hf.w + c] = n;
+            }
+        }
+    }
+    (Heights { w: hf.w, h: hf.h, cell: hf.cell, z }, normals)
+}
+
 /// Cesium quantized-mesh-1.0 (no extensions) of a tile mesh with x, y in `0..=extent` metres,
 /// gzipped at the default level, as servers ship it.
 pub fn quantized_mesh_gzip(mesh: &Mesh, extent: f64) -> usize {
+    quantized_mesh_gzip_ordered(mesh, extent).min(quantized_mesh_gzip_ordered(&reorder(mesh), extent))
+}
+
+/// The mesh with triangles sorted by their lowest vertex in (y, x) order and vertices numbered
+/// by first use: the locality a good quantized-mesh writer gives its index deltas.
+fn reorder(mesh: &Mesh) -> Mesh {
+    let key = |i: u32| {
+        let p = mesh.positions[i as usize];
+        (p[1].to_bits(), p[0].to_bits())
+    };
+    let mut tris = mesh.triangles.clone();
+    tris.sort_by_key(|t| t.iter().map(|&i| key(i)).min());
+    let mut ids = vec![u32::MAX; mesh.positions.len()];
+    let mut positions = Vec::with_capacity(mesh.positions.len());
+    for t in &mut tris {
+        for i in t.iter_mut() {
+            if ids[*i as usize] == u32::MAX {
+                ids[*i as usize] = positions.len() as u32;
+                positions.push(mesh.positions[*i as usize]);
+            }
+            *i = ids[*i as usize];
+        }
+    }
+    Mesh { positions, triangles: tris }
+}
+
+fn quantized_mesh_gzip_ordered(mesh: &Mesh, extent: f64) -> usize {
     let n = mesh.positions.len();
     let (zmin, zmax) =
         mesh.positions.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p[2]), b.max(p[2])));
@@ -255,17 +308,17 @@ pub fn quantized_mesh_gzip(mesh: &Mesh, extent: f64) -> usize {
     }
     let wide = n > 65536;
     if wide {
-        while out.len() % 4 != 0 {
+        while !out.len().is_multiple_of(4) {
             out.push(0);
         }
-    } else if out.len() % 2 != 0 {
+    } else if !out.len().is_multiple_of(2) {
         out.push(0);
     }
     let put = |out: &mut Vec<u8>, v: u32| {
         if wide {
-            out.extend_from_slice(&v.to_le_bytes())
+            out.extend_from_slice(&v.to_le_bytes());
         } else {
-            out.extend_from_slice(&(v as u16).to_le_bytes())
+            out.extend_from_slice(&(v as u16).to_le_bytes());
         }
     };
     out.extend_from_slice(&(mesh.triangles.len() as u32).to_le_bytes());

@@ -1,3 +1,8 @@
+//! Tests of this module: round trips, hostile input, and size figures.
+
+// Exact float equality is the point of these tests: decoding must be bit-exact.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::float_cmp)]
+
 use proptest::prelude::*;
 
 use super::*;
@@ -24,12 +29,13 @@ fn canonical(positions: &[[f64; 3]], normals: &[[f32; 3]]) -> Vec<([u64; 3], [u3
 
 fn round_trip(pc: &PointCloud, step: f64) -> Vec<u8> {
     let (frame, b, q) = setup(pc, step);
-    let raw = encode(&frame, pc).unwrap();
-    let back = decode(&frame, pc.positions.len(), &raw).unwrap();
+    let packed = encode(&frame, pc).unwrap();
+    let raw = packed.payload;
+    let back = decode(&frame, pc.positions.len(), &raw, packed.raw_len).unwrap();
     let want_p = quantize_positions(&pc.positions, &b, q);
     let want_n = quantize_normals(&pc.normals).unwrap();
     assert_eq!(canonical(&back.positions, &back.normals), canonical(&want_p, &want_n));
-    assert_eq!(encode(&frame, pc).unwrap(), raw, "deterministic");
+    assert_eq!(encode(&frame, pc).unwrap().payload, raw, "deterministic");
     raw
 }
 
@@ -86,12 +92,8 @@ fn empty_points() {
 fn lattice_and_continuous_voxel_points() {
     let hf = synthetic(97, 97, 30.0);
     for centres in [true, false] {
-        let pc = voxel_points(&hf, 60.0, centres);
-        let raw = round_trip(&pc, 60.0 / 64.0);
-        let (_, streams) = crate::codec::stream::unpack(&raw, STREAMS.len(), &STREAMS).unwrap();
-        let sizes: Vec<(&str, usize)> = STREAMS.iter().zip(&streams).map(|(n, r)| (*n, r.len())).collect();
-        let z = zstd::bulk::compress(&raw, crate::codec::ZSTD_LEVEL).unwrap().len();
-        println!("centres {centres}: {} points, raw {} zstd {z}: {sizes:?}", pc.positions.len(), raw.len());
+        let pc = voxel_points(&hf, None, 60.0, centres);
+        let z = round_trip(&pc, 60.0 / 64.0).len();
         // Continuous positions carry their fine offsets (12 bits here); lattice points far less.
         let limit = if centres { 1 } else { 4 };
         assert!(z < limit * pc.positions.len(), "{z} bytes for {} points", pc.positions.len());
@@ -101,13 +103,13 @@ fn lattice_and_continuous_voxel_points() {
 #[test]
 fn input_order_does_not_matter() {
     let hf = synthetic(40, 40, 30.0);
-    let pc = voxel_points(&hf, 60.0, false);
+    let pc = voxel_points(&hf, None, 60.0, false);
     let (frame, _, _) = setup(&pc, 1.0);
     let rev = PointCloud {
         positions: pc.positions.iter().rev().copied().collect(),
         normals: pc.normals.iter().rev().copied().collect(),
     };
-    assert_eq!(encode(&frame, &pc).unwrap(), encode(&frame, &rev).unwrap());
+    assert_eq!(encode(&frame, &pc).unwrap().payload, encode(&frame, &rev).unwrap().payload);
 }
 
 #[test]
@@ -149,22 +151,91 @@ proptest! {
     }
 
     #[test]
-    fn random_payloads_never_panic(raw in proptest::collection::vec(any::<u8>(), 0..200), n in 0usize..50) {
+    fn random_payloads_never_panic(raw in proptest::collection::vec(any::<u8>(), 0..200), n in 0usize..50, len in 0usize..300) {
         let frame = Frame::new(&Bounds { min: [0.0; 3], max: [100.0; 3] }, Quantization { xy_step: 1.0, z_step: 1.0 }).unwrap();
-        let _ = decode(&frame, n, &raw);
+        let _ = decode(&frame, n, &raw, len);
     }
 
     #[test]
     fn mutated_payloads_never_panic(seed in any::<u64>(), flips in 1usize..8) {
         let mut rng = Rng(seed);
         let hf = synthetic(20, 20, 30.0);
-        let pc = voxel_points(&hf, 60.0, seed % 2 == 0);
+        let pc = voxel_points(&hf, None, 60.0, seed % 2 == 0);
         let (frame, _, _) = setup(&pc, 1.0);
-        let mut raw = encode(&frame, &pc).unwrap();
+        let p = encode(&frame, &pc).unwrap();
+        let mut raw = p.payload;
         for _ in 0..flips {
             let i = rng.below(raw.len() as u64) as usize;
             raw[i] ^= 1 << rng.below(8);
         }
-        let _ = decode(&frame, pc.positions.len(), &raw);
+        let _ = decode(&frame, pc.positions.len(), &raw, p.raw_len);
+    }
+}
+
+fn entropy<T: std::hash::Hash + Eq>(vals: impl Iterator<Item = T>) -> f64 {
+    let mut m = std::collections::HashMap::new();
+    let mut n = 0usize;
+    for v in vals {
+        *m.entry(v).or_insert(0usize) += 1;
+        n += 1;
+    }
+    let n = n as f64;
+    m.values().map(|&c| -(c as f64 / n) * (c as f64 / n).log2()).sum::<f64>()
+}
+
+/// Compares normal predictors (order-0 entropy, bits per point for u + v, and joint).
+#[test]
+#[ignore = "analysis"]
+fn analyse_normal_predictors() {
+    use crate::codec::testdata::{fuji, greedy_tin, tin_surface};
+    let Some(hf) = fuji() else { return };
+    let tin = greedy_tin(&hf, 2.0);
+    let (surface, normals) = tin_surface(&hf, &tin);
+    for centres in [true, false] {
+        let pc = voxel_points(&surface, Some(&normals), 60.0, centres);
+        let (frame, _, _) = setup(&pc, 60.0 / 64.0);
+        let p = encode(&frame, &pc).unwrap();
+        let back = decode(&frame, pc.positions.len(), &p.payload, p.raw_len).unwrap();
+        let oct: Vec<[u8; 2]> = back.normals.iter().map(|&n| oct_encode(n).unwrap()).collect();
+        // Rebuild cells in decoded order.
+        let q: Vec<[i64; 3]> =
+            back.positions.iter().enumerate().map(|(i, &x)| frame.quantize(x, i).unwrap()).collect();
+        let shift = 6;
+        let key = |i: usize| (q[i][1] >> shift, q[i][0] >> shift);
+        let mut first: std::collections::HashMap<(i64, i64), usize> = std::collections::HashMap::default();
+        for i in 0..q.len() {
+            first.entry(key(i)).or_insert(i);
+        }
+        let mut res: Vec<Vec<(i16, i16)>> = vec![Vec::new(); 5];
+        for i in 0..q.len() {
+            let (cy, cx) = key(i);
+            let prev = if i > 0 { oct[i - 1] } else { [127, 127] };
+            let left = first.get(&(cy, cx - 1)).map(|&j| oct[j]);
+            let up = first.get(&(cy - 1, cx)).map(|&j| oct[j]);
+            let ul = first.get(&(cy - 1, cx - 1)).map(|&j| oct[j]);
+            let o = oct[i];
+            let r = |p: [u8; 2]| (i16::from(o[0]) - i16::from(p[0]), i16::from(o[1]) - i16::from(p[1]));
+            res[0].push(r(prev));
+            res[1].push(r(left.unwrap_or(prev)));
+            res[2].push(r(up.unwrap_or(prev)));
+            let avg = match (left, up) {
+                (Some(a), Some(b)) => [u8::midpoint(a[0], b[0]), u8::midpoint(a[1], b[1])],
+                _ => left.or(up).unwrap_or(prev),
+            };
+            res[3].push(r(avg));
+            let medp = match (left, up, ul) {
+                (Some(a), Some(b), Some(c)) => {
+                    [0, 1].map(|k| med(i64::from(a[k]), i64::from(b[k]), i64::from(c[k])).clamp(0, 255) as u8)
+                }
+                _ => avg,
+            };
+            res[4].push(r(medp));
+        }
+        for (name, r) in ["prev", "left", "up", "avg", "med"].iter().zip(&res) {
+            let hu = entropy(r.iter().map(|x| x.0));
+            let hv = entropy(r.iter().map(|x| x.1));
+            let hj = entropy(r.iter().copied());
+            println!("centres {centres} {name}: H(u) + H(v) = {:.2}, H(u, v) = {hj:.2} bits", hu + hv);
+        }
     }
 }
