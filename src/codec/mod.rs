@@ -1,9 +1,140 @@
-//! Blob format (CONTRACT STUB; the helper replaces the bodies).
+//! Blob format: one (tile, level) of geometry — a TIN mesh or a point cloud — as a compact,
+//! versioned, checksummed byte string. Pure: bytes in, bytes out, no I/O.
+//!
+//! # Layout (format version 1)
+//!
+//! All integers are little-endian. A blob is a fixed 136-byte prefix followed by the payload:
+//!
+//! | offset | size | field | meaning |
+//! |---:|---:|---|---|
+//! | 0 | 4 | magic | `b"TSB1"` ([`MAGIC`]) |
+//! | 4 | 4 | `header_len: u32` | 128 ([`HEADER_LEN`]); anything else is rejected |
+//! | 8 | 2 | `version: u16` | 1 ([`FORMAT_VERSION`]); checked before the rest of the header |
+//! | 10 | 4 | `kind: u32` | 0 = mesh, 1 = points |
+//! | 14 | 1 | `key.z: u8` | tile key |
+//! | 15 | 4 | `key.x: u32` | |
+//! | 19 | 4 | `key.y: u32` | |
+//! | 23 | 1 | `level: u8` | 0 = TIN mesh, 1.. = point levels |
+//! | 24 | 48 | `bounds: [[f64; 3]; 2]` | min x, y, z then max x, y, z (world units) |
+//! | 72 | 8 | `xy_step: f64` | quantization step of x and y |
+//! | 80 | 8 | `z_step: f64` | quantization step of z |
+//! | 88 | 4 | `vertex_count: u32` | mesh vertices, or points |
+//! | 92 | 4 | `triangle_count: u32` | mesh triangles; 0 for points |
+//! | 96 | 24 | `errors: [f64; 3]` | measured `max`, `rms`, `gap` ([`Errors`]) |
+//! | 120 | 4 | `raw_len: u32` | total size of the payload's streams once decompressed |
+//! | 124 | 4 | `payload_len: u32` | payload size as stored |
+//! | 128 | 4 | `checksum: u32` | CRC-32 (IEEE, `crc32fast`) of the stored payload |
+//! | 132 | 4 | `header_checksum: u32` | CRC-32 of bytes 0..132 |
+//! | 136 | `payload_len` | payload | see below |
+//!
+//! Bytes 8..136 are exactly [`BlobHeader`] encoded by `bincode` 2 with fixed-width
+//! little-endian integers (so `kind` is a `u32` variant index). [`decode_header`] needs only the
+//! first [`PREFIX_LEN`] bytes and checks the header checksum, so a store can read the measured
+//! errors without touching the payload; [`decode`] also checks that the blob is exactly
+//! `136 + payload_len` bytes long and that the payload checksum matches.
+//!
+//! # Quantization
+//!
+//! Every position is stored as integers `q = round((p − bounds.min) / step)` per axis (`xy_step`
+//! for x and y, `z_step` for z) and decoded as exactly `bounds.min + q · step` — the value
+//! [`quantize_positions`] returns. `q` must lie in `0..=round((max − min) / step)`, at most
+//! [`MAX_QUANT`] per axis: positions outside the bounds (beyond half a step) are rejected, so a
+//! client may trust the header bounds for culling. A TIN's vertices lie on the raster grid, so
+//! with `xy_step` equal to the cell size their x and y are exact.
+//!
+//! # Payload
+//!
+//! `mode: u8 | count: u8 | count × (method: u8, raw_len: u32, stored_len: u32) | stored bytes`.
+//! The payload is a set of byte streams, each holding one kind of value, stored one after the
+//! other; `method` 1 means the stream is one zstd frame (level [`ZSTD_LEVEL`]), 0 that it is
+//! stored as is (when zstd would not shrink it). The `raw_len`s add up to the header's.
+//!
+//! Values are coded as *varints* (unsigned LEB128), *signed* varints (zigzag, then LEB128), or
+//! *bucketed* into a pair of streams: a symbol byte and verbatim low bits (LSB first, last byte
+//! zero-padded). For an unsigned `u` (signed values are zigzagged first) the symbol is `u` when
+//! `u < 4`, else `4 + 4·(b − 3) + t` with `b` the bit length of `u` and `t` the two bits below
+//! its leading one; the `b − 3` remaining low bits go to the bit stream. This keeps the skewed
+//! part of residuals in bytes zstd codes near their entropy.
+//!
+//! **Mesh, modes 0 and 1 ("sweep", for planar TINs).** Vertices are sorted by `(qy, qx)` (x, y
+//! must be distinct). Streams: `gaps` (varint per vertex: the increase of
+//! `qy·(qmax_x + 1) + qx` over the previous vertex, the first its value), `runs` (varint `k`
+//! per vertex), `positions` (signed varint `d` per vertex), `z` and `z bits` (bucketed signed
+//! residual per vertex). Connectivity is rebuilt by a sweep that keeps a *front*, a list of
+//! vertices (possibly repeated). For vertex `v`, `p = anchor + d` where `anchor` is a front index
+//! derived from the geometry (`mesh::anchor`: the front edge right below `v`, or the previous
+//! vertex's index); then `k = 0` inserts `v` at `p`; `k = 1` hangs `v` from `w = f[p]`, which
+//! becomes `w, v, w`; `k ≥ 2` closes the `k − 1` triangles over `f[p..p+k]` (emitted
+//! `[f[i], f[i+1], v]` in mode 0, `[f[i+1], f[i], v]` in mode 1) and replaces the interior
+//! `f[p+1..p+k−1]` by `v`. z is the residual from a prediction (`mesh::predict_z`): the mean of
+//! the planes through each closed triangle's neighbour across its front edge, evaluated at `v`'s
+//! x, y; without such neighbours the mean z of the front vertices it joins, else the previous
+//! vertex's z. The anchor and the predictor are part of the format.
+//!
+//! **Mesh, mode 2 ("general", any indexed mesh).** Triangles in input order, vertices numbered by
+//! first use. Streams: `codes` (a byte per triangle), `fifo` (bytes), `explicit` (varints), and
+//! bucketed signed residuals for `x`, `y`, `z` (two streams each). A 16-entry FIFO of recent
+//! directed edges and one of recent vertices are kept: code `c < 48` means the triangle shares
+//! the reverse of FIFO edge `c % 16` and its third vertex is new (`c / 16 = 0`), a vertex FIFO
+//! entry (`1`, index in `fifo`) or an explicit index (`2`, `next − 1 − index` in `explicit`);
+//! codes `48..75` give the three vertices' classes in base 3. New vertices are predicted by the
+//! parallelogram rule across the shared edge, or by the previous new vertex; unreferenced
+//! vertices follow at the end.
+//!
+//! **Points, mode 0.** Streams: `params` (varints: per-axis base and stride of the quantized
+//! coordinates — their minimum and the GCD of the offsets from it, so points on a lattice cost
+//! nothing for the lattice — and a shift `s ≤ 8`), `rows` (per occupied cell row: row delta,
+//! cells − 1), `cells` (per cell: x delta), `counts` (per cell: points − 1), `fine x`, `fine y`
+//! (a byte per point, only when `s > 0`), `z` and `z bits` (bucketed signed residuals), `nu`, `nv`
+//! (octahedral normal bytes as wrapping residuals). Lattice x, y are split into a cell (`>> s`)
+//! and a fine part; points are sorted by (cell y, cell x, z, fine y, fine x, normal). The first
+//! point of a cell is predicted from the cells left, above and above-left (z: median edge
+//! detector; normal: mean of left and above), the others from the point below them in the cell.
+//!
+//! # Order
+//!
+//! Decoding returns the same geometry, not the same order: mesh vertices come back sorted as
+//! described above and triangles may be reordered and cyclically rotated (winding is always
+//! kept); points come back sorted. Normals come back as their 8+8-bit octahedral values
+//! ([`quantize_normals`]). Encoding is deterministic: equal inputs give byte-identical blobs.
+//!
+//! # Errors
+//!
+//! Every function returns [`CodecError`]; decoding any byte string returns `Ok` or `Err`, never
+//! panics, and allocates in proportion to the bytes actually present (counts are capped by
+//! [`MAX_ELEMENTS`] and checked against stream sizes; each zstd frame is decompressed
+//! incrementally up to its declared size; `raw_len` ≤ [`MAX_RAW_LEN`]).
+
+mod mesh;
+mod points;
+mod stream;
+#[cfg(test)]
+mod testdata;
 
 use crate::geom::{Bounds, Errors, Mesh, PointCloud};
 use crate::tiling::TileKey;
 
+pub use points::{oct_decode, oct_encode, quantize_normals};
+
+/// First four bytes of every blob.
+pub const MAGIC: [u8; 4] = *b"TSB1";
+/// The format version this code writes and reads.
 pub const FORMAT_VERSION: u16 = 1;
+/// Size of the bincode-encoded [`BlobHeader`].
+pub const HEADER_LEN: usize = 128;
+/// Bytes [`decode_header`] needs: magic, header length and header.
+pub const PREFIX_LEN: usize = 8 + HEADER_LEN;
+/// Most vertices, triangles or points one blob may hold (bounds what decoding allocates).
+pub const MAX_ELEMENTS: u32 = 1 << 24;
+/// Largest decompressed payload accepted (256 MiB).
+pub const MAX_RAW_LEN: u32 = 1 << 28;
+/// Largest quantized coordinate per axis; keeps every delta and product in range.
+pub const MAX_QUANT: i64 = (1 << 31) - 1;
+/// zstd level of the payload. Fixed so output is reproducible; high because blobs are baked once
+/// and served many times, and zstd decodes at the same speed whatever the level.
+pub const ZSTD_LEVEL: i32 = 19;
+/// Largest zstd window accepted when decoding (level 19 never uses more than 2^23).
+pub(crate) const ZSTD_WINDOW_LOG_MAX: u32 = 24;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, bincode::Encode, bincode::Decode)]
 pub enum Kind {
@@ -18,6 +149,7 @@ pub struct Quantization {
     pub z_step: f64,
 }
 
+/// The fixed header of a blob (see the module docs for its byte layout).
 #[derive(Debug, Clone, PartialEq, bincode::Encode, bincode::Decode)]
 pub struct BlobHeader {
     pub version: u16,
@@ -26,11 +158,33 @@ pub struct BlobHeader {
     pub level: u8,
     pub bounds: [[f64; 3]; 2],
     pub quant: Quantization,
+    /// Mesh vertices, or points.
     pub vertex_count: u32,
+    /// Mesh triangles; 0 for points.
     pub triangle_count: u32,
     pub errors: Errors,
+    /// Payload size after decompression.
+    pub raw_len: u32,
+    /// Payload size as stored.
     pub payload_len: u32,
+    /// CRC-32 of the stored payload.
     pub checksum: u32,
+    /// CRC-32 of the blob's bytes before this field (magic, header length, header).
+    pub header_checksum: u32,
+}
+
+impl BlobHeader {
+    /// The header bounds as a [`Bounds`].
+    #[must_use]
+    pub fn bounds(&self) -> Bounds {
+        Bounds { min: self.bounds[0], max: self.bounds[1] }
+    }
+
+    /// Total blob size this header announces.
+    #[must_use]
+    pub fn blob_len(&self) -> usize {
+        PREFIX_LEN + self.payload_len as usize
+    }
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -47,8 +201,54 @@ pub struct Blob {
 
 #[derive(Debug, thiserror::Error)]
 pub enum CodecError {
-    #[error("blob: {0}")]
-    Invalid(String),
+    #[error("blob: {got} bytes, need at least {needed}")]
+    Truncated { needed: usize, got: usize },
+    #[error("blob: {extra} bytes after the payload")]
+    TrailingBytes { extra: usize },
+    #[error("blob: bad magic {0:02x?} (expected \"TSB1\")")]
+    BadMagic([u8; 4]),
+    #[error("blob: format version {found} is not supported (this build reads {FORMAT_VERSION})")]
+    UnsupportedVersion { found: u16 },
+    #[error("blob: header length {0} (expected {HEADER_LEN})")]
+    BadHeaderLength(u32),
+    #[error("blob: header checksum {found:08x} does not match {computed:08x}")]
+    HeaderChecksum { found: u32, computed: u32 },
+    #[error("blob: payload checksum {found:08x} does not match {computed:08x}")]
+    PayloadChecksum { found: u32, computed: u32 },
+    #[error("blob: cannot decode header")]
+    HeaderDecode(#[source] bincode::error::DecodeError),
+    #[error("blob: cannot encode header")]
+    HeaderEncode(#[source] bincode::error::EncodeError),
+    #[error("blob: invalid header: {0}")]
+    InvalidHeader(&'static str),
+    #[error("blob: invalid bounds min {min:?} max {max:?} (need finite values, min <= max)")]
+    InvalidBounds { min: [f64; 3], max: [f64; 3] },
+    #[error("blob: invalid quantization steps xy {xy_step} z {z_step} (need finite steps > 0)")]
+    InvalidQuantization { xy_step: f64, z_step: f64 },
+    #[error("blob: axis {axis} spans {steps} quantization steps (at most {MAX_QUANT})")]
+    QuantizationRange { axis: usize, steps: f64 },
+    #[error("blob: position {index} is not finite: {position:?}")]
+    NonFinitePosition { index: usize, position: [f64; 3] },
+    #[error("blob: position {index} {position:?} lies outside the bounds")]
+    OutOfBounds { index: usize, position: [f64; 3] },
+    #[error("blob: triangle {triangle} refers to vertex {index}, but there are {vertex_count}")]
+    IndexOutOfRange { triangle: usize, index: u32, vertex_count: usize },
+    #[error("blob: {points} points but {normals} normals")]
+    NormalCountMismatch { points: usize, normals: usize },
+    #[error("blob: normal {index} {normal:?} is not a finite non-zero vector")]
+    BadNormal { index: usize, normal: [f32; 3] },
+    #[error("blob: errors {0:?} must be finite and non-negative")]
+    InvalidErrors(Errors),
+    #[error("blob: {count} {what} exceed the limit of {max}")]
+    TooLarge { what: &'static str, count: usize, max: usize },
+    #[error("blob: zstd compression failed")]
+    Compress(#[source] std::io::Error),
+    #[error("blob: zstd decompression failed")]
+    Decompress(#[source] std::io::Error),
+    #[error("blob: payload decompresses to {actual} bytes, header says {declared}")]
+    RawLength { declared: usize, actual: usize },
+    #[error("blob: corrupt payload ({0})")]
+    Corrupt(&'static str),
 }
 
 /// Snaps positions to the quantization grid relative to `bounds.min` (what decode returns).
@@ -63,32 +263,241 @@ pub fn quantize_positions(positions: &[[f64; 3]], bounds: &Bounds, q: Quantizati
         .collect()
 }
 
+/// The integer grid positions live on: origin, steps and the largest index per axis.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Frame {
+    min: [f64; 3],
+    step: [f64; 3],
+    pub(crate) qmax: [i64; 3],
+}
+
+impl Frame {
+    fn new(bounds: &Bounds, q: Quantization) -> Result<Self, CodecError> {
+        if !bounds.is_valid() {
+            return Err(CodecError::InvalidBounds { min: bounds.min, max: bounds.max });
+        }
+        let ok = |s: f64| s.is_finite() && s > 0.0;
+        if !ok(q.xy_step) || !ok(q.z_step) {
+            return Err(CodecError::InvalidQuantization { xy_step: q.xy_step, z_step: q.z_step });
+        }
+        let step = [q.xy_step, q.xy_step, q.z_step];
+        let mut qmax = [0i64; 3];
+        for a in 0..3 {
+            let steps = ((bounds.max[a] - bounds.min[a]) / step[a]).round();
+            if steps.is_nan() || steps > MAX_QUANT as f64 {
+                return Err(CodecError::QuantizationRange { axis: a, steps });
+            }
+            qmax[a] = steps as i64;
+        }
+        Ok(Self { min: bounds.min, step, qmax })
+    }
+
+    /// The integer coordinates of `p`; `index` names the position in errors.
+    pub(crate) fn quantize(&self, p: [f64; 3], index: usize) -> Result<[i64; 3], CodecError> {
+        if !p.iter().all(|v| v.is_finite()) {
+            return Err(CodecError::NonFinitePosition { index, position: p });
+        }
+        let mut q = [0i64; 3];
+        for a in 0..3 {
+            let v = ((p[a] - self.min[a]) / self.step[a]).round();
+            // Compared as floats first so a huge value cannot saturate into range.
+            if v.is_nan() || v < 0.0 || v > self.qmax[a] as f64 {
+                return Err(CodecError::OutOfBounds { index, position: p });
+            }
+            q[a] = v as i64;
+        }
+        Ok(q)
+    }
+
+    /// Whether `q` is a valid quantized position (decoders check every one they build).
+    pub(crate) fn contains(&self, q: [i64; 3]) -> bool {
+        (0..3).all(|a| (0..=self.qmax[a]).contains(&q[a]))
+    }
+
+    /// `min + q · step`, bit-identical to [`quantize_positions`] for the same `q`.
+    pub(crate) fn position(&self, q: [i64; 3]) -> [f64; 3] {
+        std::array::from_fn(|a| self.min[a] + (q[a] as f64) * self.step[a])
+    }
+}
+
+fn bincode_config() -> impl bincode::config::Config {
+    // The limit caps what a hostile header can make the decoder allocate; the header has no
+    // variable-length fields, so it never needs more than its own size.
+    bincode::config::standard().with_little_endian().with_fixed_int_encoding().with_limit::<256>()
+}
+
+fn check_errors(e: Errors) -> Result<(), CodecError> {
+    let ok = |v: f64| v.is_finite() && v >= 0.0;
+    if ok(e.max) && ok(e.rms) && ok(e.gap) { Ok(()) } else { Err(CodecError::InvalidErrors(e)) }
+}
+
+fn check_count(what: &'static str, count: usize) -> Result<u32, CodecError> {
+    u32::try_from(count).ok().filter(|&c| c <= MAX_ELEMENTS).ok_or(CodecError::TooLarge {
+        what,
+        count,
+        max: MAX_ELEMENTS as usize,
+    })
+}
+
+/// Writes magic, header and payload.
+#[allow(clippy::too_many_arguments)]
+fn assemble(
+    kind: Kind,
+    key: TileKey,
+    level: u8,
+    bounds: &Bounds,
+    quant: Quantization,
+    vertex_count: u32,
+    triangle_count: u32,
+    errors: Errors,
+    packed: &stream::Packed,
+) -> Result<Vec<u8>, CodecError> {
+    let too_large =
+        |count: usize| CodecError::TooLarge { what: "payload bytes", count, max: MAX_RAW_LEN as usize };
+    let payload = packed.payload.as_slice();
+    let raw_len =
+        u32::try_from(packed.raw_len).ok().filter(|&n| n <= MAX_RAW_LEN).ok_or(too_large(packed.raw_len))?;
+    let payload_len = u32::try_from(payload.len()).map_err(|_| too_large(payload.len()))?;
+    let header = BlobHeader {
+        version: FORMAT_VERSION,
+        kind,
+        key,
+        level,
+        bounds: [bounds.min, bounds.max],
+        quant,
+        vertex_count,
+        triangle_count,
+        errors,
+        raw_len,
+        payload_len,
+        checksum: crc32fast::hash(payload),
+        header_checksum: 0,
+    };
+    let mut out = Vec::with_capacity(PREFIX_LEN + payload.len());
+    out.extend_from_slice(&MAGIC);
+    out.extend_from_slice(&(HEADER_LEN as u32).to_le_bytes());
+    bincode::encode_into_std_write(&header, &mut out, bincode_config()).map_err(CodecError::HeaderEncode)?;
+    if out.len() != PREFIX_LEN {
+        return Err(CodecError::InvalidHeader("encoded header has the wrong size"));
+    }
+    let crc = crc32fast::hash(&out[..PREFIX_LEN - 4]);
+    out[PREFIX_LEN - 4..].copy_from_slice(&crc.to_le_bytes());
+    out.extend_from_slice(payload);
+    Ok(out)
+}
+
+/// Encodes a mesh. Errors: invalid bounds, steps or errors, non-finite or out-of-bounds
+/// positions, out-of-range triangle indices, more than [`MAX_ELEMENTS`] vertices or triangles.
 pub fn encode_mesh(
-    _key: TileKey,
-    _level: u8,
-    _bounds: &Bounds,
-    _q: Quantization,
-    _mesh: &Mesh,
-    _errors: Errors,
+    key: TileKey,
+    level: u8,
+    bounds: &Bounds,
+    q: Quantization,
+    mesh: &Mesh,
+    errors: Errors,
 ) -> Result<Vec<u8>, CodecError> {
-    Err(CodecError::Invalid("stub".into()))
+    let frame = Frame::new(bounds, q)?;
+    check_errors(errors)?;
+    let v = check_count("vertices", mesh.positions.len())?;
+    let t = check_count("triangles", mesh.triangles.len())?;
+    let packed = mesh::encode(&frame, mesh)?;
+    assemble(Kind::Mesh, key, level, bounds, q, v, t, errors, &packed)
 }
 
+/// Encodes a point cloud with its normals. Errors: as [`encode_mesh`], plus a normal count that
+/// differs from the point count and normals that are not finite non-zero vectors.
 pub fn encode_points(
-    _key: TileKey,
-    _level: u8,
-    _bounds: &Bounds,
-    _q: Quantization,
-    _points: &PointCloud,
-    _errors: Errors,
+    key: TileKey,
+    level: u8,
+    bounds: &Bounds,
+    q: Quantization,
+    points: &PointCloud,
+    errors: Errors,
 ) -> Result<Vec<u8>, CodecError> {
-    Err(CodecError::Invalid("stub".into()))
+    let frame = Frame::new(bounds, q)?;
+    check_errors(errors)?;
+    let n = check_count("points", points.positions.len())?;
+    let packed = points::encode(&frame, points)?;
+    assemble(Kind::Points, key, level, bounds, q, n, 0, errors, &packed)
 }
 
-pub fn decode_header(_bytes: &[u8]) -> Result<BlobHeader, CodecError> {
-    Err(CodecError::Invalid("stub".into()))
+/// Reads and validates the header from the first [`PREFIX_LEN`] bytes (more may follow and are
+/// ignored). Checks magic, version, header length, header checksum and the header's values; the
+/// payload is not looked at.
+pub fn decode_header(bytes: &[u8]) -> Result<BlobHeader, CodecError> {
+    let Some(prefix) = bytes.get(..PREFIX_LEN) else {
+        // Report the magic first when there is enough of it: a wrong file type is the likelier
+        // mistake than a short read.
+        if let Some(m) = bytes.first_chunk::<4>()
+            && *m != MAGIC
+        {
+            return Err(CodecError::BadMagic(*m));
+        }
+        return Err(CodecError::Truncated { needed: PREFIX_LEN, got: bytes.len() });
+    };
+    let magic: [u8; 4] = [prefix[0], prefix[1], prefix[2], prefix[3]];
+    if magic != MAGIC {
+        return Err(CodecError::BadMagic(magic));
+    }
+    let header_len = u32::from_le_bytes([prefix[4], prefix[5], prefix[6], prefix[7]]);
+    // The version is checked before the rest so a newer layout is reported as such, not as
+    // corruption.
+    let version = u16::from_le_bytes([prefix[8], prefix[9]]);
+    if version != FORMAT_VERSION {
+        return Err(CodecError::UnsupportedVersion { found: version });
+    }
+    if header_len as usize != HEADER_LEN {
+        return Err(CodecError::BadHeaderLength(header_len));
+    }
+    let found = u32::from_le_bytes([prefix[132], prefix[133], prefix[134], prefix[135]]);
+    let computed = crc32fast::hash(&prefix[..PREFIX_LEN - 4]);
+    if found != computed {
+        return Err(CodecError::HeaderChecksum { found, computed });
+    }
+    let (header, used): (BlobHeader, usize) =
+        bincode::decode_from_slice(&prefix[8..], bincode_config()).map_err(CodecError::HeaderDecode)?;
+    if used != HEADER_LEN {
+        return Err(CodecError::InvalidHeader("header length"));
+    }
+    Frame::new(&header.bounds(), header.quant)?;
+    check_errors(header.errors)?;
+    if header.vertex_count > MAX_ELEMENTS || header.triangle_count > MAX_ELEMENTS {
+        return Err(CodecError::InvalidHeader("element count above the limit"));
+    }
+    if header.raw_len > MAX_RAW_LEN {
+        return Err(CodecError::InvalidHeader("decompressed size above the limit"));
+    }
+    if header.kind == Kind::Points && header.triangle_count != 0 {
+        return Err(CodecError::InvalidHeader("point blob with triangles"));
+    }
+    Ok(header)
 }
 
-pub fn decode(_bytes: &[u8]) -> Result<Blob, CodecError> {
-    Err(CodecError::Invalid("stub".into()))
+/// Decodes a whole blob. Errors: everything [`decode_header`] reports, a length other than the
+/// header announces, a payload checksum mismatch, and corrupt payloads.
+pub fn decode(bytes: &[u8]) -> Result<Blob, CodecError> {
+    let header = decode_header(bytes)?;
+    let total = header.blob_len();
+    if bytes.len() < total {
+        return Err(CodecError::Truncated { needed: total, got: bytes.len() });
+    }
+    if bytes.len() > total {
+        return Err(CodecError::TrailingBytes { extra: bytes.len() - total });
+    }
+    let payload = &bytes[PREFIX_LEN..];
+    let computed = crc32fast::hash(payload);
+    if computed != header.checksum {
+        return Err(CodecError::PayloadChecksum { found: header.checksum, computed });
+    }
+    let frame = Frame::new(&header.bounds(), header.quant)?;
+    let (v, t, raw_len) =
+        (header.vertex_count as usize, header.triangle_count as usize, header.raw_len as usize);
+    let geometry = match header.kind {
+        Kind::Mesh => Geometry::Mesh(mesh::decode(&frame, v, t, payload, raw_len)?),
+        Kind::Points => Geometry::Points(points::decode(&frame, v, payload, raw_len)?),
+    };
+    Ok(Blob { header, geometry })
 }
+
+#[cfg(test)]
+mod tests;

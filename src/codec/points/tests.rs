@@ -1,0 +1,241 @@
+//! Tests of this module: round trips, hostile input, and size figures.
+
+// Exact float equality is the point of these tests: decoding must be bit-exact.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::float_cmp)]
+
+use proptest::prelude::*;
+
+use super::*;
+use crate::codec::testdata::{Rng, synthetic, voxel_points};
+use crate::codec::{Quantization, quantize_positions};
+use crate::geom::Bounds;
+
+fn setup(pc: &PointCloud, step: f64) -> (Frame, Bounds, Quantization) {
+    let mut b = Bounds::of_points(&pc.positions);
+    if !b.is_valid() {
+        b = Bounds { min: [0.0; 3], max: [1.0; 3] };
+    }
+    let q = Quantization { xy_step: step, z_step: step };
+    (Frame::new(&b, q).unwrap(), b, q)
+}
+
+/// Sorted (position bits, normal bits) pairs.
+fn canonical(positions: &[[f64; 3]], normals: &[[f32; 3]]) -> Vec<([u64; 3], [u32; 3])> {
+    let mut v: Vec<_> =
+        positions.iter().zip(normals).map(|(p, n)| (p.map(f64::to_bits), n.map(f32::to_bits))).collect();
+    v.sort_unstable();
+    v
+}
+
+fn round_trip(pc: &PointCloud, step: f64) -> Vec<u8> {
+    let (frame, b, q) = setup(pc, step);
+    let packed = encode(&frame, pc).unwrap();
+    let raw = packed.payload;
+    let back = decode(&frame, pc.positions.len(), &raw, packed.raw_len).unwrap();
+    let want_p = quantize_positions(&pc.positions, &b, q);
+    let want_n = quantize_normals(&pc.normals).unwrap();
+    assert_eq!(canonical(&back.positions, &back.normals), canonical(&want_p, &want_n));
+    assert_eq!(encode(&frame, pc).unwrap().payload, raw, "deterministic");
+    raw
+}
+
+#[test]
+fn oct_axes_are_exact() {
+    for n in [
+        [0.0, 0.0, 1.0],
+        [0.0, 0.0, -1.0],
+        [1.0, 0.0, 0.0],
+        [-1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, -1.0, 0.0],
+    ] {
+        assert_eq!(oct_decode(oct_encode(n).unwrap()), n);
+    }
+    assert_eq!(oct_encode([0.0, 0.0, 5.0]), Some([127, 127]));
+}
+
+#[test]
+fn oct_error_is_small() {
+    let mut rng = Rng(5);
+    let mut worst = 1.0f32;
+    for _ in 0..20_000 {
+        let n = [rng.unit() * 2.0 - 1.0, rng.unit() * 2.0 - 1.0, rng.unit() * 2.0 - 1.0].map(|v| v as f32);
+        let Some(b) = oct_encode(n) else { continue };
+        let d = oct_decode(b);
+        let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        let cos = (d[0] * n[0] + d[1] * n[1] + d[2] * n[2]) / l;
+        worst = worst.min(cos);
+        let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        assert!((len - 1.0).abs() < 1e-6);
+    }
+    // 8+8 bits: under about 1.5 degrees everywhere.
+    assert!(worst > 1.5f32.to_radians().cos(), "worst cosine {worst}");
+}
+
+#[test]
+fn oct_rejects_bad_vectors() {
+    assert_eq!(oct_encode([0.0; 3]), None);
+    assert_eq!(oct_encode([f32::NAN, 0.0, 1.0]), None);
+    assert_eq!(oct_encode([f32::INFINITY, 0.0, 1.0]), None);
+    for b in 0..=255u8 {
+        let d = oct_decode([b, 255 - b]);
+        assert!(d.iter().all(|v| v.is_finite()));
+    }
+}
+
+#[test]
+fn empty_points() {
+    round_trip(&PointCloud::default(), 1.0);
+}
+
+#[test]
+fn lattice_and_continuous_voxel_points() {
+    let hf = synthetic(97, 97, 30.0);
+    for centres in [true, false] {
+        let pc = voxel_points(&hf, None, 60.0, centres);
+        let z = round_trip(&pc, 60.0 / 64.0).len();
+        // Continuous positions carry their fine offsets (12 bits here); lattice points far less.
+        let limit = if centres { 1 } else { 4 };
+        assert!(z < limit * pc.positions.len(), "{z} bytes for {} points", pc.positions.len());
+    }
+}
+
+#[test]
+fn input_order_does_not_matter() {
+    let hf = synthetic(40, 40, 30.0);
+    let pc = voxel_points(&hf, None, 60.0, false);
+    let (frame, _, _) = setup(&pc, 1.0);
+    let rev = PointCloud {
+        positions: pc.positions.iter().rev().copied().collect(),
+        normals: pc.normals.iter().rev().copied().collect(),
+    };
+    assert_eq!(encode(&frame, &pc).unwrap().payload, encode(&frame, &rev).unwrap().payload);
+}
+
+#[test]
+fn bad_inputs_are_named() {
+    let frame =
+        Frame::new(&Bounds { min: [0.0; 3], max: [10.0; 3] }, Quantization { xy_step: 1.0, z_step: 1.0 })
+            .unwrap();
+    let pc = PointCloud { positions: vec![[1.0; 3]], normals: vec![] };
+    assert!(matches!(encode(&frame, &pc), Err(CodecError::NormalCountMismatch { points: 1, normals: 0 })));
+    let pc = PointCloud { positions: vec![[1.0; 3]; 2], normals: vec![[0.0, 0.0, 1.0], [0.0; 3]] };
+    assert!(matches!(encode(&frame, &pc), Err(CodecError::BadNormal { index: 1, .. })));
+    let pc = PointCloud { positions: vec![[1.0, f64::NAN, 1.0]], normals: vec![[0.0, 0.0, 1.0]] };
+    assert!(matches!(encode(&frame, &pc), Err(CodecError::NonFinitePosition { index: 0, .. })));
+    let pc = PointCloud { positions: vec![[1.0, 11.0, 1.0]], normals: vec![[0.0, 0.0, 1.0]] };
+    assert!(matches!(encode(&frame, &pc), Err(CodecError::OutOfBounds { index: 0, .. })));
+}
+
+fn arb_points() -> impl Strategy<Value = PointCloud> {
+    proptest::collection::vec(
+        ((0u16..2000, 0u16..2000, 0u16..2000), (-1.0f32..1.0, -1.0f32..1.0, -1.0f32..1.0)),
+        0..80,
+    )
+    .prop_map(|v| {
+        let (p, n): (Vec<_>, Vec<_>) = v
+            .into_iter()
+            .map(|((x, y, z), (a, b, c))| {
+                let n = if a == 0.0 && b == 0.0 && c == 0.0 { [0.0, 0.0, 1.0] } else { [a, b, c] };
+                ([f64::from(x) * 0.5, f64::from(y) * 0.5, f64::from(z) * 0.125], n)
+            })
+            .unzip();
+        PointCloud { positions: p, normals: n }
+    })
+}
+
+proptest! {
+    #[test]
+    fn any_points_round_trip(pc in arb_points(), step in prop_oneof![Just(0.125), Just(0.5), Just(3.0)]) {
+        round_trip(&pc, step);
+    }
+
+    #[test]
+    fn random_payloads_never_panic(raw in proptest::collection::vec(any::<u8>(), 0..200), n in 0usize..50, len in 0usize..300) {
+        let frame = Frame::new(&Bounds { min: [0.0; 3], max: [100.0; 3] }, Quantization { xy_step: 1.0, z_step: 1.0 }).unwrap();
+        let _ = decode(&frame, n, &raw, len);
+    }
+
+    #[test]
+    fn mutated_payloads_never_panic(seed in any::<u64>(), flips in 1usize..8) {
+        let mut rng = Rng(seed);
+        let hf = synthetic(20, 20, 30.0);
+        let pc = voxel_points(&hf, None, 60.0, seed % 2 == 0);
+        let (frame, _, _) = setup(&pc, 1.0);
+        let p = encode(&frame, &pc).unwrap();
+        let mut raw = p.payload;
+        for _ in 0..flips {
+            let i = rng.below(raw.len() as u64) as usize;
+            raw[i] ^= 1 << rng.below(8);
+        }
+        let _ = decode(&frame, pc.positions.len(), &raw, p.raw_len);
+    }
+}
+
+fn entropy<T: std::hash::Hash + Eq>(vals: impl Iterator<Item = T>) -> f64 {
+    let mut m = std::collections::HashMap::new();
+    let mut n = 0usize;
+    for v in vals {
+        *m.entry(v).or_insert(0usize) += 1;
+        n += 1;
+    }
+    let n = n as f64;
+    m.values().map(|&c| -(c as f64 / n) * (c as f64 / n).log2()).sum::<f64>()
+}
+
+/// Compares normal predictors (order-0 entropy, bits per point for u + v, and joint).
+#[test]
+#[ignore = "analysis"]
+fn analyse_normal_predictors() {
+    use crate::codec::testdata::{fuji, greedy_tin, tin_surface};
+    let Some(hf) = fuji() else { return };
+    let tin = greedy_tin(&hf, 2.0);
+    let (surface, normals) = tin_surface(&hf, &tin);
+    for centres in [true, false] {
+        let pc = voxel_points(&surface, Some(&normals), 60.0, centres);
+        let (frame, _, _) = setup(&pc, 60.0 / 64.0);
+        let p = encode(&frame, &pc).unwrap();
+        let back = decode(&frame, pc.positions.len(), &p.payload, p.raw_len).unwrap();
+        let oct: Vec<[u8; 2]> = back.normals.iter().map(|&n| oct_encode(n).unwrap()).collect();
+        // Rebuild cells in decoded order.
+        let q: Vec<[i64; 3]> =
+            back.positions.iter().enumerate().map(|(i, &x)| frame.quantize(x, i).unwrap()).collect();
+        let shift = 6;
+        let key = |i: usize| (q[i][1] >> shift, q[i][0] >> shift);
+        let mut first: std::collections::HashMap<(i64, i64), usize> = std::collections::HashMap::default();
+        for i in 0..q.len() {
+            first.entry(key(i)).or_insert(i);
+        }
+        let mut res: Vec<Vec<(i16, i16)>> = vec![Vec::new(); 5];
+        for i in 0..q.len() {
+            let (cy, cx) = key(i);
+            let prev = if i > 0 { oct[i - 1] } else { [127, 127] };
+            let left = first.get(&(cy, cx - 1)).map(|&j| oct[j]);
+            let up = first.get(&(cy - 1, cx)).map(|&j| oct[j]);
+            let ul = first.get(&(cy - 1, cx - 1)).map(|&j| oct[j]);
+            let o = oct[i];
+            let r = |p: [u8; 2]| (i16::from(o[0]) - i16::from(p[0]), i16::from(o[1]) - i16::from(p[1]));
+            res[0].push(r(prev));
+            res[1].push(r(left.unwrap_or(prev)));
+            res[2].push(r(up.unwrap_or(prev)));
+            let avg = match (left, up) {
+                (Some(a), Some(b)) => [u8::midpoint(a[0], b[0]), u8::midpoint(a[1], b[1])],
+                _ => left.or(up).unwrap_or(prev),
+            };
+            res[3].push(r(avg));
+            let medp = match (left, up, ul) {
+                (Some(a), Some(b), Some(c)) => {
+                    [0, 1].map(|k| med(i64::from(a[k]), i64::from(b[k]), i64::from(c[k])).clamp(0, 255) as u8)
+                }
+                _ => avg,
+            };
+            res[4].push(r(medp));
+        }
+        for (name, r) in ["prev", "left", "up", "avg", "med"].iter().zip(&res) {
+            let hu = entropy(r.iter().map(|x| x.0));
+            let hv = entropy(r.iter().map(|x| x.1));
+            let hj = entropy(r.iter().copied());
+            println!("centres {centres} {name}: H(u) + H(v) = {:.2}, H(u, v) = {hj:.2} bits", hu + hv);
+        }
+    }
+}
