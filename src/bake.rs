@@ -290,6 +290,11 @@ fn existing_node(store: &Store, key: TileKey, levels: u8) -> Option<NodeEntry> {
     Some(NodeEntry { key, bounds: bounds?, levels: out })
 }
 
+/// The largest power of two ≤ `v` (v > 0 and finite).
+fn pow2_at_most(v: f64) -> f64 {
+    2f64.powi(v.log2().floor() as i32)
+}
+
 /// Everything one node's bake produces, before it is written.
 pub struct NodeBake {
     pub key: TileKey,
@@ -340,11 +345,13 @@ pub fn bake_node_geometry(
         let p = frame.world(f64::from(c), f64::from(r), bounds.min[2]);
         bounds.extend(p);
     }
-    let mesh_q = Quantization {
-        xy_step: frame.cell(),
-        z_step: (node_error / MESH_Z_STEPS_PER_ERROR)
-            .max(f64::from(f32::EPSILON) * bounds.max[2].abs().max(1.0)),
-    };
+    // Heights are quantized on one global grid per depth — a power-of-two step, with the origin
+    // a multiple of it — so a border vertex decodes to bit-identical heights in both neighbours.
+    let z_step = pow2_at_most(
+        (node_error / MESH_Z_STEPS_PER_ERROR).max(f64::from(f32::EPSILON) * bounds.max[2].abs().max(1.0)),
+    );
+    bounds.min[2] = (bounds.min[2] / z_step).floor() * z_step;
+    let mesh_q = Quantization { xy_step: frame.cell(), z_step };
     mesh.positions = codec::quantize_positions(&mesh.positions, &bounds, mesh_q);
 
     // Measured against every full-resolution sample the node covers, in sample coordinates.

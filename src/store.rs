@@ -5,7 +5,8 @@
 //! DIR/index/{z}/{x}/{y}.json        index chunk: every node of the subtree rooted at (z, x, y),
 //!                                   SUBTREE_LEVELS deep; roots at z = 0, 4, 8, …
 //! DIR/tiles/{z}/{x}/{y}/{level}.tsb one blob per (tile, level)
-//! DIR/.bake-state.json              the options of a bake in progress (removed when complete)
+//! DIR/bake-options.json             the options of the bake, written first, so an interrupted
+//!                                   bake (no manifest yet) can be resumed and checked
 //! ```
 //!
 //! Every file is written to a temporary name in the same directory and renamed into place, so a
@@ -28,7 +29,7 @@ pub const MANIFEST_VERSION: u32 = 1;
 /// index file grows with the dataset.
 pub const SUBTREE_LEVELS: u8 = 4;
 pub const MANIFEST_FILE: &str = "tileset.json";
-const STATE_FILE: &str = ".bake-state.json";
+const STATE_FILE: &str = "bake-options.json";
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
@@ -221,15 +222,10 @@ impl Store {
         }
     }
 
-    /// Marks the bake complete: writes the manifest last and drops the bake state.
+    /// Marks the bake complete by writing the manifest, last.
     pub fn finish_bake(&self, manifest: &Manifest) -> Result<(), StoreError> {
         let path = self.manifest_path();
-        write_atomic(&path, &to_json(manifest, &path)?)?;
-        let state = self.dir.join(STATE_FILE);
-        match fs::remove_file(&state) {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(io(&state)(e)),
-            _ => Ok(()),
-        }
+        write_atomic(&path, &to_json(manifest, &path)?)
     }
 
     pub fn write_blob(&self, key: TileKey, level: u8, bytes: &[u8]) -> Result<(), StoreError> {
