@@ -398,3 +398,38 @@ fn report_sizes() {
         }
     }
 }
+
+/// Total stored size and compression time of real blobs' streams at several zstd levels.
+#[test]
+#[ignore = "analysis"]
+fn analyse_zstd_levels() {
+    let Some(hf) = fuji() else { return };
+    let extent = 511.0 * 30.0;
+    let m = greedy_tin(&hf, 2.0);
+    let b = Bounds::of_points(&m.positions);
+    let b = Bounds { min: [0.0, 0.0, b.min[2]], max: [extent, extent, b.max[2]] };
+    let mesh_blob = encode_mesh(KEY, 0, &b, Quantization { xy_step: 30.0, z_step: 0.1 }, &m, ERRORS).unwrap();
+    let (surface, normals) = tin_surface(&hf, &m);
+    let pc = voxel_points(&surface, Some(&normals), 60.0, true);
+    let b = Bounds::of_points(&pc.positions);
+    let q = Quantization { xy_step: 60.0 / 64.0, z_step: 60.0 / 64.0 };
+    let points_blob = encode_points(KEY, 1, &b, q, &pc, ERRORS).unwrap();
+    for (name, blob, names) in [("mesh", &mesh_blob, 5), ("points", &points_blob, 10)] {
+        let h = decode_header(blob).unwrap();
+        let names: Vec<&'static str> = vec!["s"; names];
+        let u = stream::unpack(&blob[PREFIX_LEN..], h.raw_len as usize, &names).unwrap();
+        for level in [3, 9, 12, 15, 17, 19, 22] {
+            let t0 = std::time::Instant::now();
+            let total: usize = u
+                .readers()
+                .iter()
+                .map(|r| {
+                    let raw = r.rest();
+                    zstd::bulk::compress(raw, level).unwrap().len().min(raw.len())
+                })
+                .sum();
+            let t = t0.elapsed();
+            println!("{name} level {level}: {total} B, {:.1} ms", t.as_secs_f64() * 1e3);
+        }
+    }
+}
