@@ -36,7 +36,8 @@ const FIFO: usize = 16;
 /// First code of a triangle that shares no FIFO edge.
 const CODE_NO_EDGE: u8 = 48;
 
-/// Encodes `mesh` (already validated by the caller only for counts) into a raw payload.
+/// Encodes `mesh` into a payload: the sweep coder when the mesh fits it, else the general one.
+/// Errors: non-finite or out-of-bounds positions, out-of-range indices.
 pub(super) fn encode(frame: &Frame, mesh: &Mesh) -> Result<Packed, CodecError> {
     let n = mesh.positions.len();
     let q = mesh
@@ -158,6 +159,11 @@ fn sweep_encode(frame: &Frame, q: &[[i64; 3]], tris: &[[u32; 3]]) -> Result<Opti
             &mut Reader::new(&positions.bytes, SWEEP_STREAMS[2]),
             reverse,
         )?;
+        // The plan reproduces each vertex's fan by construction; checking the replay against the
+        // input anyway costs a sort and guarantees the sweep never changes a mesh.
+        if !same_triangles(&sweep.tris, &sorted) {
+            continue;
+        }
         let mut zs = BucketWriter::default();
         sweep_z(&coords, &sweep, frame.qmax[2], |v, pred| {
             zs.signed(xy[v][2] - pred);
@@ -168,6 +174,19 @@ fn sweep_encode(frame: &Frame, q: &[[i64; 3]], tris: &[[u32; 3]]) -> Result<Opti
         return pack(mode, &[&gaps, &runs, &positions, &zs, &zbits]).map(Some);
     }
     Ok(None)
+}
+
+/// Whether two triangle lists hold the same triangles, each up to rotation (winding kept).
+fn same_triangles(a: &[[u32; 3]], b: &[[u32; 3]]) -> bool {
+    let canonical = |t: &[[u32; 3]]| {
+        let mut v: Vec<[u32; 3]> = t
+            .iter()
+            .map(|&[x, y, z]| [[x, y, z], [y, z, x], [z, x, y]].into_iter().min().unwrap_or([x, y, z]))
+            .collect();
+        v.sort_unstable();
+        v
+    };
+    a.len() == b.len() && canonical(a) == canonical(b)
 }
 
 /// The triangles of a mesh in sorted vertex ids, by last vertex and by corner (encoder only).
@@ -691,6 +710,52 @@ impl General {
     }
 }
 
+/// Triangle order for the general coder: depth-first over edge-adjacent triangles, seeded in
+/// input order. Each next triangle then usually shares an edge with one just coded, so most
+/// codes are FIFO edge hits with a new vertex and a parallelogram prediction; on the Stanford
+/// Bunny's scrambled OBJ order this cut the blob by more than half.
+fn locality_order(tris: &[[u32; 3]]) -> Vec<u32> {
+    let mut edges: Vec<(u64, u32)> = Vec::with_capacity(tris.len() * 3);
+    for (t, &[a, b, c]) in tris.iter().enumerate() {
+        for (x, y) in [(a, b), (b, c), (c, a)] {
+            edges.push(((u64::from(x.min(y)) << 32) | u64::from(x.max(y)), t as u32));
+        }
+    }
+    edges.sort_unstable();
+    // Link triangles sharing an edge in a chain (not all pairs), so a non-manifold edge costs
+    // linear space.
+    let mut links: Vec<(u32, u32)> = Vec::with_capacity(edges.len() * 2);
+    for w in edges.windows(2) {
+        if w[0].0 == w[1].0 && w[0].1 != w[1].1 {
+            links.push((w[0].1, w[1].1));
+            links.push((w[1].1, w[0].1));
+        }
+    }
+    links.sort_unstable();
+    let mut start = vec![0usize; tris.len() + 1];
+    for &(t, _) in &links {
+        start[t as usize + 1] += 1;
+    }
+    for t in 0..tris.len() {
+        start[t + 1] += start[t];
+    }
+    let mut seen = vec![false; tris.len()];
+    let mut order = Vec::with_capacity(tris.len());
+    let mut stack = Vec::new();
+    for seed in 0..tris.len() as u32 {
+        stack.push(seed);
+        while let Some(t) = stack.pop() {
+            if std::mem::replace(&mut seen[t as usize], true) {
+                continue;
+            }
+            order.push(t);
+            // Reversed so the first neighbour is visited first.
+            stack.extend(links[start[t as usize]..start[t as usize + 1]].iter().rev().map(|l| l.1));
+        }
+    }
+    order
+}
+
 fn general_encode(frame: &Frame, q: &[[i64; 3]], tris: &[[u32; 3]]) -> Result<Packed, CodecError> {
     let n = q.len();
     let mut ids = vec![u32::MAX; n];
@@ -708,7 +773,7 @@ fn general_encode(frame: &Frame, q: &[[i64; 3]], tris: &[[u32; 3]]) -> Result<Pa
         st.pos.push(p);
         id
     };
-    for &tri in tris {
+    for tri in locality_order(tris).into_iter().map(|t| tris[t as usize]) {
         // A FIFO edge whose reverse is one of this triangle's edges, newest first.
         let hit = st.edges.iter().enumerate().find_map(|(fe, e)| {
             (0..3).find_map(|r| {

@@ -71,8 +71,8 @@
 //! x, y; without such neighbours the mean z of the front vertices it joins, else the previous
 //! vertex's z. The anchor and the predictor are part of the format.
 //!
-//! **Mesh, mode 2 ("general", any indexed mesh).** Triangles in input order, vertices numbered by
-//! first use. Streams: `codes` (a byte per triangle), `fifo` (bytes), `explicit` (varints), and
+//! **Mesh, mode 2 ("general", any indexed mesh).** Triangles in a depth-first order over shared
+//! edges (chosen by the encoder), vertices numbered by first use. Streams: `codes` (a byte per triangle), `fifo` (bytes), `explicit` (varints), and
 //! bucketed signed residuals for `x`, `y`, `z` (two streams each). A 16-entry FIFO of recent
 //! directed edges and one of recent vertices are kept: code `c < 48` means the triangle shares
 //! the reverse of FIFO edge `c % 16` and its third vertex is new (`c / 16 = 0`), a vertex FIFO

@@ -8,7 +8,7 @@ use std::fmt::Write as _;
 use proptest::prelude::*;
 
 use super::testdata::{
-    Rng, canonical_positions, canonical_triangles, fuji, greedy_tin, quantized_mesh_gzip, synthetic,
+    Rng, bunny, canonical_positions, canonical_triangles, fuji, greedy_tin, quantized_mesh_gzip, synthetic,
     tin_surface, voxel_points,
 };
 use super::*;
@@ -319,6 +319,29 @@ fn stream_report(blob: &[u8]) -> String {
 #[test]
 #[ignore = "slow: prints size figures"]
 fn report_sizes() {
+    if let Some(m) = bunny() {
+        // A closed 3D model: the general coder. 0.1 mm steps on a model about 15 cm across.
+        let b = Bounds::of_points(&m.positions);
+        let q = Quantization { xy_step: 1e-4, z_step: 1e-4 };
+        let t0 = std::time::Instant::now();
+        let blob = encode_mesh(KEY, 0, &b, q, &m, ERRORS).unwrap();
+        let enc = t0.elapsed();
+        let t0 = std::time::Instant::now();
+        decode(&blob).unwrap();
+        let dec = t0.elapsed();
+        let raw = m.positions.len() * 12 + m.triangles.len() * 12;
+        println!(
+            "bunny (general mode): {} vertices, {} triangles; blob {} B = {:.2} B/vertex (f32 + u32 arrays: {:.0} B/vertex); encode {:.1} ms, decode {:.1} ms",
+            m.positions.len(),
+            m.triangles.len(),
+            blob.len(),
+            blob.len() as f64 / m.positions.len() as f64,
+            raw as f64 / m.positions.len() as f64,
+            enc.as_secs_f64() * 1e3,
+            dec.as_secs_f64() * 1e3,
+        );
+        println!("  {}", stream_report(&blob));
+    }
     let fields = [("fuji 512x512 @30m", fuji()), ("synthetic 513x513 @30m", Some(synthetic(513, 513, 30.0)))];
     for (name, hf) in fields {
         let Some(hf) = hf else {
