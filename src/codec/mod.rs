@@ -138,6 +138,7 @@ pub const ZSTD_LEVEL: i32 = 15;
 /// Largest zstd window accepted when decoding (levels up to 19 never use more than 2^23).
 pub(crate) const ZSTD_WINDOW_LOG_MAX: u32 = 24;
 
+/// What a blob holds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, bincode::Encode, bincode::Decode)]
 pub enum Kind {
     Mesh,
@@ -165,7 +166,7 @@ pub struct BlobHeader {
     /// Mesh triangles; 0 for points.
     pub triangle_count: u32,
     pub errors: Errors,
-    /// Payload size after decompression.
+    /// Total size of the payload's streams once decompressed.
     pub raw_len: u32,
     /// Payload size as stored.
     pub payload_len: u32,
@@ -189,12 +190,14 @@ impl BlobHeader {
     }
 }
 
+/// The geometry a blob decodes to (order as described in the module docs).
 #[derive(Debug, Clone, PartialEq)]
 pub enum Geometry {
     Mesh(Mesh),
     Points(PointCloud),
 }
 
+/// A decoded blob.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Blob {
     pub header: BlobHeader,

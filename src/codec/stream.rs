@@ -289,6 +289,23 @@ pub(crate) struct Unpacked {
 }
 
 impl Unpacked {
+    /// Flips bits in one decompressed stream and packs again, so fuzz tests reach the decoders
+    /// behind the zstd frames.
+    #[cfg(test)]
+    pub(crate) fn mutate_and_pack(&self, stream: usize, flips: &[(usize, u8)]) -> Packed {
+        let mut bufs = self.bufs.clone();
+        let s = stream % bufs.len();
+        for &(at, bit) in flips {
+            if !bufs[s].is_empty() {
+                let len = bufs[s].len();
+                bufs[s][at % len] ^= 1 << (bit % 8);
+            }
+        }
+        let writers: Vec<Writer> = bufs.into_iter().map(|bytes| Writer { bytes }).collect();
+        let refs: Vec<&Writer> = writers.iter().collect();
+        pack(self.mode, &refs).unwrap()
+    }
+
     pub(crate) fn readers(&self) -> Vec<Reader<'_>> {
         self.bufs.iter().zip(&self.names).map(|(b, &n)| Reader::new(b, n)).collect()
     }

@@ -194,6 +194,21 @@ proptest! {
     }
 
     #[test]
+    fn mutated_streams_never_panic(seed in any::<u64>(), stream in 0usize..9, flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 1..6), general in any::<bool>()) {
+        let mut rng = Rng(seed);
+        let mut m = grid_delaunay(&mut rng, 30, 40);
+        if general {
+            m.triangles.push([0, 0, 1]);
+        }
+        let (frame, _, _) = frame_for(&m, 10.0, 0.01);
+        let p = encode(&frame, &m).unwrap();
+        let names = if general { GENERAL_STREAMS.to_vec() } else { SWEEP_STREAMS.to_vec() };
+        let u = crate::codec::stream::unpack(&p.payload, p.raw_len, &names).unwrap();
+        let bad = u.mutate_and_pack(stream, &flips);
+        let _ = decode(&frame, m.positions.len(), m.triangles.len(), &bad.payload, bad.raw_len);
+    }
+
+    #[test]
     fn mutated_payloads_never_panic(seed in any::<u64>(), flips in 1usize..8) {
         let mut rng = Rng(seed);
         let m = grid_delaunay(&mut rng, 30, 40);
