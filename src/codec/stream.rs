@@ -292,7 +292,7 @@ impl Unpacked {
     /// Flips bits in one decompressed stream and packs again, so fuzz tests reach the decoders
     /// behind the zstd frames.
     #[cfg(test)]
-    pub(crate) fn mutate_and_pack(&self, stream: usize, flips: &[(usize, u8)]) -> Packed {
+    pub(crate) fn mutate_and_pack(&self, stream: usize, flips: &[(usize, u8)]) -> Result<Packed, CodecError> {
         let mut bufs = self.bufs.clone();
         let s = stream % bufs.len();
         for &(at, bit) in flips {
@@ -303,7 +303,7 @@ impl Unpacked {
         }
         let writers: Vec<Writer> = bufs.into_iter().map(|bytes| Writer { bytes }).collect();
         let refs: Vec<&Writer> = writers.iter().collect();
-        pack(self.mode, &refs).unwrap()
+        pack(self.mode, &refs)
     }
 
     pub(crate) fn readers(&self) -> Vec<Reader<'_>> {

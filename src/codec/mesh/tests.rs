@@ -204,7 +204,7 @@ proptest! {
         let p = encode(&frame, &m).unwrap();
         let names = if general { GENERAL_STREAMS.to_vec() } else { SWEEP_STREAMS.to_vec() };
         let u = crate::codec::stream::unpack(&p.payload, p.raw_len, &names).unwrap();
-        let bad = u.mutate_and_pack(stream, &flips);
+        let bad = u.mutate_and_pack(stream, &flips).unwrap();
         let _ = decode(&frame, m.positions.len(), m.triangles.len(), &bad.payload, bad.raw_len);
     }
 

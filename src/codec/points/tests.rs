@@ -163,7 +163,7 @@ proptest! {
         let (frame, _, _) = setup(&pc, 1.0);
         let p = encode(&frame, &pc).unwrap();
         let u = crate::codec::stream::unpack(&p.payload, p.raw_len, &STREAMS).unwrap();
-        let bad = u.mutate_and_pack(stream, &flips);
+        let bad = u.mutate_and_pack(stream, &flips).unwrap();
         let _ = decode(&frame, pc.positions.len(), &bad.payload, bad.raw_len);
     }
 
