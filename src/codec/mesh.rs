@@ -8,7 +8,7 @@
 //! fit (non-planar, duplicate x/y, inconsistent winding, holes in awkward places) fall back to
 //! the general coder, which works like meshoptimizer's index codec.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::VecDeque;
 
 use super::stream::{BucketReader, BucketWriter, Packed, Reader, Writer, pack, unpack};
 use super::{CodecError, Frame};
@@ -36,7 +36,8 @@ const FIFO: usize = 16;
 /// First code of a triangle that shares no FIFO edge.
 const CODE_NO_EDGE: u8 = 48;
 
-/// Encodes `mesh` (already validated by the caller only for counts) into a raw payload.
+/// Encodes `mesh` into a payload: the sweep coder when the mesh fits it, else the general one.
+/// Errors: non-finite or out-of-bounds positions, out-of-range indices.
 pub(super) fn encode(frame: &Frame, mesh: &Mesh) -> Result<Packed, CodecError> {
     let n = mesh.positions.len();
     let q = mesh
@@ -151,15 +152,20 @@ fn sweep_encode(frame: &Frame, q: &[[i64; 3]], tris: &[[u32; 3]]) -> Result<Opti
         }
         // Rebuild the connectivity exactly as the decoder will, so z is predicted from the same
         // triangles in the same order.
-        let (built, tri_start) = sweep_connectivity(
+        let sweep = sweep_connectivity(
             &coords,
             tris.len(),
             &mut Reader::new(&runs.bytes, SWEEP_STREAMS[1]),
             &mut Reader::new(&positions.bytes, SWEEP_STREAMS[2]),
             reverse,
         )?;
+        // The plan reproduces each vertex's fan by construction; checking the replay against the
+        // input anyway costs a sort and guarantees the sweep never changes a mesh.
+        if !same_triangles(&sweep.tris, &sorted) {
+            continue;
+        }
         let mut zs = BucketWriter::default();
-        sweep_z(&coords, &built, &tri_start, frame.qmax[2], |v, pred| {
+        sweep_z(&coords, &sweep, frame.qmax[2], |v, pred| {
             zs.signed(xy[v][2] - pred);
             Ok(xy[v][2])
         })?;
@@ -170,7 +176,20 @@ fn sweep_encode(frame: &Frame, q: &[[i64; 3]], tris: &[[u32; 3]]) -> Result<Opti
     Ok(None)
 }
 
-/// The triangles of a mesh in sorted vertex ids, by last vertex and by corner.
+/// Whether two triangle lists hold the same triangles, each up to rotation (winding kept).
+fn same_triangles(a: &[[u32; 3]], b: &[[u32; 3]]) -> bool {
+    let canonical = |t: &[[u32; 3]]| {
+        let mut v: Vec<[u32; 3]> = t
+            .iter()
+            .map(|&[x, y, z]| [[x, y, z], [y, z, x], [z, x, y]].into_iter().min().unwrap_or([x, y, z]))
+            .collect();
+        v.sort_unstable();
+        v
+    };
+    a.len() == b.len() && canonical(a) == canonical(b)
+}
+
+/// The triangles of a mesh in sorted vertex ids, by last vertex and by corner (encoder only).
 struct Adjacency<'a> {
     /// Rotated so the last vertex comes last, grouped by it.
     tris: &'a [[u32; 3]],
@@ -189,7 +208,7 @@ struct Adjacency<'a> {
 /// walks up to it and back down, `w, v, w` (`k = 1`).
 fn sweep_plan(adj: &Adjacency<'_>, xy: &[[i64; 2]], reverse: bool) -> Option<Vec<(usize, i64)>> {
     let n = adj.starts.len() - 1;
-    let mut front: Vec<u32> = Vec::new();
+    let mut front = Front::default();
     let mut prev = 0usize;
     let mut codes = Vec::with_capacity(n);
     let mut path = Vec::new();
@@ -209,7 +228,7 @@ fn sweep_plan(adj: &Adjacency<'_>, xy: &[[i64; 2]], reverse: bool) -> Option<Vec
             }
             let Some(w) = w else {
                 codes.push((0, front.len() as i64 - base));
-                front.push(v32);
+                front.replace(front.len(), 0, &[[v32, NONE]]);
                 prev = front.len() - 1;
                 continue;
             };
@@ -223,13 +242,12 @@ fn sweep_plan(adj: &Adjacency<'_>, xy: &[[i64; 2]], reverse: bool) -> Option<Vec
                     let first = t[0] == v32;
                     let p = if first == reverse { p + 1 } else { p };
                     codes.push((0, p as i64 - base));
-                    front.insert(p, v32);
+                    front.insert_lone(p, v32);
                     prev = p;
                 }
                 [_, _] => {
                     codes.push((1, p as i64 - base));
-                    front.insert(p + 1, w);
-                    front.insert(p + 1, v32);
+                    front.insert_spike(p, v32);
                     prev = p + 1;
                 }
                 _ => return None,
@@ -237,9 +255,14 @@ fn sweep_plan(adj: &Adjacency<'_>, xy: &[[i64; 2]], reverse: bool) -> Option<Vec
         } else {
             fan_path(fan, reverse, &mut path)?;
             let k = path.len();
-            let p = (0..front.len()).find(|&p| front.get(p..p + k) == Some(path.as_slice()))?;
+            // Search outwards from the anchor, where the stretch almost always is.
+            let at = |p: usize| p + k <= front.len() && (0..k).all(|j| front.vertex(p + j) == Some(path[j]));
+            let from = base as usize;
+            let p = (0..=front.len()).find_map(|d| {
+                [from.checked_add(d), from.checked_sub(d)].into_iter().flatten().find(|&p| at(p))
+            })?;
             codes.push((k, p as i64 - base));
-            front.splice(p + 1..p + k - 1, [v32]);
+            front.close(p, k, v32);
             prev = p + 1;
         }
     }
@@ -247,7 +270,7 @@ fn sweep_plan(adj: &Adjacency<'_>, xy: &[[i64; 2]], reverse: bool) -> Option<Vec
 }
 
 /// How far from the previous vertex's front index [`anchor`] looks.
-const ANCHOR_WINDOW: usize = 64;
+const ANCHOR_WINDOW: usize = 32;
 
 /// The front index that `v`'s code is relative to (part of the format): the start `i` of the
 /// front edge right below `v` — the highest edge within [`ANCHOR_WINDOW`] of `prev` that spans
@@ -258,14 +281,16 @@ const ANCHOR_WINDOW: usize = 64;
 /// A vertex almost always closes the triangle over the edge below it, so its run starts at or
 /// just left of that edge; relative to `prev` alone, a sparse TIN pays for every jump between
 /// vertices that are not neighbours.
-fn anchor(front: &[u32], xy: &[[i64; 2]], v: usize, prev: usize) -> usize {
+fn anchor(front: &Front, xy: &[[i64; 2]], v: usize, prev: usize) -> usize {
     let [x, y] = xy[v];
     let lo = prev.saturating_sub(ANCHOR_WINDOW);
     let hi = (prev + ANCHOR_WINDOW).min(front.len().saturating_sub(1));
     let mut best: Option<(f64, usize)> = None;
+    let Some(mut a) = front.vertex(lo).map(|a| xy[a as usize]) else { return prev };
     for i in lo..hi {
-        let [x1, y1] = xy[front[i] as usize];
-        let [x2, y2] = xy[front[i + 1] as usize];
+        let Some(b) = front.vertex(i + 1).map(|b| xy[b as usize]) else { break };
+        let ([x1, y1], [x2, y2]) = (a, b);
+        a = b;
         if x1 == x2 || x < x1.min(x2) || x > x1.max(x2) {
             continue;
         }
@@ -288,8 +313,8 @@ fn anchor(front: &[u32], xy: &[[i64; 2]], v: usize, prev: usize) -> usize {
 /// The front entry of `w` that `v` attaches to. With several (after spikes), the one whose open
 /// wedge contains `v`: the front runs left to right (right to left when `reverse`) with the
 /// open region above it, so at `a → w → b` the wedge sweeps counter-clockwise from `b` to `a`.
-fn occurrence(front: &[u32], w: u32, xy: &[[i64; 2]], v: usize, reverse: bool) -> Option<usize> {
-    let mut all = front.iter().enumerate().filter(|&(_, &x)| x == w).map(|(p, _)| p);
+fn occurrence(front: &Front, w: u32, xy: &[[i64; 2]], v: usize, reverse: bool) -> Option<usize> {
+    let mut all = (0..front.len()).filter(|&p| front.vertex(p) == Some(w));
     let first = all.next()?;
     let Some(second) = all.next() else { return Some(first) };
     let dir = |from: u32, to: usize| [xy[to][0] - xy[from as usize][0], xy[to][1] - xy[from as usize][1]];
@@ -298,8 +323,8 @@ fn occurrence(front: &[u32], w: u32, xy: &[[i64; 2]], v: usize, reverse: bool) -
     let d = dir(w, v);
     let (left, right) = if reverse { ([1, 0], [-1, 0]) } else { ([-1, 0], [1, 0]) };
     [first, second].into_iter().chain(all).find(|&p| {
-        let a = p.checked_sub(1).map_or(left, |i| dir(w, front[i] as usize));
-        let b = front.get(p + 1).map_or(right, |&x| dir(w, x as usize));
+        let a = p.checked_sub(1).and_then(|i| front.vertex(i)).map_or(left, |x| dir(w, x as usize));
+        let b = front.vertex(p + 1).map_or(right, |x| dir(w, x as usize));
         let (from, to) = if reverse { (a, b) } else { (b, a) };
         let (c_fd, c_dt) = (cross(from, d), cross(d, to));
         if cross(from, to) > 0 { c_fd > 0 && c_dt > 0 } else { c_fd >= 0 || c_dt >= 0 }
@@ -336,25 +361,39 @@ fn fan_path(fan: &[[u32; 3]], reverse: bool, path: &mut Vec<u32>) -> Option<()> 
     (seen.len() == path.len()).then_some(())
 }
 
-/// Replays the sweep from its codes: triangles in emission order and, per vertex, the index of
-/// its first triangle (`n + 1` entries).
+/// The sweep replayed from its codes.
+struct Sweep {
+    /// Triangles in emission order.
+    tris: Vec<[u32; 3]>,
+    /// Per triangle, the vertex opposite its front edge in the triangle below that edge, or
+    /// [`NONE`].
+    below: Vec<u32>,
+    /// `tris[tri_start[v]..tri_start[v + 1]]` are the triangles vertex `v` closed.
+    tri_start: Vec<usize>,
+}
+
+/// Replays the sweep from its codes.
 fn sweep_connectivity(
     xy: &[[i64; 2]],
     t: usize,
     runs: &mut Reader<'_>,
     positions: &mut Reader<'_>,
     reverse: bool,
-) -> Result<(Vec<[u32; 3]>, Vec<usize>), CodecError> {
+) -> Result<Sweep, CodecError> {
     let bad = || CodecError::Corrupt("mesh connectivity");
     let n = xy.len();
-    // Each triangle costs at least one run and one position byte would be wrong (a run of k
-    // makes k − 1), so bound the allocation by the header count only after the vertex check.
-    let mut tris = Vec::with_capacity(t.min(2 * n + 2));
-    let mut tri_start = Vec::with_capacity(n + 1);
-    let mut front: Vec<u32> = Vec::new();
+    // The caller checked n against the stream sizes; t comes from the header, so it only caps
+    // the reservation (a planar triangulation has fewer than 2n triangles).
+    let cap = t.min(2 * n + 2);
+    let mut sw = Sweep {
+        tris: Vec::with_capacity(cap),
+        below: Vec::with_capacity(cap),
+        tri_start: Vec::with_capacity(n + 1),
+    };
+    let mut front = Front::default();
     let mut prev = 0usize;
     for v in 0..n {
-        tri_start.push(tris.len());
+        sw.tri_start.push(sw.tris.len());
         let k = runs.count(n)?;
         let d = positions.signed()?;
         let base = anchor(&front, xy, v, prev);
@@ -366,57 +405,138 @@ fn sweep_connectivity(
                 if p > front.len() {
                     return Err(bad());
                 }
-                front.insert(p, v32);
+                front.insert_lone(p, v32);
                 prev = p;
             }
             1 => {
-                let w = *front.get(p).ok_or_else(bad)?;
-                front.insert(p + 1, w);
-                front.insert(p + 1, v32);
+                if p >= front.len() {
+                    return Err(bad());
+                }
+                front.insert_spike(p, v32);
                 prev = p + 1;
             }
             _ => {
-                let end = p.checked_add(k).ok_or_else(bad)?;
-                let run = front.get(p..end).ok_or_else(bad)?;
-                if tris.len() + (k - 1) > t {
+                if p.checked_add(k).is_none_or(|end| end > front.len()) || sw.tris.len() + (k - 1) > t {
                     return Err(bad());
                 }
-                for w in run.windows(2) {
-                    tris.push(if reverse { [w[1], w[0], v32] } else { [w[0], w[1], v32] });
+                for i in p..p + k - 1 {
+                    let ([a, below], Some(b)) = (front.entry(i), front.vertex(i + 1)) else {
+                        return Err(bad());
+                    };
+                    sw.tris.push(if reverse { [b, a, v32] } else { [a, b, v32] });
+                    sw.below.push(below);
                 }
-                front.splice(p + 1..end - 1, [v32]);
+                front.close(p, k, v32);
                 prev = p + 1;
             }
         }
     }
-    tri_start.push(tris.len());
-    if tris.len() != t {
+    sw.tri_start.push(sw.tris.len());
+    if sw.tris.len() != t {
         return Err(bad());
     }
-    Ok((tris, tri_start))
+    Ok(sw)
+}
+
+/// No vertex (an edge with no triangle below it).
+const NONE: u32 = u32::MAX;
+
+/// The sweep front: entries `[vertex, below]`, where `below` is the vertex opposite the edge to
+/// the next entry in the triangle under that edge ([`NONE`] if there is none).
+///
+/// Kept as a gap buffer because edits cluster around the previous vertex's index: moving the
+/// gap there is cheap, where a plain `Vec` would shift the whole tail for every vertex.
+#[derive(Debug, Default, Clone)]
+struct Front {
+    buf: Vec<[u32; 2]>,
+    gap: usize,
+    gap_len: usize,
+}
+
+impl Front {
+    fn len(&self) -> usize {
+        self.buf.len() - self.gap_len
+    }
+
+    fn physical(&self, i: usize) -> usize {
+        if i < self.gap { i } else { i + self.gap_len }
+    }
+
+    /// Entry `i`; `[NONE, NONE]` past the end.
+    fn entry(&self, i: usize) -> [u32; 2] {
+        if i < self.len() { self.buf[self.physical(i)] } else { [NONE, NONE] }
+    }
+
+    fn vertex(&self, i: usize) -> Option<u32> {
+        (i < self.len()).then(|| self.buf[self.physical(i)][0])
+    }
+
+    fn set_below(&mut self, i: usize, below: u32) {
+        if i < self.len() {
+            let at = self.physical(i);
+            self.buf[at][1] = below;
+        }
+    }
+
+    /// Replaces entries `at..at + remove` (within the front) by `items`.
+    fn replace(&mut self, at: usize, remove: usize, items: &[[u32; 2]]) {
+        // Move the gap to `at`.
+        if at < self.gap {
+            self.buf.copy_within(at..self.gap, at + self.gap_len);
+        } else if at > self.gap {
+            self.buf.copy_within(self.gap + self.gap_len..at + self.gap_len, self.gap);
+        }
+        self.gap = at;
+        self.gap_len += remove;
+        if self.gap_len < items.len() {
+            let grow = items.len() + self.buf.len() / 2 + 16;
+            self.buf.splice(self.gap..self.gap, std::iter::repeat_n([NONE, NONE], grow));
+            self.gap_len += grow;
+        }
+        self.buf[self.gap..self.gap + items.len()].copy_from_slice(items);
+        self.gap += items.len();
+        self.gap_len -= items.len();
+    }
+
+    /// `v` alone at `p` (`p <= len`): the edge it splits loses its triangle below.
+    fn insert_lone(&mut self, p: usize, v: u32) {
+        if p > 0 {
+            self.set_below(p - 1, NONE);
+        }
+        self.replace(p, 0, &[[v, NONE]]);
+    }
+
+    /// `v` hanging from entry `p` (`p < len`), which becomes `w, v, w`; the second `w` keeps the
+    /// edge to the next entry.
+    fn insert_spike(&mut self, p: usize, v: u32) {
+        let [w, below] = self.entry(p);
+        self.replace(p + 1, 0, &[[v, NONE], [w, below]]);
+        self.set_below(p, NONE);
+    }
+
+    /// `v` closing the stretch `p..p + k` (`k >= 2`, within the front): the interior goes and the
+    /// two new edges lie over the first and last of the new triangles.
+    fn close(&mut self, p: usize, k: usize, v: u32) {
+        let second = self.entry(p + 1)[0];
+        let before_last = self.entry(p + k - 2)[0];
+        self.set_below(p, second);
+        self.replace(p + 1, k - 2, &[[v, before_last]]);
+    }
 }
 
 /// Walks the vertices in order, predicting each z from already known ones; `step(v, pred)`
 /// returns the vertex's actual z (the encoder knows it, the decoder reads a residual).
 fn sweep_z(
     xy: &[[i64; 2]],
-    tris: &[[u32; 3]],
-    tri_start: &[usize],
+    sw: &Sweep,
     zmax: i64,
     mut step: impl FnMut(usize, i64) -> Result<i64, CodecError>,
 ) -> Result<Vec<i64>, CodecError> {
     let mut z = Vec::with_capacity(xy.len());
-    // Directed edge → opposite vertex, for triangles of already decoded vertices only.
-    let mut across: HashMap<(u32, u32), u32> = HashMap::with_capacity(tris.len() * 3);
     for v in 0..xy.len() {
-        let fan = &tris[tri_start[v]..tri_start[v + 1]];
-        let pred = predict_z(v, xy, &z, fan, &across).clamp(0, zmax);
+        let range = sw.tri_start[v]..sw.tri_start[v + 1];
+        let pred = predict_z(v, xy, &z, &sw.tris[range.clone()], &sw.below[range]).clamp(0, zmax);
         z.push(step(v, pred)?);
-        for &[a, b, c] in fan {
-            across.insert((a, b), c);
-            across.insert((b, c), a);
-            across.insert((c, a), b);
-        }
     }
     Ok(z)
 }
@@ -424,22 +544,21 @@ fn sweep_z(
 /// The z prediction of the sweep coder (part of the format; change it only with the version).
 ///
 /// Terrain is locally planar, so each triangle `v` closes is extended from its neighbour across
-/// the front edge: the plane through that neighbour, evaluated at `v`'s known x, y. The mean of
-/// these is robust to a single bad plane; skinny neighbours that would extrapolate far are
-/// skipped. Float arithmetic here is plain IEEE (no fused operations), so encoder and decoder
-/// agree bit for bit.
-pub(super) fn predict_z(
-    v: usize,
-    xy: &[[i64; 2]],
-    z: &[i64],
-    fan: &[[u32; 3]],
-    across: &HashMap<(u32, u32), u32>,
-) -> i64 {
+/// the front edge (the triangle `below` that edge): the plane through that neighbour, evaluated
+/// at `v`'s known x, y. The mean of these is robust to a single bad plane; neighbours that would
+/// extrapolate far (barycentric weights summing above 4 in magnitude) are skipped. On the Fuji
+/// tile this beat the mean, inverse-distance mean and least-squares plane of the earlier
+/// neighbours by 0.4–0.8 bit per vertex; weighting, medians and other thresholds changed less
+/// than 0.1 bit. Float arithmetic here is plain IEEE (no fused operations), so encoder and
+/// decoder agree bit for bit.
+pub(super) fn predict_z(v: usize, xy: &[[i64; 2]], z: &[i64], fan: &[[u32; 3]], below: &[u32]) -> i64 {
     let p = xy[v];
     let mut sum = 0.0f64;
     let mut count = 0u32;
-    for &[a, b, _] in fan {
-        let Some(&u) = across.get(&(b, a)) else { continue };
+    for (&[a, b, _], &u) in fan.iter().zip(below) {
+        if u == NONE {
+            continue;
+        }
         let (a, b, u) = (a as usize, b as usize, u as usize);
         let (pa, pb, pu) = (xy[a], xy[b], xy[u]);
         let d = |s: [i64; 2], t: [i64; 2]| [(t[0] - s[0]) as f64, (t[1] - s[1]) as f64];
@@ -513,17 +632,17 @@ fn sweep_decode(
         xy.push([x, y]);
     }
     gaps.finish()?;
-    let (tris, tri_start) = sweep_connectivity(&xy, t, runs, positions, reverse)?;
+    let sweep = sweep_connectivity(&xy, t, runs, positions, reverse)?;
     runs.finish()?;
     positions.finish()?;
     let zmax = frame.qmax[2];
-    let z = sweep_z(&xy, &tris, &tri_start, zmax, |_, pred| {
+    let z = sweep_z(&xy, &sweep, zmax, |_, pred| {
         let z = pred.checked_add(zs.signed()?).ok_or(CodecError::Corrupt("mesh z"))?;
         if (0..=zmax).contains(&z) { Ok(z) } else { Err(CodecError::Corrupt("mesh z")) }
     })?;
     zs.finish()?;
     let positions = xy.iter().zip(&z).map(|(p, &z)| frame.position([p[0], p[1], z])).collect();
-    Ok(Mesh { positions, triangles: tris })
+    Ok(Mesh { positions, triangles: sweep.tris })
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -591,6 +710,52 @@ impl General {
     }
 }
 
+/// Triangle order for the general coder: depth-first over edge-adjacent triangles, seeded in
+/// input order. Each next triangle then usually shares an edge with one just coded, so most
+/// codes are FIFO edge hits with a new vertex and a parallelogram prediction; on the Stanford
+/// Bunny's scrambled OBJ order this cut the blob by more than half.
+fn locality_order(tris: &[[u32; 3]]) -> Vec<u32> {
+    let mut edges: Vec<(u64, u32)> = Vec::with_capacity(tris.len() * 3);
+    for (t, &[a, b, c]) in tris.iter().enumerate() {
+        for (x, y) in [(a, b), (b, c), (c, a)] {
+            edges.push(((u64::from(x.min(y)) << 32) | u64::from(x.max(y)), t as u32));
+        }
+    }
+    edges.sort_unstable();
+    // Link triangles sharing an edge in a chain (not all pairs), so a non-manifold edge costs
+    // linear space.
+    let mut links: Vec<(u32, u32)> = Vec::with_capacity(edges.len() * 2);
+    for w in edges.windows(2) {
+        if w[0].0 == w[1].0 && w[0].1 != w[1].1 {
+            links.push((w[0].1, w[1].1));
+            links.push((w[1].1, w[0].1));
+        }
+    }
+    links.sort_unstable();
+    let mut start = vec![0usize; tris.len() + 1];
+    for &(t, _) in &links {
+        start[t as usize + 1] += 1;
+    }
+    for t in 0..tris.len() {
+        start[t + 1] += start[t];
+    }
+    let mut seen = vec![false; tris.len()];
+    let mut order = Vec::with_capacity(tris.len());
+    let mut stack = Vec::new();
+    for seed in 0..tris.len() as u32 {
+        stack.push(seed);
+        while let Some(t) = stack.pop() {
+            if std::mem::replace(&mut seen[t as usize], true) {
+                continue;
+            }
+            order.push(t);
+            // Reversed so the first neighbour is visited first.
+            stack.extend(links[start[t as usize]..start[t as usize + 1]].iter().rev().map(|l| l.1));
+        }
+    }
+    order
+}
+
 fn general_encode(frame: &Frame, q: &[[i64; 3]], tris: &[[u32; 3]]) -> Result<Packed, CodecError> {
     let n = q.len();
     let mut ids = vec![u32::MAX; n];
@@ -608,7 +773,7 @@ fn general_encode(frame: &Frame, q: &[[i64; 3]], tris: &[[u32; 3]]) -> Result<Pa
         st.pos.push(p);
         id
     };
-    for &tri in tris {
+    for tri in locality_order(tris).into_iter().map(|t| tris[t as usize]) {
         // A FIFO edge whose reverse is one of this triangle's edges, newest first.
         let hit = st.edges.iter().enumerate().find_map(|(fe, e)| {
             (0..3).find_map(|r| {
@@ -712,7 +877,10 @@ fn general_decode(
             st.verts.get(usize::from(fv)).copied().ok_or(bad("mesh fifo"))
         } else {
             let d = explicit.varint()?;
-            let id = (st.pos.len() as u64).checked_sub(1 + d).ok_or(bad("mesh explicit"))? as u32;
+            let id = d
+                .checked_add(1)
+                .and_then(|d| (st.pos.len() as u64).checked_sub(d))
+                .ok_or(bad("mesh explicit"))? as u32;
             st.push_vertex(id);
             Ok(id)
         }

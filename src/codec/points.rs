@@ -320,7 +320,10 @@ pub(super) fn decode(
     while total < n {
         let dy = rows.varint()?;
         let dy = i64::try_from(dy).map_err(|_| bad("points rows"))?;
-        cy = cy.checked_add(dy + i64::from(!cells.is_empty())).ok_or(bad("points rows"))?;
+        cy = cy
+            .checked_add(dy)
+            .and_then(|y| y.checked_add(i64::from(!cells.is_empty())))
+            .ok_or(bad("points rows"))?;
         let len = rows.count(n - total)? + 1;
         first_cx = first_cx.checked_add(cells_r.signed()?).ok_or(bad("points cells"))?;
         let mut cx = first_cx;
@@ -332,6 +335,12 @@ pub(super) fn decode(
             let count = counts.count(n)? + 1;
             if count > n - total {
                 return Err(bad("points counts"));
+            }
+            // Lattice coordinates never exceed MAX_QUANT; checking here keeps the neighbour
+            // arithmetic in `walk` far from overflow.
+            let limit = MAX_QUANT >> shift;
+            if !(0..=limit).contains(&cx) || !(0..=limit).contains(&cy) {
+                return Err(bad("points cells"));
             }
             cells.push(Cell { cx, cy, start: total, count });
             total += count;

@@ -56,6 +56,12 @@ impl<'a> Reader<'a> {
         self.bytes.len()
     }
 
+    /// The bytes not read yet.
+    #[cfg(test)]
+    pub(crate) fn rest(&self) -> &'a [u8] {
+        &self.bytes[self.pos..]
+    }
+
     pub(crate) fn u8(&mut self) -> Result<u8, CodecError> {
         let v = *self.bytes.get(self.pos).ok_or(CodecError::Corrupt(self.name))?;
         self.pos += 1;
@@ -283,6 +289,23 @@ pub(crate) struct Unpacked {
 }
 
 impl Unpacked {
+    /// Flips bits in one decompressed stream and packs again, so fuzz tests reach the decoders
+    /// behind the zstd frames.
+    #[cfg(test)]
+    pub(crate) fn mutate_and_pack(&self, stream: usize, flips: &[(usize, u8)]) -> Result<Packed, CodecError> {
+        let mut bufs = self.bufs.clone();
+        let s = stream % bufs.len();
+        for &(at, bit) in flips {
+            if !bufs[s].is_empty() {
+                let len = bufs[s].len();
+                bufs[s][at % len] ^= 1 << (bit % 8);
+            }
+        }
+        let writers: Vec<Writer> = bufs.into_iter().map(|bytes| Writer { bytes }).collect();
+        let refs: Vec<&Writer> = writers.iter().collect();
+        pack(self.mode, &refs)
+    }
+
     pub(crate) fn readers(&self) -> Vec<Reader<'_>> {
         self.bufs.iter().zip(&self.names).map(|(b, &n)| Reader::new(b, n)).collect()
     }

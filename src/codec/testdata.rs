@@ -77,6 +77,30 @@ pub fn fuji() -> Option<Heights> {
     Some(Heights { w, h, cell: 30.0, z })
 }
 
+/// The Stanford Bunny (a closed 3D mesh, not a TIN), if present.
+pub fn bunny() -> Option<Mesh> {
+    let text = std::fs::read_to_string(data_dir().join("stanford-bunny.obj")).ok()?;
+    let mut m = Mesh::default();
+    for line in text.lines() {
+        let mut it = line.split_whitespace();
+        match it.next() {
+            Some("v") => {
+                let v: Vec<f64> = it.take(3).map(|t| t.parse().unwrap()).collect();
+                m.positions.push([v[0], v[1], v[2]]);
+            }
+            Some("f") => {
+                let idx: Vec<u32> =
+                    it.map(|t| t.split('/').next().unwrap().parse::<u32>().unwrap() - 1).collect();
+                for i in 1..idx.len() - 1 {
+                    m.triangles.push([idx[0], idx[i], idx[i + 1]]);
+                }
+            }
+            _ => {}
+        }
+    }
+    Some(m)
+}
+
 #[derive(PartialEq)]
 struct Cand {
     err: f64,

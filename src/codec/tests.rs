@@ -8,7 +8,7 @@ use std::fmt::Write as _;
 use proptest::prelude::*;
 
 use super::testdata::{
-    Rng, canonical_positions, canonical_triangles, fuji, greedy_tin, quantized_mesh_gzip, synthetic,
+    Rng, bunny, canonical_positions, canonical_triangles, fuji, greedy_tin, quantized_mesh_gzip, synthetic,
     tin_surface, voxel_points,
 };
 use super::*;
@@ -319,6 +319,29 @@ fn stream_report(blob: &[u8]) -> String {
 #[test]
 #[ignore = "slow: prints size figures"]
 fn report_sizes() {
+    if let Some(m) = bunny() {
+        // A closed 3D model: the general coder. 0.1 mm steps on a model about 15 cm across.
+        let b = Bounds::of_points(&m.positions);
+        let q = Quantization { xy_step: 1e-4, z_step: 1e-4 };
+        let t0 = std::time::Instant::now();
+        let blob = encode_mesh(KEY, 0, &b, q, &m, ERRORS).unwrap();
+        let enc = t0.elapsed();
+        let t0 = std::time::Instant::now();
+        decode(&blob).unwrap();
+        let dec = t0.elapsed();
+        let raw = m.positions.len() * 12 + m.triangles.len() * 12;
+        println!(
+            "bunny (general mode): {} vertices, {} triangles; blob {} B = {:.2} B/vertex (f32 + u32 arrays: {:.0} B/vertex); encode {:.1} ms, decode {:.1} ms",
+            m.positions.len(),
+            m.triangles.len(),
+            blob.len(),
+            blob.len() as f64 / m.positions.len() as f64,
+            raw as f64 / m.positions.len() as f64,
+            enc.as_secs_f64() * 1e3,
+            dec.as_secs_f64() * 1e3,
+        );
+        println!("  {}", stream_report(&blob));
+    }
     let fields = [("fuji 512x512 @30m", fuji()), ("synthetic 513x513 @30m", Some(synthetic(513, 513, 30.0)))];
     for (name, hf) in fields {
         let Some(hf) = hf else {
@@ -395,6 +418,41 @@ fn report_sizes() {
                     dec.as_secs_f64() * 1e3,
                 );
             }
+        }
+    }
+}
+
+/// Total stored size and compression time of real blobs' streams at several zstd levels.
+#[test]
+#[ignore = "analysis"]
+fn analyse_zstd_levels() {
+    let Some(hf) = fuji() else { return };
+    let extent = 511.0 * 30.0;
+    let m = greedy_tin(&hf, 2.0);
+    let b = Bounds::of_points(&m.positions);
+    let b = Bounds { min: [0.0, 0.0, b.min[2]], max: [extent, extent, b.max[2]] };
+    let mesh_blob = encode_mesh(KEY, 0, &b, Quantization { xy_step: 30.0, z_step: 0.1 }, &m, ERRORS).unwrap();
+    let (surface, normals) = tin_surface(&hf, &m);
+    let pc = voxel_points(&surface, Some(&normals), 60.0, true);
+    let b = Bounds::of_points(&pc.positions);
+    let q = Quantization { xy_step: 60.0 / 64.0, z_step: 60.0 / 64.0 };
+    let points_blob = encode_points(KEY, 1, &b, q, &pc, ERRORS).unwrap();
+    for (name, blob, names) in [("mesh", &mesh_blob, 5), ("points", &points_blob, 10)] {
+        let h = decode_header(blob).unwrap();
+        let names: Vec<&'static str> = vec!["s"; names];
+        let u = stream::unpack(&blob[PREFIX_LEN..], h.raw_len as usize, &names).unwrap();
+        for level in [3, 9, 12, 15, 17, 19, 22] {
+            let t0 = std::time::Instant::now();
+            let total: usize = u
+                .readers()
+                .iter()
+                .map(|r| {
+                    let raw = r.rest();
+                    zstd::bulk::compress(raw, level).unwrap().len().min(raw.len())
+                })
+                .sum();
+            let t = t0.elapsed();
+            println!("{name} level {level}: {total} B, {:.1} ms", t.as_secs_f64() * 1e3);
         }
     }
 }

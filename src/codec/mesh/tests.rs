@@ -194,6 +194,21 @@ proptest! {
     }
 
     #[test]
+    fn mutated_streams_never_panic(seed in any::<u64>(), stream in 0usize..9, flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 1..6), general in any::<bool>()) {
+        let mut rng = Rng(seed);
+        let mut m = grid_delaunay(&mut rng, 30, 40);
+        if general {
+            m.triangles.push([0, 0, 1]);
+        }
+        let (frame, _, _) = frame_for(&m, 10.0, 0.01);
+        let p = encode(&frame, &m).unwrap();
+        let names = if general { GENERAL_STREAMS.to_vec() } else { SWEEP_STREAMS.to_vec() };
+        let u = crate::codec::stream::unpack(&p.payload, p.raw_len, &names).unwrap();
+        let bad = u.mutate_and_pack(stream, &flips).unwrap();
+        let _ = decode(&frame, m.positions.len(), m.triangles.len(), &bad.payload, bad.raw_len);
+    }
+
+    #[test]
     fn mutated_payloads_never_panic(seed in any::<u64>(), flips in 1usize..8) {
         let mut rng = Rng(seed);
         let m = grid_delaunay(&mut rng, 30, 40);
@@ -208,160 +223,45 @@ proptest! {
     }
 }
 
-fn entropy(vals: &[i64]) -> f64 {
-    let mut m = std::collections::HashMap::new();
-    for &v in vals {
-        *m.entry(v).or_insert(0usize) += 1;
-    }
-    let n = vals.len() as f64;
-    m.values().map(|&c| -(c as f64 / n) * (c as f64 / n).log2()).sum::<f64>()
-}
-
-/// Compares z predictors on real data (order-0 entropy of residuals, bits per vertex).
 #[test]
-#[ignore = "analysis"]
-fn analyse_z_predictors() {
-    use crate::codec::testdata::fuji;
-    let Some(hf) = fuji() else { return };
-    for max_error in [1.0, 5.0] {
-        let m = greedy_tin(&hf, max_error);
-        let extent = 511.0 * 30.0;
-        let b = Bounds::of_points(&m.positions);
-        let b = Bounds { min: [0.0, 0.0, b.min[2]], max: [extent, extent, b.max[2]] };
-        let frame = Frame::new(&b, Quantization { xy_step: 30.0, z_step: 0.1 }).unwrap();
-        let p = encode(&frame, &m).unwrap();
-        let back = decode(&frame, m.positions.len(), m.triangles.len(), &p.payload, p.raw_len).unwrap();
-        let q: Vec<[i64; 3]> =
-            back.positions.iter().enumerate().map(|(i, &p)| frame.quantize(p, i).unwrap()).collect();
-        let xy: Vec<[i64; 2]> = q.iter().map(|p| [p[0], p[1]]).collect();
-        let z: Vec<i64> = q.iter().map(|p| p[2]).collect();
-        let n = q.len();
-        let mut tri_start = vec![0usize; n + 1];
-        for t in &back.triangles {
-            tri_start[t[2] as usize + 1] += 1;
-        }
-        for v in 0..n {
-            tri_start[v + 1] += tri_start[v];
-        }
-        // Neighbours of every vertex.
-        let mut nb: Vec<Vec<u32>> = vec![Vec::new(); n];
-        for t in &back.triangles {
-            for i in 0..3 {
-                let (a, b) = (t[i], t[(i + 1) % 3]);
-                if !nb[a as usize].contains(&b) {
-                    nb[a as usize].push(b);
+fn gap_buffer_front_matches_a_vec() {
+    let mut rng = Rng(9);
+    let mut front = Front::default();
+    let mut model: Vec<[u32; 2]> = Vec::new();
+    for step in 0..5000u32 {
+        let len = model.len();
+        match rng.below(4) {
+            0 => {
+                let p = rng.below(len as u64 + 1) as usize;
+                front.insert_lone(p, step);
+                if p > 0 {
+                    model[p - 1][1] = NONE;
                 }
-                if !nb[b as usize].contains(&a) {
-                    nb[b as usize].push(a);
-                }
+                model.insert(p, [step, NONE]);
             }
-        }
-        let mut res: Vec<Vec<i64>> = vec![Vec::new(); 6];
-        let mut across = HashMap::new();
-        for v in 0..n {
-            let fan = &back.triangles[tri_start[v]..tri_start[v + 1]];
-            let p0 = predict_z(v, &xy, &z[..v], fan, &across).clamp(0, frame.qmax[2]);
-            res[0].push(z[v] - p0);
-            // Mean of earlier neighbours.
-            let earlier: Vec<u32> = nb[v].iter().copied().filter(|&u| (u as usize) < v).collect();
-            let mean = if earlier.is_empty() {
-                z.get(v.wrapping_sub(1)).copied().unwrap_or(0)
-            } else {
-                earlier.iter().map(|&u| z[u as usize]).sum::<i64>() / earlier.len() as i64
-            };
-            res[1].push(z[v] - mean);
-            // Inverse-distance weighted earlier neighbours.
-            let idw = if earlier.is_empty() {
-                mean
-            } else {
-                let (mut s, mut w) = (0.0, 0.0);
-                for &u in &earlier {
-                    let d = ((xy[u as usize][0] - xy[v][0]).pow(2) + (xy[u as usize][1] - xy[v][1]).pow(2))
-                        as f64;
-                    s += z[u as usize] as f64 / d;
-                    w += 1.0 / d;
-                }
-                (s / w).round() as i64
-            };
-            res[2].push(z[v] - idw);
-            // Median of plane predictions (else mean).
-            res[3].push(z[v] - i64::midpoint(p0, idw));
-            // Interpolation from all neighbours (upper bound for a two-pass order).
-            let all = &nb[v];
-            let allmean = if all.is_empty() {
-                0
-            } else {
-                let (mut s, mut w) = (0.0, 0.0);
-                for &u in all {
-                    let d = ((xy[u as usize][0] - xy[v][0]).pow(2) + (xy[u as usize][1] - xy[v][1]).pow(2))
-                        as f64;
-                    s += z[u as usize] as f64 / d;
-                    w += 1.0 / d;
-                }
-                (s / w).round() as i64
-            };
-            res[4].push(z[v] - allmean);
-            // Least-squares plane through earlier neighbours, evaluated at v.
-            let lsq = if earlier.len() >= 3 {
-                let (mut sxx, mut sxy, mut syy, mut sx, mut sy, mut s1, mut sxz, mut syz, mut sz) =
-                    (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-                for &u in &earlier {
-                    let (x, y, zz) = (
-                        (xy[u as usize][0] - xy[v][0]) as f64,
-                        (xy[u as usize][1] - xy[v][1]) as f64,
-                        z[u as usize] as f64,
-                    );
-                    sxx += x * x;
-                    sxy += x * y;
-                    syy += y * y;
-                    sx += x;
-                    sy += y;
-                    s1 += 1.0;
-                    sxz += x * zz;
-                    syz += y * zz;
-                    sz += zz;
-                }
-                // Solve [sxx sxy sx; sxy syy sy; sx sy s1] [a b c] = [sxz syz sz], prediction = c.
-                let det =
-                    sxx * (syy * s1 - sy * sy) - sxy * (sxy * s1 - sy * sx) + sx * (sxy * sy - syy * sx);
-                if det.abs() < 1e-9 {
-                    idw
-                } else {
-                    let c = (sxx * (syy * sz - sy * syz) - sxy * (sxy * sz - sy * sxz)
-                        + sx * (sxy * syz - syy * sxz))
-                        / det;
-                    c.round() as i64
-                }
-            } else {
-                idw
-            };
-            res[5].push(z[v] - lsq);
-            for &[a, b, c] in fan {
-                across.insert((a, b), c);
-                across.insert((b, c), a);
-                across.insert((c, a), b);
+            1 if len > 0 => {
+                let p = rng.below(len as u64) as usize;
+                front.insert_spike(p, step);
+                let [w, below] = model[p];
+                model[p][1] = NONE;
+                model.insert(p + 1, [w, below]);
+                model.insert(p + 1, [step, NONE]);
             }
-        }
-        let names = [
-            "current planes",
-            "mean earlier",
-            "idw earlier",
-            "avg(planes, idw)",
-            "idw all (two-pass bound)",
-            "lsq plane earlier",
-        ];
-        for (name, r) in names.iter().zip(&res) {
-            let mut w = BucketWriter::default();
-            for &v in r {
-                w.signed(v);
+            _ if len >= 2 => {
+                let k = 2 + rng.below((len as u64 - 1).min(6)) as usize;
+                let p = rng.below((len - k + 1) as u64) as usize;
+                front.close(p, k, step);
+                let (second, before_last) = (model[p + 1][0], model[p + k - 2][0]);
+                model[p][1] = second;
+                model.splice(p + 1..p + k - 1, [[step, before_last]]);
             }
-            let (a, b) = w.finish();
-            let zs = zstd::bulk::compress(&a.bytes, 19).unwrap().len() + b.bytes.len();
-            println!(
-                "max_err {max_error}: {name}: H0 {:.2} bits, zstd {:.2} bits",
-                entropy(r),
-                zs as f64 * 8.0 / n as f64
-            );
+            _ => {}
+        }
+        assert_eq!(front.len(), model.len());
+        if step % 97 == 0 {
+            for (i, e) in model.iter().enumerate() {
+                assert_eq!(front.entry(i), *e);
+            }
         }
     }
 }

@@ -157,6 +157,17 @@ proptest! {
     }
 
     #[test]
+    fn mutated_streams_never_panic(seed in any::<u64>(), stream in 0usize..10, flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 1..6)) {
+        let hf = synthetic(20, 20, 30.0);
+        let pc = voxel_points(&hf, None, 60.0, seed % 2 == 0);
+        let (frame, _, _) = setup(&pc, 1.0);
+        let p = encode(&frame, &pc).unwrap();
+        let u = crate::codec::stream::unpack(&p.payload, p.raw_len, &STREAMS).unwrap();
+        let bad = u.mutate_and_pack(stream, &flips).unwrap();
+        let _ = decode(&frame, pc.positions.len(), &bad.payload, bad.raw_len);
+    }
+
+    #[test]
     fn mutated_payloads_never_panic(seed in any::<u64>(), flips in 1usize..8) {
         let mut rng = Rng(seed);
         let hf = synthetic(20, 20, 30.0);
