@@ -85,11 +85,15 @@
 //! coordinates — their minimum and the GCD of the offsets from it, so points on a lattice cost
 //! nothing for the lattice — and a shift `s ≤ 8`), `rows` (per occupied cell row: row delta,
 //! cells − 1), `cells` (per cell: x delta), `counts` (per cell: points − 1), `fine x`, `fine y`
-//! (a byte per point, only when `s > 0`), `z` and `z bits` (bucketed signed residuals), `nu`, `nv`
-//! (octahedral normal bytes as wrapping residuals). Lattice x, y are split into a cell (`>> s`)
-//! and a fine part; points are sorted by (cell y, cell x, z, fine y, fine x, normal). The first
-//! point of a cell is predicted from the cells left, above and above-left (z: median edge
-//! detector; normal: mean of left and above), the others from the point below them in the cell.
+//! (a byte per point, only when `s > 0`), `z` and `z bits` (bucketed signed residuals of each
+//! cell's first point), `stacked z` (signed varint residuals of the other points), `nu`, `nv`
+//! and `stacked nu`, `stacked nv` (octahedral normal bytes as wrapping residuals, first and
+//! other points). Lattice x, y are split into a cell (`>> s`) and a fine part; points are sorted
+//! by (cell y, cell x, z, fine y, fine x, normal). A cell's first (lowest) point is predicted
+//! from the first points of the cells left, above and above-left (z: median edge detector;
+//! normal: mean of left and above), the others from the point below them in the cell (z: plus
+//! the last rise seen between stacked points). Stacked points get their own streams because
+//! their residuals are mostly zero, which zstd codes far better apart.
 //!
 //! # Order
 //!

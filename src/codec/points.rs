@@ -11,7 +11,7 @@ use super::{CodecError, Frame, MAX_QUANT};
 use crate::geom::PointCloud;
 
 const MODE_GRID: u8 = 0;
-const STREAMS: [&str; 10] = [
+const STREAMS: [&str; 13] = [
     "points params",
     "points rows",
     "points cells",
@@ -20,8 +20,11 @@ const STREAMS: [&str; 10] = [
     "points fine y",
     "points z",
     "points z bits",
+    "points stacked z",
     "points nu",
     "points nv",
+    "points stacked nu",
+    "points stacked nv",
 ];
 /// Largest cell shift; keeps a fine offset in one byte.
 const MAX_SHIFT: u32 = 8;
@@ -164,16 +167,26 @@ pub(super) fn encode(frame: &Frame, pc: &PointCloud) -> Result<Packed, CodecErro
         }
     }
     let mut zs = BucketWriter::default();
-    let [mut nus, mut nvs] = std::array::from_fn(|_| Writer::default());
-    walk(&cells, n, |i, pz, pn| {
+    let [mut zs2, mut nus, mut nvs, mut nus2, mut nvs2] = std::array::from_fn(|_| Writer::default());
+    walk(&cells, n, |i, stacked, pz, pn| {
         let k = keys[i];
-        zs.signed(k.z - pz);
-        nus.u8(k.oct[0].wrapping_sub(pn[0]));
-        nvs.u8(k.oct[1].wrapping_sub(pn[1]));
+        let (du, dv) = (k.oct[0].wrapping_sub(pn[0]), k.oct[1].wrapping_sub(pn[1]));
+        if stacked {
+            zs2.signed(k.z - pz);
+            nus2.u8(du);
+            nvs2.u8(dv);
+        } else {
+            zs.signed(k.z - pz);
+            nus.u8(du);
+            nvs.u8(dv);
+        }
         Ok((k.z, k.oct))
     })?;
     let (zs, zbits) = zs.finish();
-    pack(MODE_GRID, &[&params, &rows, &cells_w, &counts, &fxs, &fys, &zs, &zbits, &nus, &nvs])
+    pack(
+        MODE_GRID,
+        &[&params, &rows, &cells_w, &counts, &fxs, &fys, &zs, &zbits, &zs2, &nus, &nvs, &nus2, &nvs2],
+    )
 }
 
 fn gcd(mut a: i64, mut b: i64) -> i64 {
@@ -216,13 +229,13 @@ fn group_cells(keys: &[Key]) -> Vec<Cell> {
     cells
 }
 
-/// Visits points in coded order with their z and normal predictions; `point(i, z, n)` returns
-/// the actual values (the encoder knows them, the decoder adds residuals). The predictions are
-/// part of the format.
+/// Visits points in coded order with their z and normal predictions; `point(i, stacked, z, n)`
+/// returns the actual values (the encoder knows them, the decoder adds residuals); `stacked` is
+/// false for the first point of a cell. The predictions are part of the format.
 fn walk(
     cells: &[Cell],
     n: usize,
-    mut point: impl FnMut(usize, i64, [u8; 2]) -> Result<(i64, [u8; 2]), CodecError>,
+    mut point: impl FnMut(usize, bool, i64, [u8; 2]) -> Result<(i64, [u8; 2]), CodecError>,
 ) -> Result<(), CodecError> {
     let mut zs: Vec<i64> = Vec::with_capacity(n);
     let mut ns: Vec<[u8; 2]> = Vec::with_capacity(n);
@@ -255,12 +268,12 @@ fn walk(
             (Some(a), None) | (None, Some(a)) => ns[a],
             (None, None) => ns.last().copied().unwrap_or([127, 127]),
         };
-        let (z, nv) = point(c.start, pz, pn)?;
+        let (z, nv) = point(c.start, false, pz, pn)?;
         zs.push(z);
         ns.push(nv);
         for i in c.start + 1..c.start + c.count {
             let prev = zs[i - 1];
-            let (z, nv) = point(i, prev.saturating_add(stack_step), ns[i - 1])?;
+            let (z, nv) = point(i, true, prev.saturating_add(stack_step), ns[i - 1])?;
             stack_step = z.saturating_sub(prev);
             zs.push(z);
             ns.push(nv);
@@ -291,13 +304,13 @@ pub(super) fn decode(
     if u.mode != MODE_GRID {
         return Err(CodecError::Corrupt("unknown points mode"));
     }
-    let [params, rows, cells_r, counts, fxs, fys, zs, zbits, nus, nvs] = &mut s[..] else {
+    let [params, rows, cells_r, counts, fxs, fys, zs, zbits, zs2, nus, nvs, nus2, nvs2] = &mut s[..] else {
         return Err(CodecError::Corrupt("stream table"));
     };
     let mut zs = BucketReader::new(zs.clone(), zbits);
     // Every point costs at least a byte of z and exactly one of each normal coordinate: checked
     // before allocating anything sized by the header.
-    if zs.len() < n || nus.len() != n || nvs.len() != n {
+    if zs.len() + zs2.len() < n || nus.len() + nus2.len() != n || nvs.len() + nvs2.len() != n {
         return Err(CodecError::Corrupt("point count does not match the streams"));
     }
     let bad = CodecError::Corrupt;
@@ -371,9 +384,14 @@ pub(super) fn decode(
     for (ci, c) in cells.iter().enumerate() {
         cell_of[c.start..c.start + c.count].fill(ci);
     }
-    walk(&cells, n, |i, pz, pn| {
-        let z = pz.checked_add(zs.signed()?).ok_or(bad("points z"))?;
-        let oct = [pn[0].wrapping_add(nus.u8()?), pn[1].wrapping_add(nvs.u8()?)];
+    walk(&cells, n, |i, stacked, pz, pn| {
+        let (dz, du, dv) = if stacked {
+            (zs2.signed()?, nus2.u8()?, nvs2.u8()?)
+        } else {
+            (zs.signed()?, nus.u8()?, nvs.u8()?)
+        };
+        let z = pz.checked_add(dz).ok_or(bad("points z"))?;
+        let oct = [pn[0].wrapping_add(du), pn[1].wrapping_add(dv)];
         let c = cells[cell_of[i]];
         let lattice = [lattice_xy(c.cx, fine[i][0], shift)?, lattice_xy(c.cy, fine[i][1], shift)?, z];
         let mut qp = [0i64; 3];
@@ -391,6 +409,7 @@ pub(super) fn decode(
         Ok((z, oct))
     })?;
     zs.finish()?;
+    zs2.finish()?;
     Ok(PointCloud { positions, normals })
 }
 

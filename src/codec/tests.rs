@@ -94,6 +94,25 @@ fn mesh_blob_round_trip() {
 }
 
 #[test]
+fn tin_blob_is_under_half_of_quantized_mesh_gzip() {
+    // The design's bar: half the bytes of Cesium quantized-mesh-1.0 + gzip for the same mesh.
+    let hf = synthetic(129, 129, 30.0);
+    let m = greedy_tin(&hf, 2.0);
+    let extent = 128.0 * 30.0;
+    let b = Bounds::of_points(&m.positions);
+    let q = Quantization { xy_step: 30.0, z_step: 0.1 };
+    let blob = encode_mesh(KEY, 0, &b, q, &m, ERRORS).unwrap();
+    let qm = quantized_mesh_gzip(&m, extent);
+    let ratio = blob.len() as f64 / qm as f64;
+    assert!(
+        ratio < 0.5,
+        "{} vertices: blob {} B, QM+gzip {qm} B, ratio {ratio:.3}",
+        m.positions.len(),
+        blob.len()
+    );
+}
+
+#[test]
 fn points_blob_round_trip() {
     let (pc, b, q, blob) = points_blob();
     let blob2 = decode(&blob).unwrap();

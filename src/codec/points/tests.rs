@@ -157,7 +157,7 @@ proptest! {
     }
 
     #[test]
-    fn mutated_streams_never_panic(seed in any::<u64>(), stream in 0usize..10, flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 1..6)) {
+    fn mutated_streams_never_panic(seed in any::<u64>(), stream in 0usize..13, flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 1..6)) {
         let hf = synthetic(20, 20, 30.0);
         let pc = voxel_points(&hf, None, 60.0, seed % 2 == 0);
         let (frame, _, _) = setup(&pc, 1.0);
