@@ -351,7 +351,21 @@ pub fn bake_node_geometry(
         (node_error / MESH_Z_STEPS_PER_ERROR).max(f64::from(f32::EPSILON) * bounds.max[2].abs().max(1.0)),
     );
     bounds.min[2] = (bounds.min[2] / z_step).floor() * z_step;
-    let mesh_q = Quantization { xy_step: frame.cell(), z_step };
+    let (adx, ady) = (georef.dx.abs(), georef.dy.abs());
+    let xy_step = if (adx - ady).abs() <= 1e-12 * adx {
+        // Square cells: vertices sit on the raster grid, which starts at this node's corner,
+        // so every x and y is an exact multiple of the cell from `bounds.min`.
+        adx
+    } else {
+        // Rectangular cells (degree rasters): one power-of-two step on a global grid, fine
+        // enough (≤ 1/1024 cell) to be negligible, and again identical in both neighbours.
+        let step = pow2_at_most(adx.min(ady) / 1024.0);
+        for a in 0..2 {
+            bounds.min[a] = (bounds.min[a] / step).floor() * step;
+        }
+        step
+    };
+    let mesh_q = Quantization { xy_step, z_step };
     mesh.positions = codec::quantize_positions(&mesh.positions, &bounds, mesh_q);
 
     // Measured against every full-resolution sample the node covers, in sample coordinates.
