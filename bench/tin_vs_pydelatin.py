@@ -45,7 +45,9 @@ def main():
             best = min(best, time.perf_counter() - t)
         with tempfile.NamedTemporaryFile(suffix=".bin", delete=False) as f:
             f.write(struct.pack("<II", len(verts), len(tris)))
-            f.write(np.asarray(verts[:, :2], dtype="<f8").tobytes())
+            # pydelatin's y runs bottom-up: row = (rows − 1) − y.
+            cols_rows = np.stack([verts[:, 0], heights.shape[0] - 1 - verts[:, 1]], axis=1)
+            f.write(np.asarray(cols_rows, dtype="<f8").tobytes())
             f.write(np.asarray(tris, dtype="<u4").tobytes())
         theirs = json.loads(subprocess.run([exe, png, "--measure", f.name], check=True, capture_output=True,
                                            text=True).stdout)
