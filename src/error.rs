@@ -15,6 +15,9 @@ pub enum Error {
     Store(#[from] StoreError),
     #[error(transparent)]
     Bake(#[from] BakeError),
+    #[cfg(feature = "gpu")]
+    #[error(transparent)]
+    Gpu(#[from] crate::lod::gpu::GpuError),
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -113,9 +113,23 @@ struct BakeArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+    /// Where point levels are baked: auto (any GPU adapter, software ones included, else the
+    /// CPU with a notice), on (a GPU adapter or an error), off (CPU).
+    #[arg(long, value_enum, default_value_t = GpuArg::Auto)]
+    gpu: GpuArg,
+    /// GPU memory budget of one batch of point levels, in MiB.
+    #[arg(long, default_value_t = bake::DEFAULT_GPU_BUDGET_MIB)]
+    gpu_budget_mib: u64,
     /// No progress bar.
     #[arg(long, short)]
     quiet: bool,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum GpuArg {
+    Auto,
+    On,
+    Off,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -256,7 +270,16 @@ fn run_bake(a: &BakeArgs) -> Result<()> {
     );
     bar.enable_steady_tick(Duration::from_millis(200));
     let progress = Bar(bar);
-    let summary = bake::bake(&raster, &name, &opts, &Store::new(&a.out), &progress)?;
+    let mode = match a.gpu {
+        GpuArg::Auto => bake::GpuMode::Auto,
+        GpuArg::On => bake::GpuMode::On,
+        GpuArg::Off => bake::GpuMode::Off,
+    };
+    let (baker, notice) = bake::PointBaker::open(mode, a.gpu_budget_mib.saturating_mul(1 << 20))?;
+    if let Some(n) = notice {
+        eprintln!("{n}");
+    }
+    let summary = bake::bake_with(&raster, &name, &opts, &baker, &Store::new(&a.out), &progress)?;
     progress.0.finish_and_clear();
     print_summary(&summary, &a.out);
     Ok(())
@@ -274,6 +297,16 @@ fn print_summary(s: &BakeSummary, out: &std::path::Path) {
     );
     if let Some(mib) = peak_rss_mib() {
         println!("peak memory (RSS): {mib:.0} MiB");
+    }
+    println!("point levels baked by {}", s.point_baker);
+    if s.gpu_batches > 0 {
+        println!(
+            "gpu: {} batches, peak {:.1} MiB per batch (budget {:.0} MiB), {} levels left to the cpu",
+            s.gpu_batches,
+            s.gpu_peak_batch_bytes as f64 / f64::from(1 << 20),
+            s.gpu_budget_bytes as f64 / f64::from(1 << 20),
+            s.gpu_cpu_fallback_levels
+        );
     }
     print_levels(&s.totals);
 }

@@ -149,6 +149,10 @@ pub struct Manifest {
     pub totals: Vec<LevelTotals>,
     /// The options the tileset was baked with (what a resumed bake must match).
     pub options: serde_json::Value,
+    /// What baked the point levels in the run that finished the tileset: "cpu" or
+    /// "gpu: <adapter name> (<backend>, <device type>)".
+    #[serde(default)]
+    pub point_baker: String,
 }
 
 /// The index chunk root holding `key`.
