@@ -8,7 +8,7 @@
 //! polyline on both sides: no cracks, by construction. Interior insertion never adds a border
 //! sample (the border polyline already meets the bound there), so the hull stays as chosen.
 
-use spade::handles::{FixedFaceHandle, FixedVertexHandle, InnerTag};
+use spade::handles::FixedVertexHandle;
 use spade::{DelaunayTriangulation, HasPosition, InsertionError, Point2, Triangulation};
 
 use crate::geom::Errors;
@@ -207,13 +207,13 @@ pub fn build(grid: &NodeGrid, heights: &[f32], max_error: f64) -> Result<Tin, Ti
         }
     }
 
-    let scan_face = |tri: &DelaunayTriangulation<Vertex>, face: FixedFaceHandle<InnerTag>| {
-        let f = tri.face(face);
-        let vs = f.vertices();
-        let p = vs.map(|v| {
-            let d = v.data();
-            [xs[d.i as usize], ys[d.j as usize], h(d.i as usize, d.j as usize)]
-        });
+    // Positions by spade's vertex index (indices are handed out in insertion order), so scans
+    // read one flat array instead of chasing vertex handles.
+    let mut vpos: Vec<[f64; 3]> = tri
+        .vertices()
+        .map(|v| [v.position().x, v.position().y, h(v.data().i as usize, v.data().j as usize)])
+        .collect();
+    let scan = |p: [[f64; 3]; 3], hint: u32| {
         let mut best: Option<(f64, u32, u32)> = None;
         scan_triangle(p, &ax, &ay, true, |i, j, z| {
             let e = (h(i, j) - z).abs();
@@ -221,15 +221,15 @@ pub fn build(grid: &NodeGrid, heights: &[f32], max_error: f64) -> Result<Tin, Ti
                 best = Some((e, i as u32, j as u32));
             }
         });
-        let hint = vs[0].fix().index() as u32;
         best.map(|(err, i, j)| Candidate::new(err, j * nc as u32 + i, hint))
     };
 
     let mut heap = FaceHeap::default();
     for face in tri.fixed_inner_faces() {
-        heap.set(face.index(), scan_face(&tri, face));
+        let vs = tri.face(face).vertices().map(|v| v.fix().index());
+        heap.set(face.index(), scan(vs.map(|k| vpos[k]), vs[0] as u32));
     }
-    let mut star = Vec::new();
+    let mut star: Vec<(usize, [usize; 3])> = Vec::new();
     while let Some(c) = heap.peek() {
         let hint = FixedVertexHandle::from_index(c.hint as usize);
         let (ci, cj) = (c.sample() % nc as u32, c.sample() / nc as u32);
@@ -239,12 +239,19 @@ pub fn build(grid: &NodeGrid, heights: &[f32], max_error: f64) -> Result<Tin, Ti
                 hint,
             )
             .map_err(TinError::Insertion)?;
+        if v.index() == vpos.len() {
+            vpos.push([xs[ci as usize], ys[cj as usize], h(ci as usize, cj as usize)]);
+        }
         // Every face an insertion creates (by splitting or by the flips that follow) is incident
-        // to the new vertex, so its star is all that needs a new scan.
+        // to the new vertex, so its star is all that needs a new scan. The face left of the
+        // out-edge v→w is (v, w, next(w)).
         star.clear();
-        star.extend(tri.vertex(v).out_edges().filter_map(|e| e.face().as_inner()).map(|f| f.fix()));
-        for &f in &star {
-            heap.set(f.index(), scan_face(&tri, f));
+        star.extend(tri.vertex(v).out_edges().filter_map(|e| {
+            let f = e.face().as_inner()?;
+            Some((f.fix().index(), [v.index(), e.to().fix().index(), e.next().to().fix().index()]))
+        }));
+        for &(f, vs) in &star {
+            heap.set(f, scan(vs.map(|k| vpos[k]), vs[0] as u32));
         }
         // The popped face is always in the star (the new vertex lies in it), so it was re-keyed.
     }
