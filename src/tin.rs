@@ -213,15 +213,18 @@ pub fn build(grid: &NodeGrid, heights: &[f32], max_error: f64) -> Result<Tin, Ti
         .vertices()
         .map(|v| [v.position().x, v.position().y, h(v.data().i as usize, v.data().j as usize)])
         .collect();
+    // The first sample (in row-major order) of the largest error over the bound wins, so one
+    // comparison per sample decides.
     let scan = |p: [[f64; 3]; 3], hint: u32| {
-        let mut best: Option<(f64, u32, u32)> = None;
+        let (mut worst, mut sample) = (max_error, u32::MAX);
         scan_triangle(p, &ax, &ay, true, |i, j, z| {
             let e = (h(i, j) - z).abs();
-            if e > max_error && best.is_none_or(|(b, _, _)| e > b) {
-                best = Some((e, i as u32, j as u32));
+            if e > worst {
+                worst = e;
+                sample = (j * nc + i) as u32;
             }
         });
-        best.map(|(err, i, j)| Candidate::new(err, j * nc as u32 + i, hint))
+        (sample != u32::MAX).then(|| Candidate::new(worst, sample, hint))
     };
 
     let mut heap = FaceHeap::default();
@@ -362,15 +365,25 @@ impl Axis {
     }
 }
 
+/// Triangles whose bounding box holds at most this many samples are scanned sample by sample.
+const SMALL_BOX_SAMPLES: usize = 48;
+
 /// Calls `f(i, j, z)` for every grid sample `(xs.at(i), ys.at(j))` inside or on triangle `p`
 /// (x, y, z), with `z` the triangle's plane at that sample. With `inner`, samples on the first
 /// and last row and column are skipped. Rows are walked with the triangle's exact x-span, so the
 /// cost is the triangle's area plus one span computation per row.
-pub fn scan_triangle(
+pub fn scan_triangle(p: [[f64; 3]; 3], xs: &Axis, ys: &Axis, inner: bool, f: impl FnMut(usize, usize, f64)) {
+    scan_triangle_with(p, xs, ys, inner, SMALL_BOX_SAMPLES, f);
+}
+
+/// [`scan_triangle`], testing samples one by one when the bounding box holds at most
+/// `box_limit` of them and walking row spans otherwise: both visit the same samples.
+fn scan_triangle_with(
     p: [[f64; 3]; 3],
     xs: &Axis,
     ys: &Axis,
     inner: bool,
+    box_limit: usize,
     mut f: impl FnMut(usize, usize, f64),
 ) {
     const EPS: f64 = 1e-9;
@@ -386,20 +399,55 @@ pub fn scan_triangle(
     let j0 = ys.first_ge(a[1].min(b[1]).min(c[1]) - EPS).max(lo);
     let j1 = ys.count_le(a[1].max(b[1]).max(c[1]) + EPS).min(hi(ys.len()));
     let iend = hi(xs.len());
-    let edges = [(a, b), (b, c), (c, a)].map(|(u, v)| if u[1] <= v[1] { (u, v) } else { (v, u) });
+    if j1 <= j0 {
+        return;
+    }
+    let i0 = xs.first_ge(a[0].min(b[0]).min(c[0]) - EPS).max(lo);
+    let i1 = xs.count_le(a[0].max(b[0]).max(c[0]) + EPS).min(iend);
+    if i1 <= i0 {
+        return;
+    }
+    // Most triangles of a fine TIN cover a handful of samples: testing every sample of the
+    // bounding box against the three edge functions (no divisions) is cheaper than computing
+    // each row's span. The test admits samples within EPS of an edge, as the span walk does.
+    if (j1 - j0) * (i1 - i0) <= box_limit {
+        let s = det.signum();
+        let edge = |u: [f64; 3], v: [f64; 3]| {
+            let (ex, ey) = ((v[0] - u[0]) * s, (v[1] - u[1]) * s);
+            (u[0], u[1], ex, ey, -EPS * ex.hypot(ey))
+        };
+        let es = [edge(a, b), edge(b, c), edge(c, a)];
+        for j in j0..j1 {
+            let y = ys.at(j);
+            let zrow = a[2] + gy * (y - a[1]);
+            for i in i0..i1 {
+                let x = xs.at(i);
+                if es.iter().all(|&(ux, uy, ex, ey, tol)| ex * (y - uy) - ey * (x - ux) >= tol) {
+                    f(i, j, zrow + gx * (x - a[0]));
+                }
+            }
+        }
+        return;
+    }
+    // Each edge from its lower to its upper end, with 1/Δy (0 for a flat edge).
+    let edges = [(a, b), (b, c), (c, a)].map(|(u, v)| {
+        let (lo, hi) = if u[1] <= v[1] { (u, v) } else { (v, u) };
+        let dy = hi[1] - lo[1];
+        (lo, hi, if dy <= EPS { 0.0 } else { 1.0 / dy })
+    });
     for j in j0..j1 {
         let y = ys.at(j);
         let mut xl = f64::INFINITY;
         let mut xr = f64::NEG_INFINITY;
-        for (lo, hi) in edges {
+        for (lo, hi, inv_dy) in edges {
             if y < lo[1] - EPS || y > hi[1] + EPS {
                 continue;
             }
-            if hi[1] - lo[1] <= EPS {
+            if inv_dy == 0.0 {
                 xl = xl.min(lo[0].min(hi[0]));
                 xr = xr.max(lo[0].max(hi[0]));
             } else {
-                let t = ((y - lo[1]) / (hi[1] - lo[1])).clamp(0.0, 1.0);
+                let t = ((y - lo[1]) * inv_dy).clamp(0.0, 1.0);
                 let x = lo[0] + t * (hi[0] - lo[0]);
                 xl = xl.min(x);
                 xr = xr.max(x);
@@ -596,5 +644,37 @@ mod tests {
         let span = Span { col0: 0, col1: 4, row0: 0, row1: 4 };
         let err = measure_vertical(&pos, &[[0, 1, 2]], span, &[0.0; 25]).unwrap_err();
         assert!(matches!(err, TinError::Uncovered { missing: 10, total: 25 }));
+    }
+
+    proptest::proptest! {
+        /// The per-sample box test and the row-span walk visit the same samples with the same
+        /// plane heights, for triangles on and off the sample grid and a clipped last column.
+        #[test]
+        fn box_and_span_scans_agree(
+            v in proptest::collection::vec((0u32..40, 0u32..40, -50.0f64..50.0), 3),
+            off in proptest::collection::vec(-1.0f64..1.0, 6),
+            on_grid: bool,
+            inner: bool,
+        ) {
+            let cols: Vec<u32> = (0..20).map(|k| k * 2).chain([39]).collect();
+            let rows: Vec<u32> = (0..=40).collect();
+            let (xs, ys) = (Axis::of(&cols), Axis::of(&rows));
+            let p: [[f64; 3]; 3] = std::array::from_fn(|k| {
+                let (x, y, z) = v[k];
+                let d = if on_grid { (0.0, 0.0) } else { (off[2 * k], off[2 * k + 1]) };
+                [f64::from(x) + d.0, f64::from(y) + d.1, z]
+            });
+            let collect = |limit| {
+                let mut out = Vec::new();
+                scan_triangle_with(p, &xs, &ys, inner, limit, |i, j, z| out.push((i, j, z)));
+                out
+            };
+            let (boxed, spans) = (collect(usize::MAX), collect(0));
+            proptest::prop_assert_eq!(boxed.len(), spans.len());
+            for (a, b) in boxed.iter().zip(&spans) {
+                proptest::prop_assert_eq!((a.0, a.1), (b.0, b.1));
+                proptest::prop_assert!((a.2 - b.2).abs() <= 1e-9 * (1.0 + a.2.abs()));
+            }
+        }
     }
 }
