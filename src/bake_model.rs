@@ -59,7 +59,7 @@ use crate::tiling::TileKey;
 /// Default number of point levels below the mesh.
 pub const DEFAULT_MODEL_LEVELS: u8 = 4;
 /// Default resolution T of level 1 (cells across the model's longest side); halves per level.
-pub const DEFAULT_RESOLUTION: u32 = 64;
+pub const DEFAULT_RESOLUTION: u32 = 80;
 /// Finest resolution accepted: T² grows the points and the bake's memory.
 pub const MAX_RESOLUTION: u32 = 4096;
 /// Level 0 is quantized to a power-of-two step no larger than the longest side / 2^this.
@@ -93,20 +93,23 @@ pub struct ModelBakeOptions {
 impl Default for ModelBakeOptions {
     fn default() -> Self {
         Self {
-            resolutions: halving(DEFAULT_RESOLUTION, DEFAULT_MODEL_LEVELS).unwrap_or_default(),
+            resolutions: ladder(DEFAULT_RESOLUTION, DEFAULT_MODEL_LEVELS).unwrap_or_default(),
             file_type: None,
         }
     }
 }
 
-/// `levels` resolutions halving from `first` (`first`, `first/2`, …); errors when one would
-/// drop below 1.
-pub fn halving(first: u32, levels: u8) -> Result<Vec<u32>, ModelBakeError> {
-    let out: Vec<u32> = (0..u32::from(levels)).map(|l| first.checked_shr(l).unwrap_or(0)).collect();
-    if out.contains(&0) {
+/// The default ladder of `levels` resolutions from `first` down: level `l` of `K` gets
+/// `T_l = round(first · (K + 1 − l) / K)`, so `first` = 64 and K = 4 give 64, 48, 32, 16 (see
+/// the module doc for why). Errors when two levels would get the same resolution.
+pub fn ladder(first: u32, levels: u8) -> Result<Vec<u32>, ModelBakeError> {
+    let k = u64::from(levels);
+    let out: Vec<u32> =
+        (1..=k).map(|l| ((u64::from(first) * (k + 1 - l) + k / 2) / k.max(1)) as u32).collect();
+    if out.windows(2).any(|w| w[1] >= w[0]) || out.contains(&0) {
         return Err(ModelBakeError::Options(format!(
-            "--resolution {first} cannot halve {} times (--levels {levels}); raise --resolution or lower --levels",
-            levels.saturating_sub(1)
+            "--resolution {first} is too small for {levels} distinct levels (--levels); raise --resolution \
+             to at least {levels} or lower --levels"
         )));
     }
     Ok(out)
@@ -495,9 +498,13 @@ mod tests {
 
     #[test]
     fn options() {
-        assert_eq!(halving(64, 4).unwrap(), vec![64, 32, 16, 8]);
-        assert!(halving(4, 4).unwrap_err().to_string().contains("cannot halve 3 times"));
-        assert_eq!(ModelBakeOptions::default().resolutions, vec![64, 32, 16, 8]);
+        assert_eq!(ladder(64, 4).unwrap(), vec![64, 48, 32, 16]);
+        assert_eq!(ladder(100, 3).unwrap(), vec![100, 67, 33]);
+        assert_eq!(ladder(4, 4).unwrap(), vec![4, 3, 2, 1]);
+        assert_eq!(ladder(64, 1).unwrap(), vec![64]);
+        assert!(ladder(64, 0).unwrap().is_empty());
+        assert!(ladder(3, 4).unwrap_err().to_string().contains("too small for 4 distinct levels"));
+        assert_eq!(ModelBakeOptions::default().resolutions, vec![64, 48, 32, 16]);
         let bad = |r: Vec<u32>| check_options(&ModelBakeOptions { resolutions: r, file_type: None }).is_err();
         assert!(bad(vec![32, 64]));
         assert!(bad(vec![32, 32]));
