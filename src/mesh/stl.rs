@@ -128,10 +128,11 @@ fn parse_ascii(bytes: &[u8], ctx: Ctx<'_>) -> Result<Model, MeshError> {
     let mut solids = 0usize;
     let mut last = 0usize;
     for (ln, line) in lines(bytes) {
-        last = ln;
         let at = || format!("line {ln}");
         let mut tk = tokens(line);
         let Some(kw) = tk.next() else { continue };
+        // The last line with content: the one a truncation error points at.
+        last = ln;
         let expect = |what: &str| ctx.syntax(at(), format!("expected {what}, found {}", show(kw)));
         match (&state, kw) {
             (State::Outside, b"solid") => {
