@@ -5,11 +5,13 @@
 //! only; `raster` reads files; `store` and `bake` own the tileset directory.
 
 pub mod bake;
+pub mod bake_model;
 pub mod codec;
 mod error;
 pub mod export;
 pub mod geom;
 pub mod lod;
+pub mod mesh;
 pub mod raster;
 pub mod store;
 pub mod synth;

@@ -8,6 +8,8 @@ use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use terrastream::bake::{self, BakeOptions, BakeSummary};
+use terrastream::bake_model::{self, ModelBakeOptions, ModelLevel};
+use terrastream::mesh::FileType;
 use terrastream::raster::{self, Encoding, Limits, LoadOptions, Overrides};
 use terrastream::store::{LevelTotals, Store};
 use terrastream::tiling::TileKey;
@@ -27,6 +29,9 @@ struct Cli {
 enum Command {
     /// Bake a heightfield raster into a tileset directory (resumes an interrupted bake).
     Bake(BakeArgs),
+    /// Bake a standalone 3D model (OBJ, STL, PLY) into a model tileset: the quantized mesh as
+    /// level 0 and point-cloud levels 1..K baked by 6-direction slicing.
+    BakeModel(BakeModelArgs),
     /// Summarise a tileset: per-level totals and worst errors, or one node with --tile.
     Inspect {
         /// Tileset directory.
@@ -125,6 +130,38 @@ struct BakeArgs {
     quiet: bool,
 }
 
+#[derive(clap::Args)]
+struct BakeModelArgs {
+    /// Model file: Wavefront .obj, .stl (binary or ASCII) or .ply (ASCII or binary).
+    model: PathBuf,
+    /// Output tileset directory (created; must be empty or an earlier bake of the same model).
+    #[arg(long)]
+    out: PathBuf,
+    /// Point-cloud levels below the mesh.
+    #[arg(long, default_value_t = bake_model::DEFAULT_MODEL_LEVELS)]
+    levels: u8,
+    /// Resolution T of level 1: grid cells across the model's longest side (the paper's
+    /// framebuffer size T3); level l of K gets T·(K+1−l)/K.
+    #[arg(long, default_value_t = bake_model::DEFAULT_RESOLUTION)]
+    resolution: u32,
+    /// Explicit resolutions, finest first, comma-separated (overrides --levels/--resolution).
+    #[arg(long, value_delimiter = ',')]
+    resolutions: Option<Vec<u32>>,
+    /// Read the file as this format instead of going by its extension or content.
+    #[arg(long = "format", value_enum)]
+    file_type: Option<ModelFormatArg>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum ModelFormatArg {
+    Obj,
+    Stl,
+    Ply,
+}
+
 #[derive(Clone, Copy, ValueEnum)]
 enum GpuArg {
     Auto,
@@ -183,6 +220,7 @@ fn main() -> std::process::ExitCode {
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Bake(args) => run_bake(&args),
+        Command::BakeModel(args) => run_bake_model(&args),
         Command::Inspect { dir, json, tile } => run_inspect(&dir, json, tile),
         Command::Synth { out, width, height, cell_size, seed } => {
             let height = height.unwrap_or(width);
@@ -285,6 +323,73 @@ fn run_bake(a: &BakeArgs) -> Result<()> {
     Ok(())
 }
 
+fn run_bake_model(a: &BakeModelArgs) -> Result<()> {
+    if let Some(n) = a.threads {
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
+    }
+    let resolutions = match &a.resolutions {
+        Some(r) => r.clone(),
+        None => bake_model::ladder(a.resolution, a.levels)?,
+    };
+    let opts = ModelBakeOptions {
+        resolutions,
+        file_type: a.file_type.map(|t| match t {
+            ModelFormatArg::Obj => FileType::Obj,
+            ModelFormatArg::Stl => FileType::Stl,
+            ModelFormatArg::Ply => FileType::Ply,
+        }),
+    };
+    let s = bake_model::bake_model_file(&a.model, &opts, &Store::new(&a.out))?;
+    let st = &s.stats;
+    println!(
+        "{} ({}): {} faces → {} triangles read, {} degenerate skipped; {} vertices read, {} unreferenced \
+         dropped, {} normals from the file",
+        s.file,
+        s.encoding,
+        st.faces,
+        st.triangles_read,
+        st.degenerate,
+        st.vertices_read,
+        st.unreferenced,
+        st.normals_from_file
+    );
+    println!(
+        "baked {} levels into {}{} in {:.3} s (read {:.3} s, bake {:.3} s); bounds {:?} – {:?}",
+        s.levels.len(),
+        a.out.display(),
+        if s.resumed { " (same options: rewritten)" } else { "" },
+        s.seconds,
+        s.read_seconds,
+        s.bake_seconds,
+        s.bounds.min,
+        s.bounds.max
+    );
+    print_model_levels(&s.levels);
+    Ok(())
+}
+
+fn print_model_levels(levels: &[ModelLevel]) {
+    println!(
+        "{:>5}  {:>6}  {:>5}  {:>10}  {:>9}  {:>9}  {:>9}  {:>10}  {:>10}  {:>10}",
+        "level", "kind", "T", "cell", "count", "triangles", "bytes", "max err", "rms", "gap"
+    );
+    for l in levels {
+        println!(
+            "{:>5}  {:>6}  {:>5}  {:>10}  {:>9}  {:>9}  {:>9}  {:>10.3e}  {:>10.3e}  {:>10.3e}",
+            l.level,
+            l.kind,
+            l.resolution.map_or_else(|| "-".to_owned(), |t| t.to_string()),
+            l.cell.map_or_else(|| "-".to_owned(), |c| format!("{c:.3e}")),
+            l.count,
+            l.triangles,
+            l.bytes,
+            l.errors.max,
+            l.errors.rms,
+            l.errors.gap
+        );
+    }
+}
+
 fn print_summary(s: &BakeSummary, out: &std::path::Path) {
     println!(
         "baked {} tiles ({} resumed) into {} in {:.2} s: {:.2} M samples/s, {} no-data samples filled",
@@ -353,6 +458,28 @@ fn print_levels(totals: &[LevelTotals]) {
 fn run_inspect(dir: &std::path::Path, json: bool, tile: Option<TileKey>) -> Result<()> {
     let store = Store::new(dir);
     let manifest = store.manifest()?;
+    if tile.is_none() && store.manifest_kind()? == terrastream::store::KIND_MODEL {
+        let m = bake_model::read_manifest(&store)?;
+        if json {
+            println!("{}", serde_json::to_string_pretty(&m)?);
+            return Ok(());
+        }
+        println!(
+            "{}: model {} ({}, {} vertices, {} triangles; {} degenerate skipped), bounds {:?} – {:?}, \
+             content version {}",
+            dir.display(),
+            m.model.file,
+            m.model.encoding,
+            m.model.vertices,
+            m.model.triangles,
+            m.model.degenerate_skipped,
+            m.tileset.bounds.min,
+            m.tileset.bounds.max,
+            m.tileset.content_version
+        );
+        print_model_levels(&m.model.levels);
+        return Ok(());
+    }
     if let Some(key) = tile {
         let Some(node) = store.node(key)? else {
             bail!("{}: no tile {key} in this tileset (depth {})", dir.display(), manifest.depth);
