@@ -15,6 +15,9 @@ pub enum Error {
     Store(#[from] StoreError),
     #[error(transparent)]
     Bake(#[from] BakeError),
+    #[cfg(feature = "server")]
+    #[error(transparent)]
+    Server(#[from] crate::server::ServerError),
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

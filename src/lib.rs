@@ -11,6 +11,8 @@ pub mod export;
 pub mod geom;
 pub mod lod;
 pub mod raster;
+#[cfg(feature = "server")]
+pub mod server;
 pub mod store;
 pub mod synth;
 pub mod tiling;
