@@ -3,6 +3,9 @@
 
 For each max error, both are timed (best of 3), their vertex counts compared, and both meshes'
 max errors verified by the same code (terrastream's measure_vertical over every sample).
+terrastream is timed on one thread (RAYON_NUM_THREADS=1) and on all cores: a node larger than
+tin::REGION_SPLIT_SAMPLES is built as regions in parallel (the same mesh either way);
+pydelatin is single-threaded.
 
     pip install pydelatin numpy pillow
     python3 bench/tin_vs_pydelatin.py [fuji.png] [max errors…]
@@ -33,10 +36,16 @@ def main():
     heights = (-10000 + (rgb[..., 0] * 65536 + rgb[..., 1] * 256 + rgb[..., 2]) * 0.1).astype(np.float32)
     print(f"{os.path.basename(png)}: {heights.shape[1]}×{heights.shape[0]} samples, "
           f"{heights.min():.1f}–{heights.max():.1f} m\n")
-    print(f"{'max err':>8} | {'terrastream':>26} | {'pydelatin':>26} | {'time ratio':>10} {'vertex ratio':>12}")
-    print(f"{'':>8} | {'vertices':>9} {'s':>7} {'meas.':>8} | {'vertices':>9} {'s':>7} {'meas.':>8} |")
+    cores = os.cpu_count()
+    print(f"{'max err':>8} | {'terrastream':>34} | {'pydelatin':>26} | {'time ratio':>17} {'vertex ratio':>12}")
+    print(f"{'':>8} | {'vertices':>9} {'s 1 thr':>7} {'s ' + str(cores) + ' thr':>7} {'meas.':>8} | "
+          f"{'vertices':>9} {'s':>7} {'meas.':>8} | {'1 thr':>8} {str(cores) + ' thr':>8}")
+    one = dict(os.environ, RAYON_NUM_THREADS="1")
     for e in errors:
         ours = json.loads(subprocess.run([exe, png, str(e)], check=True, capture_output=True, text=True).stdout)
+        ours1 = json.loads(subprocess.run([exe, png, str(e)], check=True, capture_output=True, text=True,
+                                          env=one).stdout)
+        assert ours1["vertices"] == ours["vertices"], "thread count changed the mesh"
         best = float("inf")
         for _ in range(3):
             t = time.perf_counter()
@@ -52,9 +61,10 @@ def main():
         theirs = json.loads(subprocess.run([exe, png, "--measure", f.name], check=True, capture_output=True,
                                            text=True).stdout)
         os.unlink(f.name)
-        print(f"{e:>8g} | {ours['vertices']:>9} {ours['seconds']:>7.3f} {ours['measured_max_error']:>8.3f} | "
+        print(f"{e:>8g} | {ours['vertices']:>9} {ours1['seconds']:>7.3f} {ours['seconds']:>7.3f} "
+              f"{ours['measured_max_error']:>8.3f} | "
               f"{len(verts):>9} {best:>7.3f} {theirs['measured_max_error']:>8.3f} | "
-              f"{ours['seconds'] / best:>10.2f} {ours['vertices'] / len(verts):>12.3f}")
+              f"{ours1['seconds'] / best:>8.2f} {ours['seconds'] / best:>8.2f} {ours['vertices'] / len(verts):>12.3f}")
     print("\ntime ratio < 1: terrastream faster; vertex ratio: terrastream / pydelatin (target within 5%)")
 
 

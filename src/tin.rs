@@ -8,7 +8,7 @@
 //! polyline on both sides: no cracks, by construction. Interior insertion never adds a border
 //! sample (the border polyline already meets the bound there), so the hull stays as chosen.
 
-use spade::handles::{FixedFaceHandle, FixedVertexHandle, InnerTag};
+use spade::handles::FixedVertexHandle;
 use spade::{DelaunayTriangulation, HasPosition, InsertionError, Point2, Triangulation};
 
 use crate::geom::Errors;
@@ -166,9 +166,25 @@ impl FaceHeap {
     }
 }
 
+/// Nodes with more samples than this are built as independent regions (in parallel), split on
+/// a seam column or row whose vertices are chosen like a node border: by 1-D simplification of
+/// the seam's own samples. The split depends on the node's size and data only, never on the
+/// thread count, so the result is deterministic; default 257² leaf tiles are never split.
+pub const REGION_SPLIT_SAMPLES: usize = 1 << 17;
+
 /// Builds the TIN of `heights` (row-major over `grid.rows × grid.cols`) so that every sample is
 /// within `max_error` (vertical, in height units) of the mesh.
 pub fn build(grid: &NodeGrid, heights: &[f32], max_error: f64) -> Result<Tin, TinError> {
+    build_split(grid, heights, max_error, REGION_SPLIT_SAMPLES)
+}
+
+/// [`build`], splitting regions of more than `split_samples` samples.
+fn build_split(
+    grid: &NodeGrid,
+    heights: &[f32],
+    max_error: f64,
+    split_samples: usize,
+) -> Result<Tin, TinError> {
     let (nc, nr) = (grid.cols.len(), grid.rows.len());
     if nc < 2 || nr < 2 {
         return Err(TinError::TooSmall { cols: nc, rows: nr });
@@ -182,10 +198,163 @@ pub fn build(grid: &NodeGrid, heights: &[f32], max_error: f64) -> Result<Tin, Ti
     if let Some(k) = heights.iter().position(|h| !h.is_finite()) {
         return Err(TinError::NonFinite { col: grid.cols[k % nc], row: grid.rows[k / nc] });
     }
-    let (ax, ay) = (Axis::of(&grid.cols), Axis::of(&grid.rows));
-    let xs: Vec<f64> = grid.cols.iter().map(|&c| f64::from(c)).collect();
-    let ys: Vec<f64> = grid.rows.iter().map(|&r| f64::from(r)).collect();
-    let h = |i: usize, j: usize| f64::from(heights[j * nc + i]);
+    let node = Node { grid, heights, nc, max_error, split_samples };
+    let whole = Region { i0: 0, i1: nc - 1, j0: 0, j1: nr - 1 };
+    let borders = Borders {
+        bottom: node.row_border(0, 0, nc - 1),
+        top: node.row_border(nr - 1, 0, nc - 1),
+        left: node.col_border(0, 0, nr - 1),
+        right: node.col_border(nc - 1, 0, nr - 1),
+    };
+    build_region(&node, whole, borders)
+}
+
+/// The node being triangulated.
+struct Node<'a> {
+    grid: &'a NodeGrid,
+    heights: &'a [f32],
+    nc: usize,
+    max_error: f64,
+    split_samples: usize,
+}
+
+impl Node<'_> {
+    fn h(&self, i: usize, j: usize) -> f64 {
+        f64::from(self.heights[j * self.nc + i])
+    }
+
+    /// Kept columns of row `j` between columns `i0` and `i1` (inclusive, node indices).
+    fn row_border(&self, j: usize, i0: usize, i1: usize) -> Vec<usize> {
+        let profile: Vec<(f64, f64)> =
+            (i0..=i1).map(|i| (f64::from(self.grid.cols[i]), self.h(i, j))).collect();
+        simplify_profile(&profile, self.max_error).into_iter().map(|k| i0 + k).collect()
+    }
+
+    /// Kept rows of column `i` between rows `j0` and `j1` (inclusive, node indices).
+    fn col_border(&self, i: usize, j0: usize, j1: usize) -> Vec<usize> {
+        let profile: Vec<(f64, f64)> =
+            (j0..=j1).map(|j| (f64::from(self.grid.rows[j]), self.h(i, j))).collect();
+        simplify_profile(&profile, self.max_error).into_iter().map(|k| j0 + k).collect()
+    }
+}
+
+/// An inclusive rectangle of node sample indices.
+#[derive(Debug, Clone, Copy)]
+struct Region {
+    i0: usize,
+    i1: usize,
+    j0: usize,
+    j1: usize,
+}
+
+/// The kept vertices on a region's four edges, as node column (bottom, top) or row (left,
+/// right) indices, ascending, endpoints included.
+struct Borders {
+    bottom: Vec<usize>,
+    top: Vec<usize>,
+    left: Vec<usize>,
+    right: Vec<usize>,
+}
+
+/// The kept index closest to the middle of `lo..=hi` that both sides keep, if it lies in the
+/// middle half: a seam must start and end at existing border vertices, or it would add a vertex
+/// to the region's border that the neighbour across it does not have.
+fn seam_at(a: &[usize], b: &[usize], lo: usize, hi: usize) -> Option<usize> {
+    let mid = usize::midpoint(lo, hi);
+    let quarter = (hi - lo) / 4;
+    a.iter()
+        .copied()
+        .filter(|m| b.binary_search(m).is_ok() && m.abs_diff(mid) <= quarter && *m > lo && *m < hi)
+        .min_by_key(|m| (m.abs_diff(mid), *m))
+}
+
+fn within(v: &[usize], lo: usize, hi: usize) -> Vec<usize> {
+    v.iter().copied().filter(|&k| k >= lo && k <= hi).collect()
+}
+
+/// Builds one region: split on a seam when it is large and one is available, else greedily.
+fn build_region(node: &Node, r: Region, b: Borders) -> Result<Tin, TinError> {
+    let (w, h) = (r.i1 - r.i0 + 1, r.j1 - r.j0 + 1);
+    if w * h > node.split_samples {
+        // Split across the longer side first.
+        let vertical = || seam_at(&b.bottom, &b.top, r.i0, r.i1).map(|m| (true, m));
+        let horizontal = || seam_at(&b.left, &b.right, r.j0, r.j1).map(|m| (false, m));
+        let split = if w >= h { vertical().or_else(horizontal) } else { horizontal().or_else(vertical) };
+        if let Some((is_vertical, m)) = split {
+            let (ra, ba, rb, bb) = if is_vertical {
+                let seam = node.col_border(m, r.j0, r.j1);
+                (
+                    Region { i1: m, ..r },
+                    Borders {
+                        bottom: within(&b.bottom, r.i0, m),
+                        top: within(&b.top, r.i0, m),
+                        left: b.left,
+                        right: seam.clone(),
+                    },
+                    Region { i0: m, ..r },
+                    Borders {
+                        bottom: within(&b.bottom, m, r.i1),
+                        top: within(&b.top, m, r.i1),
+                        left: seam,
+                        right: b.right,
+                    },
+                )
+            } else {
+                let seam = node.row_border(m, r.i0, r.i1);
+                (
+                    Region { j1: m, ..r },
+                    Borders {
+                        bottom: b.bottom,
+                        top: seam.clone(),
+                        left: within(&b.left, r.j0, m),
+                        right: within(&b.right, r.j0, m),
+                    },
+                    Region { j0: m, ..r },
+                    Borders {
+                        bottom: seam,
+                        top: b.top,
+                        left: within(&b.left, m, r.j1),
+                        right: within(&b.right, m, r.j1),
+                    },
+                )
+            };
+            let (a, c) = rayon::join(|| build_region(node, ra, ba), || build_region(node, rb, bb));
+            return Ok(merge(a?, &c?));
+        }
+    }
+    greedy_region(node, r, &b)
+}
+
+/// Joins two TINs that share the vertices of their seam (same node indices).
+fn merge(a: Tin, b: &Tin) -> Tin {
+    let key = |v: [u32; 2]| (u64::from(v[0]) << 32) | u64::from(v[1]);
+    let index: std::collections::HashMap<u64, u32> =
+        a.vertices.iter().enumerate().map(|(k, &v)| (key(v), k as u32)).collect();
+    let mut out = a;
+    let remap: Vec<u32> = b
+        .vertices
+        .iter()
+        .map(|&v| {
+            index.get(&key(v)).copied().unwrap_or_else(|| {
+                out.vertices.push(v);
+                (out.vertices.len() - 1) as u32
+            })
+        })
+        .collect();
+    out.triangles.extend(b.triangles.iter().map(|t| t.map(|k| remap[k as usize])));
+    out
+}
+
+/// Greedy insertion over one region whose border vertices are given.
+fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
+    let (nc, nr) = (r.i1 - r.i0 + 1, r.j1 - r.j0 + 1);
+    let (cols, rows) = (&node.grid.cols[r.i0..=r.i1], &node.grid.rows[r.j0..=r.j1]);
+    let (ax, ay) = (Axis::of(cols), Axis::of(rows));
+    let xs: Vec<f64> = cols.iter().map(|&c| f64::from(c)).collect();
+    let ys: Vec<f64> = rows.iter().map(|&r| f64::from(r)).collect();
+    let max_error = node.max_error;
+    // Region-local sample indices from here on.
+    let h = |i: usize, j: usize| node.h(r.i0 + i, r.j0 + j);
 
     let mut tri: DelaunayTriangulation<Vertex> = DelaunayTriangulation::new();
     let insert = |tri: &mut DelaunayTriangulation<Vertex>, i: usize, j: usize| {
@@ -194,42 +363,48 @@ pub fn build(grid: &NodeGrid, heights: &[f32], max_error: f64) -> Result<Tin, Ti
     };
     // Borders: bottom and top rows, left and right columns; corners appear twice, and spade
     // keeps the first insertion of a position.
-    let row_profile = |j: usize| (0..nc).map(|i| (xs[i], h(i, j))).collect::<Vec<_>>();
-    let col_profile = |i: usize| (0..nr).map(|j| (ys[j], h(i, j))).collect::<Vec<_>>();
-    for j in [0, nr - 1] {
-        for i in simplify_profile(&row_profile(j), max_error) {
-            insert(&mut tri, i, j)?;
+    for (j, kept) in [(0, &b.bottom), (nr - 1, &b.top)] {
+        for &i in kept {
+            insert(&mut tri, i - r.i0, j)?;
         }
     }
-    for i in [0, nc - 1] {
-        for j in simplify_profile(&col_profile(i), max_error) {
-            insert(&mut tri, i, j)?;
+    for (i, kept) in [(0, &b.left), (nc - 1, &b.right)] {
+        for &j in kept {
+            insert(&mut tri, i, j - r.j0)?;
         }
     }
 
-    let scan_face = |tri: &DelaunayTriangulation<Vertex>, face: FixedFaceHandle<InnerTag>| {
-        let f = tri.face(face);
-        let vs = f.vertices();
-        let p = vs.map(|v| {
-            let d = v.data();
-            [xs[d.i as usize], ys[d.j as usize], h(d.i as usize, d.j as usize)]
-        });
-        let mut best: Option<(f64, u32, u32)> = None;
-        scan_triangle(p, &ax, &ay, true, |i, j, z| {
-            let e = (h(i, j) - z).abs();
-            if e > max_error && best.is_none_or(|(b, _, _)| e > b) {
-                best = Some((e, i as u32, j as u32));
+    // Positions by spade's vertex index (indices are handed out in insertion order), so scans
+    // read one flat array instead of chasing vertex handles.
+    let mut vpos: Vec<[f64; 3]> = tri
+        .vertices()
+        .map(|v| [v.position().x, v.position().y, h(v.data().i as usize, v.data().j as usize)])
+        .collect();
+    // The first sample (in row-major order) of the largest error over the bound wins, so one
+    // comparison per sample decides.
+    // Inner spans never reach the last column, so a sample's x is `start + i·step` there
+    // (`Axis::at` without its branch), and each row is one slice of the node's heights.
+    let scan = |p: [[f64; 3]; 3], hint: u32| {
+        let (mut worst, mut sample) = (max_error, u32::MAX);
+        scan_spans(p, &ax, &ay, true, SMALL_BOX_SAMPLES, |s| {
+            let base = (r.j0 + s.j) * node.nc + r.i0;
+            for (i, &hv) in (s.i0..s.i1).zip(&node.heights[base + s.i0..base + s.i1]) {
+                let e = (f64::from(hv) - s.z(ax.start + i as f64 * ax.step)).abs();
+                if e > worst {
+                    worst = e;
+                    sample = (s.j * nc + i) as u32;
+                }
             }
         });
-        let hint = vs[0].fix().index() as u32;
-        best.map(|(err, i, j)| Candidate::new(err, j * nc as u32 + i, hint))
+        (sample != u32::MAX).then(|| Candidate::new(worst, sample, hint))
     };
 
     let mut heap = FaceHeap::default();
     for face in tri.fixed_inner_faces() {
-        heap.set(face.index(), scan_face(&tri, face));
+        let vs = tri.face(face).vertices().map(|v| v.fix().index());
+        heap.set(face.index(), scan(vs.map(|k| vpos[k]), vs[0] as u32));
     }
-    let mut star = Vec::new();
+    let mut star: Vec<(usize, [usize; 3])> = Vec::new();
     while let Some(c) = heap.peek() {
         let hint = FixedVertexHandle::from_index(c.hint as usize);
         let (ci, cj) = (c.sample() % nc as u32, c.sample() / nc as u32);
@@ -239,17 +414,24 @@ pub fn build(grid: &NodeGrid, heights: &[f32], max_error: f64) -> Result<Tin, Ti
                 hint,
             )
             .map_err(TinError::Insertion)?;
+        if v.index() == vpos.len() {
+            vpos.push([xs[ci as usize], ys[cj as usize], h(ci as usize, cj as usize)]);
+        }
         // Every face an insertion creates (by splitting or by the flips that follow) is incident
-        // to the new vertex, so its star is all that needs a new scan.
+        // to the new vertex, so its star is all that needs a new scan. The face left of the
+        // out-edge v→w is (v, w, next(w)).
         star.clear();
-        star.extend(tri.vertex(v).out_edges().filter_map(|e| e.face().as_inner()).map(|f| f.fix()));
-        for &f in &star {
-            heap.set(f.index(), scan_face(&tri, f));
+        star.extend(tri.vertex(v).out_edges().filter_map(|e| {
+            let f = e.face().as_inner()?;
+            Some((f.fix().index(), [v.index(), e.to().fix().index(), e.next().to().fix().index()]))
+        }));
+        for &(f, vs) in &star {
+            heap.set(f, scan(vs.map(|k| vpos[k]), vs[0] as u32));
         }
         // The popped face is always in the star (the new vertex lies in it), so it was re-keyed.
     }
 
-    let vertices = tri.vertices().map(|v| [v.data().i, v.data().j]).collect();
+    let vertices = tri.vertices().map(|v| [v.data().i + r.i0 as u32, v.data().j + r.j0 as u32]).collect();
     let triangles = tri.inner_faces().map(|f| f.vertices().map(|v| v.fix().index() as u32)).collect();
     Ok(Tin { vertices, triangles })
 }
@@ -355,16 +537,59 @@ impl Axis {
     }
 }
 
+/// Triangles whose bounding box holds at most this many samples are scanned sample by sample.
+const SMALL_BOX_SAMPLES: usize = 48;
+
+/// The samples of one row inside a triangle: columns `i0..i1` of row `j`, where the triangle's
+/// plane is `z = zrow + gx·(x − x0)`.
+#[derive(Debug, Clone, Copy)]
+pub struct RowSpan {
+    pub j: usize,
+    pub i0: usize,
+    pub i1: usize,
+    zrow: f64,
+    gx: f64,
+    x0: f64,
+}
+
+impl RowSpan {
+    /// The plane's height at `x` on this row.
+    #[inline]
+    #[must_use]
+    pub fn z(&self, x: f64) -> f64 {
+        self.zrow + self.gx * (x - self.x0)
+    }
+}
+
 /// Calls `f(i, j, z)` for every grid sample `(xs.at(i), ys.at(j))` inside or on triangle `p`
 /// (x, y, z), with `z` the triangle's plane at that sample. With `inner`, samples on the first
-/// and last row and column are skipped. Rows are walked with the triangle's exact x-span, so the
-/// cost is the triangle's area plus one span computation per row.
+/// and last row and column are skipped.
 pub fn scan_triangle(
     p: [[f64; 3]; 3],
     xs: &Axis,
     ys: &Axis,
     inner: bool,
     mut f: impl FnMut(usize, usize, f64),
+) {
+    scan_spans(p, xs, ys, inner, SMALL_BOX_SAMPLES, |s| {
+        for i in s.i0..s.i1 {
+            f(i, s.j, s.z(xs.at(i)));
+        }
+    });
+}
+
+/// Calls `f` with each row's span of samples inside or on triangle `p` (see [`scan_triangle`]).
+/// When the bounding box holds at most `box_limit` samples they are tested one by one against
+/// the three edge functions (no divisions: most triangles of a fine TIN cover a handful of
+/// samples); otherwise each row's span is computed from the edges. Both give the same samples:
+/// those within EPS of the closed triangle.
+fn scan_spans(
+    p: [[f64; 3]; 3],
+    xs: &Axis,
+    ys: &Axis,
+    inner: bool,
+    box_limit: usize,
+    mut f: impl FnMut(RowSpan),
 ) {
     const EPS: f64 = 1e-9;
     let [a, b, c] = p;
@@ -375,24 +600,66 @@ pub fn scan_triangle(
     // z = a.z + gx·(x − a.x) + gy·(y − a.y)
     let gx = ((b[2] - a[2]) * (c[1] - a[1]) - (c[2] - a[2]) * (b[1] - a[1])) / det;
     let gy = ((c[2] - a[2]) * (b[0] - a[0]) - (b[2] - a[2]) * (c[0] - a[0])) / det;
+    let span = |j: usize, y: f64, i0: usize, i1: usize| RowSpan {
+        j,
+        i0,
+        i1,
+        zrow: a[2] + gy * (y - a[1]),
+        gx,
+        x0: a[0],
+    };
     let (lo, hi) = (usize::from(inner), |n: usize| if inner { n.saturating_sub(1) } else { n });
     let j0 = ys.first_ge(a[1].min(b[1]).min(c[1]) - EPS).max(lo);
     let j1 = ys.count_le(a[1].max(b[1]).max(c[1]) + EPS).min(hi(ys.len()));
     let iend = hi(xs.len());
-    let edges = [(a, b), (b, c), (c, a)].map(|(u, v)| if u[1] <= v[1] { (u, v) } else { (v, u) });
+    if j1 <= j0 {
+        return;
+    }
+    let i0 = xs.first_ge(a[0].min(b[0]).min(c[0]) - EPS).max(lo);
+    let i1 = xs.count_le(a[0].max(b[0]).max(c[0]) + EPS).min(iend);
+    if i1 <= i0 {
+        return;
+    }
+    if (j1 - j0) * (i1 - i0) <= box_limit {
+        let s = det.signum();
+        let edge = |u: [f64; 3], v: [f64; 3]| {
+            let (ex, ey) = ((v[0] - u[0]) * s, (v[1] - u[1]) * s);
+            (u[0], u[1], ex, ey, -EPS * ex.abs().max(ey.abs()))
+        };
+        let es = [edge(a, b), edge(b, c), edge(c, a)];
+        for j in j0..j1 {
+            let y = ys.at(j);
+            // The inside samples of a row are contiguous: the triangle is convex.
+            let inside = |i: usize| {
+                let x = xs.at(i);
+                es.iter().all(|&(ux, uy, ex, ey, tol)| ex * (y - uy) - ey * (x - ux) >= tol)
+            };
+            if let Some(first) = (i0..i1).find(|&i| inside(i)) {
+                let end = (first + 1..i1).find(|&i| !inside(i)).unwrap_or(i1);
+                f(span(j, y, first, end));
+            }
+        }
+        return;
+    }
+    // Each edge from its lower to its upper end, with 1/Δy (0 for a flat edge).
+    let edges = [(a, b), (b, c), (c, a)].map(|(u, v)| {
+        let (lo, hi) = if u[1] <= v[1] { (u, v) } else { (v, u) };
+        let dy = hi[1] - lo[1];
+        (lo, hi, if dy <= EPS { 0.0 } else { 1.0 / dy })
+    });
     for j in j0..j1 {
         let y = ys.at(j);
         let mut xl = f64::INFINITY;
         let mut xr = f64::NEG_INFINITY;
-        for (lo, hi) in edges {
+        for (lo, hi, inv_dy) in edges {
             if y < lo[1] - EPS || y > hi[1] + EPS {
                 continue;
             }
-            if hi[1] - lo[1] <= EPS {
+            if inv_dy == 0.0 {
                 xl = xl.min(lo[0].min(hi[0]));
                 xr = xr.max(lo[0].max(hi[0]));
             } else {
-                let t = ((y - lo[1]) / (hi[1] - lo[1])).clamp(0.0, 1.0);
+                let t = ((y - lo[1]) * inv_dy).clamp(0.0, 1.0);
                 let x = lo[0] + t * (hi[0] - lo[0]);
                 xl = xl.min(x);
                 xr = xr.max(x);
@@ -401,9 +668,9 @@ pub fn scan_triangle(
         if xl > xr {
             continue;
         }
-        let zrow = a[2] + gy * (y - a[1]);
-        for i in xs.first_ge(xl - EPS).max(lo)..xs.count_le(xr + EPS).min(iend) {
-            f(i, j, zrow + gx * (xs.at(i) - a[0]));
+        let (s0, s1) = (xs.first_ge(xl - EPS).max(lo), xs.count_le(xr + EPS).min(iend));
+        if s0 < s1 {
+            f(span(j, y, s0, s1));
         }
     }
 }
@@ -494,6 +761,38 @@ mod tests {
             assert!(err.max <= e + 1e-9, "{w}×{h} at {e}: measured {}", err.max);
             assert!(err.rms <= err.max);
         }
+    }
+
+    #[test]
+    fn split_regions_keep_the_bound_and_tile_the_node() {
+        let (w, h, e) = (150, 121, 0.5);
+        let hs = terrain(w, h, 11);
+        let g = grid(w, h);
+        let span = Span { col0: 0, col1: w - 1, row0: 0, row1: h - 1 };
+        let whole = build_split(&g, &hs, e, usize::MAX).unwrap();
+        let split = build_split(&g, &hs, e, 2_000).unwrap();
+        assert_ne!(whole, split, "the small threshold must split the node");
+        for tin in [&whole, &split] {
+            let pos = positions(&g, &hs, tin);
+            let err = measure_vertical(&pos, &tin.triangles, span, &hs).unwrap();
+            assert!(err.max <= e + 1e-9, "measured {}", err.max);
+            // Triangles tile the rectangle: no overlap (areas add up) and no duplicate vertex.
+            let area: f64 = tin
+                .triangles
+                .iter()
+                .map(|t| {
+                    let [a, b, c] = t.map(|k| pos[k as usize]);
+                    ((b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1])) / 2.0
+                })
+                .sum();
+            assert!((area - f64::from((w - 1) * (h - 1))).abs() < 1e-6, "area {area}");
+            let mut vs = tin.vertices.clone();
+            vs.sort_unstable();
+            vs.dedup();
+            assert_eq!(vs.len(), tin.vertices.len());
+        }
+        let ratio = split.vertices.len() as f64 / whole.vertices.len() as f64;
+        assert!((0.9..1.1).contains(&ratio), "{} vs {}", split.vertices.len(), whole.vertices.len());
     }
 
     #[test]
@@ -589,5 +888,39 @@ mod tests {
         let span = Span { col0: 0, col1: 4, row0: 0, row1: 4 };
         let err = measure_vertical(&pos, &[[0, 1, 2]], span, &[0.0; 25]).unwrap_err();
         assert!(matches!(err, TinError::Uncovered { missing: 10, total: 25 }));
+    }
+
+    proptest::proptest! {
+        /// The per-sample box test and the row-span walk visit the same samples with the same
+        /// plane heights, for triangles on and off the sample grid and a clipped last column.
+        #[test]
+        fn box_and_span_scans_agree(
+            v in proptest::collection::vec((0u32..40, 0u32..40, -50.0f64..50.0), 3),
+            off in proptest::collection::vec(-1.0f64..1.0, 6),
+            on_grid: bool,
+            inner: bool,
+        ) {
+            let cols: Vec<u32> = (0..20).map(|k| k * 2).chain([39]).collect();
+            let rows: Vec<u32> = (0..=40).collect();
+            let (xs, ys) = (Axis::of(&cols), Axis::of(&rows));
+            let p: [[f64; 3]; 3] = std::array::from_fn(|k| {
+                let (x, y, z) = v[k];
+                let d = if on_grid { (0.0, 0.0) } else { (off[2 * k], off[2 * k + 1]) };
+                [f64::from(x) + d.0, f64::from(y) + d.1, z]
+            });
+            let collect = |limit| {
+                let mut out = Vec::new();
+                scan_spans(p, &xs, &ys, inner, limit, |s| {
+                    out.extend((s.i0..s.i1).map(|i| (i, s.j, s.z(xs.at(i)))));
+                });
+                out
+            };
+            let (boxed, spans) = (collect(usize::MAX), collect(0));
+            proptest::prop_assert_eq!(boxed.len(), spans.len());
+            for (a, b) in boxed.iter().zip(&spans) {
+                proptest::prop_assert_eq!((a.0, a.1), (b.0, b.1));
+                proptest::prop_assert!((a.2 - b.2).abs() <= 1e-9 * (1.0 + a.2.abs()));
+            }
+        }
     }
 }

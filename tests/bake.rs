@@ -1,6 +1,9 @@
 //! End-to-end bakes through the `terrastream` binary and the library: real rasters in, tileset
 //! directories out; errors, crack-free borders, determinism and resume checked on the result.
 
+// Helpers outside `#[test]` functions unwrap too: a failure there is a test failure.
+#![allow(clippy::unwrap_used, clippy::float_cmp)]
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;

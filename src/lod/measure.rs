@@ -222,27 +222,33 @@ impl HashGrid {
         self.items.is_empty()
     }
 
-    /// Smallest `dist2(q, item)` over all items, found by ring search. Returns early, with some
-    /// value ≤ `stop2`, as soon as an item within `sqrt(stop2)` is found (pass 0 for the exact
-    /// nearest). `dist2` measures one item; `all` is the item count, for the linear fallback.
-    fn nearest2(&self, q: V3, stop2: f64, all: u32, dist2: impl Fn(u32) -> f64) -> f64 {
-        let mut best = f64::INFINITY;
+    /// Smallest `dist2(q, item)` over all items, found by ring search, and the item. Returns
+    /// early, with some value ≤ `stop2`, as soon as an item within `sqrt(stop2)` is found (pass
+    /// 0 for the exact nearest). `dist2` measures one item; `all` is the item count, for the
+    /// linear fallback. The item is `u32::MAX` when there are none.
+    fn nearest2(&self, q: V3, stop2: f64, all: u32, dist2: impl Fn(u32) -> f64) -> (f64, u32) {
+        let mut best = (f64::INFINITY, u32::MAX);
         if self.is_empty() {
             return best;
         }
+        let consider = |best: &mut (f64, u32), item: u32| {
+            let d = dist2(item);
+            if d < best.0 {
+                *best = (d, item);
+            }
+        };
         let c = Self::coord(self.origin, self.h, q);
         if c.iter().any(|v| !v.is_finite() || v.abs() > MAX_QUERY_INDEX) {
-            return (0..all).map(&dist2).fold(best, f64::min);
+            (0..all).for_each(|item| consider(&mut best, item));
+            return best;
         }
         let c = [c[0] as i64, c[1] as i64, c[2] as i64];
         // Rings closer than the occupied box are empty: start at the first that reaches it.
         let r0 = (0..3).map(|d| (self.lo[d] - c[d]).max(c[d] - self.hi[d]).max(0)).max().unwrap_or(0);
         let mut r = r0;
         loop {
-            self.visit_ring(c, r, |item| {
-                best = best.min(dist2(item));
-            });
-            if best <= stop2 {
+            self.visit_ring(c, r, |item| consider(&mut best, item));
+            if best.0 <= stop2 {
                 return best;
             }
             // Everything not yet visited lies outside the box of rings 0..=r: bound its distance
@@ -263,7 +269,7 @@ impl HashGrid {
                 return best;
             }
             let bound = bound.max(0.0);
-            if best <= bound * bound {
+            if best.0 <= bound * bound {
                 return best;
             }
             r += 1;
@@ -463,7 +469,7 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
     let mut max2 = 0.0f64;
     let mut sum2 = 0.0f64;
     for &p in &pts {
-        let d2 =
+        let (d2, _) =
             tri_grid.nearest2(p, 0.0, tris.len() as u32, |i| point_triangle_dist2(p, &tris[i as usize].0));
         max2 = max2.max(d2);
         sum2 += d2;
@@ -481,15 +487,23 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
             }
         }
     }
-    for (q, _) in mesh.positions.iter().zip(&used).filter(|(p, u)| **u && p.iter().all(|c| c.is_finite())) {
-        let d2 = pt_grid.nearest2(*q, gap2, pts.len() as u32, |i| dist2(*q, pts[i as usize]));
+    // Consecutive samples are close together, so the point that answered the last query very
+    // often lies within the gap of the next one too: checking it first skips most searches, and
+    // the result is the same (a sample with a point within the gap cannot raise it).
+    let mut last = u32::MAX;
+    let mut gap_sample = |q: V3| {
+        if pts.get(last as usize).is_some_and(|&p| dist2(q, p) <= gap2) {
+            return;
+        }
+        let (d2, item) = pt_grid.nearest2(q, gap2, pts.len() as u32, |i| dist2(q, pts[i as usize]));
         gap2 = gap2.max(d2);
+        last = item;
+    };
+    for (q, _) in mesh.positions.iter().zip(&used).filter(|(p, u)| **u && p.iter().all(|c| c.is_finite())) {
+        gap_sample(*q);
     }
     for (t, owned) in &tris {
-        sample_triangle(t, *owned, s, |q| {
-            let d2 = pt_grid.nearest2(q, gap2, pts.len() as u32, |i| dist2(q, pts[i as usize]));
-            gap2 = gap2.max(d2);
-        });
+        sample_triangle(t, *owned, s, &mut gap_sample);
     }
 
     Errors { max: max2.sqrt(), rms: (sum2 / pts.len() as f64).sqrt(), gap: gap2.sqrt() }
