@@ -818,3 +818,80 @@ fn write_node(nb: &NodeBake, quants: &[Quantization], store: &Store) -> Result<N
     }
     Ok(NodeEntry { key, bounds: nb.bounds, levels })
 }
+
+/// The options record `bake` writes to `bake-options.json` (and into the manifest) for this
+/// raster and these options. The server's on-demand baker writes the same record so that a
+/// later `terrastream bake` of the same source resumes the tiles it baked, and vice versa.
+#[must_use]
+pub fn options_record(raster: &LoadedRaster, source_name: &str, opts: &BakeOptions) -> serde_json::Value {
+    let hf = &raster.heights;
+    serde_json::json!({
+        "tile_size": opts.tile_size,
+        "max_error": opts.max_error,
+        "levels": opts.levels,
+        "frame": raster.georef,
+        "source": { "file": source_name, "width": hf.width, "height": hf.height, "crc32": heights_crc(&hf.data) },
+        "format_version": codec::FORMAT_VERSION,
+    })
+}
+
+/// Bakes one node (every level) of `raster` and writes its blobs into `store`, exactly as
+/// [`bake`] would (same bytes); used by the server to bake tiles on first request. The caller
+/// has prepared the store with [`Store::begin_bake`] and [`options_record`].
+pub fn bake_one_node(
+    raster: &LoadedRaster,
+    key: TileKey,
+    opts: &BakeOptions,
+    store: &Store,
+) -> Result<NodeEntry, BakeError> {
+    check_options(opts)?;
+    let hf = &raster.heights;
+    let pyramid = Pyramid::new(hf.width, hf.height, opts.tile_size)?;
+    if !pyramid.contains(key) {
+        return Err(BakeError::Options(format!("tile {key} is outside the raster's quadtree")));
+    }
+    bake_node(&pyramid, hf, &raster.georef, key, opts, store)
+}
+
+/// The index entry of a node whose every level is on disk (rebuilt from the blob headers), or
+/// `None` when a level is missing or does not decode as that node and level.
+#[must_use]
+pub fn node_from_blobs(store: &Store, key: TileKey, levels: u8) -> Option<NodeEntry> {
+    existing_node(store, key, levels)
+}
+
+#[cfg(test)]
+mod one_node_tests {
+    use super::*;
+
+    /// `bake_one_node` writes the very bytes `bake` writes, and `options_record` is the record
+    /// `bake` stores, so on-demand tiles and batch bakes resume each other.
+    #[test]
+    fn one_node_matches_full_bake() {
+        let (w, h) = (65, 49);
+        let raster = LoadedRaster {
+            heights: crate::raster::Heightfield { width: w, height: h, data: crate::synth::terrain(w, h, 3) },
+            georef: Georef { dx: 10.0, dy: -10.0, ..Georef::default() },
+            nodata_filled: 0,
+            format: "test".into(),
+        };
+        let opts = BakeOptions { tile_size: 32, max_error: 2.0, levels: 2 };
+        let full = tempfile::tempdir().unwrap();
+        let full_store = Store::new(full.path());
+        bake(&raster, "t.tif", &opts, &full_store, &NoProgress).unwrap();
+        let manifest = full_store.manifest().unwrap();
+        assert_eq!(manifest.options, options_record(&raster, "t.tif", &opts));
+
+        let one = tempfile::tempdir().unwrap();
+        let one_store = Store::new(&one.path().join("ts"));
+        one_store.begin_bake(&options_record(&raster, "t.tif", &opts)).unwrap();
+        let key = TileKey::new(1, 1, 0);
+        let entry = bake_one_node(&raster, key, &opts, &one_store).unwrap();
+        assert_eq!(Some(&entry), full_store.node(key).unwrap().as_ref());
+        for level in 0..=opts.levels {
+            assert_eq!(one_store.read_blob(key, level).unwrap(), full_store.read_blob(key, level).unwrap());
+        }
+        assert_eq!(node_from_blobs(&one_store, key, opts.levels), Some(entry));
+        assert!(bake_one_node(&raster, TileKey::new(1, 2, 0), &opts, &one_store).is_err());
+    }
+}

@@ -25,6 +25,9 @@ pub enum Error {
     Mesh(#[from] MeshError),
     #[error(transparent)]
     ModelBake(#[from] ModelBakeError),
+    #[cfg(feature = "server")]
+    #[error(transparent)]
+    Server(#[from] crate::server::ServerError),
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -13,6 +13,8 @@ pub mod geom;
 pub mod lod;
 pub mod mesh;
 pub mod raster;
+#[cfg(feature = "server")]
+pub mod server;
 pub mod store;
 pub mod synth;
 pub mod tiling;

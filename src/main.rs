@@ -11,6 +11,8 @@ use terrastream::bake::{self, BakeOptions, BakeSummary};
 use terrastream::bake_model::{self, ModelBakeOptions, ModelLevel};
 use terrastream::mesh::FileType;
 use terrastream::raster::{self, Encoding, Limits, LoadOptions, Overrides};
+#[cfg(feature = "server")]
+use terrastream::server;
 use terrastream::store::{LevelTotals, Store};
 use terrastream::tiling::TileKey;
 use terrastream::{export, tiling};
@@ -60,6 +62,21 @@ enum Command {
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
+    /// Serve a store directory of tilesets over HTTP (and bake missing tiles of --source tilesets).
+    #[cfg(feature = "server")]
+    Serve(Box<ServeArgs>),
+    /// Generate, bake (once) and serve a sample terrain: the quick start.
+    #[cfg(feature = "server")]
+    Demo {
+        #[arg(long, default_value = server::DEFAULT_BIND)]
+        bind: String,
+        /// Working directory: the generated terrain and the store (out/demo-store) go here.
+        #[arg(long, default_value = "out")]
+        dir: PathBuf,
+        /// Generate and bake only; do not serve.
+        #[arg(long)]
+        no_serve: bool,
+    },
     /// Decode one (tile, level) to PLY or OBJ in world coordinates.
     Export {
         /// Tileset directory.
@@ -73,6 +90,109 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+}
+
+/// Every serve setting is optional here: unset ones come from the TOML file (--config), then
+/// the defaults. Environment variables count as flags.
+#[cfg(feature = "server")]
+#[derive(clap::Args)]
+struct ServeArgs {
+    #[arg(
+        long,
+        env = "TERRASTREAM_STORE",
+        help = "Store directory: each subdirectory DIR/NAME is a tileset"
+    )]
+    store: Option<PathBuf>,
+    #[arg(long, env = "TERRASTREAM_BIND", help = format!("Address to listen on [default: {}]", server::DEFAULT_BIND))]
+    bind: Option<String>,
+    #[arg(
+        long = "source",
+        value_name = "NAME=RASTER[,key=value…]",
+        help = "Bake tiles of tileset NAME missing from the store from RASTER on first request; keys: encoding, cell_size, tile_size, max_error, levels (repeatable)"
+    )]
+    sources: Vec<server::SourceSpec>,
+    #[arg(
+        long,
+        env = "TERRASTREAM_CONFIG",
+        help = "TOML file with the same settings (snake_case keys); flags and environment win"
+    )]
+    config: Option<PathBuf>,
+    #[arg(long, env = "TERRASTREAM_MAX_CONNECTIONS", help = format!("Most open connections [default: {}]", server::DEFAULT_MAX_CONNECTIONS))]
+    max_connections: Option<usize>,
+    #[arg(long, env = "TERRASTREAM_MAX_IN_FLIGHT", help = format!("Most requests in progress; more get 503 + Retry-After [default: {}]", server::DEFAULT_MAX_IN_FLIGHT))]
+    max_in_flight: Option<usize>,
+    #[arg(long, env = "TERRASTREAM_REQUEST_TIMEOUT", value_name = "SECONDS", help = format!("Per-request time limit [default: {}]", server::DEFAULT_REQUEST_TIMEOUT_S))]
+    request_timeout: Option<u64>,
+    #[arg(long, env = "TERRASTREAM_MAX_BODY_BYTES", help = format!("Largest admin upload [default: {}]", server::DEFAULT_MAX_BODY_BYTES))]
+    max_body_bytes: Option<u64>,
+    #[arg(long, env = "TERRASTREAM_BAKE_WORKERS", help = format!("On-demand bake threads [default: {}]", server::DEFAULT_BAKE_WORKERS))]
+    bake_workers: Option<usize>,
+    #[arg(long, env = "TERRASTREAM_BAKE_QUEUE", help = format!("On-demand bakes that may wait; more get 503 + Retry-After [default: {}]", server::DEFAULT_BAKE_QUEUE))]
+    bake_queue: Option<usize>,
+    #[arg(long, env = "TERRASTREAM_CACHE_BYTES", help = format!("Memory for verified blobs [default: {}]", server::DEFAULT_CACHE_BYTES))]
+    cache_bytes: Option<u64>,
+    #[arg(long, env = "TERRASTREAM_POLL_MS", help = format!("Store re-scan interval in ms [default: {}]", server::DEFAULT_POLL_MS))]
+    poll_ms: Option<u64>,
+    #[arg(long, env = "TERRASTREAM_RATE_LIMIT", help = format!("Requests per second per client address, 0 = off [default: {}]", server::DEFAULT_RATE_LIMIT))]
+    rate_limit: Option<u32>,
+    #[arg(long, env = "TERRASTREAM_SHUTDOWN_TIMEOUT", value_name = "SECONDS", help = format!("Time in-flight requests get after SIGTERM [default: {}]", server::DEFAULT_SHUTDOWN_TIMEOUT_S))]
+    shutdown_timeout: Option<u64>,
+    #[arg(
+        long,
+        env = "TERRASTREAM_ADMIN_TOKEN",
+        hide_env_values = true,
+        help = "Bearer token of the admin API (disabled without)"
+    )]
+    admin_token: Option<String>,
+    #[arg(
+        long,
+        env = "TERRASTREAM_READ_TOKEN",
+        hide_env_values = true,
+        help = "Bearer token required for reading (public without)"
+    )]
+    read_token: Option<String>,
+    #[arg(long, env = "TERRASTREAM_LOG_FORMAT", value_enum, help = "Log format [default: human]")]
+    log_format: Option<LogFormatArg>,
+}
+
+#[cfg(feature = "server")]
+#[derive(Clone, Copy, ValueEnum)]
+enum LogFormatArg {
+    Human,
+    Json,
+}
+
+#[cfg(feature = "server")]
+impl ServeArgs {
+    /// Flags and environment over the TOML file over the defaults.
+    fn config(&self) -> Result<server::Config> {
+        let flags = server::PartialConfig {
+            store: self.store.clone(),
+            bind: self.bind.clone(),
+            sources: self.sources.clone(),
+            max_connections: self.max_connections,
+            max_in_flight: self.max_in_flight,
+            request_timeout_s: self.request_timeout,
+            max_body_bytes: self.max_body_bytes,
+            bake_workers: self.bake_workers,
+            bake_queue: self.bake_queue,
+            cache_bytes: self.cache_bytes,
+            poll_ms: self.poll_ms,
+            rate_limit: self.rate_limit,
+            shutdown_timeout_s: self.shutdown_timeout,
+            admin_token: self.admin_token.clone(),
+            read_token: self.read_token.clone(),
+            log_format: self.log_format.map(|f| match f {
+                LogFormatArg::Human => server::LogFormat::Human,
+                LogFormatArg::Json => server::LogFormat::Json,
+            }),
+        };
+        let file = match &self.config {
+            Some(p) => server::PartialConfig::from_toml_file(p)?,
+            None => server::PartialConfig::default(),
+        };
+        Ok(flags.over(file).resolve()?)
+    }
 }
 
 #[derive(clap::Args)]
@@ -204,10 +324,17 @@ fn parse_pair(s: &str) -> Result<(f64, f64), String> {
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
-    tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_new(&cli.log).unwrap_or_default())
-        .with_writer(std::io::stderr)
-        .init();
+    let json_logs = match &cli.command {
+        #[cfg(feature = "server")]
+        Command::Serve(a) => a.config().is_ok_and(|c| c.log_format == server::LogFormat::Json),
+        _ => false,
+    };
+    let filter = tracing_subscriber::EnvFilter::try_new(&cli.log).unwrap_or_default();
+    if json_logs {
+        tracing_subscriber::fmt().json().with_env_filter(filter).with_writer(std::io::stderr).init();
+    } else {
+        tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
+    }
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
@@ -238,6 +365,14 @@ fn run(cli: Cli) -> Result<()> {
             println!("wrote {} ({width}×{height} samples, {cell_size} m cells, seed {seed})", out.display());
             Ok(())
         }
+        #[cfg(feature = "server")]
+        Command::Serve(args) => {
+            let config = args.config()?;
+            server::serve_blocking(config, |addr, app| print_urls(addr, &app.tileset_names()))?;
+            Ok(())
+        }
+        #[cfg(feature = "server")]
+        Command::Demo { bind, dir, no_serve } => run_demo(&bind, &dir, no_serve),
         Command::Export { dir, tile, level, format, out } => {
             let format = match format {
                 ExportFormat::Ply => export::Format::Ply,
@@ -248,6 +383,47 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+#[cfg(feature = "server")]
+fn print_urls(addr: std::net::SocketAddr, names: &[String]) {
+    println!("serving {} tileset(s) on http://{addr}  (Ctrl-C to stop)", names.len());
+    println!("  http://{addr}/tilesets");
+    for n in names.iter().take(3) {
+        println!("  http://{addr}/tilesets/{n}/tileset.json");
+        println!("  http://{addr}/tilesets/{n}/index/0/0/0.json");
+        println!("  http://{addr}/tilesets/{n}/tiles/0/0/0/0");
+    }
+    println!("  http://{addr}/openapi.json   http://{addr}/metrics   http://{addr}/readyz");
+}
+
+#[cfg(feature = "server")]
+fn run_demo(bind: &str, dir: &std::path::Path, no_serve: bool) -> Result<()> {
+    let bar = ProgressBar::new(0);
+    bar.set_style(
+        ProgressStyle::with_template("baking demo terrain {bar:40} {pos}/{len} tiles  ETA {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let progress = Bar(bar);
+    let t0 = std::time::Instant::now();
+    let (store, baked) = server::demo::prepare(dir, &progress)?;
+    progress.0.finish_and_clear();
+    if baked {
+        println!("baked the demo terrain into {} in {:.1} s", store.display(), t0.elapsed().as_secs_f64());
+    } else {
+        println!("using the demo tileset already baked in {}", store.display());
+    }
+    if no_serve {
+        return Ok(());
+    }
+    let config =
+        server::PartialConfig { store: Some(store), bind: Some(bind.to_owned()), ..Default::default() }
+            .resolve()?;
+    server::serve_blocking(config, |addr, app| {
+        print_urls(addr, &app.tileset_names());
+        println!("try:  curl -sI http://{addr}/tilesets/demo/tiles/1/0/1/0");
+    })?;
+    Ok(())
 }
 
 struct Bar(ProgressBar);
