@@ -58,7 +58,8 @@ impl Default for BakeOptions {
 }
 
 /// Where point levels are baked (`--gpu`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum GpuMode {
     /// Any adapter, software ones (Mesa lavapipe) included; the CPU with a notice when none.
     #[default]
@@ -842,6 +843,7 @@ pub fn bake_one_node(
     raster: &LoadedRaster,
     key: TileKey,
     opts: &BakeOptions,
+    baker: &PointBaker,
     store: &Store,
 ) -> Result<NodeEntry, BakeError> {
     check_options(opts)?;
@@ -850,7 +852,7 @@ pub fn bake_one_node(
     if !pyramid.contains(key) {
         return Err(BakeError::Options(format!("tile {key} is outside the raster's quadtree")));
     }
-    bake_node(&pyramid, hf, &raster.georef, key, opts, store)
+    bake_node_with(&pyramid, hf, &raster.georef, key, opts, baker, store)
 }
 
 /// The index entry of a node whose every level is on disk (rebuilt from the blob headers), or
@@ -886,12 +888,12 @@ mod one_node_tests {
         let one_store = Store::new(&one.path().join("ts"));
         one_store.begin_bake(&options_record(&raster, "t.tif", &opts)).unwrap();
         let key = TileKey::new(1, 1, 0);
-        let entry = bake_one_node(&raster, key, &opts, &one_store).unwrap();
+        let entry = bake_one_node(&raster, key, &opts, &PointBaker::Cpu, &one_store).unwrap();
         assert_eq!(Some(&entry), full_store.node(key).unwrap().as_ref());
         for level in 0..=opts.levels {
             assert_eq!(one_store.read_blob(key, level).unwrap(), full_store.read_blob(key, level).unwrap());
         }
         assert_eq!(node_from_blobs(&one_store, key, opts.levels), Some(entry));
-        assert!(bake_one_node(&raster, TileKey::new(1, 2, 0), &opts, &one_store).is_err());
+        assert!(bake_one_node(&raster, TileKey::new(1, 2, 0), &opts, &PointBaker::Cpu, &one_store).is_err());
     }
 }

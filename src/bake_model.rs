@@ -437,6 +437,7 @@ pub fn bake_model(
             levels: specs,
             totals,
             options: options_json,
+            point_baker: "cpu".into(),
         },
         model: ModelInfo {
             file: source.name.clone(),

@@ -76,6 +76,9 @@ enum Command {
         /// Generate and bake only; do not serve.
         #[arg(long)]
         no_serve: bool,
+        /// Where the demo's point levels are baked (as `bake --gpu`).
+        #[arg(long, value_enum, default_value_t = GpuArg::Auto)]
+        gpu: GpuArg,
     },
     /// Decode one (tile, level) to PLY or OBJ in world coordinates.
     Export {
@@ -153,6 +156,15 @@ struct ServeArgs {
     read_token: Option<String>,
     #[arg(long, env = "TERRASTREAM_LOG_FORMAT", value_enum, help = "Log format [default: human]")]
     log_format: Option<LogFormatArg>,
+    #[arg(
+        long,
+        env = "TERRASTREAM_GPU",
+        value_enum,
+        help = "Where on-demand and admin bakes compute point levels: auto (any adapter, else the CPU), on, off [default: auto]"
+    )]
+    gpu: Option<GpuArg>,
+    #[arg(long, env = "TERRASTREAM_GPU_BUDGET_MIB", help = format!("GPU memory budget of one batch of point levels, MiB [default: {}]", bake::DEFAULT_GPU_BUDGET_MIB))]
+    gpu_budget_mib: Option<u64>,
 }
 
 #[cfg(feature = "server")]
@@ -186,6 +198,8 @@ impl ServeArgs {
                 LogFormatArg::Human => server::LogFormat::Human,
                 LogFormatArg::Json => server::LogFormat::Json,
             }),
+            gpu: self.gpu.map(gpu_mode),
+            gpu_budget_mib: self.gpu_budget_mib,
         };
         let file = match &self.config {
             Some(p) => server::PartialConfig::from_toml_file(p)?,
@@ -372,7 +386,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         #[cfg(feature = "server")]
-        Command::Demo { bind, dir, no_serve } => run_demo(&bind, &dir, no_serve),
+        Command::Demo { bind, dir, no_serve, gpu } => run_demo(&bind, &dir, no_serve, gpu),
         Command::Export { dir, tile, level, format, out } => {
             let format = match format {
                 ExportFormat::Ply => export::Format::Ply,
@@ -398,7 +412,7 @@ fn print_urls(addr: std::net::SocketAddr, names: &[String]) {
 }
 
 #[cfg(feature = "server")]
-fn run_demo(bind: &str, dir: &std::path::Path, no_serve: bool) -> Result<()> {
+fn run_demo(bind: &str, dir: &std::path::Path, no_serve: bool, gpu: GpuArg) -> Result<()> {
     let bar = ProgressBar::new(0);
     bar.set_style(
         ProgressStyle::with_template("baking demo terrain {bar:40} {pos}/{len} tiles  ETA {eta}")
@@ -406,10 +420,19 @@ fn run_demo(bind: &str, dir: &std::path::Path, no_serve: bool) -> Result<()> {
     );
     let progress = Bar(bar);
     let t0 = std::time::Instant::now();
-    let (store, baked) = server::demo::prepare(dir, &progress)?;
+    let (baker, notice) = bake::PointBaker::open(gpu_mode(gpu), bake::DEFAULT_GPU_BUDGET_MIB << 20)?;
+    if let Some(n) = notice {
+        progress.0.println(n);
+    }
+    let (store, baked) = server::demo::prepare(dir, &baker, &progress)?;
     progress.0.finish_and_clear();
     if baked {
-        println!("baked the demo terrain into {} in {:.1} s", store.display(), t0.elapsed().as_secs_f64());
+        println!(
+            "baked the demo terrain into {} in {:.1} s (point levels: {})",
+            store.display(),
+            t0.elapsed().as_secs_f64(),
+            baker.describe()
+        );
     } else {
         println!("using the demo tileset already baked in {}", store.display());
     }
@@ -424,6 +447,14 @@ fn run_demo(bind: &str, dir: &std::path::Path, no_serve: bool) -> Result<()> {
         println!("try:  curl -sI http://{addr}/tilesets/demo/tiles/1/0/1/0");
     })?;
     Ok(())
+}
+
+fn gpu_mode(a: GpuArg) -> bake::GpuMode {
+    match a {
+        GpuArg::Auto => bake::GpuMode::Auto,
+        GpuArg::On => bake::GpuMode::On,
+        GpuArg::Off => bake::GpuMode::Off,
+    }
 }
 
 struct Bar(ProgressBar);
@@ -484,12 +515,7 @@ fn run_bake(a: &BakeArgs) -> Result<()> {
     );
     bar.enable_steady_tick(Duration::from_millis(200));
     let progress = Bar(bar);
-    let mode = match a.gpu {
-        GpuArg::Auto => bake::GpuMode::Auto,
-        GpuArg::On => bake::GpuMode::On,
-        GpuArg::Off => bake::GpuMode::Off,
-    };
-    let (baker, notice) = bake::PointBaker::open(mode, a.gpu_budget_mib.saturating_mul(1 << 20))?;
+    let (baker, notice) = bake::PointBaker::open(gpu_mode(a.gpu), a.gpu_budget_mib.saturating_mul(1 << 20))?;
     if let Some(n) = notice {
         eprintln!("{n}");
     }

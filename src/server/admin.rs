@@ -20,7 +20,7 @@ use tokio::io::AsyncWriteExt;
 use super::http::check_bearer;
 use super::problem::Problem;
 use super::{App, valid_name};
-use crate::bake::{BakeOptions, Progress};
+use crate::bake::{BakeOptions, PointBaker, Progress};
 use crate::raster::{Encoding, LoadOptions, Overrides};
 use crate::store::Store;
 
@@ -173,7 +173,8 @@ pub async fn upload(
     let spawned = std::thread::Builder::new().name(format!("job-{id}")).spawn(move || {
         let _one_at_a_time = lock.lock();
         job.set("running", None);
-        let r = run_job(&root, &upload, &name, &id, encoding, params.cell_size, &opts, &job);
+        let src = JobSource { upload: &upload, encoding, cell_size: params.cell_size };
+        let r = run_job(&root, &src, &name, &id, &opts, &app2.baker, &job);
         let _ = std::fs::remove_file(&upload);
         match r {
             Ok(()) => {
@@ -220,24 +221,32 @@ async fn stream_to(path: &FsPath, body: Body, limit: u64) -> Result<(), Option<P
 }
 
 #[allow(clippy::too_many_arguments)]
-fn run_job(
-    root: &FsPath,
-    upload: &FsPath,
-    name: &str,
-    id: &str,
+/// The uploaded raster of a job and how to read it.
+struct JobSource<'a> {
+    upload: &'a FsPath,
     encoding: Option<Encoding>,
     cell_size: Option<f64>,
+}
+
+fn run_job(
+    root: &FsPath,
+    src: &JobSource<'_>,
+    name: &str,
+    id: &str,
     opts: &BakeOptions,
+    baker: &PointBaker,
     job: &Job,
 ) -> Result<(), String> {
     let load = LoadOptions {
-        encoding,
-        overrides: Overrides { cell_size, ..Overrides::default() },
+        encoding: src.encoding,
+        overrides: Overrides { cell_size: src.cell_size, ..Overrides::default() },
         ..LoadOptions::default()
     };
-    let raster = crate::raster::load(upload, &load).map_err(|e| e.to_string())?;
+    let raster = crate::raster::load(src.upload, &load).map_err(|e| e.to_string())?;
     let staging: PathBuf = root.join(format!(".job-{id}"));
-    let r = crate::bake::bake(&raster, name, opts, &Store::new(&staging), job).map_err(|e| e.to_string());
+    let r = crate::bake::bake_with(&raster, name, opts, baker, &Store::new(&staging), job)
+        .map(|_| ())
+        .map_err(|e| e.to_string());
     if let Err(e) = r {
         let _ = std::fs::remove_dir_all(&staging);
         return Err(e);

@@ -14,6 +14,7 @@ use tokio::sync::watch;
 use super::metrics::Metrics;
 use super::problem::Problem;
 use super::registry::Tileset;
+use crate::bake::PointBaker;
 use crate::tiling::TileKey;
 
 /// `None` while baking; then the bake's outcome.
@@ -38,15 +39,15 @@ pub struct Bakery {
 
 impl Bakery {
     /// Starts `workers` threads fed by a queue of `queue` jobs.
-    pub fn start(workers: usize, queue: usize, metrics: Arc<Metrics>) -> Self {
+    pub fn start(workers: usize, queue: usize, metrics: Arc<Metrics>, baker: &Arc<PointBaker>) -> Self {
         let (tx, rx) = std::sync::mpsc::sync_channel::<Job>(queue);
         let rx = Arc::new(Mutex::new(rx));
         let flights: Arc<Flights> = Arc::default();
         for i in 0..workers {
-            let (rx, flights, metrics) = (rx.clone(), flights.clone(), metrics.clone());
+            let (rx, flights, metrics, baker) = (rx.clone(), flights.clone(), metrics.clone(), baker.clone());
             let spawned = std::thread::Builder::new()
                 .name(format!("bake-{i}"))
-                .spawn(move || worker(&rx, &flights, &metrics));
+                .spawn(move || worker(&rx, &flights, &metrics, &baker));
             if let Err(e) = spawned {
                 tracing::error!(error = %e, "cannot start a bake worker");
             }
@@ -110,7 +111,7 @@ impl Bakery {
     }
 }
 
-fn worker(rx: &Mutex<Receiver<Job>>, flights: &Flights, metrics: &Metrics) {
+fn worker(rx: &Mutex<Receiver<Job>>, flights: &Flights, metrics: &Metrics, baker: &PointBaker) {
     loop {
         let job = {
             let Ok(rx) = rx.lock() else { return };
@@ -124,7 +125,7 @@ fn worker(rx: &Mutex<Receiver<Job>>, flights: &Flights, metrics: &Metrics) {
         let Job { ts, key, done } = job;
         let result = match &ts.source {
             Some(src) => std::panic::catch_unwind(AssertUnwindSafe(|| {
-                crate::bake::bake_one_node(&src.raster, key, &src.opts, &ts.store)
+                crate::bake::bake_one_node(&src.raster, key, &src.opts, baker, &ts.store)
             }))
             .map_err(|_| "the bake panicked".to_owned())
             .and_then(|r| r.map(|_| ()).map_err(|e| e.to_string())),

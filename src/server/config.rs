@@ -9,6 +9,7 @@ use std::time::Duration;
 use serde::Deserialize;
 
 use super::ServerError;
+use crate::bake::{DEFAULT_GPU_BUDGET_MIB, GpuMode};
 
 /// Address `serve` listens on.
 pub const DEFAULT_BIND: &str = "127.0.0.1:8080";
@@ -113,6 +114,10 @@ pub struct PartialConfig {
     pub admin_token: Option<String>,
     pub read_token: Option<String>,
     pub log_format: Option<LogFormat>,
+    /// Where on-demand and admin bakes compute point levels: auto, on or off.
+    pub gpu: Option<GpuMode>,
+    /// GPU memory budget of one batch of point levels, MiB.
+    pub gpu_budget_mib: Option<u64>,
 }
 
 impl PartialConfig {
@@ -143,6 +148,8 @@ impl PartialConfig {
             admin_token: self.admin_token.or(lower.admin_token),
             read_token: self.read_token.or(lower.read_token),
             log_format: self.log_format.or(lower.log_format),
+            gpu: self.gpu.or(lower.gpu),
+            gpu_budget_mib: self.gpu_budget_mib.or(lower.gpu_budget_mib),
         }
     }
 
@@ -195,6 +202,11 @@ impl PartialConfig {
             admin_token: self.admin_token,
             read_token: self.read_token,
             log_format: self.log_format.unwrap_or_default(),
+            gpu: self.gpu.unwrap_or_default(),
+            gpu_budget_mib: match self.gpu_budget_mib.unwrap_or(DEFAULT_GPU_BUDGET_MIB) {
+                0 => return bad("--gpu-budget-mib must be at least 1".into()),
+                n => n,
+            },
         })
     }
 }
@@ -218,6 +230,8 @@ pub struct Config {
     pub admin_token: Option<String>,
     pub read_token: Option<String>,
     pub log_format: LogFormat,
+    pub gpu: GpuMode,
+    pub gpu_budget_mib: u64,
 }
 
 impl Config {
@@ -244,6 +258,10 @@ mod tests {
         assert_eq!(c.bake_workers, 3);
         assert_eq!(c.log_format, LogFormat::Json);
         assert_eq!(c.bake_queue, DEFAULT_BAKE_QUEUE);
+        assert_eq!(c.gpu, GpuMode::Auto);
+        let g: PartialConfig = toml::from_str("gpu = \"off\"\ngpu_budget_mib = 64").unwrap();
+        assert_eq!((g.gpu, g.gpu_budget_mib), (Some(GpuMode::Off), Some(64)));
+        assert!(toml::from_str::<PartialConfig>("gpu = \"maybe\"").is_err());
         assert!(toml::from_str::<PartialConfig>("nope = 1").is_err());
     }
 

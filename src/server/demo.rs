@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::bake::{BakeOptions, Progress};
+use crate::bake::{BakeOptions, PointBaker, Progress};
 use crate::store::Store;
 
 /// Samples per side of the demo terrain.
@@ -20,8 +20,12 @@ pub const DEMO_OPTIONS: BakeOptions = BakeOptions { tile_size: 256, max_error: 2
 
 /// Generates the demo raster into `work` and bakes it into `store/demo` unless a complete bake
 /// is there already (an interrupted one resumes). Returns the store directory to serve and
-/// whether a bake ran.
-pub fn prepare(work: &Path, progress: &dyn Progress) -> Result<(PathBuf, bool), crate::Error> {
+/// whether a bake ran. `baker` computes the point levels.
+pub fn prepare(
+    work: &Path,
+    baker: &PointBaker,
+    progress: &dyn Progress,
+) -> Result<(PathBuf, bool), crate::Error> {
     let store_dir = work.join("demo-store");
     let store = Store::new(&store_dir.join(DEMO_TILESET));
     if store.manifest().is_ok() {
@@ -44,6 +48,6 @@ pub fn prepare(work: &Path, progress: &dyn Progress) -> Result<(PathBuf, bool), 
     })?;
     crate::store::write_atomic(&tif, &bytes)?;
     let raster = crate::raster::load(&tif, &crate::raster::LoadOptions::default())?;
-    crate::bake::bake(&raster, "demo-terrain.tif", &DEMO_OPTIONS, &store, progress)?;
+    crate::bake::bake_with(&raster, "demo-terrain.tif", &DEMO_OPTIONS, baker, &store, progress)?;
     Ok((store_dir, true))
 }

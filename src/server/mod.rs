@@ -34,7 +34,7 @@ pub use config::{
 };
 pub use metrics::Metrics;
 
-use crate::bake::BakeOptions;
+use crate::bake::{BakeOptions, PointBaker};
 use crate::raster::{Encoding, LoadOptions, Overrides};
 use crate::store::Store;
 use crate::tiling::Pyramid;
@@ -72,6 +72,8 @@ pub struct App {
     in_flight: AtomicUsize,
     rate: http::RateLimiter,
     ready: AtomicBool,
+    /// Computes point levels for on-demand and admin bakes (opened once at startup).
+    baker: Arc<PointBaker>,
 }
 
 impl App {
@@ -84,6 +86,12 @@ impl App {
                 tracing::error!(error = %e, "store scan failed");
             }
         }
+    }
+
+    /// What bakes point levels in this server: "cpu" or "gpu: <adapter>".
+    #[must_use]
+    pub fn point_baker(&self) -> String {
+        self.baker.describe()
     }
 
     /// Names of the tilesets being served.
@@ -157,11 +165,30 @@ impl Server {
                 .map_err(|e| ServerError::Config(format!("--source {}: {e}", spec.name)))??;
             on_demand.insert(spec.name.clone(), od);
         }
+        let (mode, budget) = (config.gpu, config.gpu_budget_mib.saturating_mul(1 << 20));
+        // A server with no source and no admin API never bakes: no adapter is opened for it.
+        let bakes = !config.sources.is_empty() || config.admin_token.is_some();
+        let mode = if bakes { mode } else { crate::bake::GpuMode::Off };
+        let (baker, notice) = tokio::task::spawn_blocking(move || PointBaker::open(mode, budget))
+            .await
+            .map_err(|e| ServerError::Config(format!("--gpu: {e}")))?
+            .map_err(|e| ServerError::Config(format!("--gpu: {e}")))?;
+        if let Some(n) = notice {
+            tracing::warn!("{n}");
+        }
+        tracing::info!(point_baker = %baker.describe(), "point levels will be baked here");
+        let baker = Arc::new(baker);
         let metrics = Arc::new(Metrics::default());
         let app = Arc::new(App {
             registry: registry::Registry::new(&config.store, on_demand),
             cache: cache::BlobCache::new(config.cache_bytes),
-            bakery: bakery::Bakery::start(config.bake_workers, config.bake_queue, metrics.clone()),
+            bakery: bakery::Bakery::start(
+                config.bake_workers,
+                config.bake_queue,
+                metrics.clone(),
+                &baker,
+            ),
+            baker,
             jobs: admin::Jobs::default(),
             in_flight: AtomicUsize::new(0),
             rate: http::RateLimiter::new(config.rate_limit),

@@ -129,6 +129,8 @@ fn load_provisional(name: &str, dir: &Path, source: Arc<Source>, options: &serde
         levels: crate::bake::level_specs(&source.opts),
         totals: Vec::new(),
         options: options.clone(),
+        // Filled in by the bake that completes the tileset.
+        point_baker: String::new(),
     };
     let mut value = serde_json::to_value(&manifest).unwrap_or_default();
     if let Some(o) = value.as_object_mut() {
