@@ -143,6 +143,29 @@ impl PointBaker {
         }
     }
 
+    /// Point clouds of one mesh on several cubic grids (origin, cell edge), with what each bake
+    /// did: the model bake's levels. The GPU takes them all in one submission (split only by
+    /// the batch budget); the CPU bakes them in parallel.
+    pub fn bake_grids(
+        &self,
+        mesh: &crate::geom::Mesh,
+        grids: &[([f64; 3], f64)],
+    ) -> Result<Vec<(PointCloud, lod::cpu::BakeStats)>, BakeError> {
+        match self {
+            Self::Cpu => Ok(grids
+                .par_iter()
+                .map(|&(origin, cell)| lod::cpu::bake_points_with_stats(mesh, origin, cell))
+                .collect()),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(gpu) => {
+                let jobs: Vec<lod::gpu::LevelJob<'_>> =
+                    grids.iter().map(|&(origin, cell)| lod::gpu::LevelJob { mesh, origin, cell }).collect();
+                let (results, _) = gpu.bake_jobs(&jobs, &lod::cpu::BakeOptions::default())?;
+                Ok(results.into_iter().map(|(cells, stats)| (cells_to_cloud(&cells), stats)).collect())
+            }
+        }
+    }
+
     /// "cpu" or "gpu: <adapter>", as in the summary and the manifest.
     #[must_use]
     pub fn describe(&self) -> String {

@@ -49,8 +49,9 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::bake::PointBaker;
 use crate::codec::{self, Quantization};
-use crate::geom::{Bounds, Errors, Mesh, PointCloud};
+use crate::geom::{Bounds, Errors, Mesh};
 use crate::lod;
 use crate::mesh::{self, FileType, MeshError, Model, ModelStats};
 use crate::raster::Georef;
@@ -83,6 +84,8 @@ pub enum ModelBakeError {
     Codec { file: String, level: u8, source: codec::CodecError },
     #[error(transparent)]
     Store(#[from] StoreError),
+    #[error("bake-model: {file}: {source}")]
+    Points { file: String, source: crate::bake::BakeError },
 }
 
 /// Options of a model bake: the resolution T of each point level, finest first.
@@ -211,14 +214,8 @@ pub struct ModelBakeSummary {
     /// Everything, writing included.
     pub seconds: f64,
     pub resumed: bool,
-}
-
-/// Bakes one point level: the single entry point of the point bake, so another backend (the
-/// GPU) can be routed in here. Returns the cloud and (cells hit, cells filled).
-#[must_use]
-pub fn bake_level_points(mesh: &Mesh, grid_origin: [f64; 3], cell: f64) -> (PointCloud, (u64, u64)) {
-    let (pc, stats) = lod::cpu::bake_points_with_stats(mesh, grid_origin, cell);
-    (pc, (stats.occupied as u64, stats.filled as u64))
+    /// What baked the point levels: "cpu" or "gpu: <adapter>".
+    pub point_baker: String,
 }
 
 /// A baked level in memory, encoded.
@@ -233,6 +230,7 @@ struct BakedLevel {
 pub fn bake_model_file(
     path: &Path,
     opts: &ModelBakeOptions,
+    baker: &PointBaker,
     store: &Store,
 ) -> Result<ModelBakeSummary, ModelBakeError> {
     check_options(opts)?;
@@ -253,7 +251,7 @@ pub fn bake_model_file(
     let source =
         SourceFile { name, bytes: bytes.len() as u64, crc32: format!("{:08x}", crc32fast::hash(&bytes)) };
     drop(bytes);
-    let mut summary = bake_model(&model, &source, opts, store)?;
+    let mut summary = bake_model(&model, &source, opts, baker, store)?;
     summary.read_seconds = read_seconds;
     summary.seconds = t0.elapsed().as_secs_f64();
     Ok(summary)
@@ -274,6 +272,7 @@ pub fn bake_model(
     model: &Model,
     source: &SourceFile,
     opts: &ModelBakeOptions,
+    baker: &PointBaker,
     store: &Store,
 ) -> Result<ModelBakeSummary, ModelBakeError> {
     check_options(opts)?;
@@ -325,16 +324,22 @@ pub fn bake_model(
         blob: blob0,
     };
 
-    // Point levels, in parallel; each is deterministic on its own.
+    // Point levels: all baked by `baker` at once, then measured and encoded in parallel; each is
+    // deterministic on its own.
     let origin = raw.min;
-    let points: Vec<BakedLevel> = opts
-        .resolutions
-        .par_iter()
+    let grids: Vec<([f64; 3], f64)> =
+        opts.resolutions.iter().map(|&t| (origin, longest / f64::from(t))).collect();
+    let clouds = baker
+        .bake_grids(mesh, &grids)
+        .map_err(|e| ModelBakeError::Points { file: source.name.clone(), source: e })?;
+    let points: Vec<BakedLevel> = clouds
+        .into_par_iter()
+        .zip(opts.resolutions.par_iter())
         .enumerate()
-        .map(|(i, &t)| {
+        .map(|(i, ((mut pc, stats), &t))| {
             let level = i as u8 + 1;
             let cell = longest / f64::from(t);
-            let (mut pc, (occupied, filled)) = bake_level_points(mesh, origin, cell);
+            let (occupied, filled) = (stats.occupied as u64, stats.filled as u64);
             let step = cell / f64::from(POINT_STEPS_PER_CELL);
             let q = Quantization { xy_step: step, z_step: step };
             // The points lie in the surface's box; the clamp only guards float rounding.
@@ -437,7 +442,7 @@ pub fn bake_model(
             levels: specs,
             totals,
             options: options_json,
-            point_baker: "cpu".into(),
+            point_baker: baker.describe(),
         },
         model: ModelInfo {
             file: source.name.clone(),
@@ -466,6 +471,7 @@ pub fn bake_model(
         bake_seconds,
         seconds: t0.elapsed().as_secs_f64(),
         resumed,
+        point_baker: baker.describe(),
     })
 }
 
@@ -526,7 +532,7 @@ mod tests {
         let model = mesh::parse(TET.as_bytes(), "tet.obj", None).unwrap();
         let src = SourceFile { name: "tet.obj".into(), bytes: TET.len() as u64, crc32: "0".into() };
         let opts = ModelBakeOptions { resolutions: vec![32, 16, 8], file_type: None };
-        let s = bake_model(&model, &src, &opts, &store).unwrap();
+        let s = bake_model(&model, &src, &opts, &PointBaker::Cpu, &store).unwrap();
         assert_eq!(s.levels.len(), 4);
         assert_eq!((s.levels[0].count, s.levels[0].triangles), (4, 4));
         // Unit coordinates sit on the quantization grid exactly.
@@ -562,8 +568,14 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let store = Store::new(dir.path());
         let src = SourceFile { name: "tri.obj".into(), bytes: 0, crc32: "0".into() };
-        let s = bake_model(&model, &src, &ModelBakeOptions { resolutions: vec![8], file_type: None }, &store)
-            .unwrap();
+        let s = bake_model(
+            &model,
+            &src,
+            &ModelBakeOptions { resolutions: vec![8], file_type: None },
+            &PointBaker::Cpu,
+            &store,
+        )
+        .unwrap();
         let e = s.levels[0].errors;
         let step = s.levels[0].quant_step;
         assert!(e.max > 0.0 && e.max <= step * 3f64.sqrt() / 2.0, "{e:?} step {step}");

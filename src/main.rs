@@ -287,6 +287,13 @@ struct BakeModelArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+    /// Where point levels are baked: auto (any GPU adapter, software ones included, else the
+    /// CPU with a notice), on (a GPU adapter or an error), off (CPU).
+    #[arg(long, value_enum, default_value_t = GpuArg::Auto)]
+    gpu: GpuArg,
+    /// GPU memory budget of one batch of point levels, in MiB.
+    #[arg(long, default_value_t = bake::DEFAULT_GPU_BUDGET_MIB)]
+    gpu_budget_mib: u64,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -541,7 +548,11 @@ fn run_bake_model(a: &BakeModelArgs) -> Result<()> {
             ModelFormatArg::Ply => FileType::Ply,
         }),
     };
-    let s = bake_model::bake_model_file(&a.model, &opts, &Store::new(&a.out))?;
+    let (baker, notice) = bake::PointBaker::open(gpu_mode(a.gpu), a.gpu_budget_mib.saturating_mul(1 << 20))?;
+    if let Some(n) = notice {
+        eprintln!("{n}");
+    }
+    let s = bake_model::bake_model_file(&a.model, &opts, &baker, &Store::new(&a.out))?;
     let st = &s.stats;
     println!(
         "{} ({}): {} faces → {} triangles read, {} degenerate skipped; {} vertices read, {} unreferenced \
@@ -566,6 +577,7 @@ fn run_bake_model(a: &BakeModelArgs) -> Result<()> {
         s.bounds.min,
         s.bounds.max
     );
+    println!("point levels baked by {}", s.point_baker);
     print_model_levels(&s.levels);
     Ok(())
 }

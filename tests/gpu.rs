@@ -358,3 +358,42 @@ fn point_baker_is_send_and_sync() {
     check::<bake::PointBaker>();
     check::<GpuBaker>();
 }
+
+fn bake_bunny(out: &Path, gpu: &str) -> String {
+    let o = bin()
+        .args(["bake-model", "--gpu", gpu, "--out"])
+        .arg(out)
+        .arg(raster::test_data_dir().join("stanford-bunny.obj"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "bake-model --gpu {gpu} failed: {}", String::from_utf8_lossy(&o.stderr));
+    String::from_utf8(o.stdout).unwrap()
+}
+
+/// `bake-model --gpu on` bakes the bunny's point levels on the adapter: twice byte-identical,
+/// the adapter named in the summary and manifest, and each level's count and measured errors
+/// within the agreement bounds of the CPU bake (`--gpu off`).
+#[test]
+fn bake_model_on_the_gpu_matches_the_cpu() {
+    if baker().is_none() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b, c) = (tmp.path().join("a"), tmp.path().join("b"), tmp.path().join("c"));
+    let summary = bake_bunny(&a, "on");
+    bake_bunny(&b, "on");
+    assert_eq!(tree(&a), tree(&b));
+    assert!(summary.contains("point levels baked by gpu: "), "{summary}");
+    bake_bunny(&c, "off");
+    let g = terrastream::bake_model::read_manifest(&terrastream::store::Store::new(&a)).unwrap();
+    let cpu = terrastream::bake_model::read_manifest(&terrastream::store::Store::new(&c)).unwrap();
+    assert!(g.tileset.point_baker.starts_with("gpu: "), "{}", g.tileset.point_baker);
+    assert_eq!(cpu.tileset.point_baker, "cpu");
+    assert_eq!(g.model.levels.len(), cpu.model.levels.len());
+    for (lg, lc) in g.model.levels.iter().zip(&cpu.model.levels).skip(1) {
+        let (ng, nc) = (f64::from(lg.count), f64::from(lc.count));
+        assert!((ng - nc).abs() <= 0.005 * nc, "level {}: {ng} points on the GPU, {nc} on the CPU", lg.level);
+        assert!(close(lg.errors.max, lc.errors.max), "level {}: {:?} vs {:?}", lg.level, lg.errors, lc.errors);
+        assert!(close(lg.errors.rms, lc.errors.rms), "level {}: {:?} vs {:?}", lg.level, lg.errors, lc.errors);
+    }
+}

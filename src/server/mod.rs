@@ -182,12 +182,7 @@ impl Server {
         let app = Arc::new(App {
             registry: registry::Registry::new(&config.store, on_demand),
             cache: cache::BlobCache::new(config.cache_bytes),
-            bakery: bakery::Bakery::start(
-                config.bake_workers,
-                config.bake_queue,
-                metrics.clone(),
-                &baker,
-            ),
+            bakery: bakery::Bakery::start(config.bake_workers, config.bake_queue, metrics.clone(), &baker),
             baker,
             jobs: admin::Jobs::default(),
             in_flight: AtomicUsize::new(0),
