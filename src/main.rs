@@ -68,6 +68,7 @@ enum Command {
     /// Generate, bake (once) and serve a sample terrain: the quick start.
     #[cfg(feature = "server")]
     Demo {
+        /// Address to serve on.
         #[arg(long, default_value = server::DEFAULT_BIND)]
         bind: String,
         /// Working directory: the generated terrain and the store (out/demo-store) go here.

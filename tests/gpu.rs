@@ -393,7 +393,19 @@ fn bake_model_on_the_gpu_matches_the_cpu() {
     for (lg, lc) in g.model.levels.iter().zip(&cpu.model.levels).skip(1) {
         let (ng, nc) = (f64::from(lg.count), f64::from(lc.count));
         assert!((ng - nc).abs() <= 0.005 * nc, "level {}: {ng} points on the GPU, {nc} on the CPU", lg.level);
-        assert!(close(lg.errors.max, lc.errors.max), "level {}: {:?} vs {:?}", lg.level, lg.errors, lc.errors);
-        assert!(close(lg.errors.rms, lc.errors.rms), "level {}: {:?} vs {:?}", lg.level, lg.errors, lc.errors);
+        assert!(
+            close(lg.errors.max, lc.errors.max),
+            "level {}: {:?} vs {:?}",
+            lg.level,
+            lg.errors,
+            lc.errors
+        );
+        assert!(
+            close(lg.errors.rms, lc.errors.rms),
+            "level {}: {:?} vs {:?}",
+            lg.level,
+            lg.errors,
+            lc.errors
+        );
     }
 }
