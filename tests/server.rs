@@ -1,0 +1,780 @@
+//! The HTTP server end to end on `127.0.0.1:0`: caching semantics (ETag/304, Range, HEAD, CORS),
+//! every error status as problem+json, auth, path traversal, random paths and headers, on-demand
+//! single flight, the bounded bake queue, store polling, the admin API, graceful shutdown, and a
+//! blob corrupted on disk. Requests are written by hand over TCP so that paths reach the server
+//! exactly as given (no client-side normalisation of `..` or `%2F`).
+
+// Helpers outside `#[test]` functions unwrap too: a failure there is a test failure.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::float_cmp, clippy::panic)]
+#![allow(clippy::large_futures, clippy::duration_suboptimal_units, clippy::format_push_string)]
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+
+use terrastream::bake::{BakeOptions, NoProgress};
+use terrastream::raster::{self, LoadOptions};
+use terrastream::server::{PartialConfig, Server};
+use terrastream::store::Store;
+
+/// The small test raster: 4×3 leaves of 64 cells (depth 2), so row 3 at z = 2 is in the
+/// quadtree but outside the data.
+const WIDTH: u32 = 257;
+const HEIGHT: u32 = 193;
+const OPTS: BakeOptions = BakeOptions { tile_size: 64, max_error: 2.0, levels: 2 };
+
+#[derive(Debug)]
+struct Resp {
+    status: u16,
+    headers: Vec<(String, String)>,
+    body: Vec<u8>,
+}
+
+impl Resp {
+    fn header(&self, name: &str) -> Option<&str> {
+        self.headers.iter().find(|(k, _)| k == name).map(|(_, v)| v.as_str())
+    }
+    fn json(&self) -> serde_json::Value {
+        serde_json::from_slice(&self.body).unwrap_or_else(|e| panic!("not JSON ({e}): {self:?}"))
+    }
+    /// An error answer must be problem+json naming its status.
+    fn assert_problem(&self, status: u16) {
+        assert_eq!(self.status, status, "{self:?} body {}", String::from_utf8_lossy(&self.body));
+        assert_eq!(self.header("content-type"), Some("application/problem+json"), "{self:?}");
+        let j = self.json();
+        assert_eq!(j["status"], status, "{j}");
+        assert!(j["detail"].as_str().is_some_and(|d| !d.is_empty()), "{j}");
+    }
+}
+
+fn dechunk(mut b: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    loop {
+        let Some(eol) = b.windows(2).position(|w| w == b"\r\n") else { return out };
+        let size = usize::from_str_radix(std::str::from_utf8(&b[..eol]).unwrap().trim(), 16).unwrap();
+        if size == 0 {
+            return out;
+        }
+        out.extend_from_slice(&b[eol + 2..eol + 2 + size]);
+        b = &b[eol + 2 + size + 2..];
+    }
+}
+
+/// One request on its own connection (`Connection: close`), answered within 60 s.
+async fn request(addr: SocketAddr, method: &str, path: &str, headers: &[(&str, &str)], body: &[u8]) -> Resp {
+    tokio::time::timeout(Duration::from_secs(60), async {
+        let mut s = TcpStream::connect(addr).await.unwrap();
+        let mut req = format!("{method} {path} HTTP/1.1\r\nHost: test\r\nConnection: close\r\n");
+        for (k, v) in headers {
+            req.push_str(&format!("{k}: {v}\r\n"));
+        }
+        if !body.is_empty() && !headers.iter().any(|(k, _)| k.eq_ignore_ascii_case("transfer-encoding")) {
+            req.push_str(&format!("Content-Length: {}\r\n", body.len()));
+        }
+        req.push_str("\r\n");
+        s.write_all(req.as_bytes()).await.unwrap();
+        // The server may answer (413, 409) and close before reading a body: keep what it said.
+        let _ = s.write_all(body).await;
+        let mut raw = Vec::new();
+        let mut buf = vec![0u8; 65536];
+        loop {
+            match s.read(&mut buf).await {
+                Ok(0) | Err(_) => break,
+                Ok(n) => raw.extend_from_slice(&buf[..n]),
+            }
+        }
+        let split =
+            raw.windows(4).position(|w| w == b"\r\n\r\n").unwrap_or_else(|| panic!("no response to {path}"));
+        let head = String::from_utf8_lossy(&raw[..split]).into_owned();
+        let mut lines = head.split("\r\n");
+        let status = lines.next().unwrap().split(' ').nth(1).unwrap().parse().unwrap();
+        let headers: Vec<(String, String)> = lines
+            .filter_map(|l| l.split_once(':'))
+            .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_owned()))
+            .collect();
+        let rest = &raw[split + 4..];
+        let chunked = headers.iter().any(|(k, v)| k == "transfer-encoding" && v.contains("chunked"));
+        let body = if chunked { dechunk(rest) } else { rest.to_vec() };
+        Resp { status, headers, body }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("{method} {path}: no answer within 60 s"))
+}
+
+async fn get(addr: SocketAddr, path: &str) -> Resp {
+    request(addr, "GET", path, &[], &[]).await
+}
+
+/// Writes the deterministic synthetic raster as a GeoTIFF (10 m cells).
+fn write_raster(path: &Path, (w, h): (u32, u32), seed: u64) {
+    let heights = terrastream::synth::terrain(w, h, seed);
+    let bytes = raster::geotiff::encode_f32(w, h, &heights, (0.0, 0.0), (10.0, -10.0)).unwrap();
+    std::fs::write(path, bytes).unwrap();
+}
+
+/// Bakes the test raster into `store/name`.
+fn bake_into(store: &Path, name: &str, raster_path: &Path) {
+    let r = raster::load(raster_path, &LoadOptions::default()).unwrap();
+    terrastream::bake::bake(&r, "t.tif", &OPTS, &Store::new(&store.join(name)), &NoProgress).unwrap();
+}
+
+struct Running {
+    addr: SocketAddr,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    task: tokio::task::JoinHandle<Result<(), terrastream::server::ServerError>>,
+}
+
+impl Running {
+    async fn start(config: PartialConfig) -> Self {
+        let config = PartialConfig { bind: Some("127.0.0.1:0".into()), ..config }.resolve().unwrap();
+        let server = Server::bind(config).await.unwrap();
+        let addr = server.local_addr().unwrap();
+        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+        let task = tokio::spawn(server.run(async move {
+            let _ = rx.await;
+        }));
+        Self { addr, stop: Some(tx), task }
+    }
+
+    async fn stop(mut self) {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+        tokio::time::timeout(Duration::from_secs(30), self.task).await.unwrap().unwrap().unwrap();
+    }
+}
+
+/// A store with one baked tileset `t`; also returns the raster's path (for `--source`).
+fn baked_store() -> (tempfile::TempDir, PathBuf, PathBuf) {
+    let tmp = tempfile::tempdir().unwrap();
+    let store = tmp.path().join("store");
+    std::fs::create_dir_all(&store).unwrap();
+    let tif = tmp.path().join("t.tif");
+    write_raster(&tif, (WIDTH, HEIGHT), 7);
+    bake_into(&store, "t", &tif);
+    (tmp, store, tif)
+}
+
+fn store_config(store: &Path) -> PartialConfig {
+    PartialConfig { store: Some(store.to_owned()), poll_ms: Some(100), ..PartialConfig::default() }
+}
+
+fn metric(text: &str, name: &str) -> f64 {
+    text.lines()
+        .find_map(|l| l.strip_prefix(name).and_then(|r| r.strip_prefix(' ')))
+        .unwrap_or_else(|| panic!("no metric {name} in\n{text}"))
+        .parse()
+        .unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn caching_semantics() {
+    let (_tmp, store, _) = baked_store();
+    let srv = Running::start(store_config(&store)).await;
+    let a = srv.addr;
+
+    let list = get(a, "/tilesets").await;
+    assert_eq!(list.status, 200);
+    let ts = &list.json()["tilesets"][0];
+    assert_eq!(ts["name"], "t");
+    let version = ts["content_version"].as_str().unwrap().to_owned();
+
+    // Manifest: short max-age, revalidated by ETag.
+    let m = get(a, "/tilesets/t/tileset.json").await;
+    assert_eq!(m.status, 200);
+    assert!(m.header("cache-control").unwrap().contains("max-age=10"), "{m:?}");
+    assert_eq!(m.json()["content_version"], version.as_str());
+    let etag = m.header("etag").unwrap().to_owned();
+    let m304 = request(a, "GET", "/tilesets/t/tileset.json", &[("If-None-Match", &etag)], &[]).await;
+    assert_eq!(m304.status, 304);
+    assert!(m304.body.is_empty());
+
+    // Index chunk.
+    let idx = get(a, &format!("/tilesets/t/index/0/0/0.json?v={version}")).await;
+    assert_eq!(idx.status, 200);
+    assert!(!idx.json()["nodes"].as_array().unwrap().is_empty());
+
+    // Blob: the stored bytes, strong content ETag, revalidated without the version …
+    let on_disk =
+        std::fs::read(Store::new(&store.join("t")).blob_path(terrastream::tiling::TileKey::new(1, 1, 0), 1))
+            .unwrap();
+    let b = get(a, "/tilesets/t/tiles/1/1/0/1").await;
+    assert_eq!(b.status, 200);
+    assert_eq!(b.body, on_disk);
+    assert_eq!(b.header("content-length").unwrap(), on_disk.len().to_string());
+    assert_eq!(b.header("accept-ranges"), Some("bytes"));
+    let etag = b.header("etag").unwrap().to_owned();
+    assert!(etag.starts_with('"') && !etag.starts_with("W/"), "strong ETag: {etag}");
+    assert!(b.header("cache-control").unwrap().contains("must-revalidate"));
+    // … immutable with the current content version, revalidated with a stale one.
+    let bv = get(a, &format!("/tilesets/t/tiles/1/1/0/1?v={version}")).await;
+    assert_eq!(bv.header("cache-control"), Some("public, max-age=31536000, immutable"));
+    assert_eq!(bv.header("etag"), Some(etag.as_str()));
+    let stale = get(a, "/tilesets/t/tiles/1/1/0/1?v=00000000").await;
+    assert!(stale.header("cache-control").unwrap().contains("must-revalidate"));
+    // The ETag derives from the content: another blob has another one.
+    let other = get(a, "/tilesets/t/tiles/1/0/0/1").await;
+    assert_ne!(other.header("etag"), Some(etag.as_str()));
+
+    // If-None-Match → 304 (also in a list, and weak-compared).
+    for inm in [etag.clone(), format!("\"nope\", {etag}"), format!("W/{etag}"), "*".into()] {
+        let r = request(a, "GET", "/tilesets/t/tiles/1/1/0/1", &[("If-None-Match", &inm)], &[]).await;
+        assert_eq!(r.status, 304, "{inm}");
+        assert_eq!(r.header("etag"), Some(etag.as_str()));
+        assert!(r.body.is_empty());
+    }
+    let r = request(a, "GET", "/tilesets/t/tiles/1/1/0/1", &[("If-None-Match", "\"other\"")], &[]).await;
+    assert_eq!(r.status, 200);
+
+    // Range: 206 with Content-Range, suffix ranges, 416 beyond the end, If-Range.
+    let len = on_disk.len();
+    let r = request(a, "GET", "/tilesets/t/tiles/1/1/0/1", &[("Range", "bytes=0-9")], &[]).await;
+    assert_eq!(r.status, 206);
+    assert_eq!(r.body, &on_disk[..10]);
+    assert_eq!(r.header("content-range").unwrap(), format!("bytes 0-9/{len}"));
+    assert_eq!(r.header("content-length"), Some("10"));
+    let r = request(a, "GET", "/tilesets/t/tiles/1/1/0/1", &[("Range", "bytes=-5")], &[]).await;
+    assert_eq!(r.status, 206);
+    assert_eq!(r.body, &on_disk[len - 5..]);
+    let r = request(a, "GET", "/tilesets/t/tiles/1/1/0/1", &[("Range", &format!("bytes={len}-"))], &[]).await;
+    r.assert_problem(416);
+    assert_eq!(r.header("content-range").unwrap(), format!("bytes */{len}"));
+    let r = request(
+        a,
+        "GET",
+        "/tilesets/t/tiles/1/1/0/1",
+        &[("Range", "bytes=0-9"), ("If-Range", "\"old\"")],
+        &[],
+    )
+    .await;
+    assert_eq!(r.status, 200, "a stale If-Range gets the whole body");
+    assert_eq!(r.body.len(), len);
+
+    // HEAD: same headers, no body.
+    let h = request(a, "HEAD", "/tilesets/t/tiles/1/1/0/1", &[], &[]).await;
+    assert_eq!(h.status, 200);
+    assert_eq!(h.header("content-length").unwrap(), len.to_string());
+    assert_eq!(h.header("etag"), Some(etag.as_str()));
+    assert!(h.body.is_empty());
+
+    // CORS: simple requests and the preflight.
+    let c =
+        request(a, "GET", "/tilesets/t/tiles/1/1/0/1", &[("Origin", "https://viewer.example")], &[]).await;
+    assert_eq!(c.header("access-control-allow-origin"), Some("*"));
+    assert!(c.header("access-control-expose-headers").unwrap().to_ascii_lowercase().contains("etag"));
+    let p = request(
+        a,
+        "OPTIONS",
+        "/tilesets/t/tiles/1/1/0/1",
+        &[
+            ("Origin", "https://viewer.example"),
+            ("Access-Control-Request-Method", "GET"),
+            ("Access-Control-Request-Headers", "range, if-none-match"),
+        ],
+        &[],
+    )
+    .await;
+    assert!(p.status == 200 || p.status == 204, "{p:?}");
+    assert_eq!(p.header("access-control-allow-origin"), Some("*"));
+    assert!(p.header("access-control-allow-methods").unwrap().contains("GET"));
+    assert!(p.header("access-control-allow-headers").unwrap().to_ascii_lowercase().contains("range"));
+    assert!(p.header("vary").is_some_and(|v| v.to_ascii_lowercase().contains("origin")), "{p:?}");
+
+    // Probes, metrics, OpenAPI.
+    assert_eq!(get(a, "/healthz").await.status, 200);
+    let ready = get(a, "/readyz").await;
+    assert_eq!((ready.status, ready.json()["tilesets"].as_u64()), (200, Some(1)));
+    let api = get(a, "/openapi.json").await.json();
+    assert!(api["openapi"].as_str().unwrap().starts_with("3."));
+    assert!(api["paths"]["/tilesets/{name}/tiles/{z}/{x}/{y}/{level}"].is_object());
+    let text = String::from_utf8(get(a, "/metrics").await.body).unwrap();
+    assert!(text.contains("terrastream_http_requests_total{route=\"/tilesets/{name}/tiles/{z}/{x}/{y}/{level}\",status=\"304\"} 4"), "{text}");
+    assert!(
+        text.contains("terrastream_http_request_duration_seconds_bucket{route=\"/tilesets\",le=\"+Inf\"} 1")
+    );
+    assert!(metric(&text, "terrastream_cache_hits_total") >= 10.0);
+    assert!(metric(&text, "terrastream_http_response_bytes_total") > len as f64);
+    srv.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn every_error_status_is_a_problem() {
+    let (_tmp, store, _) = baked_store();
+    let cfg = PartialConfig {
+        admin_token: Some("admin-secret-1".into()),
+        max_body_bytes: Some(1000),
+        ..store_config(&store)
+    };
+    let srv = Running::start(cfg).await;
+    let a = srv.addr;
+    for path in [
+        "/tilesets/t/tiles/x/0/0/0",           // not a number
+        "/tilesets/t/tiles/-1/0/0/0",          // signed
+        "/tilesets/t/tiles/3/0/0/0",           // z beyond the depth (2)
+        "/tilesets/t/tiles/1/2/0/0",           // x beyond 2^z
+        "/tilesets/t/tiles/1/0/0/3",           // level beyond 0..=2
+        "/tilesets/t/tiles/1/0/0/99999999999", // level overflow
+        "/tilesets/T/tiles/0/0/0/0",           // invalid name
+        "/tilesets/t/index/1/0/0.json",        // not a chunk root
+        "/tilesets/t/index/0/0/0.txt",         // not Y.json
+    ] {
+        get(a, path).await.assert_problem(400);
+    }
+    let long = format!("/tilesets/{}/tileset.json", "a".repeat(65));
+    get(a, &long).await.assert_problem(400);
+    for path in [
+        "/tilesets/nope/tileset.json",
+        "/tilesets/nope/tiles/0/0/0/0",
+        "/nothing/here",
+        "/tilesets/t/tiles/0/0/0",
+        "/tilesets/t/tiles/2/0/3/0",
+    ] {
+        get(a, path).await.assert_problem(404);
+    }
+    // 405 with Allow.
+    let r = request(a, "PUT", "/tilesets/t/tiles/0/0/0/0", &[], &[]).await;
+    r.assert_problem(405);
+    assert!(r.header("allow").unwrap().contains("GET"));
+    // 413: an upload over --max-body-bytes, declared or streamed.
+    let auth = [("Authorization", "Bearer admin-secret-1")];
+    request(a, "POST", "/tilesets/big", &auth, &[0u8; 2000]).await.assert_problem(413);
+    let mut chunked = b"7d0\r\n".to_vec();
+    chunked.extend_from_slice(&[0u8; 2000]);
+    chunked.extend_from_slice(b"\r\n0\r\n\r\n");
+    let r = request(a, "POST", "/tilesets/big", &[auth[0], ("Transfer-Encoding", "chunked")], &chunked).await;
+    assert!(r.status == 413 || r.status == 400, "{r:?}");
+    assert!(!store.join("big").exists());
+    srv.stop().await;
+
+    // 429 from the per-client rate limit, with Retry-After.
+    let srv = Running::start(PartialConfig { rate_limit: Some(5), ..store_config(&store) }).await;
+    let mut statuses = Vec::new();
+    for _ in 0..30 {
+        statuses.push(get(srv.addr, "/tilesets/t/tiles/0/0/0/0").await);
+    }
+    let limited = statuses.iter().find(|r| r.status == 429).expect("some request is rate-limited");
+    limited.assert_problem(429);
+    assert!(limited.header("retry-after").unwrap().parse::<u32>().unwrap() >= 1);
+    assert_eq!(get(srv.addr, "/healthz").await.status, 200, "probes are never limited");
+    srv.stop().await;
+
+    // 503 from the in-flight limit, with Retry-After: one slow on-demand bake holds the only slot.
+    let tmp = tempfile::tempdir().unwrap();
+    let tif = tmp.path().join("big.tif");
+    write_raster(&tif, (1025, 1025), 3);
+    let store2 = tmp.path().join("store");
+    std::fs::create_dir_all(&store2).unwrap();
+    let src = format!("big={},tile_size=256,levels=1", tif.display());
+    let cfg = PartialConfig {
+        sources: vec![src.parse().unwrap()],
+        max_in_flight: Some(1),
+        ..store_config(&store2)
+    };
+    let srv = Running::start(cfg).await;
+    let slow = tokio::spawn(get(srv.addr, "/tilesets/big/tiles/0/0/0/0"));
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let r = get(srv.addr, "/tilesets/big/tileset.json").await;
+    r.assert_problem(503);
+    assert!(r.header("retry-after").is_some());
+    assert_eq!(slow.await.unwrap().status, 200);
+    srv.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn auth_admin_and_read_tokens() {
+    let (_tmp, store, tif) = baked_store();
+    let cfg = PartialConfig {
+        admin_token: Some("admin-secret-1".into()),
+        read_token: Some("read-secret-1".into()),
+        ..store_config(&store)
+    };
+    let srv = Running::start(cfg).await;
+    let a = srv.addr;
+    let read = [("Authorization", "Bearer read-secret-1")];
+    let admin = [("Authorization", "Bearer admin-secret-1")];
+
+    // Reading needs the read token: 401 without (with a challenge), 403 wrong.
+    let r = get(a, "/tilesets/t/tileset.json").await;
+    r.assert_problem(401);
+    assert!(r.header("www-authenticate").unwrap().starts_with("Bearer"));
+    request(a, "GET", "/tilesets/t/tileset.json", &[("Authorization", "Bearer nope-nope-nope")], &[])
+        .await
+        .assert_problem(403);
+    let ok = request(a, "GET", "/tilesets/t/tileset.json", &read, &[]).await;
+    assert_eq!(ok.status, 200);
+    assert!(ok.header("vary").unwrap().to_ascii_lowercase().contains("authorization"));
+    assert_eq!(get(a, "/healthz").await.status, 200, "probes stay public");
+
+    // Admin: 401 without, 403 with the read token, then upload → job → tileset → delete.
+    request(a, "DELETE", "/tilesets/t", &[], &[]).await.assert_problem(401);
+    request(a, "DELETE", "/tilesets/t", &read, &[]).await.assert_problem(403);
+    request(a, "GET", "/jobs/j1", &[], &[]).await.assert_problem(401);
+    let body = std::fs::read(&tif).unwrap();
+    let up = request(a, "POST", "/tilesets/up?tile_size=128&levels=1", &admin, &body).await;
+    assert_eq!(up.status, 202, "{}", String::from_utf8_lossy(&up.body));
+    let location = up.header("location").unwrap().to_owned();
+    let mut state = String::new();
+    for _ in 0..600 {
+        let j = request(a, "GET", &location, &admin, &[]).await.json();
+        state = j["state"].as_str().unwrap().to_owned();
+        if state == "done" || state == "failed" {
+            assert_eq!(j["nodes_done"], j["nodes_total"], "{j}");
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert_eq!(state, "done");
+    let m = request(a, "GET", "/tilesets/up/tileset.json", &read, &[]).await;
+    assert_eq!(m.status, 200);
+    assert_eq!(m.json()["tile_size"], 128);
+    // Uploading over an existing tileset is a conflict; a bad raster fails its job, not the server.
+    request(a, "POST", "/tilesets/up", &admin, b"small").await.assert_problem(409);
+    let bad = request(a, "POST", "/tilesets/junk", &admin, b"not a raster at all").await;
+    assert_eq!(bad.status, 202);
+    let loc = bad.header("location").unwrap().to_owned();
+    let mut j = serde_json::Value::Null;
+    for _ in 0..100 {
+        j = request(a, "GET", &loc, &admin, &[]).await.json();
+        if j["state"] == "failed" {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert_eq!(j["state"], "failed", "{j}");
+    assert!(!store.join("junk").exists());
+    request(a, "POST", "/tilesets/x?colour=red", &admin, &body).await.assert_problem(400);
+    // Delete.
+    assert_eq!(request(a, "DELETE", "/tilesets/up", &admin, &[]).await.status, 204);
+    request(a, "GET", "/tilesets/up/tileset.json", &read, &[]).await.assert_problem(404);
+    request(a, "DELETE", "/tilesets/up", &admin, &[]).await.assert_problem(404);
+    assert!(!store.join("up").exists());
+    srv.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn no_path_reaches_outside_the_store() {
+    let (tmp, store, _) = baked_store();
+    // A secret next to the store, and one inside a tileset-shaped directory outside it.
+    std::fs::write(tmp.path().join("secret.txt"), "TOP-SECRET").unwrap();
+    std::fs::write(store.join("t").join("secret.txt"), "TOP-SECRET").unwrap();
+    let srv = Running::start(store_config(&store)).await;
+    let a = srv.addr;
+    for path in [
+        "/tilesets/../secret.txt",
+        "/tilesets/%2e%2e/secret.txt",
+        "/tilesets/%2E%2E/tileset.json",
+        "/tilesets/..%2Fsecret.txt/tileset.json",
+        "/tilesets/..%2fstore%2ft/tileset.json",
+        "/tilesets/t/..%2F..%2Fsecret.txt",
+        "/tilesets/t/tiles/..%2F..%2F..%2Fsecret.txt/0/0/0",
+        "/tilesets/t/tiles/0/0/0/..%2F..%2F..%2F..%2Fsecret.txt",
+        "/tilesets/t/tiles/0/0/0/%2e%2e%2f%2e%2e%2fsecret.txt",
+        "/tilesets/t/index/0/0/..%2F..%2F..%2Fsecret.txt",
+        "/tilesets//t/tileset.json",
+        "/tilesets/t//tiles/0/0/0/0",
+        "/tilesets/%252e%252e/tileset.json",
+        "/tilesets/t/tiles/0/0/0/0%00",
+        "/tilesets/t%2F..%2F..%2Fsecret.txt",
+        "//etc/passwd",
+        "/tilesets/t/secret.txt",
+        "/tilesets/t/../t/secret.txt",
+        "/tilesets/.%2E/secret.txt",
+    ] {
+        let r = get(a, path).await;
+        assert!(
+            (400..500).contains(&r.status),
+            "{path}: status {} body {}",
+            r.status,
+            String::from_utf8_lossy(&r.body)
+        );
+        assert!(!String::from_utf8_lossy(&r.body).contains("TOP-SECRET"), "{path}");
+    }
+    srv.stop().await;
+}
+
+/// Random paths and header values never make the server answer 5xx or stop answering.
+#[test]
+fn random_paths_and_headers_never_fail_the_server() {
+    use proptest::prelude::*;
+    use proptest::test_runner::{Config, TestRunner};
+    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
+    let (_tmp, store, _) = baked_store();
+    let srv = rt.block_on(Running::start(store_config(&store)));
+    let a = srv.addr;
+    let segment = prop_oneof![
+        Just("tilesets".to_owned()),
+        Just("t".to_owned()),
+        Just("tiles".to_owned()),
+        Just("index".to_owned()),
+        Just("tileset.json".to_owned()),
+        Just("..".to_owned()),
+        Just("%2e%2e".to_owned()),
+        Just("%2F".to_owned()),
+        "[0-9]{1,25}",
+        "-?[0-9]{1,3}",
+        "[a-zA-Z0-9%._~!$&'()*+,;=:@-]{0,16}",
+    ];
+    let path = proptest::collection::vec(segment, 0..8).prop_map(|s| format!("/{}", s.join("/")));
+    let query = proptest::option::of("[a-zA-Z0-9=&%.-]{0,20}");
+    let header = proptest::option::of(prop_oneof![
+        "bytes=[0-9-]{0,12}(,[0-9-]{0,6})?",
+        "\"[0-9a-f]{0,16}\"",
+        "[ -~]{0,30}",
+    ]);
+    let method =
+        prop_oneof![Just("GET"), Just("HEAD"), Just("OPTIONS"), Just("DELETE"), Just("POST"), Just("PATCH")];
+    let mut runner = TestRunner::new(Config { cases: 300, ..Config::default() });
+    runner
+        .run(&(path, query, header.clone(), header, method), |(p, q, range, inm, method)| {
+            let target = match &q {
+                Some(q) => format!("{p}?{q}"),
+                None => p.clone(),
+            };
+            let mut hs: Vec<(&str, &str)> = Vec::new();
+            if let Some(r) = &range {
+                hs.push(("Range", r.trim()));
+            }
+            if let Some(v) = &inm {
+                hs.push(("If-None-Match", v.trim()));
+            }
+            let r = rt.block_on(request(a, method, &target, &hs, &[]));
+            prop_assert!(
+                r.status < 500,
+                "{method} {target} {hs:?} → {} {}",
+                r.status,
+                String::from_utf8_lossy(&r.body)
+            );
+            Ok(())
+        })
+        .unwrap();
+    let r = rt.block_on(get(a, "/tilesets/t/tiles/0/0/0/0"));
+    assert_eq!(r.status, 200, "still serving");
+    rt.block_on(srv.stop());
+}
+
+/// An on-demand store: `src/NAME` baked from a 1025² raster in 256-cell tiles on first request.
+fn on_demand_store(side: u32) -> (tempfile::TempDir, PathBuf, String) {
+    let tmp = tempfile::tempdir().unwrap();
+    let tif = tmp.path().join("src.tif");
+    write_raster(&tif, (side, side), 11);
+    let store = tmp.path().join("store");
+    std::fs::create_dir_all(&store).unwrap();
+    let spec = format!("od={},tile_size=256,max_error=2,levels=2", tif.display());
+    (tmp, store, spec)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn concurrent_requests_for_one_missing_tile_bake_it_once() {
+    let (_tmp, store, spec) = on_demand_store(1025);
+    let cfg = PartialConfig { sources: vec![spec.parse().unwrap()], ..store_config(&store) };
+    let srv = Running::start(cfg).await;
+    let a = srv.addr;
+    let m = get(a, "/tilesets/od/tileset.json").await.json();
+    assert_eq!(m["on_demand"], true);
+    assert!(!store.join("od/tiles/1/1/1").exists());
+    let mut tasks = Vec::new();
+    for i in 0..100 {
+        // Every level of the node: one bake serves them all.
+        tasks.push(tokio::spawn(get(a, ["/tilesets/od/tiles/1/1/1/0", "/tilesets/od/tiles/1/1/1/2"][i % 2])));
+    }
+    let mut bodies = [None, None];
+    for (i, t) in tasks.into_iter().enumerate() {
+        let r = t.await.unwrap();
+        assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+        let b = bodies[i % 2].get_or_insert_with(|| r.body.clone());
+        assert_eq!(b, &r.body);
+    }
+    let text = String::from_utf8(get(a, "/metrics").await.body).unwrap();
+    assert_eq!(metric(&text, "terrastream_bakes_done_total"), 1.0, "{text}");
+    assert_eq!(metric(&text, "terrastream_bakes_failed_total"), 0.0);
+    assert_eq!(metric(&text, "terrastream_bake_queue_depth"), 0.0);
+    // The blob on disk is what `bake` writes; the index now lists the node.
+    let on_disk = std::fs::read(store.join("od/tiles/1/1/1/0.tsb")).unwrap();
+    assert_eq!(bodies[0].as_ref().unwrap(), &on_disk);
+    let idx = get(a, "/tilesets/od/index/0/0/0.json").await;
+    assert_eq!(idx.header("cache-control"), Some("no-cache"));
+    let nodes = idx.json()["nodes"].as_array().unwrap().clone();
+    assert_eq!(nodes.len(), 1);
+    assert_eq!(nodes[0]["key"], serde_json::json!({"z": 1, "x": 1, "y": 1}));
+    // Another level of the baked node does not bake again.
+    assert_eq!(get(a, "/tilesets/od/tiles/1/1/1/1").await.status, 200);
+    let text = String::from_utf8(get(a, "/metrics").await.body).unwrap();
+    assert_eq!(metric(&text, "terrastream_bakes_done_total"), 1.0);
+    srv.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_full_bake_queue_answers_503_with_retry_after() {
+    let (_tmp, store, spec) = on_demand_store(1025);
+    let cfg = PartialConfig {
+        sources: vec![spec.parse().unwrap()],
+        bake_workers: Some(1),
+        bake_queue: Some(1),
+        ..store_config(&store)
+    };
+    let srv = Running::start(cfg).await;
+    let a = srv.addr;
+    // Sixteen different leaves at once: one bakes, one waits, the rest are refused.
+    let mut tasks = Vec::new();
+    for y in 0..4 {
+        for x in 0..4 {
+            let p = format!("/tilesets/od/tiles/2/{x}/{y}/0");
+            tasks.push(tokio::spawn(async move { get(a, &p).await }));
+        }
+    }
+    let mut ok = 0;
+    let mut refused = 0;
+    for t in tasks {
+        let r = t.await.unwrap();
+        match r.status {
+            200 => ok += 1,
+            503 => {
+                r.assert_problem(503);
+                assert!(r.header("retry-after").unwrap().parse::<u32>().unwrap() >= 1);
+                refused += 1;
+            }
+            s => panic!("unexpected {s}: {}", String::from_utf8_lossy(&r.body)),
+        }
+    }
+    assert!(ok >= 1 && refused >= 1, "ok {ok}, refused {refused}");
+    assert_eq!(ok + refused, 16);
+    let text = String::from_utf8(get(a, "/metrics").await.body).unwrap();
+    assert_eq!(metric(&text, "terrastream_bakes_done_total"), f64::from(ok), "{text}");
+    // Retried later, a refused tile bakes.
+    for y in 0..4 {
+        for x in 0..4 {
+            assert_eq!(get(a, &format!("/tilesets/od/tiles/2/{x}/{y}/0")).await.status, 200);
+        }
+    }
+    srv.stop().await;
+}
+
+fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() { walk(&p, out) } else { out.push(p) }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn graceful_shutdown_finishes_requests_in_flight() {
+    let (_tmp, store, spec) = on_demand_store(1025);
+    let cfg = PartialConfig {
+        sources: vec![spec.parse().unwrap()],
+        bake_workers: Some(1),
+        shutdown_timeout_s: Some(60),
+        ..store_config(&store)
+    };
+    let mut srv = Running::start(cfg).await;
+    let a = srv.addr;
+    let mut tasks = Vec::new();
+    for (x, y) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+        let p = format!("/tilesets/od/tiles/1/{x}/{y}/2");
+        tasks.push(tokio::spawn(async move { get(a, &p).await }));
+    }
+    tokio::time::sleep(Duration::from_millis(150)).await;
+    // The test means something only if some of them are still waiting for their bake.
+    assert!(tasks.iter().any(|t| !t.is_finished()), "every request finished before shutdown began");
+    let _ = srv.stop.take().unwrap().send(());
+    tokio::time::sleep(Duration::from_millis(150)).await;
+    // No new connections once shutting down.
+    let refused = tokio::time::timeout(Duration::from_secs(5), TcpStream::connect(a)).await;
+    assert!(!matches!(refused, Ok(Ok(_))), "a new connection was accepted during shutdown");
+    for t in tasks {
+        let r = t.await.unwrap();
+        assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+        assert!(r.body.starts_with(b"TSB1"));
+    }
+    tokio::time::timeout(Duration::from_secs(60), srv.task).await.unwrap().unwrap().unwrap();
+    // Nothing half-written: no temporary files, and every blob verifies.
+    let mut files = Vec::new();
+    walk(&store.join("od"), &mut files);
+    for f in &files {
+        let name = f.file_name().unwrap().to_string_lossy();
+        assert!(!name.ends_with(".tmp"), "left behind: {}", f.display());
+        if name.ends_with(".tsb") {
+            terrastream::codec::decode(&std::fs::read(f).unwrap()).unwrap();
+        }
+    }
+    assert!(files.iter().filter(|f| f.extension().is_some_and(|e| e == "tsb")).count() >= 12);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_corrupt_blob_is_never_sent() {
+    let (_tmp, store, _) = baked_store();
+    let srv = Running::start(store_config(&store)).await;
+    let a = srv.addr;
+    let path = Store::new(&store.join("t")).blob_path(terrastream::tiling::TileKey::new(2, 1, 1), 0);
+    let mut bytes = std::fs::read(&path).unwrap();
+    let last = bytes.len() - 1;
+    bytes[last] ^= 0x55;
+    std::fs::write(&path, &bytes).unwrap();
+    let r = get(a, "/tilesets/t/tiles/2/1/1/0").await;
+    r.assert_problem(500);
+    assert!(r.json()["detail"].as_str().unwrap().contains("verification"));
+    assert!(!r.body.windows(4).any(|w| w == b"TSB1"));
+    // Truncated too.
+    std::fs::write(&path, &bytes[..100]).unwrap();
+    get(a, "/tilesets/t/tiles/2/1/1/0").await.assert_problem(500);
+    let text = String::from_utf8(get(a, "/metrics").await.body).unwrap();
+    assert_eq!(metric(&text, "terrastream_corrupt_blobs_total"), 2.0);
+    // Other blobs are unaffected.
+    assert_eq!(get(a, "/tilesets/t/tiles/2/1/1/1").await.status, 200);
+    srv.stop().await;
+
+    // On demand, a corrupt blob is set aside and baked again.
+    let (_tmp, store, spec) = on_demand_store(513);
+    let cfg = PartialConfig { sources: vec![spec.parse().unwrap()], ..store_config(&store) };
+    let srv = Running::start(cfg).await;
+    let good = get(srv.addr, "/tilesets/od/tiles/1/0/0/1").await;
+    assert_eq!(good.status, 200);
+    srv.stop().await;
+    let path = store.join("od/tiles/1/0/0/1.tsb");
+    let mut bytes = std::fs::read(&path).unwrap();
+    bytes[200] ^= 0xff;
+    std::fs::write(&path, &bytes).unwrap();
+    let cfg = PartialConfig { sources: vec![spec.parse().unwrap()], ..store_config(&store) };
+    let srv = Running::start(cfg).await;
+    let again = get(srv.addr, "/tilesets/od/tiles/1/0/0/1").await;
+    assert_eq!(again.status, 200);
+    assert_eq!(again.body, good.body);
+    assert!(path.with_extension("tsb.corrupt").exists());
+    srv.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn tilesets_added_and_removed_while_serving_are_picked_up() {
+    let (tmp, store, tif) = baked_store();
+    let srv = Running::start(store_config(&store)).await;
+    let a = srv.addr;
+    get(a, "/tilesets/late/tileset.json").await.assert_problem(404);
+    // Baked elsewhere, moved in (as a deploy would).
+    let staging = tmp.path().join("staging");
+    std::fs::create_dir_all(&staging).unwrap();
+    bake_into(&staging, "late", &tif);
+    std::fs::rename(staging.join("late"), store.join("late")).unwrap();
+    let mut found = false;
+    for _ in 0..50 {
+        if get(a, "/tilesets/late/tileset.json").await.status == 200 {
+            found = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert!(found, "the new tileset was not picked up");
+    assert_eq!(get(a, "/tilesets").await.json()["tilesets"].as_array().unwrap().len(), 2);
+    std::fs::remove_dir_all(store.join("late")).unwrap();
+    let mut gone = false;
+    for _ in 0..50 {
+        if get(a, "/tilesets/late/tileset.json").await.status == 404 {
+            gone = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert!(gone, "the removed tileset is still served");
+    srv.stop().await;
+}
