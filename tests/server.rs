@@ -281,7 +281,10 @@ async fn caching_semantics() {
     assert_eq!(p.header("access-control-allow-origin"), Some("*"));
     assert!(p.header("access-control-allow-methods").unwrap().contains("GET"));
     assert!(p.header("access-control-allow-headers").unwrap().to_ascii_lowercase().contains("range"));
-    assert!(p.header("vary").is_some_and(|v| v.to_ascii_lowercase().contains("origin")), "{p:?}");
+    // No Vary: the CORS headers are the same for every origin (`*`), so no response varies by
+    // Origin (a CDN honouring Vary would otherwise keep a copy of each blob per origin).
+    assert_eq!(c.header("vary"), None, "{c:?}");
+    assert_eq!(p.header("vary"), None, "{p:?}");
 
     // Probes, metrics, OpenAPI.
     assert_eq!(get(a, "/healthz").await.status, 200);
@@ -290,10 +293,61 @@ async fn caching_semantics() {
     let api = get(a, "/openapi.json").await.json();
     assert!(api["openapi"].as_str().unwrap().starts_with("3."));
     assert!(api["paths"]["/tilesets/{name}/tiles/{z}/{x}/{y}/{level}"].is_object());
+    // The document matches the router: every operation it lists is routed (neither 405 nor the
+    // fallback's 404), every other method on its paths is 405 (HEAD rides along with GET).
+    let paths = api["paths"].as_object().unwrap();
+    assert_eq!(paths.len(), 10, "{:?}", paths.keys());
+    for (path, item) in paths {
+        let url = path
+            .replace("{name}", "t")
+            .replace("{z}", "0")
+            .replace("{x}", "0")
+            .replace("{y}", "0")
+            .replace("{level}", "0")
+            .replace("{id}", "j1");
+        for method in ["GET", "HEAD", "POST", "DELETE", "PUT", "PATCH"] {
+            let documented = item.get(method.to_ascii_lowercase()).is_some();
+            let r = request(a, method, &url, &[], &[]).await;
+            let fallback = String::from_utf8_lossy(&r.body).contains("see /openapi.json");
+            if documented {
+                assert!(r.status != 405 && !fallback, "{method} {url} is documented but not routed: {r:?}");
+                for status in item[method.to_ascii_lowercase()]["responses"].as_object().unwrap().keys() {
+                    assert!(status.len() == 3 && status.parse::<u16>().is_ok(), "{method} {path}: {status}");
+                }
+            } else if method != "HEAD" {
+                assert_eq!(r.status, 405, "{method} {url} is routed but not documented: {r:?}");
+            }
+        }
+    }
     let text = String::from_utf8(get(a, "/metrics").await.body).unwrap();
+    // Every series the issue names: requests by route and status, latency histograms, bytes
+    // sent, cache hits, bake queue depth, bakes done and failed.
+    for series in [
+        "terrastream_http_requests_total{",
+        "terrastream_http_request_duration_seconds_bucket{",
+        "terrastream_http_request_duration_seconds_sum{",
+        "terrastream_http_request_duration_seconds_count{",
+        "terrastream_http_response_bytes_total ",
+        "terrastream_cache_hits_total ",
+        "terrastream_bake_queue_depth ",
+        "terrastream_bakes_done_total ",
+        "terrastream_bakes_failed_total ",
+    ] {
+        assert!(text.lines().any(|l| l.starts_with(series)), "no {series} in\n{text}");
+        let name = series.trim_end_matches(['{', ' ']);
+        assert!(
+            text.contains(&format!(
+                "# TYPE {}",
+                name.trim_end_matches("_bucket").trim_end_matches("_sum").trim_end_matches("_count")
+            )),
+            "{name}"
+        );
+    }
     assert!(text.contains("terrastream_http_requests_total{route=\"/tilesets/{name}/tiles/{z}/{x}/{y}/{level}\",status=\"304\"} 4"), "{text}");
+    // `/tilesets` was requested once above and once per method by the OpenAPI check.
     assert!(
-        text.contains("terrastream_http_request_duration_seconds_bucket{route=\"/tilesets\",le=\"+Inf\"} 1")
+        metric(&text, "terrastream_http_request_duration_seconds_bucket{route=\"/tilesets\",le=\"+Inf\"}")
+            >= 3.0
     );
     assert!(metric(&text, "terrastream_cache_hits_total") >= 10.0);
     assert!(metric(&text, "terrastream_http_response_bytes_total") > len as f64);

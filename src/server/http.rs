@@ -53,7 +53,12 @@ pub fn router(app: Arc<App>) -> Router {
             header::ACCEPT_RANGES,
             header::RETRY_AFTER,
         ])
-        .max_age(Duration::from_hours(24));
+        .max_age(Duration::from_hours(24))
+        // No `Vary: origin, access-control-request-*`: every CORS header here is the same for
+        // every request (`*`, fixed lists), so no response varies by them (Fetch §3.2.5), and
+        // a CDN that honours Vary would otherwise keep one copy of each blob per Origin.
+        // `Vary: authorization` is added in `front` when reading needs a token.
+        .vary(Vec::<header::HeaderName>::new());
     Router::new()
         .route("/healthz", get(healthz))
         .route("/readyz", get(readyz))
@@ -149,10 +154,13 @@ impl Drop for InFlight<'_> {
 
 async fn front(State(app): State<Arc<App>>, req: Request, next: Next) -> Response {
     let start = Instant::now();
-    let route = req.extensions().get::<MatchedPath>().map_or("unmatched", MatchedPath::as_str).to_owned();
+    // Clones of the matched route (an `Arc<str>`) and the URI (shared bytes): no allocation
+    // per request on the serving path.
+    let matched = req.extensions().get::<MatchedPath>().cloned();
+    let route = matched.as_ref().map_or("unmatched", MatchedPath::as_str);
     let method = req.method().clone();
-    let path = req.uri().path().to_owned();
-    let probe = matches!(route.as_str(), "/healthz" | "/readyz");
+    let uri = req.uri().clone();
+    let probe = matches!(route, "/healthz" | "/readyz");
     let ip = req.extensions().get::<ConnectInfo<super::listener::Peer>>().map(|c| c.0.0.ip());
     let admin_route = matches!(method, Method::POST | Method::DELETE) || route == "/jobs/{id}";
 
@@ -207,7 +215,8 @@ async fn front(State(app): State<Arc<App>>, req: Request, next: Next) -> Respons
         app.metrics.bytes_sent.fetch_add(len, Ordering::Relaxed);
     }
     let status = resp.status();
-    app.metrics.record(&route, status.as_u16(), start.elapsed());
+    app.metrics.record(route, status.as_u16(), start.elapsed());
+    let path = uri.path();
     if status.is_server_error() {
         tracing::warn!(%method, %path, status = status.as_u16(), ms = start.elapsed().as_secs_f64() * 1e3, "request");
     } else {
@@ -279,7 +288,31 @@ fn json_response(v: &serde_json::Value, cache: &'static str) -> Response {
     r
 }
 
-async fn list(State(app): State<Arc<App>>, headers: HeaderMap, method: Method) -> Response {
+/// The request headers the read handlers look at. Extracting these three values (shared bytes)
+/// instead of a `HeaderMap` saves copying every request's header map on the serving path.
+pub(super) struct Conditional {
+    if_none_match: Option<HeaderValue>,
+    range: Option<HeaderValue>,
+    if_range: Option<HeaderValue>,
+}
+
+impl<S: Send + Sync> axum::extract::FromRequestParts<S> for Conditional {
+    type Rejection = std::convert::Infallible;
+
+    async fn from_request_parts(
+        parts: &mut axum::http::request::Parts,
+        _: &S,
+    ) -> Result<Self, Self::Rejection> {
+        let h = &parts.headers;
+        Ok(Self {
+            if_none_match: h.get(header::IF_NONE_MATCH).cloned(),
+            range: h.get(header::RANGE).cloned(),
+            if_range: h.get(header::IF_RANGE).cloned(),
+        })
+    }
+}
+
+async fn list(State(app): State<Arc<App>>, headers: Conditional, method: Method) -> Response {
     let all: Vec<serde_json::Value> = app.registry.all().iter().map(|t| t.summary.clone()).collect();
     let body = serde_json::to_vec_pretty(&serde_json::json!({ "tilesets": all })).unwrap_or_default();
     let etag = etag_value(&super::registry::etag_of(&body));
@@ -309,7 +342,7 @@ async fn manifest(
     State(app): State<Arc<App>>,
     path: Result<Path<String>, axum::extract::rejection::PathRejection>,
     method: Method,
-    headers: HeaderMap,
+    headers: Conditional,
 ) -> Result<Response, Problem> {
     let Path(name) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
     let ts = tileset(&app, &name)?;
@@ -366,7 +399,7 @@ async fn index_chunk(
     path: Result<Path<ChunkPath>, axum::extract::rejection::PathRejection>,
     RawQuery(query): RawQuery,
     method: Method,
-    headers: HeaderMap,
+    headers: Conditional,
 ) -> Result<Response, Problem> {
     let Path((name, z, x, file)) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
     let ts = tileset(&app, &name)?;
@@ -443,7 +476,7 @@ async fn blob(
     path: Result<Path<BlobPath>, axum::extract::rejection::PathRejection>,
     RawQuery(query): RawQuery,
     method: Method,
-    headers: HeaderMap,
+    headers: Conditional,
 ) -> Result<Response, Problem> {
     let Path((name, z, x, y, level)) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
     let ts = tileset(&app, &name)?;
@@ -579,8 +612,8 @@ async fn load_blob(app: &App, ts: &Arc<Tileset>, key: TileKey, level: u8) -> Res
 }
 
 /// Does `If-None-Match` match `etag`? (weak comparison, as RFC 9110 specifies for it)
-fn none_match(headers: &HeaderMap, etag: &HeaderValue) -> bool {
-    let Some(inm) = headers.get(header::IF_NONE_MATCH).and_then(|v| v.to_str().ok()) else { return false };
+fn none_match(if_none_match: Option<&HeaderValue>, etag: &HeaderValue) -> bool {
+    let Some(inm) = if_none_match.and_then(|v| v.to_str().ok()) else { return false };
     let want = etag.as_bytes();
     inm.split(',').map(str::trim).any(|t| t == "*" || t.trim_start_matches("W/").as_bytes() == want)
 }
@@ -635,38 +668,44 @@ fn parse_range(h: &str, len: u64) -> RangeReq {
 /// headers (axum drops the body).
 fn send(
     method: &Method,
-    headers: &HeaderMap,
+    headers: &Conditional,
     e: &Entry,
     content_type: &'static str,
     cache: &'static str,
 ) -> Response {
-    let mut b = Response::builder()
-        .header(header::ETAG, e.etag.clone())
-        .header(header::CACHE_CONTROL, cache)
-        .header(header::ACCEPT_RANGES, "bytes");
-    if none_match(headers, &e.etag) {
-        return b.status(StatusCode::NOT_MODIFIED).body(Body::empty()).unwrap_or_default();
+    // Sized once for what it will hold (ours, CORS's two, `Vary`) instead of growing per insert.
+    let mut h = HeaderMap::with_capacity(12);
+    h.insert(header::ETAG, e.etag.clone());
+    h.insert(header::CACHE_CONTROL, HeaderValue::from_static(cache));
+    h.insert(header::ACCEPT_RANGES, HeaderValue::from_static("bytes"));
+    let respond = |status: StatusCode, headers: HeaderMap, body: Body| {
+        let mut r = Response::new(body);
+        *r.status_mut() = status;
+        *r.headers_mut() = headers;
+        r
+    };
+    if none_match(headers.if_none_match.as_ref(), &e.etag) {
+        return respond(StatusCode::NOT_MODIFIED, h, Body::empty());
     }
-    b = b.header(header::CONTENT_TYPE, content_type);
+    h.insert(header::CONTENT_TYPE, HeaderValue::from_static(content_type));
     let len = e.bytes.len() as u64;
-    let range_ok = headers.get(header::IF_RANGE).is_none_or(|v| v.as_bytes() == e.etag.as_bytes());
-    let range = match headers.get(header::RANGE).and_then(|v| v.to_str().ok()) {
+    let range_ok = headers.if_range.as_ref().is_none_or(|v| v.as_bytes() == e.etag.as_bytes());
+    let range = match headers.range.as_ref().and_then(|v| v.to_str().ok()) {
         Some(r) if range_ok && (method == Method::GET || method == Method::HEAD) => parse_range(r, len),
         _ => RangeReq::Full,
     };
     match range {
-        RangeReq::Full => b
-            .status(StatusCode::OK)
-            .header(header::CONTENT_LENGTH, len)
-            .body(Body::from(e.bytes.clone()))
-            .unwrap_or_default(),
+        RangeReq::Full => {
+            h.insert(header::CONTENT_LENGTH, HeaderValue::from(len));
+            respond(StatusCode::OK, h, Body::from(e.bytes.clone()))
+        }
         RangeReq::Part(start, end) => {
             let body = e.bytes.slice(start as usize..=end as usize);
-            b.status(StatusCode::PARTIAL_CONTENT)
-                .header(header::CONTENT_RANGE, format!("bytes {start}-{end}/{len}"))
-                .header(header::CONTENT_LENGTH, body.len())
-                .body(Body::from(body))
-                .unwrap_or_default()
+            if let Ok(v) = HeaderValue::from_str(&format!("bytes {start}-{end}/{len}")) {
+                h.insert(header::CONTENT_RANGE, v);
+            }
+            h.insert(header::CONTENT_LENGTH, HeaderValue::from(body.len()));
+            respond(StatusCode::PARTIAL_CONTENT, h, Body::from(body))
         }
         RangeReq::Unsatisfiable => {
             let mut r = Problem::new(

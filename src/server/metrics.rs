@@ -20,10 +20,18 @@ struct Histogram {
     sum: f64,
 }
 
+/// Counters of one route: requests by status and the latency histogram.
+#[derive(Default)]
+struct RouteStats {
+    statuses: Vec<(u16, u64)>,
+    latency: Histogram,
+}
+
 #[derive(Default)]
 pub struct Metrics {
-    requests: Mutex<HashMap<(String, u16), u64>>,
-    latency: Mutex<HashMap<String, Histogram>>,
+    /// By route pattern (a bounded set: the router's routes and "unmatched"). One lock and no
+    /// allocation per request once a route has been seen.
+    routes: Mutex<HashMap<String, RouteStats>>,
     pub bytes_sent: AtomicU64,
     pub cache_hits: AtomicU64,
     pub cache_misses: AtomicU64,
@@ -37,29 +45,28 @@ pub struct Metrics {
 
 impl Metrics {
     pub fn record(&self, route: &str, status: u16, elapsed: Duration) {
-        if let Ok(mut m) = self.requests.lock() {
-            if let Some(v) = m.get_mut(&(route.to_owned(), status)) {
-                *v += 1;
-            } else {
-                m.insert((route.to_owned(), status), 1);
-            }
-        }
         let s = elapsed.as_secs_f64();
-        if let Ok(mut m) = self.latency.lock() {
-            let h = if let Some(h) = m.get_mut(route) { h } else { m.entry(route.to_owned()).or_default() };
-            // Stored per bucket; rendered cumulatively as Prometheus expects.
-            if let Some(i) = BUCKETS.iter().position(|&b| s <= b) {
-                h.counts[i] += 1;
-            }
-            h.count += 1;
-            h.sum += s;
+        let Ok(mut m) = self.routes.lock() else { return };
+        let r = if let Some(r) = m.get_mut(route) { r } else { m.entry(route.to_owned()).or_default() };
+        if let Some(c) = r.statuses.iter_mut().find(|(st, _)| *st == status) {
+            c.1 += 1;
+        } else {
+            r.statuses.push((status, 1));
         }
+        let h = &mut r.latency;
+        // Stored per bucket; rendered cumulatively as Prometheus expects.
+        if let Some(i) = BUCKETS.iter().position(|&b| s <= b) {
+            h.counts[i] += 1;
+        }
+        h.count += 1;
+        h.sum += s;
     }
 
     /// The count of requests to `route` answered with `status` (for tests and the soak).
     #[must_use]
     pub fn requests(&self, route: &str, status: u16) -> u64 {
-        self.requests.lock().ok().and_then(|m| m.get(&(route.to_owned(), status)).copied()).unwrap_or(0)
+        let Ok(m) = self.routes.lock() else { return 0 };
+        m.get(route).and_then(|r| r.statuses.iter().find(|(st, _)| *st == status)).map_or(0, |c| c.1)
     }
 
     #[must_use]
@@ -68,46 +75,43 @@ impl Metrics {
         let esc = |s: &str| s.replace('\\', "\\\\").replace('"', "\\\"");
         out.push_str("# HELP terrastream_http_requests_total HTTP requests by route and status.\n");
         out.push_str("# TYPE terrastream_http_requests_total counter\n");
-        if let Ok(m) = self.requests.lock() {
-            let mut rows: Vec<_> = m.iter().collect();
-            rows.sort();
-            for ((route, status), n) in rows {
-                let _ = writeln!(
-                    out,
-                    "terrastream_http_requests_total{{route=\"{}\",status=\"{status}\"}} {n}",
-                    esc(route)
-                );
-            }
+        let routes = self.routes.lock().ok();
+        let mut sorted: Vec<_> = routes.iter().flat_map(|m| m.iter()).collect();
+        sorted.sort_by(|a, b| a.0.cmp(b.0));
+        let mut rows: Vec<(&String, u16, u64)> = sorted
+            .iter()
+            .flat_map(|(route, r)| r.statuses.iter().map(move |&(st, n)| (*route, st, n)))
+            .collect();
+        rows.sort_unstable();
+        for (route, status, n) in rows {
+            let _ = writeln!(
+                out,
+                "terrastream_http_requests_total{{route=\"{}\",status=\"{status}\"}} {n}",
+                esc(route)
+            );
         }
         out.push_str("# HELP terrastream_http_request_duration_seconds Request latency by route.\n");
         out.push_str("# TYPE terrastream_http_request_duration_seconds histogram\n");
-        if let Ok(m) = self.latency.lock() {
-            let mut rows: Vec<_> = m.iter().collect();
-            rows.sort_by(|a, b| a.0.cmp(b.0));
-            for (route, h) in rows {
-                let r = esc(route);
-                let mut cum = 0;
-                for (b, c) in BUCKETS.iter().zip(h.counts) {
-                    cum += c;
-                    let _ = writeln!(
-                        out,
-                        "terrastream_http_request_duration_seconds_bucket{{route=\"{r}\",le=\"{b}\"}} {cum}"
-                    );
-                }
+        for (route, stats) in &sorted {
+            let (r, h) = (esc(route), &stats.latency);
+            let mut cum = 0;
+            for (b, c) in BUCKETS.iter().zip(h.counts) {
+                cum += c;
                 let _ = writeln!(
                     out,
-                    "terrastream_http_request_duration_seconds_bucket{{route=\"{r}\",le=\"+Inf\"}} {}",
-                    h.count
-                );
-                let _ =
-                    writeln!(out, "terrastream_http_request_duration_seconds_sum{{route=\"{r}\"}} {}", h.sum);
-                let _ = writeln!(
-                    out,
-                    "terrastream_http_request_duration_seconds_count{{route=\"{r}\"}} {}",
-                    h.count
+                    "terrastream_http_request_duration_seconds_bucket{{route=\"{r}\",le=\"{b}\"}} {cum}"
                 );
             }
+            let _ = writeln!(
+                out,
+                "terrastream_http_request_duration_seconds_bucket{{route=\"{r}\",le=\"+Inf\"}} {}",
+                h.count
+            );
+            let _ = writeln!(out, "terrastream_http_request_duration_seconds_sum{{route=\"{r}\"}} {}", h.sum);
+            let _ =
+                writeln!(out, "terrastream_http_request_duration_seconds_count{{route=\"{r}\"}} {}", h.count);
         }
+        drop(routes);
         let mut scalar = |name: &str, kind: &str, help: &str, v: String| {
             let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} {kind}\n{name} {v}");
         };

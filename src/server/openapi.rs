@@ -1,9 +1,22 @@
-//! The OpenAPI 3.1 document served at `/openapi.json`, written by hand to match the routes.
+//! The OpenAPI 3.1 document served at `/openapi.json`, written by hand to match the routes
+//! (`tests/server.rs` requests every operation it lists and checks that the router has it).
 
-use serde_json::{Value, json};
+use serde_json::{Map, Value, json};
 
 fn problem(desc: &str) -> Value {
     json!({"description": desc, "content": {"application/problem+json": {"schema": {"$ref": "#/components/schemas/Problem"}}}})
+}
+
+/// A problem answer that asks the client to wait (`Retry-After`, seconds).
+fn retry_problem(desc: &str) -> Value {
+    let mut p = problem(desc);
+    if let Some(o) = p.as_object_mut() {
+        o.insert(
+            "headers".into(),
+            json!({"Retry-After": {"description": "seconds to wait before retrying", "schema": {"type": "integer", "minimum": 1}}}),
+        );
+    }
+    p
 }
 
 fn name_param() -> Value {
@@ -19,43 +32,96 @@ fn v_param() -> Value {
         "description": "The tileset's content_version. When it matches, the response is `Cache-Control: public, max-age=31536000, immutable`; otherwise it is revalidated after 60 s."})
 }
 
+/// The error answers every read route can give, plus `extra`.
+fn errors(extra: &[(&str, &str)]) -> Map<String, Value> {
+    let mut m = Map::new();
+    m.insert("400".into(), problem("Malformed name or key, or z/x/y/level out of range"));
+    m.insert("401".into(), problem("No bearer token (only when the server runs with --read-token)"));
+    m.insert("403".into(), problem("Wrong bearer token (only when the server runs with --read-token)"));
+    m.insert("404".into(), problem("Unknown tileset, or a tile outside the data"));
+    m.insert("429".into(), retry_problem("Rate limited (--rate-limit)"));
+    m.insert("503".into(), retry_problem("Overloaded, bake queue full, timed out or not ready"));
+    for (k, v) in extra {
+        m.insert((*k).into(), problem(v));
+    }
+    m
+}
+
+/// `GET` and `HEAD` of a cacheable document: 200 with `ETag`/`Cache-Control`, 304, ranges.
+fn cached_get(
+    summary: &str,
+    params: &Value,
+    ok_desc: &str,
+    ctype: &str,
+    schema: &Value,
+    extra: &[(&str, &str)],
+) -> Value {
+    let mut responses = errors(&[("416", "Range not satisfiable (Content-Range: bytes */LEN)")]);
+    for (k, v) in extra {
+        responses.insert((*k).into(), problem(v));
+    }
+    let headers = json!({
+        "ETag": {"description": "strong entity tag of the content", "schema": {"type": "string"}},
+        "Cache-Control": {"schema": {"type": "string"}},
+        "Content-Length": {"schema": {"type": "integer"}},
+        "Accept-Ranges": {"schema": {"const": "bytes"}}});
+    let mut get_resp = responses.clone();
+    get_resp.insert(
+        "200".into(),
+        json!({"description": ok_desc, "headers": headers, "content": {ctype: {"schema": schema}}}),
+    );
+    get_resp.insert("206".into(), json!({"description": "One byte range (Range: bytes=a-b, a-, -n)", "headers": {"Content-Range": {"schema": {"type": "string"}}}}));
+    get_resp.insert("304".into(), json!({"description": "Not modified (If-None-Match matches the ETag)"}));
+    let mut head_resp = responses;
+    head_resp
+        .insert("200".into(), json!({"description": format!("{ok_desc}: headers only"), "headers": headers}));
+    head_resp.insert("304".into(), json!({"description": "Not modified (If-None-Match matches the ETag)"}));
+    json!({
+        "parameters": params,
+        "get": {"summary": summary, "security": [{}, {"read": []}], "responses": get_resp},
+        "head": {"summary": format!("{summary} (headers only)"), "security": [{}, {"read": []}], "responses": head_resp},
+    })
+}
+
 #[must_use]
 pub fn document() -> Value {
-    let errors = |extra: &[(&str, &str)]| {
-        let mut m = serde_json::Map::new();
-        m.insert("400".into(), problem("Malformed name or key, or z/x/y/level out of range"));
-        m.insert("404".into(), problem("Unknown tileset, or a tile outside the data"));
-        m.insert("429".into(), problem("Rate limited (Retry-After)"));
-        m.insert("503".into(), problem("Overloaded, bake queue full or timed out (Retry-After)"));
+    let key_params = |level: bool| {
+        let mut p = vec![name_param(), int_param("z"), int_param("x"), int_param("y")];
+        if level {
+            p.push(int_param("level"));
+        }
+        p.push(v_param());
+        Value::Array(p)
+    };
+    let admin = |extra: &[(&str, &str)]| {
+        let mut m = Map::new();
+        m.insert("401".into(), problem("No bearer token"));
+        m.insert("403".into(), problem("Wrong token, or the admin API is off (no --admin-token)"));
         for (k, v) in extra {
             m.insert((*k).into(), problem(v));
         }
         Value::Object(m)
     };
-    let cached = |desc: &str, ctype: &str| {
-        json!({"description": desc, "headers": {
-            "ETag": {"schema": {"type": "string"}}, "Cache-Control": {"schema": {"type": "string"}}},
-            "content": {ctype: {}}})
-    };
-    let with = |mut base: Value, ok: Value| {
-        if let Some(o) = base.as_object_mut() {
-            o.insert("200".into(), ok);
-            o.insert("304".into(), json!({"description": "Not modified (If-None-Match)"}));
-        }
-        base
-    };
+    let any = json!({});
     json!({
         "openapi": "3.1.0",
         "info": {"title": "terrastream", "version": env!("CARGO_PKG_VERSION"),
-            "description": "Tiled terrain LOD (TIN mesh + point-cloud levels) over HTTP."},
+            "description": "Tiled terrain LOD (TIN mesh + point-cloud levels) over HTTP. Every error is application/problem+json; a method a route does not have is 405 with Allow; every response allows any origin (CORS)."},
         "paths": {
             "/healthz": {"get": {"summary": "Alive", "responses": {"200": {"description": "alive"}}}},
-            "/readyz": {"get": {"summary": "Store readable and tilesets loaded", "responses": {"200": {"description": "ready"}, "503": problem("not ready")}}},
-            "/metrics": {"get": {"summary": "Prometheus metrics", "responses": {"200": {"description": "text/plain; version=0.0.4"}}}},
-            "/tilesets": {"get": {"summary": "Tilesets served, with manifest summaries", "responses": with(errors(&[]), cached("list", "application/json"))}},
+            "/readyz": {"get": {"summary": "Store readable and tilesets loaded", "responses": {"200": {"description": "ready"}, "503": retry_problem("not ready")}}},
+            "/metrics": {"get": {"summary": "Prometheus metrics", "responses": {"200": {"description": "Prometheus text format", "content": {"text/plain; version=0.0.4": {}}}}}},
+            "/openapi.json": {"get": {"summary": "This document", "responses": {"200": {"description": "OpenAPI 3.1", "content": {"application/json": {}}}}}},
+            "/tilesets": cached_get("Tilesets served, with manifest summaries", &json!([]), "list", "application/json",
+                &json!({"type": "object", "properties": {"tilesets": {"type": "array", "items": {"$ref": "#/components/schemas/Summary"}}}}), &[]),
             "/tilesets/{name}": {
                 "parameters": [name_param()],
-                "get": {"summary": "One tileset's summary", "responses": with(errors(&[]), cached("summary", "application/json"))},
+                "get": {"summary": "One tileset's summary", "security": [{}, {"read": []}],
+                    "responses": Value::Object({
+                        let mut m = errors(&[]);
+                        m.insert("200".into(), json!({"description": "summary", "content": {"application/json": {"schema": {"$ref": "#/components/schemas/Summary"}}}}));
+                        m
+                    })},
                 "post": {"summary": "Admin: upload a raster and bake it as a new tileset",
                     "security": [{"admin": []}],
                     "parameters": [
@@ -65,27 +131,31 @@ pub fn document() -> Value {
                         {"name": "max_error", "in": "query", "schema": {"type": "number"}},
                         {"name": "levels", "in": "query", "schema": {"type": "integer"}}],
                     "requestBody": {"content": {"application/octet-stream": {}}},
-                    "responses": errors(&[("202", "Job started (Location: /jobs/{id})"), ("401", "No token"), ("403", "Wrong token or admin API disabled"), ("409", "Tileset exists"), ("413", "Upload too large")])},
+                    "responses": admin(&[("202", "Job started (Location: /jobs/{id}); body: the job"), ("400", "Bad name or options"), ("409", "Tileset exists"), ("413", "Upload larger than --max-body-bytes")])},
                 "delete": {"summary": "Admin: delete a tileset", "security": [{"admin": []}],
-                    "responses": errors(&[("204", "Deleted"), ("401", "No token"), ("403", "Wrong token"), ("409", "On-demand tileset")])}
+                    "responses": admin(&[("204", "Deleted"), ("400", "Bad name"), ("404", "No such tileset"), ("409", "On-demand tileset")])}
             },
-            "/tilesets/{name}/tileset.json": {"get": {"summary": "Manifest", "parameters": [name_param()],
-                "responses": with(errors(&[("206", "Range"), ("416", "Range not satisfiable")]), cached("manifest", "application/json"))}},
-            "/tilesets/{name}/index/{z}/{x}/{y}.json": {"get": {"summary": "Index chunk rooted at a z multiple of 4",
-                "parameters": [name_param(), int_param("z"), int_param("x"), int_param("y"), v_param()],
-                "responses": with(errors(&[("206", "Range"), ("416", "Range not satisfiable")]), cached("index chunk", "application/json"))}},
-            "/tilesets/{name}/tiles/{z}/{x}/{y}/{level}": {"get": {"summary": "One blob (baked on first request for --source tilesets)",
-                "parameters": [name_param(), int_param("z"), int_param("x"), int_param("y"), int_param("level"), v_param()],
-                "responses": with(errors(&[("206", "Range"), ("416", "Range not satisfiable"), ("500", "Stored blob failed its checksum (never sent) or bake failed")]),
-                    cached("blob", "application/vnd.terrastream.blob"))}},
+            "/tilesets/{name}/tileset.json": cached_get("Manifest", &json!([name_param()]), "manifest", "application/json", &any, &[]),
+            "/tilesets/{name}/index/{z}/{x}/{y}.json": cached_get("Index chunk rooted at a z multiple of 4",
+                &key_params(false), "index chunk", "application/json", &any, &[]),
+            "/tilesets/{name}/tiles/{z}/{x}/{y}/{level}": cached_get("One blob (baked on first request for --source tilesets; {level}.tsb is accepted too)",
+                &key_params(true), "blob", "application/vnd.terrastream.blob", &json!({"type": "string", "format": "binary"}),
+                &[("500", "Stored blob failed its checksum (never sent) or the bake failed")]),
             "/jobs/{id}": {"get": {"summary": "Admin: bake job progress", "security": [{"admin": []}],
                 "parameters": [{"name": "id", "in": "path", "required": true, "schema": {"type": "string"}}],
-                "responses": errors(&[("200", "Job state"), ("401", "No token"), ("403", "Wrong token")])}}
+                "responses": admin(&[("200", "Job state"), ("404", "No such job")])}}
         },
         "components": {
-            "securitySchemes": {"admin": {"type": "http", "scheme": "bearer"}, "read": {"type": "http", "scheme": "bearer"}},
-            "schemas": {"Problem": {"type": "object", "properties": {
-                "type": {"type": "string"}, "title": {"type": "string"}, "status": {"type": "integer"}, "detail": {"type": "string"}}}}
+            "securitySchemes": {
+                "admin": {"type": "http", "scheme": "bearer", "description": "--admin-token"},
+                "read": {"type": "http", "scheme": "bearer", "description": "--read-token; reading is public when it is not set"}},
+            "schemas": {
+                "Problem": {"type": "object", "properties": {
+                    "type": {"type": "string"}, "title": {"type": "string"}, "status": {"type": "integer"}, "detail": {"type": "string"}}},
+                "Summary": {"type": "object", "properties": {
+                    "name": {"type": "string"}, "complete": {"type": "boolean"}, "content_version": {"type": "string"},
+                    "source": {}, "tile_size": {"type": "integer"}, "depth": {"type": "integer"}, "levels": {"type": "integer"},
+                    "bounds": {}, "totals": {}, "manifest": {"type": "string", "description": "manifest URL with ?v="}}}}
         }
     })
 }
