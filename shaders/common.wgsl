@@ -1,26 +1,39 @@
-// Shared head of every `lod::gpu` pipeline: prepended to each pipeline's own file, so the
-// bindings below are the same in all of them.
+// Shared head of every `lod::gpu` pipeline: prepended to each pipeline's own file. Binding
+// numbers are the same in all pipelines, but each pipeline declares (and its bind group layout
+// holds) only the buffers it uses, read-only where it only reads them: on llvmpipe every
+// atomic access is scalarised per lane, a plain read of a read-only binding is not.
 //
 // Bindings (group 0):
 //   0  params    uniform        `Params`: job count and the item count of each pass
 //   1  jobs      storage, read  `Job` per (mesh, level) of the batch (see `lod::gpu::GpuJob`)
-//   2  counters  storage, rw    8 atomic words per job: 0 points out, 1 filled cells,
-//                               2..4 fragments per view axis, 5 overflow (table or output full)
-//   3  table     storage, rw    the cell hash table, `SLOT_WORDS` atomic words per slot:
-//                               0 packed local cell key + 1 (0 = empty), 1 count (+ FILL_FLAG per
-//                               fill contribution), 2..4 position offset sums (units cell/2^16),
+//   2  counters  storage        8 words per job: 0 cells inserted (the job's cell list
+//                               length), 2..4 fragments per view axis, 5 overflow (table full)
+//   3  table     storage        the cell hash table, `SLOT_WORDS` words per slot: 0 packed
+//                               local cell key + 1 (0 = empty), 1 count (+ FILL_FLAG per fill
+//                               contribution), 2..4 position offset sums (units cell/2^16),
 //                               5..7 normal sums (i32 bits, units 2^-15)
-// Pipelines add their own from 4 on, numbered apart so that one bind group layout serves all
-// five: 4 columns (rw), 5 verts (read), 6 tris (read), 7 points (rw).
+//   4  columns   storage        per-view column occupancy (`columns.wgsl`)
+//   5  verts, 6 tris  storage, read  raster inputs (`raster.wgsl`)
+//   7  points    storage        8 words per output point, job after job (room `job.out_cap`
+//                               from `job.out_start`): word 0 first holds the table slot of
+//                               the job's n-th inserted cell (the cell list, written on
+//                               insertion by `raster` and `fill`), then `compact` overwrites
+//                               the record with the point (`compact.wgsl`)
+// `insert.wgsl` declares 2, 3 and 7 read-write with atomics for the passes that insert cells
+// (`raster`, `fill`); the others declare what they read as plain read-only arrays.
 //
-// Work is a flat list of items per pass (triangle × axis, table slot, or column), laid out job
-// after job; an invocation finds its job by binary search over the jobs' item starts.
+// Work is a flat list of items per pass (triangle × axis, column, or cell-list entry), laid out
+// job after job; an invocation finds its job by binary search over the jobs' item starts.
 
 struct Params {
     n_jobs: u32,
     raster_items: u32,
     slots: u32,
     col_items: u32,
+    out_items: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
 struct Job {
@@ -44,14 +57,11 @@ struct Job {
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> jobs: array<Job>;
-@group(0) @binding(2) var<storage, read_write> counters: array<atomic<u32>>;
-@group(0) @binding(3) var<storage, read_write> table: array<atomic<u32>>;
 
 const WORKGROUP: u32 = 64u;
 const SLOT_WORDS: u32 = 8u;
 const COUNTER_WORDS: u32 = 8u;
 const C_OUT: u32 = 0u;
-const C_FILLED: u32 = 1u;
 const C_FRAGS: u32 = 2u;
 const C_OVERFLOW: u32 = 5u;
 // Fill contributions are counted in the high bits of the count word: a filled cell never holds
@@ -74,7 +84,7 @@ fn flat_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
 fn item_start(j: u32, which: u32) -> u32 {
     switch which {
         case 0u: { return jobs[j].raster_start; }
-        case 1u: { return jobs[j].slot_start; }
+        case 1u: { return jobs[j].out_start; }
         default: { return jobs[j].col_start; }
     }
 }
@@ -102,36 +112,6 @@ fn hash32(k: u32) -> u32 {
     x = x * 0x846ca68bu;
     x = x ^ (x >> 16u);
     return x;
-}
-
-// The global slot of cell `key` (packed local index) in the job's table, inserting it when
-// missing (linear probing); -1 when the table is full. Slots depend on insertion order, the
-// sums in them do not; the output is sorted by cell on the host.
-fn find_or_insert(job: Job, key: u32) -> i32 {
-    let key1 = key + 1u;
-    var h = hash32(key) & job.table_mask;
-    for (var probe = 0u; probe <= job.table_mask; probe++) {
-        let s = job.slot_start + h;
-        let w = s * SLOT_WORDS;
-        loop {
-            let cur = atomicLoad(&table[w]);
-            if cur == key1 {
-                return i32(s);
-            }
-            if cur != 0u {
-                break;
-            }
-            let r = atomicCompareExchangeWeak(&table[w], 0u, key1);
-            if r.exchanged || r.old_value == key1 {
-                return i32(s);
-            }
-            if r.old_value != 0u {
-                break;
-            }
-        }
-        h = (h + 1u) & job.table_mask;
-    }
-    return -1;
 }
 
 fn job_dims(job: Job) -> vec3<u32> {

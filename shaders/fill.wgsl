@@ -5,12 +5,12 @@
 // to the cell table like fragments. It reads only the pre-fill column data, so the result does
 // not depend on the order in which invocations run.
 //
-// Bindings (after common.wgsl's 0..3):
-//   4  columns  storage, rw  as in `columns.wgsl` (only read here)
+// Bindings (after common.wgsl's 0..1, and insert.wgsl's 2, 3, 7 read-write):
+//   4  columns  storage, read  as in `columns.wgsl`
 //
 // Items: every column of the three views of every job.
 
-@group(0) @binding(4) var<storage, read_write> columns: array<atomic<u32>>;
+@group(0) @binding(4) var<storage, read> columns: array<u32>;
 
 const FILL_MIN_NEIGHBOURS: u32 = 5u;
 const NORMAL_ONE: f32 = 32768.0;
@@ -20,7 +20,7 @@ fn occupied(job: Job, axis: u32, u: i32, v: i32, nu: i32, nv: i32) -> u32 {
         return 0u;
     }
     let col = column_index(job, axis, u32(u), u32(v)) * COLUMN_WORDS;
-    if atomicLoad(&columns[col]) == 0u {
+    if columns[col] == 0u {
         return 0u;
     }
     return col + 1u;
@@ -82,7 +82,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         var keys = array<u32, 8>();
         var normal = vec3<i32>(0, 0, 0);
         for (var k = 0u; k < n; k++) {
-            let slot = atomicLoad(&columns[around[k] + 2u + back]) - 1u;
+            let slot = columns[around[k] + 2u + back] - 1u;
             let w = slot * SLOT_WORDS;
             let c = unpack_key(job, atomicLoad(&table[w]) - 1u);
             let count = atomicLoad(&table[w + 1u]) & COUNT_MASK;
@@ -121,7 +121,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         if len > 0.0 {
             nq = vec3<i32>(floor(m / len * NORMAL_ONE + 0.5));
         }
-        let slot = find_or_insert(job, pack_key(job, c));
+        let slot = find_or_insert(j, job, pack_key(job, c));
         if slot < 0 {
             atomicAdd(&counters[j * COUNTER_WORDS + C_OVERFLOW], 1u);
             continue;

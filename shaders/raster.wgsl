@@ -2,7 +2,7 @@
 // the fragments into the cell table (the module doc of `lod::cpu` is the specification; this
 // is the same rule in f32 on job-local grid coordinates).
 //
-// Bindings (after common.wgsl's 0..3):
+// Bindings (after common.wgsl's 0..1, and insert.wgsl's 2, 3, 7 read-write):
 //   5  verts  storage, read  f32 × 3 per vertex: grid coordinates relative to the job's base
 //                            cell (host-computed in f64), so cell indices start at 0
 //   6  tris   storage, read  u32 × 6 per triangle: vertex indices relative to the job's first
@@ -171,7 +171,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             if any(c >= dims) {
                 continue;
             }
-            let slot = find_or_insert(job, pack_key(job, c));
+            let slot = find_or_insert(j, job, pack_key(job, c));
             if slot < 0 {
                 overflow += 1u;
                 continue;

@@ -23,12 +23,18 @@
 //! 1. `raster`: fragments → a per-job open-addressing hash table of cells keyed by the packed
 //!    cell index, summing in fixed point with atomics (count, position offsets in cell/2^16,
 //!    quantized normals in 2^-15): integer sums, so the result does not depend on the order in
-//!    which fragments arrive.
-//! 2. `columns`, `column_cells`: per view, each column's front and back cell (before fills).
-//! 3. `fill`: the median hole filler, one invocation per column, adding fills to the table.
-//! 4. `compact`: every occupied cell → one point record (cell, count, position and normal
-//!    sums), appended to its job's output range.
+//!    which fragments arrive. The invocation that inserts a cell appends its slot to the job's
+//!    cell list (in the job's output range), so no later pass scans the whole table.
+//! 2. `columns`, `column_cells`: per view, each column's front and back cell (before fills),
+//!    one invocation per cell-list entry.
+//! 3. `fill`: the median hole filler, one invocation per column, adding fills to the table
+//!    (and to the cell list).
+//! 4. `compact`: every cell-list entry → its point record (cell, count, position and normal
+//!    sums), in place.
 //! 5. One copy of the counters and all points into one staging buffer, one map (read-back).
+//!
+//! Each pipeline binds only the buffers it uses, read-only where it only reads: on lavapipe
+//! every atomic access is scalarised per lane, plain loads are not.
 //!
 //! Slots in the table and the append order depend on scheduling; the host sorts each job's
 //! points by cell `(k, j, i)` as the CPU does, so two bakes are identical. The host prepares
@@ -62,10 +68,18 @@ use crate::geom::{Mesh, triangle_normal};
 /// Default GPU memory budget of one batch, in MiB.
 pub const DEFAULT_BATCH_BUDGET_MIB: u64 = 256;
 
-/// WGSL sources, one per pipeline, each prefixed by the shared head. Public so the CPU-only
-/// validation test can parse and validate them with naga.
+/// WGSL sources, one per pipeline, each prefixed by the shared head (and, for the passes that
+/// insert cells, by `insert.wgsl`). Public so the CPU-only validation test can parse and
+/// validate them with naga.
 pub const SHADERS: [(&str, &str); 5] = [
-    ("raster", concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/raster.wgsl"))),
+    (
+        "raster",
+        concat!(
+            include_str!("../../shaders/common.wgsl"),
+            include_str!("../../shaders/insert.wgsl"),
+            include_str!("../../shaders/raster.wgsl")
+        ),
+    ),
     (
         "columns",
         concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/columns.wgsl")),
@@ -74,12 +88,42 @@ pub const SHADERS: [(&str, &str); 5] = [
         "column_cells",
         concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/column_cells.wgsl")),
     ),
-    ("fill", concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/fill.wgsl"))),
+    (
+        "fill",
+        concat!(
+            include_str!("../../shaders/common.wgsl"),
+            include_str!("../../shaders/insert.wgsl"),
+            include_str!("../../shaders/fill.wgsl")
+        ),
+    ),
     (
         "compact",
         concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/compact.wgsl")),
     ),
 ];
+
+/// How a pipeline binds a buffer.
+#[derive(Clone, Copy)]
+enum Access {
+    Uniform,
+    Read,
+    ReadWrite,
+}
+
+/// The bindings of each pipeline of [`SHADERS`], in order: only what its WGSL declares, read-only
+/// where it only reads (plain loads rather than atomics; see `shaders/common.wgsl`).
+const BINDINGS: [&[(u32, Access)]; 5] = {
+    use Access::{Read as R, ReadWrite as W, Uniform as U};
+    [
+        &[(0, U), (1, R), (2, W), (3, W), (5, R), (6, R), (7, W)],
+        &[(0, U), (1, R), (2, R), (3, R), (4, W), (7, R)],
+        &[(0, U), (1, R), (2, R), (3, R), (4, W), (7, R)],
+        &[(0, U), (1, R), (2, W), (3, W), (4, R), (7, W)],
+        &[(0, U), (1, R), (2, R), (3, R), (7, W)],
+    ]
+};
+/// Storage buffers of the pipeline with the most.
+const MAX_STORAGE_BINDINGS: u32 = 6;
 
 const WORKGROUP: u32 = 64;
 const MAX_GROUPS_X: u32 = 65_535;
@@ -213,6 +257,8 @@ pub struct GpuParams {
     pub raster_items: u32,
     pub slots: u32,
     pub col_items: u32,
+    pub out_items: u32,
+    pub pad: [u32; 3],
 }
 
 /// The host's part of a job: what the CPU reference computes in f64, ready to upload.
@@ -284,7 +330,7 @@ pub struct GpuBaker {
     device: wgpu::Device,
     queue: wgpu::Queue,
     adapter: String,
-    layout: wgpu::BindGroupLayout,
+    layouts: [wgpu::BindGroupLayout; 5],
     pipelines: [wgpu::ComputePipeline; 5],
     budget: u64,
     max_binding: u64,
@@ -300,51 +346,45 @@ impl GpuBaker {
         budget_bytes: u64,
     ) -> Result<Self, GpuError> {
         let limits = device.limits();
-        if limits.max_storage_buffers_per_shader_stage < 7 {
+        if limits.max_storage_buffers_per_shader_stage < MAX_STORAGE_BINDINGS {
             return Err(GpuError::Failed(format!(
-                "adapter {adapter} allows {} storage buffers per shader stage, the bake needs 7",
+                "adapter {adapter} allows {} storage buffers per shader stage, the bake needs {MAX_STORAGE_BINDINGS}",
                 limits.max_storage_buffers_per_shader_stage
             )));
         }
-        let storage = |binding: u32, read_only: bool| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("lod::gpu"),
-            entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
+        let layouts = BINDINGS.map(|bindings| {
+            let entries: Vec<wgpu::BindGroupLayoutEntry> = bindings
+                .iter()
+                .map(|&(binding, access)| wgpu::BindGroupLayoutEntry {
+                    binding,
                     visibility: wgpu::ShaderStages::COMPUTE,
                     ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
+                        ty: match access {
+                            Access::Uniform => wgpu::BufferBindingType::Uniform,
+                            Access::Read => wgpu::BufferBindingType::Storage { read_only: true },
+                            Access::ReadWrite => wgpu::BufferBindingType::Storage { read_only: false },
+                        },
                         has_dynamic_offset: false,
                         min_binding_size: None,
                     },
                     count: None,
-                },
-                storage(1, true),
-                storage(2, false),
-                storage(3, false),
-                storage(4, false),
-                storage(5, true),
-                storage(6, true),
-                storage(7, false),
-            ],
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("lod::gpu"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
+                })
+                .collect();
+            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("lod::gpu"),
+                entries: &entries,
+            })
         });
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let mut n = 0;
         let pipelines = SHADERS.map(|(name, source)| {
+            let layout = &layouts[n];
+            n += 1;
+            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(name),
+                bind_group_layouts: &[Some(layout)],
+                immediate_size: 0,
+            });
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some(name),
                 source: wgpu::ShaderSource::Wgsl(source.into()),
@@ -362,7 +402,15 @@ impl GpuBaker {
             return Err(GpuError::Failed(format!("pipeline creation on {adapter}: {e}")));
         }
         let max_binding = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
-        Ok(Self { device, queue, adapter, layout, pipelines, budget: budget_bytes.max(1 << 20), max_binding })
+        Ok(Self {
+            device,
+            queue,
+            adapter,
+            layouts,
+            pipelines,
+            budget: budget_bytes.max(1 << 20),
+            max_binding,
+        })
     }
 
     /// Opens the default adapter ([`open`]) and builds a baker on it.
@@ -543,6 +591,8 @@ impl GpuBaker {
             raster_items: raster as u32,
             slots: slots as u32,
             col_items: cols as u32,
+            out_items: out as u32,
+            pad: [0; 3],
         };
         let d = &self.device;
         let scope = d.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -586,20 +636,25 @@ impl GpuBaker {
                 .iter()
                 .map(|b| b.size())
                 .sum();
-        let group = d.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("lod::gpu batch"),
-            layout: &self.layout,
-            entries: &[
-                entry(0, &b_params),
-                entry(1, &b_jobs),
-                entry(2, &b_counters),
-                entry(3, &b_table),
-                entry(4, &b_columns),
-                entry(5, &b_verts),
-                entry(6, &b_tris),
-                entry(7, &b_points),
-            ],
-        });
+        let buffers = [&b_params, &b_jobs, &b_counters, &b_table, &b_columns, &b_verts, &b_tris, &b_points];
+        let groups: Vec<wgpu::BindGroup> = BINDINGS
+            .iter()
+            .zip(&self.layouts)
+            .map(|(bindings, layout)| {
+                let entries: Vec<wgpu::BindGroupEntry<'_>> = bindings
+                    .iter()
+                    .map(|&(binding, _)| wgpu::BindGroupEntry {
+                        binding,
+                        resource: buffers[binding as usize].as_entire_binding(),
+                    })
+                    .collect();
+                d.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("lod::gpu batch"),
+                    layout,
+                    entries: &entries,
+                })
+            })
+            .collect();
         let mut enc =
             d.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lod::gpu batch") });
         {
@@ -607,25 +662,26 @@ impl GpuBaker {
                 label: Some("bake"),
                 timestamp_writes: None,
             });
-            pass.set_bind_group(0, &group, &[]);
-            let [p_raster, p_columns, p_cells, p_fill, p_compact] = &self.pipelines;
-            let mut run = |p: &wgpu::ComputePipeline, items: u64| {
+            let mut run = |n: usize, items: u64| {
                 if items == 0 {
                     return;
                 }
-                let groups = items.div_ceil(u64::from(WORKGROUP));
-                let x = groups.min(u64::from(MAX_GROUPS_X));
-                let y = groups.div_ceil(x);
-                pass.set_pipeline(p);
+                let wgs = items.div_ceil(u64::from(WORKGROUP));
+                let x = wgs.min(u64::from(MAX_GROUPS_X));
+                let y = wgs.div_ceil(x);
+                pass.set_pipeline(&self.pipelines[n]);
+                pass.set_bind_group(0, &groups[n], &[]);
                 pass.dispatch_workgroups(x as u32, y as u32, 1);
             };
-            run(p_raster, raster);
+            // Pipelines in `SHADERS` order: raster, columns, column_cells, fill, compact. The
+            // passes after `raster` run over the cell lists (room `out` in all), not the tables.
+            run(0, raster);
             if fill {
-                run(p_columns, slots);
-                run(p_cells, slots);
-                run(p_fill, cols);
+                run(1, out);
+                run(2, out);
+                run(3, cols);
             }
-            run(p_compact, slots);
+            run(4, out);
         }
         enc.copy_buffer_to_buffer(&b_counters, 0, &staging, 0, counters_bytes);
         if out_bytes > 0 {
@@ -680,10 +736,6 @@ impl GpuBaker {
     }
 }
 
-fn entry(binding: u32, b: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
-    wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() }
-}
-
 /// Turns one job's counters and points into the reference's output; `None` on overflow.
 fn decode(
     p: &Prepared,
@@ -695,14 +747,15 @@ fn decode(
     if n > p.out_cap || counters[5] > 0 {
         return None;
     }
-    let filled = counters[1] as usize;
+    let recs = &points[..n as usize * 8];
+    let filled = recs.chunks_exact(8).filter(|r| r[1] >= FILL_FLAG).count();
     let stats = BakeStats {
         fragments: [u64::from(counters[2]), u64::from(counters[3]), u64::from(counters[4])],
         occupied: n as usize - filled,
         filled,
         skipped_triangles: p.skipped,
     };
-    let mut recs: Vec<&[u32]> = points[..n as usize * 8].chunks_exact(8).collect();
+    let mut recs: Vec<&[u32]> = recs.chunks_exact(8).collect();
     recs.sort_unstable_by_key(|r| r[0]);
     let [nx, ny, _] = p.dims;
     let cells = recs
