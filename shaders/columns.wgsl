@@ -6,8 +6,9 @@
 //   3  table     storage, read
 //   4  columns   storage, rw    `COLUMN_WORDS` atomic words per column, job after job, axis
 //                               after axis, row-major in (u, v): 0 FRONT_BASE − front slice,
-//                               1 back slice + 1 (both 0 when empty), 2 front cell's slot + 1,
-//                               3 back's (written by `column_cells`)
+//                               1 back slice + 1 (both 0 when empty). The front and back cells
+//                               are then the cells of the column at those slices: `fill`
+//                               finds them in the table by key.
 //   7  points    storage, read  the cell list (word 0 of each record: a table slot)
 //
 // Items: every cell-list entry (`job.out_cap` per job); entries past the list's end return.

@@ -74,7 +74,7 @@ const POS_HALF: u32 = 32768u;
 // Column occupancy: front stored as FRONT_BASE - slice (so atomicMax keeps the lowest slice),
 // back as slice + 1; 0 means empty either way.
 const FRONT_BASE: u32 = 1073741824u;
-const COLUMN_WORDS: u32 = 4u;
+const COLUMN_WORDS: u32 = 2u;
 
 // The invocation's flat item index over a 2D dispatch (one dimension caps at 65535 groups).
 fn flat_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {

@@ -62,6 +62,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         vec2<i32>(1, 0), vec2<i32>(-1, 1), vec2<i32>(0, 1), vec2<i32>(1, 1),
     );
     var around = array<u32, 8>();
+    var dirs = array<u32, 8>();
     var n = 0u;
     var edge = 0u;
     for (var k = 0u; k < 8u; k++) {
@@ -69,6 +70,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         let col = occupied(job, axis, u + o.x, v + o.y, nu, nv);
         if col != 0u {
             around[n] = col - 1u;
+            dirs[n] = k;
             n += 1u;
             if o.x == 0 || o.y == 0 {
                 edge += 1u;
@@ -82,14 +84,30 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         var keys = array<u32, 8>();
         var normal = vec3<i32>(0, 0, 0);
         for (var k = 0u; k < n; k++) {
-            let slot = columns[around[k] + 2u + back] - 1u;
-            let w = slot * SLOT_WORDS;
-            let c = unpack_key(job, atomicLoad(&table[w]) - 1u);
+            // The neighbour's front (back) cell: its slice from the column, its slot from the
+            // table. Its probe chain was filled before this pass, so fills inserted meanwhile
+            // do not change what the lookup finds.
+            let col = around[k];
+            var slice = FRONT_BASE - columns[col];
+            if back == 1u {
+                slice = columns[col + 1u] - 1u;
+            }
+            let o = offsets[dirs[k]];
+            var c = vec3<u32>(0u, 0u, 0u);
+            c[axis] = slice;
+            c[ua] = u32(u + o.x);
+            c[va] = u32(v + o.y);
+            let slot = find(job, pack_key(job, c));
+            if slot < 0 {
+                atomicAdd(&counters[j * COUNTER_WORDS + C_OVERFLOW], 1u);
+                return;
+            }
+            let w = u32(slot) * SLOT_WORDS;
             let count = atomicLoad(&table[w + 1u]) & COUNT_MASK;
             let mean = (atomicLoad(&table[w + 2u + axis]) + count / 2u) / max(count, 1u);
             // Slices stay below 2^16 (the host checks the job's extents), so one word holds
             // slice and offset in key order.
-            keys[k] = (c[axis] << 16u) + mean;
+            keys[k] = (slice << 16u) + mean;
             normal += vec3<i32>(
                 bitcast<i32>(atomicLoad(&table[w + 5u])),
                 bitcast<i32>(atomicLoad(&table[w + 6u])),

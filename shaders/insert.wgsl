@@ -44,3 +44,21 @@ fn find_or_insert(j: u32, job: Job, key: u32) -> i32 {
     }
     return -1;
 }
+
+// The global slot of cell `key` in the job's table, -1 when absent (lookup only).
+fn find(job: Job, key: u32) -> i32 {
+    let key1 = key + 1u;
+    var h = hash32(key) & job.table_mask;
+    for (var probe = 0u; probe <= job.table_mask; probe++) {
+        let s = job.slot_start + h;
+        let cur = atomicLoad(&table[s * SLOT_WORDS]);
+        if cur == key1 {
+            return i32(s);
+        }
+        if cur == 0u {
+            return -1;
+        }
+        h = (h + 1u) & job.table_mask;
+    }
+    return -1;
+}

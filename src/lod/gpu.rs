@@ -25,10 +25,11 @@
 //!    quantized normals in 2^-15): integer sums, so the result does not depend on the order in
 //!    which fragments arrive. The invocation that inserts a cell appends its slot to the job's
 //!    cell list (in the job's output range), so no later pass scans the whole table.
-//! 2. `columns`, `column_cells`: per view, each column's front and back cell (before fills),
-//!    one invocation per cell-list entry.
-//! 3. `fill`: the median hole filler, one invocation per column, adding fills to the table
-//!    (and to the cell list).
+//! 2. `columns`: per view, each column's front and back slice (before fills), one invocation
+//!    per cell-list entry.
+//! 3. `fill`: the median hole filler, one invocation per column, looking up its neighbours'
+//!    front and back cells in the table by key and adding fills to the table (and to the
+//!    cell list).
 //! 4. `compact`: every cell-list entry → its point record (cell, count, position and normal
 //!    sums), in place.
 //! 5. One copy of the counters and all points into one staging buffer, one map (read-back).
@@ -71,7 +72,7 @@ pub const DEFAULT_BATCH_BUDGET_MIB: u64 = 256;
 /// WGSL sources, one per pipeline, each prefixed by the shared head (and, for the passes that
 /// insert cells, by `insert.wgsl`). Public so the CPU-only validation test can parse and
 /// validate them with naga.
-pub const SHADERS: [(&str, &str); 5] = [
+pub const SHADERS: [(&str, &str); 4] = [
     (
         "raster",
         concat!(
@@ -83,10 +84,6 @@ pub const SHADERS: [(&str, &str); 5] = [
     (
         "columns",
         concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/columns.wgsl")),
-    ),
-    (
-        "column_cells",
-        concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/column_cells.wgsl")),
     ),
     (
         "fill",
@@ -112,11 +109,10 @@ enum Access {
 
 /// The bindings of each pipeline of [`SHADERS`], in order: only what its WGSL declares, read-only
 /// where it only reads (plain loads rather than atomics; see `shaders/common.wgsl`).
-const BINDINGS: [&[(u32, Access)]; 5] = {
+const BINDINGS: [&[(u32, Access)]; 4] = {
     use Access::{Read as R, ReadWrite as W, Uniform as U};
     [
         &[(0, U), (1, R), (2, W), (3, W), (5, R), (6, R), (7, W)],
-        &[(0, U), (1, R), (2, R), (3, R), (4, W), (7, R)],
         &[(0, U), (1, R), (2, R), (3, R), (4, W), (7, R)],
         &[(0, U), (1, R), (2, W), (3, W), (4, R), (7, W)],
         &[(0, U), (1, R), (2, R), (3, R), (7, W)],
@@ -129,7 +125,7 @@ const WORKGROUP: u32 = 64;
 const MAX_GROUPS_X: u32 = 65_535;
 const SLOT_BYTES: u64 = 32;
 const POINT_BYTES: u64 = 32;
-const COLUMN_BYTES: u64 = 16;
+const COLUMN_BYTES: u64 = 8;
 const COUNTER_WORDS: usize = 8;
 const FILL_FLAG: u32 = 1 << 20;
 const COUNT_MASK: u32 = FILL_FLAG - 1;
@@ -330,14 +326,14 @@ pub struct GpuBaker {
     device: wgpu::Device,
     queue: wgpu::Queue,
     adapter: String,
-    layouts: [wgpu::BindGroupLayout; 5],
-    pipelines: [wgpu::ComputePipeline; 5],
+    layouts: [wgpu::BindGroupLayout; 4],
+    pipelines: [wgpu::ComputePipeline; 4],
     budget: u64,
     max_binding: u64,
 }
 
 impl GpuBaker {
-    /// Builds the five pipelines. `budget_bytes` caps the buffers of one batch; `adapter`
+    /// Builds the four pipelines. `budget_bytes` caps the buffers of one batch; `adapter`
     /// names the adapter in reports.
     pub fn new(
         device: wgpu::Device,
@@ -673,15 +669,14 @@ impl GpuBaker {
                 pass.set_bind_group(0, &groups[n], &[]);
                 pass.dispatch_workgroups(x as u32, y as u32, 1);
             };
-            // Pipelines in `SHADERS` order: raster, columns, column_cells, fill, compact. The
-            // passes after `raster` run over the cell lists (room `out` in all), not the tables.
+            // Pipelines in `SHADERS` order: raster, columns, fill, compact. The passes after
+            // `raster` run over the cell lists (room `out` in all), not the tables.
             run(0, raster);
             if fill {
                 run(1, out);
-                run(2, out);
-                run(3, cols);
+                run(2, cols);
             }
-            run(4, out);
+            run(3, out);
         }
         enc.copy_buffer_to_buffer(&b_counters, 0, &staging, 0, counters_bytes);
         if out_bytes > 0 {
