@@ -7,11 +7,18 @@
 //   0  params    uniform        `Params`: job count and the item count of each pass
 //   1  jobs      storage, read  `Job` per (mesh, level) of the batch (see `lod::gpu::GpuJob`)
 //   2  counters  storage        8 words per job: 0 cells inserted (the job's cell list
-//                               length), 2..4 fragments per view axis, 5 overflow (table full)
+//                               length), 2..4 fragments per view axis, 5 overflow (table
+//                               full), 6 count overflow (a cell's per-axis count full)
 //   3  table     storage        the cell hash table, `SLOT_WORDS` words per slot: 0 packed
-//                               local cell key + 1 (0 = empty), 1 count (+ FILL_FLAG per fill
-//                               contribution), 2..4 position offset sums (units cell/2^16),
-//                               5..7 normal sums (i32 bits, units 2^-15)
+//                               local cell key + 1 (0 = empty), 1 per-view-axis counts
+//                               (`COUNT_BITS` each from bit 0, axis after axis; FILL_BIT set
+//                               on a filled cell), 2..4 per-view-axis sums of the depth
+//                               offsets (units cell/2^16), 5..7 normal sums (i32 bits, units
+//                               2^-15). A fragment of view `axis` lies at the pixel centre on
+//                               the other two axes, so the position sum on axis d is sum d plus
+//                               POS_HALF per fragment of the other views: the host rebuilds
+//                               the three position sums exactly, with two atomics per
+//                               fragment instead of four.
 //   4  columns   storage        per-view column occupancy (`columns.wgsl`)
 //   5  verts, 6 tris  storage, read  raster inputs (`raster.wgsl`)
 //   7  points    storage        8 words per output point, job after job (room `job.out_cap`
@@ -64,10 +71,14 @@ const COUNTER_WORDS: u32 = 8u;
 const C_OUT: u32 = 0u;
 const C_FRAGS: u32 = 2u;
 const C_OVERFLOW: u32 = 5u;
-// Fill contributions are counted in the high bits of the count word: a filled cell never holds
-// fragments, and a cell gets far fewer than 2^20 fragments.
-const FILL_FLAG: u32 = 1048576u;
-const COUNT_MASK: u32 = 1048575u;
+const C_COUNT_OVERFLOW: u32 = 6u;
+// Per-axis counts: fragments of one view in one cell all lie on the same pixel centre, one per
+// triangle, so a field rarely gets near 2^COUNT_BITS; one that fills up is reported
+// (C_COUNT_OVERFLOW) and the host bakes that job with the CPU reference instead.
+const COUNT_BITS: u32 = 10u;
+const COUNT_FIELD: u32 = 1023u;
+// A filled cell never holds fragments; its counts are its fill contributions.
+const FILL_BIT: u32 = 2147483648u;
 // Position offsets: 2^16 units per cell, the pixel centre at 2^15.
 const POS_ONE: f32 = 65536.0;
 const POS_HALF: u32 = 32768u;

@@ -8,11 +8,11 @@
 //   3  table     storage, read
 //   7  points    storage, rw    8 words per point, job after job (`job.out_start`, room for
 //                               `job.out_cap`): word 0 holds the cell's table slot on entry;
-//                               on exit 0 packed local cell key, 1 count word (as in the
-//                               table), 2..4 position offset sums (units cell/2^16), 5..7
-//                               normal sums (i32 bits); the host turns them into the point
+//                               on exit 0 packed local cell key, 1..7 the slot's words 1..7
+//                               (counts, depth sums, normal sums; see common.wgsl); the host
+//                               rebuilds the position sums and turns them into the point
 //                               exactly as `lod::cpu` does (mean position, unit normal or +Z
-//                               for a zero sum) and counts the filled cells (FILL_FLAG)
+//                               for a zero sum), and counts the filled cells (FILL_BIT)
 //
 // Items: every cell-list entry (`job.out_cap` per job); entries past the list's end return.
 

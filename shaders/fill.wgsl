@@ -103,8 +103,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
                 return;
             }
             let w = u32(slot) * SLOT_WORDS;
-            let count = atomicLoad(&table[w + 1u]) & COUNT_MASK;
-            let mean = (atomicLoad(&table[w + 2u + axis]) + count / 2u) / max(count, 1u);
+            // The mean offset on `axis` (see the table layout in common.wgsl); a neighbour
+            // holds fragments only (no fills yet), at most 3 × COUNT_FIELD of them.
+            let counts = atomicLoad(&table[w + 1u]);
+            let own = (counts >> (axis * COUNT_BITS)) & COUNT_FIELD;
+            let count = (counts & COUNT_FIELD) + ((counts >> COUNT_BITS) & COUNT_FIELD)
+                + ((counts >> (2u * COUNT_BITS)) & COUNT_FIELD);
+            let sum = atomicLoad(&table[w + 2u + axis]) + POS_HALF * (count - own);
+            let mean = (sum + count / 2u) / max(count, 1u);
             // Slices stay below 2^16 (the host checks the job's extents), so one word holds
             // slice and offset in key order.
             keys[k] = (slice << 16u) + mean;
@@ -145,9 +151,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             continue;
         }
         let w = u32(slot) * SLOT_WORDS;
-        atomicAdd(&table[w + 1u], 1u + FILL_FLAG);
+        atomicOr(&table[w + 1u], FILL_BIT);
+        if !add_count(w + 1u, axis) {
+            atomicAdd(&counters[j * COUNTER_WORDS + C_COUNT_OVERFLOW], 1u);
+        }
+        atomicAdd(&table[w + 2u + axis], key & 65535u);
         for (var k = 0u; k < 3u; k++) {
-            atomicAdd(&table[w + 2u + k], select(POS_HALF, key & 65535u, k == axis));
             atomicAdd(&table[w + 5u + k], bitcast<u32>(nq[k]));
         }
     }

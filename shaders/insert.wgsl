@@ -62,3 +62,10 @@ fn find(job: Job, key: u32) -> i32 {
     }
     return -1;
 }
+
+// Adds one contribution of view `axis` to the count word at `w`; false when the field was full.
+fn add_count(w: u32, axis: u32) -> bool {
+    let shift = axis * COUNT_BITS;
+    let old = atomicAdd(&table[w], 1u << shift);
+    return ((old >> shift) & COUNT_FIELD) != COUNT_FIELD;
+}

@@ -139,6 +139,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
 
     var count = 0u;
     var overflow = 0u;
+    var count_overflow = 0u;
     for (var pj = j0; pj <= j1; pj++) {
         let y = f32(pj) + 0.5;
         var span = vec2<i32>(i0, i1);
@@ -177,9 +178,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
                 continue;
             }
             let w = u32(slot) * SLOT_WORDS;
-            atomicAdd(&table[w + 1u], 1u);
+            if !add_count(w + 1u, axis) {
+                count_overflow += 1u;
+            }
+            atomicAdd(&table[w + 2u + axis], q);
             for (var k = 0u; k < 3u; k++) {
-                atomicAdd(&table[w + 2u + k], select(POS_HALF, q, k == axis));
                 atomicAdd(&table[w + 5u + k], bitcast<u32>(n[k]));
             }
             count += 1u;
@@ -190,5 +193,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     }
     if overflow > 0u {
         atomicAdd(&counters[j * COUNTER_WORDS + C_OVERFLOW], overflow);
+    }
+    if count_overflow > 0u {
+        atomicAdd(&counters[j * COUNTER_WORDS + C_COUNT_OVERFLOW], count_overflow);
     }
 }

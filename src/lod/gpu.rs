@@ -21,8 +21,8 @@
 //! # Passes (one submission per batch)
 //!
 //! 1. `raster`: fragments → a per-job open-addressing hash table of cells keyed by the packed
-//!    cell index, summing in fixed point with atomics (count, position offsets in cell/2^16,
-//!    quantized normals in 2^-15): integer sums, so the result does not depend on the order in
+//!    cell index, summing in fixed point with atomics (per-axis counts, depth offsets in
+//!    cell/2^16, quantized normals in 2^-15): integer sums, so the result does not depend on the order in
 //!    which fragments arrive. The invocation that inserts a cell appends its slot to the job's
 //!    cell list (in the job's output range), so no later pass scans the whole table.
 //! 2. `columns`: per view, each column's front and back slice (before fills), one invocation
@@ -52,7 +52,9 @@
 //! table or output overflows is re-run in a later batch with four times the room, so sizes are
 //! an estimate but results never depend on them. A job that alone exceeds the budget, or whose
 //! cell box does not fit the 32-bit keys (an extent over 2^16 − 1 cells, or over 2^32 − 2 cells
-//! in all), is baked by the CPU reference instead and counted in [`BatchReport::cpu_jobs`].
+//! in all), or in which one cell gets over 1023 fragments of one view (the per-axis count
+//! fields of the table, see `shaders/common.wgsl`), is baked by the CPU reference instead and
+//! counted in [`BatchReport::cpu_jobs`].
 //! While the GPU runs one batch the host prepares and submits the next and decodes the
 //! previous, so at most two batches are in flight: the device memory peak is at most twice the
 //! batch budget.
@@ -127,8 +129,13 @@ const SLOT_BYTES: u64 = 32;
 const POINT_BYTES: u64 = 32;
 const COLUMN_BYTES: u64 = 8;
 const COUNTER_WORDS: usize = 8;
-const FILL_FLAG: u32 = 1 << 20;
-const COUNT_MASK: u32 = FILL_FLAG - 1;
+/// Count word of a slot (`shaders/common.wgsl`): per-view-axis counts of `COUNT_BITS` each,
+/// `FILL_BIT` on a filled cell.
+const COUNT_BITS: u32 = 10;
+const COUNT_FIELD: u32 = (1 << COUNT_BITS) - 1;
+const FILL_BIT: u32 = 1 << 31;
+/// Position offset of a pixel centre, in cell/2^16.
+const POS_HALF: u64 = 1 << (super::cpu::POSITION_FRACTION_BITS - 1);
 /// Largest job extent on any axis: slices must fit 16 bits in the fill keys.
 const MAX_EXTENT: i64 = 65_535;
 /// Room multiplier for a job re-run after its table or output overflowed.
@@ -472,18 +479,24 @@ impl GpuBaker {
                 report.batches += 1;
                 report.peak_batch_bytes = report.peak_batch_bytes.max(f.bytes);
                 for (p, r) in self.finish(f, jobs)? {
-                    if let Some(r) = r {
-                        results[p.job] = Some(r);
-                    } else {
-                        let mut p = p;
-                        p.grow();
-                        report.retried_jobs += 1;
-                        if p.bytes(fill) <= self.budget && self.fits_bindings(&p, fill) {
-                            queue.push_back(p);
-                        } else {
+                    match r {
+                        Ok(r) => results[p.job] = Some(r),
+                        Err(Redo::Cpu) => {
                             report.cpu_jobs += 1;
                             report.gpu_jobs -= 1;
                             cpu.push(p.job);
+                        }
+                        Err(Redo::Grow) => {
+                            let mut p = p;
+                            p.grow();
+                            report.retried_jobs += 1;
+                            if p.bytes(fill) <= self.budget && self.fits_bindings(&p, fill) {
+                                queue.push_back(p);
+                            } else {
+                                report.cpu_jobs += 1;
+                                report.gpu_jobs -= 1;
+                                cpu.push(p.job);
+                            }
                         }
                     }
                 }
@@ -693,12 +706,8 @@ impl GpuBaker {
         Ok(InFlight { jobs: batch, staging, counters_bytes, out_offsets, mapped: rx, bytes })
     }
 
-    /// Waits for a batch's read-back and decodes each job; `None` for a job that overflowed.
-    fn finish(
-        &self,
-        f: InFlight,
-        jobs: &[LevelJob<'_>],
-    ) -> Result<Vec<(Prepared, Option<JobResult>)>, GpuError> {
+    /// Waits for a batch's read-back and decodes each job.
+    fn finish(&self, f: InFlight, jobs: &[LevelJob<'_>]) -> Result<Vec<(Prepared, Decoded)>, GpuError> {
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| GpuError::Failed(format!("waiting for the device: {e}")))?;
@@ -731,19 +740,28 @@ impl GpuBaker {
     }
 }
 
-/// Turns one job's counters and points into the reference's output; `None` on overflow.
-fn decode(
-    p: &Prepared,
-    job: &LevelJob<'_>,
-    counters: &[u32],
-    points: &[u32],
-) -> Option<(Vec<BakedCell>, BakeStats)> {
+/// Why a job's GPU result was not used.
+enum Redo {
+    /// Its table or output overflowed: re-run with more room.
+    Grow,
+    /// A cell's per-axis count filled up: bake it with the CPU reference.
+    Cpu,
+}
+
+/// A job's GPU result, or why it is not used.
+type Decoded = Result<JobResult, Redo>;
+
+/// Turns one job's counters and points into the reference's output.
+fn decode(p: &Prepared, job: &LevelJob<'_>, counters: &[u32], points: &[u32]) -> Decoded {
     let n = u64::from(counters[0]);
+    if counters[6] > 0 {
+        return Err(Redo::Cpu);
+    }
     if n > p.out_cap || counters[5] > 0 {
-        return None;
+        return Err(Redo::Grow);
     }
     let recs = &points[..n as usize * 8];
-    let filled = recs.chunks_exact(8).filter(|r| r[1] >= FILL_FLAG).count();
+    let filled = recs.chunks_exact(8).filter(|r| r[1] & FILL_BIT != 0).count();
     let stats = BakeStats {
         fragments: [u64::from(counters[2]), u64::from(counters[3]), u64::from(counters[4])],
         occupied: n as usize - filled,
@@ -759,10 +777,14 @@ fn decode(
             let key = r[0];
             let local = [key % nx, (key / nx) % ny, key / nx / ny];
             let index = [0, 1, 2].map(|d| (p.base[d] + i64::from(local[d])) as i32);
-            let count = r[1] & COUNT_MASK;
-            let denom = f64::from(count.max(1)) * POS_ONE;
-            let position = [0, 1, 2]
-                .map(|d| job.origin[d] + (f64::from(index[d]) + f64::from(r[2 + d]) / denom) * job.cell);
+            // Per-axis counts and depth sums → the three position sums (`shaders/common.wgsl`).
+            let counts = [0, 1, 2].map(|d: u32| u64::from((r[1] >> (d * COUNT_BITS)) & COUNT_FIELD));
+            let count = counts.iter().sum::<u64>();
+            let denom = count.max(1) as f64 * POS_ONE;
+            let position = [0, 1, 2].map(|d| {
+                let sum = u64::from(r[2 + d]) + POS_HALF * (count - counts[d]);
+                job.origin[d] + (f64::from(index[d]) + sum as f64 / denom) * job.cell
+            });
             let n = [0, 1, 2].map(|d| f64::from(r[5 + d].cast_signed()));
             let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
             let normal = if len > 0.0 {
@@ -770,10 +792,10 @@ fn decode(
             } else {
                 [0.0, 0.0, 1.0]
             };
-            BakedCell { index, position, normal, samples: u64::from(count), filled: r[1] >= FILL_FLAG }
+            BakedCell { index, position, normal, samples: count, filled: r[1] & FILL_BIT != 0 }
         })
         .collect();
-    Some((cells, stats))
+    Ok((cells, stats))
 }
 
 /// The host's share of a job (see the module doc).
