@@ -8,7 +8,10 @@
 //   6  tris   storage, read  u32 × 6 per triangle: vertex indices relative to the job's first
 //                            vertex, smallest first, then the quantized normal (i32 bits)
 //
-// Items: job.tri_count × 3 per job, item = triangle × 3 + axis.
+// Items: job.tri_count × 3 per job, item = axis × tri_count + triangle: neighbouring
+// invocations (one SIMD batch on llvmpipe) rasterize the same view, whose triangles have
+// similar projected sizes (for terrain the top view is large, the side views thin), so fewer
+// lanes idle while the others loop over their pixels.
 
 @group(0) @binding(5) var<storage, read> verts: array<f32>;
 @group(0) @binding(6) var<storage, read> tris: array<u32>;
@@ -96,8 +99,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let j = find_job(item, 0u);
     let job = jobs[j];
     let local = item - job.raster_start;
-    let axis = local % 3u;
-    let tb = (job.tri_start + local / 3u) * 6u;
+    let axis = local / job.tri_count;
+    let tb = (job.tri_start + local - axis * job.tri_count) * 6u;
     let g0 = vert(job, tris[tb]);
     let g1 = vert(job, tris[tb + 1u]);
     let g2 = vert(job, tris[tb + 2u]);
