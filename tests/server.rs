@@ -208,6 +208,17 @@ async fn caching_semantics() {
     assert_eq!(b.header("accept-ranges"), Some("bytes"));
     let etag = b.header("etag").unwrap().to_owned();
     assert!(etag.starts_with('"') && !etag.starts_with("W/"), "strong ETag: {etag}");
+    // The first request read the blob from disk through the router; now that it is in memory
+    // the fast path answers: the very same bytes and headers (but the date).
+    let hit = get(a, "/tilesets/t/tiles/1/1/0/1").await;
+    let without_date = |r: &Resp| r.headers.iter().filter(|(k, _)| k != "date").cloned().collect::<Vec<_>>();
+    assert_eq!((hit.status, &hit.body), (200, &on_disk));
+    assert_eq!(without_date(&hit), without_date(&b));
+    for (k, v) in
+        [("access-control-allow-origin", "*"), ("cache-control", "public, max-age=60, must-revalidate")]
+    {
+        assert_eq!(hit.header(k), Some(v), "{hit:?}");
+    }
     assert!(b.header("cache-control").unwrap().contains("must-revalidate"));
     // … immutable with the current content version, revalidated with a stale one.
     let bv = get(a, &format!("/tilesets/t/tiles/1/1/0/1?v={version}")).await;

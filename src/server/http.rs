@@ -40,6 +40,11 @@ pub const NO_CACHE: &str = "no-cache";
 pub const BLOB_TYPE: &str = "application/vnd.terrastream.blob";
 /// Seconds a client is asked to wait when the server sheds load.
 pub const SHED_RETRY_AFTER_S: u32 = 1;
+/// The blob route (also its label in metrics).
+pub const BLOB_ROUTE: &str = "/tilesets/{name}/tiles/{z}/{x}/{y}/{level}";
+/// `Access-Control-Expose-Headers` exactly as the CORS layer writes it from its list in `router`
+/// (the fast path writes this copy; a test compares both paths' headers).
+pub const EXPOSE_HEADERS: &str = "etag,content-range,content-length,accept-ranges,retry-after";
 
 pub fn router(app: Arc<App>) -> Router {
     let cors = CorsLayer::new()
@@ -68,7 +73,7 @@ pub fn router(app: Arc<App>) -> Router {
         .route("/tilesets/{name}", get(summary).post(admin::upload).delete(admin::delete))
         .route("/tilesets/{name}/tileset.json", get(manifest))
         .route("/tilesets/{name}/index/{z}/{x}/{file}", get(index_chunk))
-        .route("/tilesets/{name}/tiles/{z}/{x}/{y}/{level}", get(blob))
+        .route(BLOB_ROUTE, get(blob))
         .route("/jobs/{id}", get(admin::job))
         .fallback(fallback)
         .layer(middleware::from_fn_with_state(app.clone(), front))
@@ -89,6 +94,11 @@ pub struct RateLimiter {
 impl RateLimiter {
     pub fn new(rate: u32) -> Self {
         Self { rate: f64::from(rate), buckets: Mutex::new(HashMap::new()) }
+    }
+
+    /// Is there a limit at all?
+    pub fn enabled(&self) -> bool {
+        self.rate > 0.0
     }
 
     /// `None` when the request may go ahead, else seconds to wait.
@@ -296,6 +306,16 @@ pub(super) struct Conditional {
     if_range: Option<HeaderValue>,
 }
 
+impl Conditional {
+    pub(super) fn from_headers(h: &HeaderMap) -> Self {
+        Self {
+            if_none_match: h.get(header::IF_NONE_MATCH).cloned(),
+            range: h.get(header::RANGE).cloned(),
+            if_range: h.get(header::IF_RANGE).cloned(),
+        }
+    }
+}
+
 impl<S: Send + Sync> axum::extract::FromRequestParts<S> for Conditional {
     type Rejection = std::convert::Infallible;
 
@@ -303,12 +323,7 @@ impl<S: Send + Sync> axum::extract::FromRequestParts<S> for Conditional {
         parts: &mut axum::http::request::Parts,
         _: &S,
     ) -> Result<Self, Self::Rejection> {
-        let h = &parts.headers;
-        Ok(Self {
-            if_none_match: h.get(header::IF_NONE_MATCH).cloned(),
-            range: h.get(header::RANGE).cloned(),
-            if_range: h.get(header::IF_RANGE).cloned(),
-        })
+        Ok(Self::from_headers(&parts.headers))
     }
 }
 
@@ -363,7 +378,7 @@ fn parse_num(s: &str, what: &str) -> Result<u32, Problem> {
 }
 
 /// Checks a key against the tileset's quadtree: `400` when it cannot exist at all.
-fn parse_key(ts: &Tileset, z: &str, x: &str, y: &str) -> Result<TileKey, Problem> {
+pub(super) fn parse_key(ts: &Tileset, z: &str, x: &str, y: &str) -> Result<TileKey, Problem> {
     let zn = parse_num(z, "z")?;
     if zn > u32::from(ts.depth) {
         return Err(Problem::bad_request(format!(
@@ -384,7 +399,7 @@ fn parse_key(ts: &Tileset, z: &str, x: &str, y: &str) -> Result<TileKey, Problem
 
 /// `Cache-Control` of a content-addressed document: immutable only when the request names the
 /// tileset's current content version.
-fn versioned_cache(ts: &Tileset, query: Option<&str>) -> &'static str {
+pub(super) fn versioned_cache(ts: &Tileset, query: Option<&str>) -> &'static str {
     let v = query.into_iter().flat_map(|q| q.split('&')).find_map(|kv| kv.strip_prefix("v="));
     match v {
         Some(v) if v == ts.content_version => IMMUTABLE,
@@ -481,16 +496,23 @@ async fn blob(
     let Path((name, z, x, y, level)) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
     let ts = tileset(&app, &name)?;
     let key = parse_key(&ts, &z, &x, &y)?;
-    let level_s = level.strip_suffix(".tsb").unwrap_or(&level);
+    let level = parse_level(&ts, &level)?;
+    let entry = load_blob(&app, &ts, key, level).await?;
+    Ok(send(&method, &headers, &entry, BLOB_TYPE, versioned_cache(&ts, query.as_deref())))
+}
+
+/// A level path component (`N` or `N.tsb`) checked against the tileset's levels.
+pub(super) fn parse_level(ts: &Tileset, level: &str) -> Result<u8, Problem> {
+    let level_s = level.strip_suffix(".tsb").unwrap_or(level);
     let level = parse_num(level_s, "level")?;
     if level >= u32::from(ts.level_count) {
         return Err(Problem::bad_request(format!(
-            "level {level} is out of range: tileset {name:?} has levels 0 to {}",
+            "level {level} is out of range: tileset {:?} has levels 0 to {}",
+            ts.name,
             ts.level_count.saturating_sub(1)
         )));
     }
-    let entry = load_blob(&app, &ts, key, level as u8).await?;
-    Ok(send(&method, &headers, &entry, BLOB_TYPE, versioned_cache(&ts, query.as_deref())))
+    Ok(level as u8)
 }
 
 /// What reading a blob from disk found.
@@ -666,7 +688,7 @@ fn parse_range(h: &str, len: u64) -> RangeReq {
 /// The response for a verified body: 304 when `If-None-Match` matches, 206/416 for a range
 /// (honoured only when `If-Range`, if any, names this ETag), else 200. HEAD gets the same
 /// headers (axum drops the body).
-fn send(
+pub(super) fn send(
     method: &Method,
     headers: &Conditional,
     e: &Entry,

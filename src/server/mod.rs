@@ -13,6 +13,7 @@ mod bakery;
 mod cache;
 mod config;
 pub mod demo;
+mod fast;
 mod http;
 mod listener;
 mod metrics;
@@ -231,7 +232,9 @@ impl Server {
             let _ = stop_tx.send(true);
         };
         let listener = listener::Limited::new(self.listener, app.config.max_connections);
-        let service = http::router(app.clone()).into_make_service_with_connect_info::<listener::Peer>();
+        let service = axum::ServiceExt::<axum::extract::Request>::into_make_service_with_connect_info::<
+            listener::Peer,
+        >(fast::FastPath::new(app.clone()));
         let serve = axum::serve(listener, service).with_graceful_shutdown(signal);
         let grace = app.config.shutdown_timeout;
         let deadline = async move {

@@ -1,0 +1,107 @@
+//! The hot path of a tile server: a `GET` of a blob that is already verified and held in memory.
+//! Such a request is answered here, in front of the router, with exactly the response the
+//! router's blob handler and the front middleware would give (same headers, metrics, CORS), but
+//! without the router's per-request work (service clones, boxed middleware, five path
+//! parameters percent-decoded into extensions and deserialized into strings), which profiling
+//! under `bench/server_vs_nginx.sh` showed to be most of the server's user-space time per
+//! request. Anything else — another route or method, a percent-encoded or malformed path, a key
+//! or level that is not valid, a blob not in memory, a server with `--read-token` or
+//! `--rate-limit`, or one at its in-flight limit — goes to the router unchanged, which owns
+//! every error answer, disk read and bake.
+
+use std::convert::Infallible;
+use std::future::Future;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::task::{Context, Poll};
+use std::time::Instant;
+
+use axum::Router;
+use axum::extract::Request;
+use axum::http::{HeaderValue, Method, header};
+use axum::response::Response;
+use tower::Service;
+
+use super::App;
+use super::http::{self, BLOB_ROUTE, Conditional};
+
+/// The router behind the in-memory blob fast path.
+#[derive(Clone)]
+pub struct FastPath {
+    app: Arc<App>,
+    router: Router,
+}
+
+impl FastPath {
+    pub fn new(app: Arc<App>) -> Self {
+        Self { router: http::router(app.clone()), app }
+    }
+}
+
+impl Service<Request> for FastPath {
+    type Response = Response;
+    type Error = Infallible;
+    type Future = Pin<Box<dyn Future<Output = Result<Response, Infallible>> + Send>>;
+
+    fn poll_ready(&mut self, _cx: &mut Context<'_>) -> Poll<Result<(), Infallible>> {
+        // The router is always ready.
+        Poll::Ready(Ok(()))
+    }
+
+    fn call(&mut self, req: Request) -> Self::Future {
+        if let Some(resp) = cached_blob(&self.app, &req) {
+            return Box::pin(std::future::ready(Ok(resp)));
+        }
+        Box::pin(self.router.call(req))
+    }
+}
+
+/// The response to `req` when it is a plain `GET` of a blob held in memory, else `None`.
+fn cached_blob(app: &App, req: &Request) -> Option<Response> {
+    let start = Instant::now();
+    if req.method() != Method::GET
+        || app.config.read_token.is_some()
+        || app.rate.enabled()
+        || app.in_flight.load(Ordering::Relaxed) >= app.config.max_in_flight
+    {
+        return None;
+    }
+    let path = req.uri().path();
+    // Percent-encoded paths take the router's way (it decodes them).
+    if path.contains('%') {
+        return None;
+    }
+    let mut parts = path.strip_prefix("/tilesets/")?.split('/');
+    let (name, tiles, z, x, y, level) =
+        (parts.next()?, parts.next()?, parts.next()?, parts.next()?, parts.next()?, parts.next()?);
+    if tiles != "tiles" || parts.next().is_some() {
+        return None;
+    }
+    let ts = http::tileset(app, name).ok()?;
+    let key = http::parse_key(&ts, z, x, y).ok()?;
+    let level = http::parse_level(&ts, level).ok()?;
+    let entry = app.cache.get(&(ts.generation, key, level))?;
+    app.metrics.cache_hits.fetch_add(1, Ordering::Relaxed);
+    let cond = Conditional::from_headers(req.headers());
+    let mut resp = http::send(
+        req.method(),
+        &cond,
+        &entry,
+        http::BLOB_TYPE,
+        http::versioned_cache(&ts, req.uri().query()),
+    );
+    // What the CORS layer adds to every response.
+    let h = resp.headers_mut();
+    h.insert(header::ACCESS_CONTROL_EXPOSE_HEADERS, HeaderValue::from_static(http::EXPOSE_HEADERS));
+    h.insert(header::ACCESS_CONTROL_ALLOW_ORIGIN, HeaderValue::from_static("*"));
+    if let Some(len) =
+        resp.headers().get(header::CONTENT_LENGTH).and_then(|v| v.to_str().ok()?.parse::<u64>().ok())
+    {
+        app.metrics.bytes_sent.fetch_add(len, Ordering::Relaxed);
+    }
+    let status = resp.status().as_u16();
+    app.metrics.record(BLOB_ROUTE, status, start.elapsed());
+    tracing::debug!(method = "GET", %path, status, ms = start.elapsed().as_secs_f64() * 1e3, "request");
+    Some(resp)
+}
