@@ -15,6 +15,9 @@ pub enum Error {
     Store(#[from] StoreError),
     #[error(transparent)]
     Bake(#[from] BakeError),
+    #[cfg(feature = "client")]
+    #[error(transparent)]
+    Client(#[from] crate::client::ClientError),
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

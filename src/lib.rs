@@ -5,6 +5,8 @@
 //! only; `raster` reads files; `store` and `bake` own the tileset directory.
 
 pub mod bake;
+#[cfg(feature = "client")]
+pub mod client;
 pub mod codec;
 mod error;
 pub mod export;
