@@ -31,6 +31,12 @@ pub const DEFAULT_LEVELS: u8 = 4;
 pub const MESH_Z_STEPS_PER_ERROR: f64 = 64.0;
 /// Point positions are quantized to this fraction of the level's cell edge.
 pub const POINT_STEPS_PER_CELL: u32 = 64;
+/// Default GPU memory budget of one batch of point levels, in MiB.
+#[cfg(feature = "gpu")]
+pub const DEFAULT_GPU_BUDGET_MIB: u64 = lod::gpu::DEFAULT_BATCH_BUDGET_MIB;
+/// Default GPU memory budget of one batch of point levels, in MiB (unused without `gpu`).
+#[cfg(not(feature = "gpu"))]
+pub const DEFAULT_GPU_BUDGET_MIB: u64 = 256;
 /// Most point levels a bake may ask for (cells of 2^16 leaf cells are larger than any raster).
 pub const MAX_LEVELS: u8 = 16;
 
@@ -51,6 +57,126 @@ impl Default for BakeOptions {
     }
 }
 
+/// Where point levels are baked (`--gpu`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GpuMode {
+    /// Any adapter, software ones (Mesa lavapipe) included; the CPU with a notice when none.
+    #[default]
+    Auto,
+    /// An adapter or a clear error.
+    On,
+    /// The CPU reference.
+    Off,
+}
+
+/// The point-level baker of a bake.
+pub enum PointBaker {
+    /// `lod::cpu`, node by node in parallel.
+    Cpu,
+    /// `lod::gpu`, many nodes and all their levels per submission.
+    #[cfg(feature = "gpu")]
+    Gpu(Box<lod::gpu::GpuBaker>),
+}
+
+impl PointBaker {
+    /// Resolves `mode`; `gpu_budget_bytes` caps one GPU batch. Returns the baker and, when
+    /// `auto` found no adapter, a one-line notice saying the CPU is used.
+    pub fn open(mode: GpuMode, gpu_budget_bytes: u64) -> Result<(Self, Option<String>), BakeError> {
+        if mode == GpuMode::Off {
+            return Ok((Self::Cpu, None));
+        }
+        #[cfg(feature = "gpu")]
+        {
+            match lod::gpu::GpuBaker::open_default(gpu_budget_bytes) {
+                Ok(g) => Ok((Self::Gpu(Box::new(g)), None)),
+                Err(e) if mode == GpuMode::Auto => {
+                    Ok((Self::Cpu, Some(format!("{e}; baking point levels on the CPU"))))
+                }
+                Err(e) => Err(e.into()),
+            }
+        }
+        #[cfg(not(feature = "gpu"))]
+        {
+            let _ = gpu_budget_bytes;
+            match mode {
+                GpuMode::On => Err(BakeError::Options(
+                    "--gpu on: this build has no GPU support (feature `gpu` off)".into(),
+                )),
+                _ => Ok((
+                    Self::Cpu,
+                    Some("built without the `gpu` feature; baking point levels on the CPU".into()),
+                )),
+            }
+        }
+    }
+
+    /// Point levels `1..=levels` of one node, unquantized, with what the GPU path cost (`None`
+    /// on the CPU).
+    pub fn bake_levels(
+        &self,
+        nm: &NodeMesh,
+        levels: u8,
+    ) -> Result<(Vec<PointCloud>, Option<[u64; 4]>), BakeError> {
+        match self {
+            Self::Cpu => Ok((
+                (1..=levels)
+                    .map(|level| {
+                        let (origin, cell) = nm.level_grid(level);
+                        lod::cpu::bake_points(&nm.mesh, origin, cell)
+                    })
+                    .collect(),
+                None,
+            )),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(gpu) => {
+                let jobs: Vec<lod::gpu::LevelJob<'_>> = (1..=levels)
+                    .map(|l| {
+                        let (origin, cell) = nm.level_grid(l);
+                        lod::gpu::LevelJob { mesh: &nm.mesh, origin, cell }
+                    })
+                    .collect();
+                let (results, rep) = gpu.bake_jobs(&jobs, &lod::cpu::BakeOptions::default())?;
+                let clouds = results.into_iter().map(|(cells, _)| cells_to_cloud(&cells)).collect();
+                Ok((clouds, Some([rep.batches, rep.peak_batch_bytes, rep.budget_bytes, rep.cpu_jobs])))
+            }
+        }
+    }
+
+    /// Point clouds of one mesh on several cubic grids (origin, cell edge), with what each bake
+    /// did: the model bake's levels. The GPU takes them all in one submission (split only by
+    /// the batch budget); the CPU bakes them in parallel.
+    pub fn bake_grids(
+        &self,
+        mesh: &crate::geom::Mesh,
+        grids: &[([f64; 3], f64)],
+    ) -> Result<Vec<(PointCloud, lod::cpu::BakeStats)>, BakeError> {
+        match self {
+            Self::Cpu => Ok(grids
+                .par_iter()
+                .map(|&(origin, cell)| lod::cpu::bake_points_with_stats(mesh, origin, cell))
+                .collect()),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(gpu) => {
+                let jobs: Vec<lod::gpu::LevelJob<'_>> =
+                    grids.iter().map(|&(origin, cell)| lod::gpu::LevelJob { mesh, origin, cell }).collect();
+                let (results, _) = gpu.bake_jobs(&jobs, &lod::cpu::BakeOptions::default())?;
+                Ok(results.into_iter().map(|(cells, stats)| (cells_to_cloud(&cells), stats)).collect())
+            }
+        }
+    }
+
+    /// "cpu" or "gpu: <adapter>", as in the summary and the manifest.
+    #[must_use]
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Cpu => "cpu".into(),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(g) => format!("gpu: {}", g.adapter()),
+        }
+    }
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum BakeError {
     #[error("bake: {0}")]
@@ -63,6 +189,9 @@ pub enum BakeError {
     Codec { key: TileKey, level: u8, source: codec::CodecError },
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),
+    #[cfg(feature = "gpu")]
+    #[error("bake: {0}")]
+    Gpu(#[from] lod::gpu::GpuError),
 }
 
 /// Progress of a bake, reported as nodes complete (from any worker thread).
@@ -86,6 +215,14 @@ pub struct BakeSummary {
     pub nodata_filled: u64,
     pub totals: Vec<LevelTotals>,
     pub seconds: f64,
+    /// "cpu" or "gpu: <adapter>".
+    pub point_baker: String,
+    /// GPU batches submitted, and the largest one's buffers in bytes (0 on the CPU path).
+    pub gpu_batches: u64,
+    pub gpu_peak_batch_bytes: u64,
+    pub gpu_budget_bytes: u64,
+    /// Point levels the GPU path left to the CPU reference (too large for one batch).
+    pub gpu_cpu_fallback_levels: u64,
 }
 
 impl BakeSummary {
@@ -157,11 +294,24 @@ pub fn level_specs(opts: &BakeOptions) -> Vec<LevelSpec> {
     out
 }
 
-/// Bakes `raster` into `store`. Resumes a bake with the same options, keeping complete nodes.
+/// Bakes `raster` into `store` with the CPU point baker (see [`bake_with`]).
 pub fn bake(
     raster: &LoadedRaster,
     source_name: &str,
     opts: &BakeOptions,
+    store: &Store,
+    progress: &dyn Progress,
+) -> Result<BakeSummary, BakeError> {
+    bake_with(raster, source_name, opts, &PointBaker::Cpu, store, progress)
+}
+
+/// Bakes `raster` into `store`, point levels by `baker`. Resumes a bake with the same options,
+/// keeping complete nodes.
+pub fn bake_with(
+    raster: &LoadedRaster,
+    source_name: &str,
+    opts: &BakeOptions,
+    baker: &PointBaker,
     store: &Store,
     progress: &dyn Progress,
 ) -> Result<BakeSummary, BakeError> {
@@ -186,28 +336,20 @@ pub fn bake(
         nodes.par_iter().map(|&k| existing_node(store, k, opts.levels)).collect();
     let resumed_count = resumed.iter().filter(|r| r.is_some()).count() as u64;
     progress.start(nodes.len() as u64, resumed_count);
-    let failures = AtomicU64::new(0);
-    let entries: Vec<NodeEntry> = nodes
-        .par_iter()
-        .zip(resumed.into_par_iter())
-        .map(|(&key, prev)| {
-            if let Some(entry) = prev {
-                return Ok(entry);
-            }
-            if failures.load(Ordering::Relaxed) > 0 {
-                return Err(None);
-            }
-            let r = bake_node(&pyramid, hf, &raster.georef, key, opts, store);
-            progress.node_done();
-            r.map_err(|e| {
-                failures.fetch_add(1, Ordering::Relaxed);
-                Some(e)
-            })
-        })
-        .collect::<Result<_, Option<BakeError>>>()
-        .map_err(|e| {
-            e.unwrap_or_else(|| BakeError::Options("bake stopped after an earlier failure".into()))
-        })?;
+    // [batches, peak batch bytes, budget bytes, levels left to the CPU] of the GPU path.
+    #[allow(unused_mut)]
+    let mut gpu_report: Option<[u64; 4]> = None;
+    let entries: Vec<NodeEntry> = match baker {
+        PointBaker::Cpu => bake_nodes_cpu(&pyramid, raster, opts, &nodes, resumed, store, progress)?,
+        #[cfg(feature = "gpu")]
+        PointBaker::Gpu(gpu) => {
+            let (entries, report) =
+                bake_nodes_gpu(gpu, &pyramid, raster, opts, &nodes, resumed, store, progress)?;
+            gpu_report =
+                Some([report.batches, report.peak_batch_bytes, report.budget_bytes, report.cpu_jobs]);
+            entries
+        }
+    };
 
     // Index chunks, then the manifest last.
     let mut chunks: std::collections::BTreeMap<TileKey, Vec<NodeEntry>> = std::collections::BTreeMap::new();
@@ -246,6 +388,7 @@ pub fn bake(
         levels: level_specs(opts),
         totals: totals.clone(),
         options: options_json,
+        point_baker: baker.describe(),
     };
     store.finish_bake(&manifest)?;
     Ok(BakeSummary {
@@ -255,7 +398,165 @@ pub fn bake(
         nodata_filled: raster.nodata_filled,
         totals,
         seconds: t0.elapsed().as_secs_f64(),
+        point_baker: baker.describe(),
+        gpu_batches: gpu_report.map_or(0, |r| r[0]),
+        gpu_peak_batch_bytes: gpu_report.map_or(0, |r| r[1]),
+        gpu_budget_bytes: gpu_report.map_or(0, |r| r[2]),
+        gpu_cpu_fallback_levels: gpu_report.map_or(0, |r| r[3]),
     })
+}
+
+/// The CPU path: every node on its own, in parallel.
+fn bake_nodes_cpu(
+    pyramid: &Pyramid,
+    raster: &LoadedRaster,
+    opts: &BakeOptions,
+    nodes: &[TileKey],
+    resumed: Vec<Option<NodeEntry>>,
+    store: &Store,
+    progress: &dyn Progress,
+) -> Result<Vec<NodeEntry>, BakeError> {
+    let hf = &raster.heights;
+    let failures = AtomicU64::new(0);
+    nodes
+        .par_iter()
+        .zip(resumed.into_par_iter())
+        .map(|(&key, prev)| {
+            if let Some(entry) = prev {
+                return Ok(entry);
+            }
+            if failures.load(Ordering::Relaxed) > 0 {
+                return Err(None);
+            }
+            let r = bake_node(pyramid, hf, &raster.georef, key, opts, store);
+            progress.node_done();
+            r.map_err(|e| {
+                failures.fetch_add(1, Ordering::Relaxed);
+                Some(e)
+            })
+        })
+        .collect::<Result<_, Option<BakeError>>>()
+        .map_err(|e| e.unwrap_or_else(|| BakeError::Options("bake stopped after an earlier failure".into())))
+}
+
+/// Nodes per GPU round: their TINs are built (in parallel) while the GPU bakes the round
+/// before, and their levels go to the GPU together, split into batches by the memory budget.
+#[cfg(feature = "gpu")]
+pub const GPU_ROUND_NODES: usize = 32;
+
+/// The GPU path: rounds of nodes, each round's TINs built on the CPU while the GPU bakes the
+/// previous round's point levels, which are then measured, encoded and written in parallel.
+/// Each node's result is what it would be alone (a job's output does not depend on its batch).
+#[cfg(feature = "gpu")]
+#[allow(clippy::too_many_arguments)]
+fn bake_nodes_gpu(
+    gpu: &lod::gpu::GpuBaker,
+    pyramid: &Pyramid,
+    raster: &LoadedRaster,
+    opts: &BakeOptions,
+    nodes: &[TileKey],
+    resumed: Vec<Option<NodeEntry>>,
+    store: &Store,
+    progress: &dyn Progress,
+) -> Result<(Vec<NodeEntry>, lod::gpu::BatchReport), BakeError> {
+    use std::sync::mpsc;
+    type Round = (Vec<usize>, Vec<NodeMesh>);
+    type Baked = (Vec<usize>, Vec<NodeMesh>, Vec<PointCloud>, lod::gpu::BatchReport);
+
+    let hf = &raster.heights;
+    let pending: Vec<usize> = (0..nodes.len()).filter(|&i| resumed[i].is_none()).collect();
+    let mut entries = resumed;
+    let mut report = lod::gpu::BatchReport { budget_bytes: gpu.budget_bytes(), ..Default::default() };
+    let levels = opts.levels;
+    let bake_round = |meshes: &[NodeMesh]| -> Result<(Vec<PointCloud>, lod::gpu::BatchReport), BakeError> {
+        let jobs: Vec<lod::gpu::LevelJob<'_>> = meshes
+            .iter()
+            .flat_map(|nm| {
+                (1..=levels).map(move |l| {
+                    let (origin, cell) = nm.level_grid(l);
+                    lod::gpu::LevelJob { mesh: &nm.mesh, origin, cell }
+                })
+            })
+            .collect();
+        let (results, rep) = gpu.bake_jobs(&jobs, &lod::cpu::BakeOptions::default())?;
+        let clouds = results.into_iter().map(|(cells, _)| cells_to_cloud(&cells)).collect();
+        Ok((clouds, rep))
+    };
+    std::thread::scope(|scope| -> Result<(), BakeError> {
+        let (to_gpu, gpu_in) = mpsc::sync_channel::<Round>(1);
+        let (gpu_out, from_gpu) = mpsc::channel::<Result<Baked, BakeError>>();
+        scope.spawn(move || {
+            for (ids, meshes) in gpu_in {
+                let r = bake_round(&meshes).map(|(clouds, rep)| (ids, meshes, clouds, rep));
+                if gpu_out.send(r).is_err() {
+                    break;
+                }
+            }
+        });
+        let finish = |entries: &mut Vec<Option<NodeEntry>>,
+                      baked: Baked|
+         -> Result<lod::gpu::BatchReport, BakeError> {
+            let (ids, meshes, clouds, rep) = baked;
+            let mut clouds = clouds.into_iter();
+            let work: Vec<(usize, NodeMesh, Vec<PointCloud>)> = ids
+                .into_iter()
+                .zip(meshes)
+                .map(|(i, nm)| (i, nm, clouds.by_ref().take(usize::from(levels)).collect()))
+                .collect();
+            let done: Vec<(usize, NodeEntry)> = work
+                .into_par_iter()
+                .map(|(i, nm, clouds)| {
+                    let (nb, quants) = finish_node(nm, clouds);
+                    let e = write_node(&nb, &quants, store);
+                    progress.node_done();
+                    e.map(|e| (i, e))
+                })
+                .collect::<Result<_, _>>()?;
+            for (i, e) in done {
+                entries[i] = Some(e);
+            }
+            Ok(rep)
+        };
+        let mut sent = 0usize;
+        let mut received = 0usize;
+        for round in pending.chunks(GPU_ROUND_NODES) {
+            let meshes: Vec<NodeMesh> = round
+                .par_iter()
+                .map(|&i| bake_node_mesh(pyramid, hf, &raster.georef, nodes[i], opts))
+                .collect::<Result<_, _>>()?;
+            if to_gpu.send((round.to_vec(), meshes)).is_err() {
+                break;
+            }
+            sent += 1;
+            // Keep one round queued behind the one the GPU is baking.
+            if sent - received > 1 {
+                let baked =
+                    from_gpu.recv().map_err(|_| BakeError::Options("gpu worker stopped".into()))??;
+                received += 1;
+                report.merge(&finish(&mut entries, baked)?);
+            }
+        }
+        drop(to_gpu);
+        while received < sent {
+            let baked = from_gpu.recv().map_err(|_| BakeError::Options("gpu worker stopped".into()))??;
+            received += 1;
+            report.merge(&finish(&mut entries, baked)?);
+        }
+        Ok(())
+    })?;
+    let entries = entries
+        .into_iter()
+        .map(|e| e.ok_or_else(|| BakeError::Options("a node was left unbaked".into())))
+        .collect::<Result<_, _>>()?;
+    Ok((entries, report))
+}
+
+#[cfg(feature = "gpu")]
+fn cells_to_cloud(cells: &[lod::cpu::BakedCell]) -> PointCloud {
+    PointCloud {
+        positions: cells.iter().map(|c| c.position).collect(),
+        normals: cells.iter().map(|c| c.normal).collect(),
+    }
 }
 
 fn heights_crc(data: &[f32]) -> String {
@@ -304,8 +605,43 @@ pub struct NodeBake {
     pub points: Vec<(PointCloud, Errors)>,
 }
 
-/// Bakes one node in memory: TIN, quantization, measured errors, point levels. Pure apart from
-/// reading the raster window.
+/// A node's level 0: its quantized TIN with measured errors, what its point levels are baked
+/// from.
+pub struct NodeMesh {
+    pub key: TileKey,
+    pub bounds: Bounds,
+    pub mesh: Mesh,
+    pub mesh_errors: Errors,
+    pub quantization: Quantization,
+    /// Edge of the node's level-1 cell (doubling per level).
+    pub level1_cell: f64,
+}
+
+impl NodeMesh {
+    /// The cubic grid of point level `level` (≥ 1): (origin, cell edge).
+    #[must_use]
+    pub fn level_grid(&self, level: u8) -> ([f64; 3], f64) {
+        let cell = self.level1_cell * f64::from(1u32 << (level - 1));
+        let origin = [self.bounds.min[0], self.bounds.min[1], (self.bounds.min[2] / cell).floor() * cell];
+        (origin, cell)
+    }
+
+    /// Quantizes a baked cloud of `level` as its blob stores it and measures its errors.
+    #[must_use]
+    pub fn finish_level(&self, level: u8, mut pc: PointCloud) -> (PointCloud, Errors, Quantization) {
+        let (_, cell) = self.level_grid(level);
+        let q = Quantization {
+            xy_step: cell / f64::from(POINT_STEPS_PER_CELL),
+            z_step: cell / f64::from(POINT_STEPS_PER_CELL),
+        };
+        pc.positions = codec::quantize_positions(&pc.positions, &self.bounds, q);
+        let errors = lod::cpu::measure_points(&self.mesh, &pc, cell);
+        (pc, errors, q)
+    }
+}
+
+/// Bakes one node in memory: TIN, quantization, measured errors, point levels (CPU
+/// reference). Pure apart from reading the raster window.
 pub fn bake_node_geometry(
     pyramid: &Pyramid,
     reader: &dyn WindowReader,
@@ -313,6 +649,69 @@ pub fn bake_node_geometry(
     key: TileKey,
     opts: &BakeOptions,
 ) -> Result<(NodeBake, Vec<Quantization>), BakeError> {
+    let nm = bake_node_mesh(pyramid, reader, georef, key, opts)?;
+    let clouds = (1..=opts.levels)
+        .map(|level| {
+            let (origin, cell) = nm.level_grid(level);
+            lod::cpu::bake_points(&nm.mesh, origin, cell)
+        })
+        .collect();
+    Ok(finish_node(nm, clouds))
+}
+
+/// [`bake_node_geometry`] with the point levels baked by `baker`: on the GPU all the node's
+/// levels go in one submission. What a single-node (on-demand) bake calls; the result is the
+/// same as in a whole-raster bake with the same baker.
+pub fn bake_node_geometry_with(
+    pyramid: &Pyramid,
+    reader: &dyn WindowReader,
+    georef: &Georef,
+    key: TileKey,
+    opts: &BakeOptions,
+    baker: &PointBaker,
+) -> Result<(NodeBake, Vec<Quantization>), BakeError> {
+    let nm = bake_node_mesh(pyramid, reader, georef, key, opts)?;
+    let clouds = baker.bake_levels(&nm, opts.levels)?.0;
+    Ok(finish_node(nm, clouds))
+}
+
+/// [`bake_node_geometry_with`], then encodes the node's blobs and writes them to `store`;
+/// returns its index entry (the index and manifest are the caller's).
+pub fn bake_node_with(
+    pyramid: &Pyramid,
+    reader: &dyn WindowReader,
+    georef: &Georef,
+    key: TileKey,
+    opts: &BakeOptions,
+    baker: &PointBaker,
+    store: &Store,
+) -> Result<NodeEntry, BakeError> {
+    let (nb, quants) = bake_node_geometry_with(pyramid, reader, georef, key, opts, baker)?;
+    write_node(&nb, &quants, store)
+}
+
+/// Quantizes and measures a node's baked clouds (levels 1, 2, …).
+fn finish_node(nm: NodeMesh, clouds: Vec<PointCloud>) -> (NodeBake, Vec<Quantization>) {
+    let mut quants = vec![nm.quantization];
+    let mut points = Vec::with_capacity(clouds.len());
+    for (k, pc) in clouds.into_iter().enumerate() {
+        let (pc, errors, q) = nm.finish_level(k as u8 + 1, pc);
+        quants.push(q);
+        points.push((pc, errors));
+    }
+    let nb = NodeBake { key: nm.key, bounds: nm.bounds, mesh: nm.mesh, mesh_errors: nm.mesh_errors, points };
+    (nb, quants)
+}
+
+/// A node's TIN, quantized as the blob stores it, with its errors measured against every
+/// full-resolution sample it covers. Pure apart from reading the raster window.
+pub fn bake_node_mesh(
+    pyramid: &Pyramid,
+    reader: &dyn WindowReader,
+    georef: &Georef,
+    key: TileKey,
+    opts: &BakeOptions,
+) -> Result<NodeMesh, BakeError> {
     let frame = Frame { g: georef };
     let step = pyramid.step(key.z);
     let grid = pyramid.grid(key);
@@ -383,22 +782,14 @@ pub fn bake_node_geometry(
         .map_err(|source| BakeError::Tin { key, source })?;
     drop(full);
 
-    let mut quants = vec![mesh_q];
-    let mut points = Vec::new();
-    for level in 1..=opts.levels {
-        let cell = frame.cell() * f64::from(step) * f64::from(1u32 << level);
-        let origin = [bounds.min[0], bounds.min[1], (bounds.min[2] / cell).floor() * cell];
-        let mut pc = lod::cpu::bake_points(&mesh, origin, cell);
-        let q = Quantization {
-            xy_step: cell / f64::from(POINT_STEPS_PER_CELL),
-            z_step: cell / f64::from(POINT_STEPS_PER_CELL),
-        };
-        pc.positions = codec::quantize_positions(&pc.positions, &bounds, q);
-        let errors = lod::cpu::measure_points(&mesh, &pc, cell);
-        quants.push(q);
-        points.push((pc, errors));
-    }
-    Ok((NodeBake { key, bounds, mesh, mesh_errors, points }, quants))
+    Ok(NodeMesh {
+        key,
+        bounds,
+        mesh,
+        mesh_errors,
+        quantization: mesh_q,
+        level1_cell: frame.cell() * f64::from(step) * 2.0,
+    })
 }
 
 fn bake_node(
@@ -410,6 +801,12 @@ fn bake_node(
     store: &Store,
 ) -> Result<NodeEntry, BakeError> {
     let (nb, quants) = bake_node_geometry(pyramid, reader, georef, key, opts)?;
+    write_node(&nb, &quants, store)
+}
+
+/// Encodes and writes one baked node's blobs; returns its index entry.
+fn write_node(nb: &NodeBake, quants: &[Quantization], store: &Store) -> Result<NodeEntry, BakeError> {
+    let key = nb.key;
     let codec_err = |level: u8| move |source| BakeError::Codec { key, level, source };
     let mut levels = Vec::with_capacity(nb.points.len() + 1);
     let mesh_blob =
@@ -444,4 +841,82 @@ fn bake_node(
         levels[level].checksum = codec::decode_header(bytes).map_err(codec_err(level as u8))?.checksum;
     }
     Ok(NodeEntry { key, bounds: nb.bounds, levels })
+}
+
+/// The options record `bake` writes to `bake-options.json` (and into the manifest) for this
+/// raster and these options. The server's on-demand baker writes the same record so that a
+/// later `terrastream bake` of the same source resumes the tiles it baked, and vice versa.
+#[must_use]
+pub fn options_record(raster: &LoadedRaster, source_name: &str, opts: &BakeOptions) -> serde_json::Value {
+    let hf = &raster.heights;
+    serde_json::json!({
+        "tile_size": opts.tile_size,
+        "max_error": opts.max_error,
+        "levels": opts.levels,
+        "frame": raster.georef,
+        "source": { "file": source_name, "width": hf.width, "height": hf.height, "crc32": heights_crc(&hf.data) },
+        "format_version": codec::FORMAT_VERSION,
+    })
+}
+
+/// Bakes one node (every level) of `raster` and writes its blobs into `store`, exactly as
+/// [`bake`] would (same bytes); used by the server to bake tiles on first request. The caller
+/// has prepared the store with [`Store::begin_bake`] and [`options_record`].
+pub fn bake_one_node(
+    raster: &LoadedRaster,
+    key: TileKey,
+    opts: &BakeOptions,
+    baker: &PointBaker,
+    store: &Store,
+) -> Result<NodeEntry, BakeError> {
+    check_options(opts)?;
+    let hf = &raster.heights;
+    let pyramid = Pyramid::new(hf.width, hf.height, opts.tile_size)?;
+    if !pyramid.contains(key) {
+        return Err(BakeError::Options(format!("tile {key} is outside the raster's quadtree")));
+    }
+    bake_node_with(&pyramid, hf, &raster.georef, key, opts, baker, store)
+}
+
+/// The index entry of a node whose every level is on disk (rebuilt from the blob headers), or
+/// `None` when a level is missing or does not decode as that node and level.
+#[must_use]
+pub fn node_from_blobs(store: &Store, key: TileKey, levels: u8) -> Option<NodeEntry> {
+    existing_node(store, key, levels)
+}
+
+#[cfg(test)]
+mod one_node_tests {
+    use super::*;
+
+    /// `bake_one_node` writes the very bytes `bake` writes, and `options_record` is the record
+    /// `bake` stores, so on-demand tiles and batch bakes resume each other.
+    #[test]
+    fn one_node_matches_full_bake() {
+        let (w, h) = (65, 49);
+        let raster = LoadedRaster {
+            heights: crate::raster::Heightfield { width: w, height: h, data: crate::synth::terrain(w, h, 3) },
+            georef: Georef { dx: 10.0, dy: -10.0, ..Georef::default() },
+            nodata_filled: 0,
+            format: "test".into(),
+        };
+        let opts = BakeOptions { tile_size: 32, max_error: 2.0, levels: 2 };
+        let full = tempfile::tempdir().unwrap();
+        let full_store = Store::new(full.path());
+        bake(&raster, "t.tif", &opts, &full_store, &NoProgress).unwrap();
+        let manifest = full_store.manifest().unwrap();
+        assert_eq!(manifest.options, options_record(&raster, "t.tif", &opts));
+
+        let one = tempfile::tempdir().unwrap();
+        let one_store = Store::new(&one.path().join("ts"));
+        one_store.begin_bake(&options_record(&raster, "t.tif", &opts)).unwrap();
+        let key = TileKey::new(1, 1, 0);
+        let entry = bake_one_node(&raster, key, &opts, &PointBaker::Cpu, &one_store).unwrap();
+        assert_eq!(Some(&entry), full_store.node(key).unwrap().as_ref());
+        for level in 0..=opts.levels {
+            assert_eq!(one_store.read_blob(key, level).unwrap(), full_store.read_blob(key, level).unwrap());
+        }
+        assert_eq!(node_from_blobs(&one_store, key, opts.levels), Some(entry));
+        assert!(bake_one_node(&raster, TileKey::new(1, 2, 0), &opts, &PointBaker::Cpu, &one_store).is_err());
+    }
 }

@@ -1,7 +1,10 @@
 //! The library's error type: one enum per stage, gathered here so callers can match on the
 //! stage that failed while `?` converts between them.
 
-use crate::{bake::BakeError, codec::CodecError, raster::RasterError, store::StoreError, tin::TinError};
+use crate::{
+    bake::BakeError, bake_model::ModelBakeError, codec::CodecError, mesh::MeshError, raster::RasterError,
+    store::StoreError, tin::TinError,
+};
 
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
@@ -15,6 +18,16 @@ pub enum Error {
     Store(#[from] StoreError),
     #[error(transparent)]
     Bake(#[from] BakeError),
+    #[cfg(feature = "gpu")]
+    #[error(transparent)]
+    Gpu(#[from] crate::lod::gpu::GpuError),
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    #[error(transparent)]
+    ModelBake(#[from] ModelBakeError),
+    #[cfg(feature = "server")]
+    #[error(transparent)]
+    Server(#[from] crate::server::ServerError),
     #[cfg(feature = "client")]
     #[error(transparent)]
     Client(#[from] crate::client::ClientError),

@@ -5,6 +5,7 @@
 //! only; `raster` reads files; `store` and `bake` own the tileset directory.
 
 pub mod bake;
+pub mod bake_model;
 #[cfg(feature = "client")]
 pub mod client;
 pub mod codec;
@@ -12,7 +13,10 @@ mod error;
 pub mod export;
 pub mod geom;
 pub mod lod;
+pub mod mesh;
 pub mod raster;
+#[cfg(feature = "server")]
+pub mod server;
 pub mod store;
 pub mod synth;
 pub mod tiling;

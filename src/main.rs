@@ -8,7 +8,13 @@ use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use terrastream::bake::{self, BakeOptions, BakeSummary};
+use terrastream::bake_model::{self, ModelBakeOptions, ModelLevel};
+#[cfg(feature = "client")]
+use terrastream::client;
+use terrastream::mesh::FileType;
 use terrastream::raster::{self, Encoding, Limits, LoadOptions, Overrides};
+#[cfg(feature = "server")]
+use terrastream::server;
 use terrastream::store::{LevelTotals, Store};
 use terrastream::tiling::TileKey;
 use terrastream::{export, tiling};
@@ -27,6 +33,9 @@ struct Cli {
 enum Command {
     /// Bake a heightfield raster into a tileset directory (resumes an interrupted bake).
     Bake(BakeArgs),
+    /// Bake a standalone 3D model (OBJ, STL, PLY) into a model tileset: the quantized mesh as
+    /// level 0 and point-cloud levels 1..K baked by 6-direction slicing.
+    BakeModel(BakeModelArgs),
     /// Summarise a tileset: per-level totals and worst errors, or one node with --tile.
     Inspect {
         /// Tileset directory.
@@ -55,6 +64,29 @@ enum Command {
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
+    /// Serve a store directory of tilesets over HTTP (and bake missing tiles of --source tilesets).
+    #[cfg(feature = "server")]
+    Serve(Box<ServeArgs>),
+    /// Generate, bake (once) and serve a sample terrain: the quick start.
+    #[cfg(feature = "server")]
+    Demo {
+        /// Address to serve on.
+        #[arg(long, default_value = server::DEFAULT_BIND)]
+        bind: String,
+        /// Working directory: the generated terrain and the store (out/demo-store) go here.
+        #[arg(long, default_value = "out")]
+        dir: PathBuf,
+        /// Generate and bake only; do not serve.
+        #[arg(long)]
+        no_serve: bool,
+        /// Where the demo's point levels are baked (as `bake --gpu`).
+        #[arg(long, value_enum, default_value_t = GpuArg::Auto)]
+        gpu: GpuArg,
+    },
+    /// Replay a camera flight against a running `terrastream serve`: select, stream and cache
+    /// tiles frame by frame and write OUT/stats.json (per-frame and total figures).
+    #[cfg(feature = "client")]
+    Client(Box<ClientArgs>),
     /// Decode one (tile, level) to PLY or OBJ in world coordinates.
     Export {
         /// Tileset directory.
@@ -68,6 +100,164 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+}
+
+#[cfg(feature = "client")]
+#[derive(clap::Args)]
+struct ClientArgs {
+    /// Server base URL (http://HOST:PORT[/PREFIX]).
+    #[arg(long)]
+    url: String,
+    /// Tileset name on the server.
+    #[arg(long)]
+    tileset: String,
+    /// Flight JSON (timestamped eye/target/up keys; see docs: world or normalized frame).
+    #[arg(long)]
+    flight: PathBuf,
+    /// Viewport width in pixels.
+    #[arg(long, default_value_t = client::live::DEFAULT_WIDTH)]
+    width: u32,
+    /// Viewport height in pixels.
+    #[arg(long, default_value_t = client::live::DEFAULT_HEIGHT)]
+    height: u32,
+    /// Horizontal field of view in degrees.
+    #[arg(long, default_value_t = client::select::DEFAULT_FOV_DEG)]
+    fov: f64,
+    /// Screen-space error threshold in pixels.
+    #[arg(long, default_value_t = client::select::DEFAULT_THRESHOLD_PX)]
+    threshold: f64,
+    /// Level cross-fade duration in seconds (0: switch at once).
+    #[arg(long, default_value_t = client::select::DEFAULT_FADE_SECONDS)]
+    fade: f64,
+    /// Frames per second of the replay.
+    #[arg(long, default_value_t = client::live::DEFAULT_FPS)]
+    fps: f64,
+    /// Longest time (s) to hold the last pose waiting for a complete view.
+    #[arg(long, default_value_t = client::live::DEFAULT_SETTLE_S)]
+    settle: f64,
+    /// Requests running at once.
+    #[arg(long, default_value_t = client::fetch::DEFAULT_MAX_IN_FLIGHT)]
+    max_in_flight: usize,
+    /// Decoded-tile cache budget in MiB.
+    #[arg(long, default_value_t = client::fetch::DEFAULT_CACHE_BYTES >> 20)]
+    cache_mb: usize,
+    /// Output directory (stats.json).
+    #[arg(long, default_value = "out/client")]
+    out: PathBuf,
+}
+
+/// Every serve setting is optional here: unset ones come from the TOML file (--config), then
+/// the defaults. Environment variables count as flags.
+#[cfg(feature = "server")]
+#[derive(clap::Args)]
+struct ServeArgs {
+    #[arg(
+        long,
+        env = "TERRASTREAM_STORE",
+        help = "Store directory: each subdirectory DIR/NAME is a tileset"
+    )]
+    store: Option<PathBuf>,
+    #[arg(long, env = "TERRASTREAM_BIND", help = format!("Address to listen on [default: {}]", server::DEFAULT_BIND))]
+    bind: Option<String>,
+    #[arg(
+        long = "source",
+        value_name = "NAME=RASTER[,key=value…]",
+        help = "Bake tiles of tileset NAME missing from the store from RASTER on first request; keys: encoding, cell_size, tile_size, max_error, levels (repeatable)"
+    )]
+    sources: Vec<server::SourceSpec>,
+    #[arg(
+        long,
+        env = "TERRASTREAM_CONFIG",
+        help = "TOML file with the same settings (snake_case keys); flags and environment win"
+    )]
+    config: Option<PathBuf>,
+    #[arg(long, env = "TERRASTREAM_MAX_CONNECTIONS", help = format!("Most open connections [default: {}]", server::DEFAULT_MAX_CONNECTIONS))]
+    max_connections: Option<usize>,
+    #[arg(long, env = "TERRASTREAM_MAX_IN_FLIGHT", help = format!("Most requests in progress; more get 503 + Retry-After [default: {}]", server::DEFAULT_MAX_IN_FLIGHT))]
+    max_in_flight: Option<usize>,
+    #[arg(long, env = "TERRASTREAM_REQUEST_TIMEOUT", value_name = "SECONDS", help = format!("Per-request time limit [default: {}]", server::DEFAULT_REQUEST_TIMEOUT_S))]
+    request_timeout: Option<u64>,
+    #[arg(long, env = "TERRASTREAM_MAX_BODY_BYTES", help = format!("Largest admin upload [default: {}]", server::DEFAULT_MAX_BODY_BYTES))]
+    max_body_bytes: Option<u64>,
+    #[arg(long, env = "TERRASTREAM_BAKE_WORKERS", help = format!("On-demand bake threads [default: {}]", server::DEFAULT_BAKE_WORKERS))]
+    bake_workers: Option<usize>,
+    #[arg(long, env = "TERRASTREAM_BAKE_QUEUE", help = format!("On-demand bakes that may wait; more get 503 + Retry-After [default: {}]", server::DEFAULT_BAKE_QUEUE))]
+    bake_queue: Option<usize>,
+    #[arg(long, env = "TERRASTREAM_CACHE_BYTES", help = format!("Memory for verified blobs [default: {}]", server::DEFAULT_CACHE_BYTES))]
+    cache_bytes: Option<u64>,
+    #[arg(long, env = "TERRASTREAM_POLL_MS", help = format!("Store re-scan interval in ms [default: {}]", server::DEFAULT_POLL_MS))]
+    poll_ms: Option<u64>,
+    #[arg(long, env = "TERRASTREAM_RATE_LIMIT", help = format!("Requests per second per client address, 0 = off [default: {}]", server::DEFAULT_RATE_LIMIT))]
+    rate_limit: Option<u32>,
+    #[arg(long, env = "TERRASTREAM_SHUTDOWN_TIMEOUT", value_name = "SECONDS", help = format!("Time in-flight requests get after SIGTERM [default: {}]", server::DEFAULT_SHUTDOWN_TIMEOUT_S))]
+    shutdown_timeout: Option<u64>,
+    #[arg(
+        long,
+        env = "TERRASTREAM_ADMIN_TOKEN",
+        hide_env_values = true,
+        help = "Bearer token of the admin API (disabled without)"
+    )]
+    admin_token: Option<String>,
+    #[arg(
+        long,
+        env = "TERRASTREAM_READ_TOKEN",
+        hide_env_values = true,
+        help = "Bearer token required for reading (public without)"
+    )]
+    read_token: Option<String>,
+    #[arg(long, env = "TERRASTREAM_LOG_FORMAT", value_enum, help = "Log format [default: human]")]
+    log_format: Option<LogFormatArg>,
+    #[arg(
+        long,
+        env = "TERRASTREAM_GPU",
+        value_enum,
+        help = "Where on-demand and admin bakes compute point levels: auto (any adapter, else the CPU), on, off [default: auto]"
+    )]
+    gpu: Option<GpuArg>,
+    #[arg(long, env = "TERRASTREAM_GPU_BUDGET_MIB", help = format!("GPU memory budget of one batch of point levels, MiB [default: {}]", bake::DEFAULT_GPU_BUDGET_MIB))]
+    gpu_budget_mib: Option<u64>,
+}
+
+#[cfg(feature = "server")]
+#[derive(Clone, Copy, ValueEnum)]
+enum LogFormatArg {
+    Human,
+    Json,
+}
+
+#[cfg(feature = "server")]
+impl ServeArgs {
+    /// Flags and environment over the TOML file over the defaults.
+    fn config(&self) -> Result<server::Config> {
+        let flags = server::PartialConfig {
+            store: self.store.clone(),
+            bind: self.bind.clone(),
+            sources: self.sources.clone(),
+            max_connections: self.max_connections,
+            max_in_flight: self.max_in_flight,
+            request_timeout_s: self.request_timeout,
+            max_body_bytes: self.max_body_bytes,
+            bake_workers: self.bake_workers,
+            bake_queue: self.bake_queue,
+            cache_bytes: self.cache_bytes,
+            poll_ms: self.poll_ms,
+            rate_limit: self.rate_limit,
+            shutdown_timeout_s: self.shutdown_timeout,
+            admin_token: self.admin_token.clone(),
+            read_token: self.read_token.clone(),
+            log_format: self.log_format.map(|f| match f {
+                LogFormatArg::Human => server::LogFormat::Human,
+                LogFormatArg::Json => server::LogFormat::Json,
+            }),
+            gpu: self.gpu.map(gpu_mode),
+            gpu_budget_mib: self.gpu_budget_mib,
+        };
+        let file = match &self.config {
+            Some(p) => server::PartialConfig::from_toml_file(p)?,
+            None => server::PartialConfig::default(),
+        };
+        Ok(flags.over(file).resolve()?)
+    }
 }
 
 #[derive(clap::Args)]
@@ -113,9 +303,62 @@ struct BakeArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+    /// Where point levels are baked: auto (any GPU adapter, software ones included, else the
+    /// CPU with a notice), on (a GPU adapter or an error), off (CPU).
+    #[arg(long, value_enum, default_value_t = GpuArg::Auto)]
+    gpu: GpuArg,
+    /// GPU memory budget of one batch of point levels, in MiB.
+    #[arg(long, default_value_t = bake::DEFAULT_GPU_BUDGET_MIB)]
+    gpu_budget_mib: u64,
     /// No progress bar.
     #[arg(long, short)]
     quiet: bool,
+}
+
+#[derive(clap::Args)]
+struct BakeModelArgs {
+    /// Model file: Wavefront .obj, .stl (binary or ASCII) or .ply (ASCII or binary).
+    model: PathBuf,
+    /// Output tileset directory (created; must be empty or an earlier bake of the same model).
+    #[arg(long)]
+    out: PathBuf,
+    /// Point-cloud levels below the mesh.
+    #[arg(long, default_value_t = bake_model::DEFAULT_MODEL_LEVELS)]
+    levels: u8,
+    /// Resolution T of level 1: grid cells across the model's longest side (the paper's
+    /// framebuffer size T3); level l of K gets T·(K+1−l)/K.
+    #[arg(long, default_value_t = bake_model::DEFAULT_RESOLUTION)]
+    resolution: u32,
+    /// Explicit resolutions, finest first, comma-separated (overrides --levels/--resolution).
+    #[arg(long, value_delimiter = ',')]
+    resolutions: Option<Vec<u32>>,
+    /// Read the file as this format instead of going by its extension or content.
+    #[arg(long = "format", value_enum)]
+    file_type: Option<ModelFormatArg>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Where point levels are baked: auto (any GPU adapter, software ones included, else the
+    /// CPU with a notice), on (a GPU adapter or an error), off (CPU).
+    #[arg(long, value_enum, default_value_t = GpuArg::Auto)]
+    gpu: GpuArg,
+    /// GPU memory budget of one batch of point levels, in MiB.
+    #[arg(long, default_value_t = bake::DEFAULT_GPU_BUDGET_MIB)]
+    gpu_budget_mib: u64,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum ModelFormatArg {
+    Obj,
+    Stl,
+    Ply,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum GpuArg {
+    Auto,
+    On,
+    Off,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -153,10 +396,17 @@ fn parse_pair(s: &str) -> Result<(f64, f64), String> {
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
-    tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_new(&cli.log).unwrap_or_default())
-        .with_writer(std::io::stderr)
-        .init();
+    let json_logs = match &cli.command {
+        #[cfg(feature = "server")]
+        Command::Serve(a) => a.config().is_ok_and(|c| c.log_format == server::LogFormat::Json),
+        _ => false,
+    };
+    let filter = tracing_subscriber::EnvFilter::try_new(&cli.log).unwrap_or_default();
+    if json_logs {
+        tracing_subscriber::fmt().json().with_env_filter(filter).with_writer(std::io::stderr).init();
+    } else {
+        tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
+    }
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
@@ -169,6 +419,7 @@ fn main() -> std::process::ExitCode {
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Bake(args) => run_bake(&args),
+        Command::BakeModel(args) => run_bake_model(&args),
         Command::Inspect { dir, json, tile } => run_inspect(&dir, json, tile),
         Command::Synth { out, width, height, cell_size, seed } => {
             let height = height.unwrap_or(width);
@@ -186,6 +437,16 @@ fn run(cli: Cli) -> Result<()> {
             println!("wrote {} ({width}×{height} samples, {cell_size} m cells, seed {seed})", out.display());
             Ok(())
         }
+        #[cfg(feature = "server")]
+        Command::Serve(args) => {
+            let config = args.config()?;
+            server::serve_blocking(config, |addr, app| print_urls(addr, &app.tileset_names()))?;
+            Ok(())
+        }
+        #[cfg(feature = "server")]
+        Command::Demo { bind, dir, no_serve, gpu } => run_demo(&bind, &dir, no_serve, gpu),
+        #[cfg(feature = "client")]
+        Command::Client(a) => run_client(&a),
         Command::Export { dir, tile, level, format, out } => {
             let format = match format {
                 ExportFormat::Ply => export::Format::Ply,
@@ -195,6 +456,120 @@ fn run(cli: Cli) -> Result<()> {
             println!("wrote {} ({n} {})", out.display(), if level == 0 { "vertices" } else { "points" });
             Ok(())
         }
+    }
+}
+
+#[cfg(feature = "client")]
+fn run_client(a: &ClientArgs) -> Result<()> {
+    use client::live::{ClientRun, ReplayOptions, SessionOptions};
+    let defaults = SessionOptions::default();
+    let run = ClientRun {
+        url: a.url.clone(),
+        tileset: a.tileset.clone(),
+        flight: a.flight.clone(),
+        out: a.out.clone(),
+        session: SessionOptions {
+            width: a.width,
+            height: a.height,
+            fov_deg: a.fov,
+            select: client::select::SelectParams {
+                threshold_px: a.threshold,
+                fade_seconds: a.fade,
+                ..defaults.select
+            },
+            fetch: client::fetch::FetchParams { max_in_flight: a.max_in_flight, ..defaults.fetch },
+            cache_bytes: a.cache_mb.saturating_mul(1 << 20),
+        },
+        replay: ReplayOptions { fps: a.fps, settle_s: a.settle },
+    };
+    let report = client::live::run_client(&run, |f| {
+        if f.frame % 30 == 0 {
+            eprintln!(
+                "frame {:>5} t {:>6.2}s {:<6} drawn {:?} in flight {:>2} select {:.3} ms",
+                f.frame, f.t, f.phase, f.drawn_per_level, f.requests_in_flight, f.select_ms
+            );
+        }
+    })?;
+    let t = &report.totals;
+    println!(
+        "{} frames ({} in flight), {} bytes in {} requests ({} retries, {} failed), latency p50 {:.1} ms p99 {:.1} ms",
+        t.frames,
+        t.flight_frames,
+        t.bytes,
+        t.requests,
+        t.retries,
+        t.failed,
+        t.latency_p50_ms,
+        t.latency_p99_ms
+    );
+    println!(
+        "first complete view {}, frames under {} px: {:.1} %, settled: {}, selection mean {:.3} ms max {:.3} ms",
+        t.first_complete_s.map_or_else(|| "never".to_owned(), |s| format!("at {s:.2} s")),
+        report.threshold_px,
+        100.0 * t.share_under_threshold,
+        t.settled,
+        t.select_ms_mean,
+        t.select_ms_max
+    );
+    println!("wrote {}", a.out.join(client::live::STATS_FILE).display());
+    Ok(())
+}
+
+#[cfg(feature = "server")]
+fn print_urls(addr: std::net::SocketAddr, names: &[String]) {
+    println!("serving {} tileset(s) on http://{addr}  (Ctrl-C to stop)", names.len());
+    println!("  http://{addr}/tilesets");
+    for n in names.iter().take(3) {
+        println!("  http://{addr}/tilesets/{n}/tileset.json");
+        println!("  http://{addr}/tilesets/{n}/index/0/0/0.json");
+        println!("  http://{addr}/tilesets/{n}/tiles/0/0/0/0");
+    }
+    println!("  http://{addr}/openapi.json   http://{addr}/metrics   http://{addr}/readyz");
+}
+
+#[cfg(feature = "server")]
+fn run_demo(bind: &str, dir: &std::path::Path, no_serve: bool, gpu: GpuArg) -> Result<()> {
+    let bar = ProgressBar::new(0);
+    bar.set_style(
+        ProgressStyle::with_template("baking demo terrain {bar:40} {pos}/{len} tiles  ETA {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let progress = Bar(bar);
+    let t0 = std::time::Instant::now();
+    let (baker, notice) = bake::PointBaker::open(gpu_mode(gpu), bake::DEFAULT_GPU_BUDGET_MIB << 20)?;
+    if let Some(n) = notice {
+        progress.0.println(n);
+    }
+    let (store, baked) = server::demo::prepare(dir, &baker, &progress)?;
+    progress.0.finish_and_clear();
+    if baked {
+        println!(
+            "baked the demo terrain into {} in {:.1} s (point levels: {})",
+            store.display(),
+            t0.elapsed().as_secs_f64(),
+            baker.describe()
+        );
+    } else {
+        println!("using the demo tileset already baked in {}", store.display());
+    }
+    if no_serve {
+        return Ok(());
+    }
+    let config =
+        server::PartialConfig { store: Some(store), bind: Some(bind.to_owned()), ..Default::default() }
+            .resolve()?;
+    server::serve_blocking(config, |addr, app| {
+        print_urls(addr, &app.tileset_names());
+        println!("try:  curl -sI http://{addr}/tilesets/demo/tiles/1/0/1/0");
+    })?;
+    Ok(())
+}
+
+fn gpu_mode(a: GpuArg) -> bake::GpuMode {
+    match a {
+        GpuArg::Auto => bake::GpuMode::Auto,
+        GpuArg::On => bake::GpuMode::On,
+        GpuArg::Off => bake::GpuMode::Off,
     }
 }
 
@@ -256,10 +631,86 @@ fn run_bake(a: &BakeArgs) -> Result<()> {
     );
     bar.enable_steady_tick(Duration::from_millis(200));
     let progress = Bar(bar);
-    let summary = bake::bake(&raster, &name, &opts, &Store::new(&a.out), &progress)?;
+    let (baker, notice) = bake::PointBaker::open(gpu_mode(a.gpu), a.gpu_budget_mib.saturating_mul(1 << 20))?;
+    if let Some(n) = notice {
+        eprintln!("{n}");
+    }
+    let summary = bake::bake_with(&raster, &name, &opts, &baker, &Store::new(&a.out), &progress)?;
     progress.0.finish_and_clear();
     print_summary(&summary, &a.out);
     Ok(())
+}
+
+fn run_bake_model(a: &BakeModelArgs) -> Result<()> {
+    if let Some(n) = a.threads {
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
+    }
+    let resolutions = match &a.resolutions {
+        Some(r) => r.clone(),
+        None => bake_model::ladder(a.resolution, a.levels)?,
+    };
+    let opts = ModelBakeOptions {
+        resolutions,
+        file_type: a.file_type.map(|t| match t {
+            ModelFormatArg::Obj => FileType::Obj,
+            ModelFormatArg::Stl => FileType::Stl,
+            ModelFormatArg::Ply => FileType::Ply,
+        }),
+    };
+    let (baker, notice) = bake::PointBaker::open(gpu_mode(a.gpu), a.gpu_budget_mib.saturating_mul(1 << 20))?;
+    if let Some(n) = notice {
+        eprintln!("{n}");
+    }
+    let s = bake_model::bake_model_file(&a.model, &opts, &baker, &Store::new(&a.out))?;
+    let st = &s.stats;
+    println!(
+        "{} ({}): {} faces → {} triangles read, {} degenerate skipped; {} vertices read, {} unreferenced \
+         dropped, {} normals from the file",
+        s.file,
+        s.encoding,
+        st.faces,
+        st.triangles_read,
+        st.degenerate,
+        st.vertices_read,
+        st.unreferenced,
+        st.normals_from_file
+    );
+    println!(
+        "baked {} levels into {}{} in {:.3} s (read {:.3} s, bake {:.3} s); bounds {:?} – {:?}",
+        s.levels.len(),
+        a.out.display(),
+        if s.resumed { " (same options: rewritten)" } else { "" },
+        s.seconds,
+        s.read_seconds,
+        s.bake_seconds,
+        s.bounds.min,
+        s.bounds.max
+    );
+    println!("point levels baked by {}", s.point_baker);
+    print_model_levels(&s.levels);
+    Ok(())
+}
+
+fn print_model_levels(levels: &[ModelLevel]) {
+    println!(
+        "{:>5}  {:>6}  {:>5}  {:>10}  {:>9}  {:>9}  {:>9}  {:>10}  {:>10}  {:>10}",
+        "level", "kind", "T", "cell", "count", "triangles", "bytes", "max err", "rms", "gap"
+    );
+    for l in levels {
+        println!(
+            "{:>5}  {:>6}  {:>5}  {:>10}  {:>9}  {:>9}  {:>9}  {:>10.3e}  {:>10.3e}  {:>10.3e}",
+            l.level,
+            l.kind,
+            l.resolution.map_or_else(|| "-".to_owned(), |t| t.to_string()),
+            l.cell.map_or_else(|| "-".to_owned(), |c| format!("{c:.3e}")),
+            l.count,
+            l.triangles,
+            l.bytes,
+            l.errors.max,
+            l.errors.rms,
+            l.errors.gap
+        );
+    }
 }
 
 fn print_summary(s: &BakeSummary, out: &std::path::Path) {
@@ -274,6 +725,16 @@ fn print_summary(s: &BakeSummary, out: &std::path::Path) {
     );
     if let Some(mib) = peak_rss_mib() {
         println!("peak memory (RSS): {mib:.0} MiB");
+    }
+    println!("point levels baked by {}", s.point_baker);
+    if s.gpu_batches > 0 {
+        println!(
+            "gpu: {} batches, peak {:.1} MiB per batch (budget {:.0} MiB), {} levels left to the cpu",
+            s.gpu_batches,
+            s.gpu_peak_batch_bytes as f64 / f64::from(1 << 20),
+            s.gpu_budget_bytes as f64 / f64::from(1 << 20),
+            s.gpu_cpu_fallback_levels
+        );
     }
     print_levels(&s.totals);
 }
@@ -320,6 +781,28 @@ fn print_levels(totals: &[LevelTotals]) {
 fn run_inspect(dir: &std::path::Path, json: bool, tile: Option<TileKey>) -> Result<()> {
     let store = Store::new(dir);
     let manifest = store.manifest()?;
+    if tile.is_none() && store.manifest_kind()? == terrastream::store::KIND_MODEL {
+        let m = bake_model::read_manifest(&store)?;
+        if json {
+            println!("{}", serde_json::to_string_pretty(&m)?);
+            return Ok(());
+        }
+        println!(
+            "{}: model {} ({}, {} vertices, {} triangles; {} degenerate skipped), bounds {:?} – {:?}, \
+             content version {}",
+            dir.display(),
+            m.model.file,
+            m.model.encoding,
+            m.model.vertices,
+            m.model.triangles,
+            m.model.degenerate_skipped,
+            m.tileset.bounds.min,
+            m.tileset.bounds.max,
+            m.tileset.content_version
+        );
+        print_model_levels(&m.model.levels);
+        return Ok(());
+    }
     if let Some(key) = tile {
         let Some(node) = store.node(key)? else {
             bail!("{}: no tile {key} in this tileset (depth {})", dir.display(), manifest.depth);

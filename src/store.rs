@@ -29,6 +29,10 @@ pub const MANIFEST_VERSION: u32 = 1;
 /// index file grows with the dataset.
 pub const SUBTREE_LEVELS: u8 = 4;
 pub const MANIFEST_FILE: &str = "tileset.json";
+/// The manifest's `kind` of a heightfield tileset (also what a manifest without `kind` is).
+pub const KIND_TERRAIN: &str = "terrain";
+/// The manifest's `kind` of a standalone model tileset (`bake-model`): one node, 0/0/0.
+pub const KIND_MODEL: &str = "model";
 const STATE_FILE: &str = "bake-options.json";
 
 #[derive(Debug, thiserror::Error)]
@@ -149,6 +153,10 @@ pub struct Manifest {
     pub totals: Vec<LevelTotals>,
     /// The options the tileset was baked with (what a resumed bake must match).
     pub options: serde_json::Value,
+    /// What baked the point levels in the run that finished the tileset: "cpu" or
+    /// "gpu: <adapter name> (<backend>, <device type>)".
+    #[serde(default)]
+    pub point_baker: String,
 }
 
 /// The index chunk root holding `key`.
@@ -226,6 +234,33 @@ impl Store {
     pub fn finish_bake(&self, manifest: &Manifest) -> Result<(), StoreError> {
         let path = self.manifest_path();
         write_atomic(&path, &to_json(manifest, &path)?)
+    }
+
+    /// [`Store::finish_bake`] for a manifest of another shape (a model tileset's, which adds
+    /// fields to [`Manifest`]'s).
+    pub fn finish_bake_as<T: Serialize>(&self, manifest: &T) -> Result<(), StoreError> {
+        let path = self.manifest_path();
+        write_atomic(&path, &to_json(manifest, &path)?)
+    }
+
+    /// The manifest read as `T` (for manifests that extend [`Manifest`]); no format check.
+    pub fn manifest_as<T: for<'de> Deserialize<'de>>(&self) -> Result<T, StoreError> {
+        read_json(&self.manifest_path())
+    }
+
+    /// What the tileset holds: the manifest's `kind` field, [`KIND_TERRAIN`] when it has none
+    /// (terrain manifests predate the field), [`KIND_MODEL`] for `bake-model` output.
+    pub fn manifest_kind(&self) -> Result<String, StoreError> {
+        let path = self.manifest_path();
+        let v: serde_json::Value = read_json(&path)?;
+        match v.get("kind") {
+            None => Ok(KIND_TERRAIN.to_owned()),
+            Some(serde_json::Value::String(k)) => Ok(k.clone()),
+            Some(other) => Err(StoreError::Invalid {
+                path,
+                message: format!("manifest field `kind` is {other}, not a string"),
+            }),
+        }
     }
 
     pub fn write_blob(&self, key: TileKey, level: u8, bytes: &[u8]) -> Result<(), StoreError> {

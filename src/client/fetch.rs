@@ -82,7 +82,10 @@ pub fn wants_of(wants: &[Want], missing_chunks: &[TileKey]) -> Vec<(Resource, Pr
         .iter()
         .map(|&root| (Resource::Chunk { root }, Priority { visible: true, error_px: f64::INFINITY }))
         .chain(wants.iter().map(|w| {
-            (Resource::Tile { key: w.key, level: w.level }, Priority { visible: true, error_px: w.priority_px })
+            (
+                Resource::Tile { key: w.key, level: w.level },
+                Priority { visible: true, error_px: w.priority_px },
+            )
         }))
         .collect()
 }
@@ -226,7 +229,12 @@ impl Scheduler {
     /// forgotten unless running (those are cancelled in [`Scheduler::pump`] after the grace).
     pub fn update(&mut self, wants: &[(Resource, Priority)], now: f64) {
         for &(r, priority) in wants {
-            let e = self.entries.entry(r).or_insert(Entry { priority, wanted_at: now, state: State::Idle, failures: 0 });
+            let e = self.entries.entry(r).or_insert(Entry {
+                priority,
+                wanted_at: now,
+                state: State::Idle,
+                failures: 0,
+            });
             e.priority = priority;
             e.wanted_at = now;
         }
@@ -303,9 +311,7 @@ impl Scheduler {
     /// permanent failure); `None` for an unknown or cancelled id and for a retry.
     pub fn complete(&mut self, id: RequestId, outcome: &Outcome, now: f64) -> Option<Finished> {
         let r = self.in_flight.remove(&id)?;
-        let Some(e) = self.entries.get_mut(&r) else {
-            return None;
-        };
+        let e = self.entries.get_mut(&r)?;
         let started = match e.state {
             State::InFlight { id: cur, started } if cur == id => started,
             _ => return None,

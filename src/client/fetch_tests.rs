@@ -36,7 +36,12 @@ fn priority_order_and_concurrency_limit() {
     let mut s = Scheduler::new(params(2));
     let mut t = Recorder::default();
     s.update(
-        &[(tile(0), pri(false, 100.0)), (tile(1), pri(true, 3.0)), (tile(2), pri(true, f64::INFINITY)), (tile(3), pri(true, 10.0))],
+        &[
+            (tile(0), pri(false, 100.0)),
+            (tile(1), pri(true, 3.0)),
+            (tile(2), pri(true, f64::INFINITY)),
+            (tile(3), pri(true, 10.0)),
+        ],
         0.0,
     );
     s.pump(0.0, &mut t);
@@ -44,7 +49,10 @@ fn priority_order_and_concurrency_limit() {
     assert_eq!(s.in_flight(), 2);
     s.pump(0.1, &mut t);
     assert_eq!(t.started.len(), 2, "limit holds");
-    assert_eq!(s.complete(t.started[0].0, &Outcome::Ok { bytes: 10 }, 0.2), Some(Finished { resource: tile(2), ok: true }));
+    assert_eq!(
+        s.complete(t.started[0].0, &Outcome::Ok { bytes: 10 }, 0.2),
+        Some(Finished { resource: tile(2), ok: true })
+    );
     s.update(&[(tile(0), pri(false, 100.0)), (tile(1), pri(true, 3.0)), (tile(3), pri(true, 10.0))], 0.2);
     s.pump(0.2, &mut t);
     assert_eq!(t.started[2].1, tile(1), "visible before invisible");
@@ -78,7 +86,13 @@ fn unwanted_requests_are_cancelled_after_grace() {
 
 #[test]
 fn timeouts_and_5xx_back_off_exponentially() {
-    let p = FetchParams { max_in_flight: 1, timeout_s: 1.0, backoff_base_s: 0.5, backoff_max_s: 4.0, ..FetchParams::default() };
+    let p = FetchParams {
+        max_in_flight: 1,
+        timeout_s: 1.0,
+        backoff_base_s: 0.5,
+        backoff_max_s: 4.0,
+        ..FetchParams::default()
+    };
     let mut s = Scheduler::new(p);
     let mut t = Recorder::default();
     let want = [(tile(0), pri(true, 5.0))];
@@ -118,7 +132,10 @@ fn timeouts_and_5xx_back_off_exponentially() {
     s.update(&want, 0.0);
     s.pump(0.0, &mut t);
     let id = t.started.last().unwrap().0;
-    assert_eq!(s.complete(id, &Outcome::Status { code: 404, retry_after_s: None }, 0.1), Some(Finished { resource: tile(0), ok: false }));
+    assert_eq!(
+        s.complete(id, &Outcome::Status { code: 404, retry_after_s: None }, 0.1),
+        Some(Finished { resource: tile(0), ok: false })
+    );
     assert_eq!(s.failure(&tile(0)), Some(404));
     s.update(&want, 10.0);
     s.pump(10.0, &mut t);
@@ -157,8 +174,19 @@ fn retry_after_header_values() {
     assert_eq!(parse_retry_after("Sun, 06 Nov 1994 08:51:37 GMT", now), Some(120.0));
     assert_eq!(parse_retry_after("Sun, 06 Nov 1994 08:00:00 GMT", now), Some(0.0), "past dates mean now");
     assert_eq!(parse_retry_after("Thu, 01 Jan 1970 00:00:00 GMT", SystemTime::UNIX_EPOCH), Some(0.0));
-    assert_eq!(parse_retry_after("Sat, 29 Feb 2020 12:00:00 GMT", SystemTime::UNIX_EPOCH), Some(1_582_977_600.0));
-    for bad in ["", "-5", "1.5", "soon", "Sun, 06 Nov 1994 08:49:37 CET", "Sun, 06 Foo 1994 08:49:37 GMT", "Sun, 06 Nov 1994 25:49:37 GMT"] {
+    assert_eq!(
+        parse_retry_after("Sat, 29 Feb 2020 12:00:00 GMT", SystemTime::UNIX_EPOCH),
+        Some(1_582_977_600.0)
+    );
+    for bad in [
+        "",
+        "-5",
+        "1.5",
+        "soon",
+        "Sun, 06 Nov 1994 08:49:37 CET",
+        "Sun, 06 Foo 1994 08:49:37 GMT",
+        "Sun, 06 Nov 1994 25:49:37 GMT",
+    ] {
         assert_eq!(parse_retry_after(bad, now), None, "{bad:?}");
     }
     assert!(retryable(500) && retryable(503) && retryable(429) && retryable(408));

@@ -101,7 +101,12 @@ impl Flight {
                 return Err(format!("keys[{i}].t: {} is not a finite time", k.t));
             }
             if i > 0 && k.t <= self.keys[i - 1].t {
-                return Err(format!("keys[{i}].t: {} is not after keys[{}].t = {}", k.t, i - 1, self.keys[i - 1].t));
+                return Err(format!(
+                    "keys[{i}].t: {} is not after keys[{}].t = {}",
+                    k.t,
+                    i - 1,
+                    self.keys[i - 1].t
+                ));
             }
             for (name, v) in [("eye", k.eye), ("target", k.target), ("up", k.up)] {
                 if !v3::finite(v) {
@@ -155,8 +160,17 @@ impl Flight {
         let map = |p: [f64; 3]| {
             [bounds.min[0] + p[0] * size[0], bounds.min[1] + p[1] * size[1], bounds.min[2] + p[2] * extent]
         };
-        let keys = self.keys.iter().map(|k| Key { t: k.t, eye: map(k.eye), target: map(k.target), up: k.up }).collect();
-        let f = Self { name: self.name.clone(), description: self.description.clone(), frame: Frame::World, keys };
+        let keys = self
+            .keys
+            .iter()
+            .map(|k| Key { t: k.t, eye: map(k.eye), target: map(k.target), up: k.up })
+            .collect();
+        let f = Self {
+            name: self.name.clone(),
+            description: self.description.clone(),
+            frame: Frame::World,
+            keys,
+        };
         f.validate()?;
         Ok(f)
     }
@@ -200,6 +214,7 @@ fn pose(k: &Key) -> Pose {
 }
 
 #[cfg(test)]
+#[allow(clippy::float_cmp)] // interpolation of exactly representable keys is exact
 mod tests {
     use super::*;
 
@@ -228,11 +243,18 @@ mod tests {
     fn errors_name_key_and_field() {
         let e = |s: &str| Flight::from_json(s).unwrap_err();
         assert!(e(r#"{"keys":[]}"#).contains("at least one key"));
-        assert!(e(r#"{"keys":[{"t":1,"eye":[0,0,1],"target":[1,0,0]},{"t":1,"eye":[0,0,1],"target":[1,0,0]}]}"#)
-            .contains("keys[1].t: 1 is not after keys[0].t = 1"));
-        assert!(e(r#"{"keys":[{"t":0,"eye":[1,1,1],"target":[1,1,1]}]}"#).contains("keys[0]: eye and target"));
+        assert!(
+            e(r#"{"keys":[{"t":1,"eye":[0,0,1],"target":[1,0,0]},{"t":1,"eye":[0,0,1],"target":[1,0,0]}]}"#)
+                .contains("keys[1].t: 1 is not after keys[0].t = 1")
+        );
+        assert!(
+            e(r#"{"keys":[{"t":0,"eye":[1,1,1],"target":[1,1,1]}]}"#).contains("keys[0]: eye and target")
+        );
         assert!(e(r#"{"keys":[{"t":0,"eye":[0,0,5],"target":[0,0,0]}]}"#).contains("keys[0].up"));
-        assert!(e(r#"{"keys":[{"t":0,"eye":[0,0,5],"target":[0,0,0],"up":[0,0,0]}]}"#).contains("not a direction"));
+        assert!(
+            e(r#"{"keys":[{"t":0,"eye":[0,0,5],"target":[0,0,0],"up":[0,0,0]}]}"#)
+                .contains("not a direction")
+        );
         assert!(e(r#"{"keys":[{"t":0,"eye":[0,0],"target":[0,0,0]}]}"#).contains("invalid flight JSON"));
         assert!(e(r#"{"frame":"polar","keys":[]}"#).contains("invalid flight JSON"));
         assert!(e(r#"{"keys":[{"t":0,"eye":[0,0,1],"target":[1,0,0],"fov":3}]}"#).contains("unknown field"));

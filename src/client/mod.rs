@@ -3,13 +3,18 @@
 //! crack-hiding skirts ([`select`]), and the request scheduler with its decoded-tile cache
 //! ([`fetch`]).
 //!
-//! Nothing here opens a socket, spawns a task or touches a GPU: time is passed in as seconds, the
+//! The live parts build on them: [`http`] (a minimal blocking HTTP/1.1 GET) and [`live`] (a
+//! streaming session against `terrastream serve`, flight replay and its statistics).
+//!
+//! Nothing in the pure parts opens a socket, spawns a task or touches a GPU: time is passed in as seconds, the
 //! network sits behind [`fetch::Transport`] and residency behind [`select::Residency`], so every
 //! rule is unit-testable and the selection can be benchmarked alone (`examples/select_bench.rs`).
 //! Rendering, the HTTP transport and flight replay build on these types.
 
 pub mod fetch;
 pub mod flight;
+pub mod http;
+pub mod live;
 pub mod select;
 pub mod tree;
 
@@ -24,6 +29,10 @@ pub enum ClientError {
     Camera(String),
     #[error("tile tree: {0}")]
     Tree(String),
+    #[error("client: {0}")]
+    Network(String),
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),
 }

@@ -61,7 +61,7 @@ impl Residency for AllResident {
     }
 }
 
-impl Residency for HashMap<TileKey, u32> {
+impl<S: std::hash::BuildHasher> Residency for HashMap<TileKey, u32, S> {
     fn levels(&self, key: TileKey) -> u32 {
         self.get(&key).copied().unwrap_or(0)
     }
@@ -104,12 +104,16 @@ impl Camera {
             return bad(format!("fov {} is not between 0 and 180 degrees", self.fov_deg));
         }
         if !v3::finite(self.eye) || !v3::finite(self.target) || !v3::finite(self.up) {
-            return bad(format!("eye {:?}, target {:?} or up {:?} is not finite", self.eye, self.target, self.up));
+            return bad(format!(
+                "eye {:?}, target {:?} or up {:?} is not finite",
+                self.eye, self.target, self.up
+            ));
         }
         let Some(forward) = v3::normalize(v3::sub(self.target, self.eye)) else {
             return bad(format!("eye and target are the same point {:?}", self.eye));
         };
-        let Some(right) = v3::normalize(v3::cross(forward, self.up)).filter(|_| v3::len(self.up) > 0.0) else {
+        let Some(right) = v3::normalize(v3::cross(forward, self.up)).filter(|_| v3::len(self.up) > 0.0)
+        else {
             return bad(format!("up {:?} is zero or parallel to the view direction", self.up));
         };
         if v3::len(v3::cross(forward, v3::normalize(self.up).unwrap_or([0.0; 3]))) < 1e-9 {
@@ -339,10 +343,16 @@ fn level_mask(count: usize) -> u32 {
 impl Selector {
     pub fn new(params: SelectParams) -> Result<Self, ClientError> {
         if !(params.threshold_px.is_finite() && params.threshold_px > 0.0) {
-            return Err(ClientError::Camera(format!("threshold {} px must be positive", params.threshold_px)));
+            return Err(ClientError::Camera(format!(
+                "threshold {} px must be positive",
+                params.threshold_px
+            )));
         }
         if !(params.fade_seconds.is_finite() && params.fade_seconds >= 0.0) {
-            return Err(ClientError::Camera(format!("fade time {} s must be 0 or more", params.fade_seconds)));
+            return Err(ClientError::Camera(format!(
+                "fade time {} s must be 0 or more",
+                params.fade_seconds
+            )));
         }
         Ok(Self::fresh(params))
     }
@@ -480,15 +490,21 @@ impl Selector {
         self.merged.clear();
         let mut i = 0;
         while i < self.next_cut.len() + self.merged.len() {
-            let n = if i < self.next_cut.len() { self.next_cut[i] } else { self.merged[i - self.next_cut.len()] };
+            let n =
+                if i < self.next_cut.len() { self.next_cut[i] } else { self.merged[i - self.next_cut.len()] };
             i += 1;
             let p = ctx.tree.node(n).parent;
-            if p == NO_NODE || self.s.checked[p as usize] == self.frame || self.s.cut[n as usize] != self.frame {
+            if p == NO_NODE
+                || self.s.checked[p as usize] == self.frame
+                || self.s.cut[n as usize] != self.frame
+            {
                 continue;
             }
             self.s.checked[p as usize] = self.frame;
             let parent = ctx.tree.node(p);
-            if !parent.children_loaded() || !parent.loaded_children().all(|c| self.s.cut[c as usize] == self.frame) {
+            if !parent.children_loaded()
+                || !parent.loaded_children().all(|c| self.s.cut[c as usize] == self.frame)
+            {
                 continue;
             }
             let e = self.eval(ctx, p, &mut out.stats);
@@ -570,7 +586,7 @@ impl Selector {
                 let want = if e.level == TOO_COARSE { 0 } else { u32::from(e.level) };
                 // Coarsest resident level at or finer than the wanted one, else the finest coarser.
                 let at_or_finer = mask & ((2u32 << want).wrapping_sub(1));
-                let level = if at_or_finer != 0 { 31 - at_or_finer.leading_zeros() } else { mask.trailing_zeros() };
+                let level = if at_or_finer != 0 { at_or_finer.ilog2() } else { mask.trailing_zeros() };
                 self.push_draw(ctx, n, level as u8, out);
                 return true;
             }
@@ -614,14 +630,19 @@ impl Selector {
         all
     }
 
-    fn cover_below<R: Residency + ?Sized>(&mut self, ctx: &Ctx<'_, R>, n: NodeId, out: &mut Selection) -> bool {
+    fn cover_below<R: Residency + ?Sized>(
+        &mut self,
+        ctx: &Ctx<'_, R>,
+        n: NodeId,
+        out: &mut Selection,
+    ) -> bool {
         out.stats.visited += 1;
         if !ctx.view.intersects(&ctx.tree.node(n).cull) {
             return true;
         }
         let mask = Self::resident(ctx, n);
         if mask != 0 {
-            self.push_draw(ctx, n, (31 - mask.leading_zeros()) as u8, out);
+            self.push_draw(ctx, n, mask.ilog2() as u8, out);
             return true;
         }
         self.cover_below_children(ctx, n, out)
@@ -688,7 +709,8 @@ impl Selector {
                 };
                 self.s.slot[i].start = if replaces { now } else { now - fade };
             }
-            d.alpha = if fade > 0.0 { ((now - self.s.slot[i].start) / fade).clamp(0.0, 1.0) as f32 } else { 1.0 };
+            d.alpha =
+                if fade > 0.0 { ((now - self.s.slot[i].start) / fade).clamp(0.0, 1.0) as f32 } else { 1.0 };
             let l = usize::from(d.level);
             if stats.drawn_per_level.len() <= l {
                 stats.drawn_per_level.resize(l + 1, 0);
@@ -813,7 +835,8 @@ pub fn add_skirts(mesh: &Mesh, depth: f64, outer: Option<&Bounds>) -> Skirted {
     let first_skirt_triangle = out.triangles.len();
     let mut skirt_of: HashMap<u32, u32> = HashMap::new();
     for (a, b, c) in border {
-        let (pa, pb, pc) = (mesh.positions[a as usize], mesh.positions[b as usize], mesh.positions[c as usize]);
+        let (pa, pb, pc) =
+            (mesh.positions[a as usize], mesh.positions[b as usize], mesh.positions[c as usize]);
         if on_outer(pa, pb) {
             continue;
         }

@@ -110,8 +110,8 @@ fn all_resident_meets_threshold_and_covers_once() {
         let errs = tree.level_errors(d.node);
         let node = tree.node(d.node);
         let dist = v3::len(v3::sub(node.center, c.eye));
-        for l in usize::from(d.level) + 1..errs.len() {
-            assert!(view.screen_error(errs[l], dist) > 2.0);
+        for &e in &errs[usize::from(d.level) + 1..] {
+            assert!(view.screen_error(e, dist) > 2.0);
         }
     }
     // A second identical frame visits only the cut and its parents.
@@ -148,7 +148,8 @@ fn down_switch_waits_for_all_children() {
     // Three of the root's four children arrive (every level): still the root.
     let kids: Vec<NodeId> = tree.node(root).loaded_children().collect();
     let wanted: HashSet<TileKey> = sel.wants.iter().map(|w| w.key).collect();
-    let cut_kids: Vec<NodeId> = kids.iter().copied().filter(|k| wanted.contains(&tree.node(*k).key)).collect();
+    let cut_kids: Vec<NodeId> =
+        kids.iter().copied().filter(|k| wanted.contains(&tree.node(*k).key)).collect();
     if cut_kids.len() == kids.len() {
         for &k in &kids[..3] {
             res.insert(tree.node(k).key, 0b111);
@@ -319,7 +320,10 @@ fn run(steps: &[Step], root_resident: bool, distance: DistanceRule) -> Result<()
         let sel = s.select(&tree, &c, &res, i as f64 * 0.1).unwrap().clone();
         let drawn: Vec<NodeId> = sel.draws.iter().filter(|d| !d.retiring).map(|d| d.node).collect();
         for d in &sel.draws {
-            prop_assert!(res.get(&d.key).copied().unwrap_or(0) & (1 << d.level) != 0, "drawn but not resident");
+            prop_assert!(
+                res.get(&d.key).copied().unwrap_or(0) & (1 << d.level) != 0,
+                "drawn but not resident"
+            );
         }
         for &a in &drawn {
             for &b in &drawn {

@@ -117,12 +117,7 @@ impl TileTree {
     #[must_use]
     pub fn chunks_below(&self, chunk: &IndexChunk) -> Vec<TileKey> {
         let last = chunk.root.z.saturating_add(store::SUBTREE_LEVELS - 1);
-        chunk
-            .nodes
-            .iter()
-            .filter(|n| n.key.z == last)
-            .flat_map(|n| self.pyramid.children(n.key))
-            .collect()
+        chunk.nodes.iter().filter(|n| n.key.z == last).flat_map(|n| self.pyramid.children(n.key)).collect()
     }
 
     /// Adds every node of an index chunk (parents before children); nodes already present are
@@ -132,7 +127,10 @@ impl TileTree {
         nodes.sort_by_key(|n| n.key);
         for n in nodes {
             if store::chunk_root(n.key) != chunk.root {
-                return Err(tree_err(format!("index chunk {}: node {} belongs to another chunk", chunk.root, n.key)));
+                return Err(tree_err(format!(
+                    "index chunk {}: node {} belongs to another chunk",
+                    chunk.root, n.key
+                )));
             }
             self.insert(n)?;
         }
@@ -142,8 +140,11 @@ impl TileTree {
     /// Adds one node. Its parent must already be present (the root excepted).
     pub fn insert(&mut self, entry: &NodeEntry) -> Result<NodeId, ClientError> {
         // `f64::max` drops NaN, so check the raw fields before taking the geometric error.
-        if let Some((l, e)) =
-            entry.levels.iter().enumerate().find(|(_, l)| !l.errors.max.is_finite() || !l.errors.gap.is_finite())
+        if let Some((l, e)) = entry
+            .levels
+            .iter()
+            .enumerate()
+            .find(|(_, l)| !l.errors.max.is_finite() || !l.errors.gap.is_finite())
         {
             return Err(tree_err(format!(
                 "node {}: level {l} errors (max {}, gap {}) are not finite",
@@ -155,7 +156,12 @@ impl TileTree {
     }
 
     /// Adds one node from its key, bounds and per-level geometric errors (world units).
-    pub fn insert_node(&mut self, key: TileKey, bounds: Bounds, errors: &[f64]) -> Result<NodeId, ClientError> {
+    pub fn insert_node(
+        &mut self,
+        key: TileKey,
+        bounds: Bounds,
+        errors: &[f64],
+    ) -> Result<NodeId, ClientError> {
         if !self.pyramid.contains(key) {
             return Err(tree_err(format!("node {key} is outside the tileset's quadtree")));
         }
@@ -166,7 +172,9 @@ impl TileTree {
             return Err(tree_err(format!("node {key}: {} levels (need 1 to {MAX_LEVELS})", errors.len())));
         }
         if let Some((l, e)) = errors.iter().enumerate().find(|(_, e)| !e.is_finite() || **e < 0.0) {
-            return Err(tree_err(format!("node {key}: level {l} error {e} is not a finite non-negative number")));
+            return Err(tree_err(format!(
+                "node {key}: level {l} error {e} is not a finite non-negative number"
+            )));
         }
         if let Some(&id) = self.index.get(&key) {
             let n = &self.nodes[id as usize];
@@ -179,7 +187,10 @@ impl TileTree {
             NO_NODE
         } else {
             let pk = TileKey::new(key.z - 1, key.x / 2, key.y / 2);
-            *self.index.get(&pk).ok_or_else(|| tree_err(format!("node {key} arrived before its parent {pk}")))?
+            *self
+                .index
+                .get(&pk)
+                .ok_or_else(|| tree_err(format!("node {key} arrived before its parent {pk}")))?
         };
         let id = NodeId::try_from(self.nodes.len()).map_err(|_| tree_err("more than 2^32 nodes"))?;
         let mut expected = 0u8;
@@ -296,7 +307,8 @@ impl TileTree {
         let cell = spec.cell_size;
         let h = |x: f64, y: f64| {
             let (u, v) = (x / (cell * f64::from(spec.width)), y / (cell * f64::from(spec.height)));
-            spec.relief * (0.5 + 0.3 * (u * 7.0 + spec.seed as f64).sin() * (v * 5.0).cos() + 0.2 * (u * 23.0).sin())
+            spec.relief
+                * (0.5 + 0.3 * (u * 7.0 + spec.seed as f64).sin() * (v * 5.0).cos() + 0.2 * (u * 23.0).sin())
         };
         let mut errors = vec![0.0; spec.levels];
         for key in p.nodes() {
@@ -452,10 +464,19 @@ mod tests {
         let id = t.insert(&entry(TileKey::new(1, 1, 0), high, &[1.0])).unwrap();
         assert_eq!(t.node(0).children[1], id);
         assert!((t.node(0).cull.max[2] - 50.0).abs() < 1e-12);
-        assert!(t.insert(&entry(TileKey::new(1, 2, 0), b, &[1.0])).unwrap_err().to_string().contains("outside"));
-        assert!(t.insert(&entry(TileKey::new(1, 0, 0), b, &[f64::NAN])).unwrap_err().to_string().contains("level 0"));
+        assert!(
+            t.insert(&entry(TileKey::new(1, 2, 0), b, &[1.0])).unwrap_err().to_string().contains("outside")
+        );
+        assert!(
+            t.insert(&entry(TileKey::new(1, 0, 0), b, &[f64::NAN]))
+                .unwrap_err()
+                .to_string()
+                .contains("level 0")
+        );
         assert!(t.insert(&entry(TileKey::new(1, 0, 0), b, &[])).is_err());
         let bad = Bounds { min: [1.0, 0.0, 0.0], max: [0.0, 1.0, 1.0] };
-        assert!(t.insert(&entry(TileKey::new(1, 0, 0), bad, &[1.0])).unwrap_err().to_string().contains("bounds"));
+        assert!(
+            t.insert(&entry(TileKey::new(1, 0, 0), bad, &[1.0])).unwrap_err().to_string().contains("bounds")
+        );
     }
 }

@@ -1,0 +1,820 @@
+//! GPU bake of point levels with `wgpu`: the same 6-direction orthographic slicing as
+//! [`super::cpu`], whose module doc is the specification, cell for cell, run as compute passes
+//! over many (mesh, level) jobs per submission.
+//!
+//! # Rasterization in compute, all slices at once
+//!
+//! The paper renders every slice of every direction into a framebuffer. Here each view axis is
+//! rasterized once, with no depth test and no culling, and every fragment is binned into its
+//! slice by its own depth: the same sampling as one pass per slice, with one pass per axis
+//! (and ±axis views coincide without depth test, see `lod::cpu`). The rasterization runs in a
+//! compute shader (`shaders/raster.wgsl`, one invocation per triangle and axis) rather than in
+//! the hardware rasterizer, because:
+//! - the CPU reference's coverage rule (canonical edge functions, the top-left tie rule at
+//!   pixel centres) is evaluated on the job's own grid coordinates, with no sub-pixel snapping
+//!   of vertices as rasterizers do (8 bits on most hardware, lavapipe included), so GPU and CPU
+//!   disagree only where f32 and f64 rounding differ on a near-tie;
+//! - the framebuffer of a view would be the tile's extent in cells, one render target per job
+//!   and axis, while a compute dispatch covers every job of a batch at once;
+//! - WebGPU has no point size and no conservative rasterization; compute needs neither.
+//!
+//! # Passes (one submission per batch)
+//!
+//! 1. `raster`: fragments → a per-job open-addressing hash table of cells keyed by the packed
+//!    cell index, summing in fixed point with atomics (count, position offsets in cell/2^16,
+//!    quantized normals in 2^-15): integer sums, so the result does not depend on the order in
+//!    which fragments arrive.
+//! 2. `columns`, `column_cells`: per view, each column's front and back cell (before fills).
+//! 3. `fill`: the median hole filler, one invocation per column, adding fills to the table.
+//! 4. `compact`: every occupied cell → one point record (cell, count, position and normal
+//!    sums), appended to its job's output range.
+//! 5. One copy of the counters and all points into one staging buffer, one map (read-back).
+//!
+//! Slots in the table and the append order depend on scheduling; the host sorts each job's
+//! points by cell `(k, j, i)` as the CPU does, so two bakes are identical. The host prepares
+//! what the CPU reference computes in f64 per vertex or triangle: grid coordinates (relative
+//! to the job's base cell, then f32), the smallest-index-first rotation and the quantized
+//! triangle normal; validity checks and skip counts are the reference's.
+//!
+//! # Batching and memory
+//!
+//! Jobs are packed into batches whose buffers (device buffers and the read-back staging
+//! buffer, counted exactly as allocated) stay within the batch budget
+//! ([`DEFAULT_BATCH_BUDGET_MIB`], `--gpu-budget-mib`) and the adapter's binding limits. The
+//! table and output sizes of a job come from its projected area (fragments ≈ area): a job whose
+//! table or output overflows is re-run in a later batch with four times the room, so sizes are
+//! an estimate but results never depend on them. A job that alone exceeds the budget, or whose
+//! cell box does not fit the 32-bit keys (an extent over 2^16 − 1 cells, or over 2^32 − 2 cells
+//! in all), is baked by the CPU reference instead and counted in [`BatchReport::cpu_jobs`].
+//! While the GPU runs one batch the host prepares and submits the next and decodes the
+//! previous, so at most two batches are in flight: the device memory peak is at most twice the
+//! batch budget.
+
+use std::sync::mpsc;
+
+use bytemuck::{Pod, Zeroable};
+use rayon::prelude::*;
+use wgpu::util::DeviceExt;
+
+use super::cpu::{BakeOptions, BakeStats, BakedCell, MAX_GRID_COORD, NORMAL_FRACTION_BITS};
+use crate::geom::{Mesh, triangle_normal};
+
+/// Default GPU memory budget of one batch, in MiB.
+pub const DEFAULT_BATCH_BUDGET_MIB: u64 = 256;
+
+/// WGSL sources, one per pipeline, each prefixed by the shared head. Public so the CPU-only
+/// validation test can parse and validate them with naga.
+pub const SHADERS: [(&str, &str); 5] = [
+    ("raster", concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/raster.wgsl"))),
+    (
+        "columns",
+        concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/columns.wgsl")),
+    ),
+    (
+        "column_cells",
+        concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/column_cells.wgsl")),
+    ),
+    ("fill", concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/fill.wgsl"))),
+    (
+        "compact",
+        concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/compact.wgsl")),
+    ),
+];
+
+const WORKGROUP: u32 = 64;
+const MAX_GROUPS_X: u32 = 65_535;
+const SLOT_BYTES: u64 = 32;
+const POINT_BYTES: u64 = 32;
+const COLUMN_BYTES: u64 = 16;
+const COUNTER_WORDS: usize = 8;
+const FILL_FLAG: u32 = 1 << 20;
+const COUNT_MASK: u32 = FILL_FLAG - 1;
+/// Largest job extent on any axis: slices must fit 16 bits in the fill keys.
+const MAX_EXTENT: i64 = 65_535;
+/// Room multiplier for a job re-run after its table or output overflowed.
+const RETRY_GROWTH: u64 = 4;
+const POS_ONE: f64 = (1u64 << super::cpu::POSITION_FRACTION_BITS) as f64;
+
+/// A GPU stage failure.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    #[error(
+        "gpu: no adapter found (no Vulkan, Metal or DX12 device, not even a software one such as Mesa lavapipe)"
+    )]
+    NoAdapter,
+    #[error("gpu: cannot open a device on adapter {adapter}: {message}")]
+    Device { adapter: String, message: String },
+    #[error("gpu: {0}")]
+    Failed(String),
+}
+
+/// A device and queue with the name of their adapter.
+pub struct GpuContext {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub adapter: String,
+}
+
+/// Opens the first adapter wgpu offers (hardware preferred, any software one such as Mesa's
+/// lavapipe accepted) with its full limits.
+pub fn open() -> Result<GpuContext, GpuError> {
+    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+    let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+        power_preference: wgpu::PowerPreference::HighPerformance,
+        ..Default::default()
+    }))
+    .or_else(|_| {
+        pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            force_fallback_adapter: true,
+            ..Default::default()
+        }))
+    })
+    .map_err(|_| GpuError::NoAdapter)?;
+    let info = adapter.get_info();
+    let name = describe(&info);
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("terrastream lod::gpu"),
+        required_limits: adapter.limits(),
+        ..Default::default()
+    }))
+    .map_err(|e| GpuError::Device { adapter: name.clone(), message: e.to_string() })?;
+    Ok(GpuContext { device, queue, adapter: name })
+}
+
+/// "name (backend, device type)", e.g. "llvmpipe (LLVM 19.1.7, 256 bits) (Vulkan, Cpu)".
+#[must_use]
+pub fn describe(info: &wgpu::AdapterInfo) -> String {
+    format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type)
+}
+
+/// One point level to bake: `mesh` on the cubic grid of edge `cell` anchored at `origin`
+/// (the arguments of [`super::cpu::bake_cells`]).
+#[derive(Debug, Clone, Copy)]
+pub struct LevelJob<'a> {
+    pub mesh: &'a Mesh,
+    pub origin: [f64; 3],
+    pub cell: f64,
+}
+
+/// What a set of jobs cost.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BatchReport {
+    /// Submissions.
+    pub batches: u64,
+    /// Jobs baked on the GPU (re-runs not counted twice).
+    pub gpu_jobs: u64,
+    /// Jobs baked by the CPU reference (alone over the budget, or cell box too large).
+    pub cpu_jobs: u64,
+    /// Jobs re-run with more room after their table or output overflowed.
+    pub retried_jobs: u64,
+    /// Largest sum of buffer sizes of one batch, staging buffer included, in bytes.
+    pub peak_batch_bytes: u64,
+    /// The budget it was held to, in bytes.
+    pub budget_bytes: u64,
+}
+
+impl BatchReport {
+    /// Adds `other` (peaks take the maximum).
+    pub fn merge(&mut self, other: &Self) {
+        self.batches += other.batches;
+        self.gpu_jobs += other.gpu_jobs;
+        self.cpu_jobs += other.cpu_jobs;
+        self.retried_jobs += other.retried_jobs;
+        self.peak_batch_bytes = self.peak_batch_bytes.max(other.peak_batch_bytes);
+        self.budget_bytes = self.budget_bytes.max(other.budget_bytes);
+    }
+}
+
+/// Job descriptor shared with the shaders (`Job` in `shaders/common.wgsl`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
+pub struct GpuJob {
+    pub tri_start: u32,
+    pub tri_count: u32,
+    pub vert_start: u32,
+    pub raster_start: u32,
+    pub nx: u32,
+    pub ny: u32,
+    pub nz: u32,
+    pub slot_start: u32,
+    pub table_mask: u32,
+    pub out_start: u32,
+    pub out_cap: u32,
+    pub col_start: u32,
+    pub fill: u32,
+    pub pad: [u32; 3],
+}
+
+/// Pass sizes shared with the shaders (`Params` in `shaders/common.wgsl`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
+pub struct GpuParams {
+    pub n_jobs: u32,
+    pub raster_items: u32,
+    pub slots: u32,
+    pub col_items: u32,
+}
+
+/// The host's part of a job: what the CPU reference computes in f64, ready to upload.
+struct Prepared {
+    /// Index into the caller's job list.
+    job: usize,
+    base: [i64; 3],
+    dims: [u32; 3],
+    /// Local grid coordinates, 3 per mesh vertex.
+    verts: Vec<f32>,
+    /// 6 words per valid triangle.
+    tris: Vec<u32>,
+    skipped: usize,
+    /// Output room, points.
+    out_cap: u64,
+    /// Table slots (a power of two).
+    table_slots: u64,
+}
+
+impl Prepared {
+    fn columns(&self, fill: bool) -> u64 {
+        if !fill {
+            return 0;
+        }
+        let [x, y, z] = self.dims.map(u64::from);
+        y * z + z * x + x * y
+    }
+
+    /// Bytes this job adds to a batch: inputs, table, columns, output and its staging copy,
+    /// counters and descriptor.
+    fn bytes(&self, fill: bool) -> u64 {
+        self.verts.len() as u64 * 4
+            + self.tris.len() as u64 * 4
+            + self.table_slots * SLOT_BYTES
+            + self.columns(fill) * COLUMN_BYTES
+            + 2 * (self.out_cap * POINT_BYTES + COUNTER_WORDS as u64 * 4)
+            + std::mem::size_of::<GpuJob>() as u64
+    }
+
+    fn grow(&mut self) {
+        self.out_cap *= RETRY_GROWTH;
+        self.table_slots = (2 * self.out_cap).next_power_of_two();
+    }
+}
+
+/// One job's output: what [`super::cpu::bake_cells`] returns.
+pub type JobResult = (Vec<BakedCell>, BakeStats);
+
+/// Why a job cannot go to the GPU.
+enum Unfit {
+    /// No valid triangle: the result is empty.
+    Empty(BakeStats),
+    /// Cell box too large for the 32-bit keys.
+    TooLarge,
+}
+
+/// Buffers of one submitted batch, waiting for its read-back.
+struct InFlight {
+    jobs: Vec<Prepared>,
+    staging: wgpu::Buffer,
+    counters_bytes: u64,
+    out_offsets: Vec<u64>,
+    mapped: mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>,
+    bytes: u64,
+}
+
+/// The point-level baker: pipelines on a device and queue passed in.
+pub struct GpuBaker {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    adapter: String,
+    layout: wgpu::BindGroupLayout,
+    pipelines: [wgpu::ComputePipeline; 5],
+    budget: u64,
+    max_binding: u64,
+}
+
+impl GpuBaker {
+    /// Builds the five pipelines. `budget_bytes` caps the buffers of one batch; `adapter`
+    /// names the adapter in reports.
+    pub fn new(
+        device: wgpu::Device,
+        queue: wgpu::Queue,
+        adapter: String,
+        budget_bytes: u64,
+    ) -> Result<Self, GpuError> {
+        let limits = device.limits();
+        if limits.max_storage_buffers_per_shader_stage < 7 {
+            return Err(GpuError::Failed(format!(
+                "adapter {adapter} allows {} storage buffers per shader stage, the bake needs 7",
+                limits.max_storage_buffers_per_shader_stage
+            )));
+        }
+        let storage = |binding: u32, read_only: bool| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("lod::gpu"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+                storage(1, true),
+                storage(2, false),
+                storage(3, false),
+                storage(4, false),
+                storage(5, true),
+                storage(6, true),
+                storage(7, false),
+            ],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("lod::gpu"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let pipelines = SHADERS.map(|(name, source)| {
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(name),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            });
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(name),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                cache: None,
+            })
+        });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(GpuError::Failed(format!("pipeline creation on {adapter}: {e}")));
+        }
+        let max_binding = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        Ok(Self { device, queue, adapter, layout, pipelines, budget: budget_bytes.max(1 << 20), max_binding })
+    }
+
+    /// Opens the default adapter ([`open`]) and builds a baker on it.
+    pub fn open_default(budget_bytes: u64) -> Result<Self, GpuError> {
+        let ctx = open()?;
+        Self::new(ctx.device, ctx.queue, ctx.adapter, budget_bytes)
+    }
+
+    /// The adapter's name, backend and type.
+    #[must_use]
+    pub fn adapter(&self) -> &str {
+        &self.adapter
+    }
+
+    /// The batch budget in bytes.
+    #[must_use]
+    pub fn budget_bytes(&self) -> u64 {
+        self.budget
+    }
+
+    /// [`super::cpu::bake_cells`] on the GPU: one job, one batch.
+    pub fn bake_cells(
+        &self,
+        mesh: &Mesh,
+        origin: [f64; 3],
+        cell: f64,
+        options: &BakeOptions,
+    ) -> Result<(Vec<BakedCell>, BakeStats), GpuError> {
+        let (mut out, _) = self.bake_jobs(&[LevelJob { mesh, origin, cell }], options)?;
+        out.pop().ok_or_else(|| GpuError::Failed("no result for the job".into()))
+    }
+
+    /// Bakes every job, batched under the memory budget; results in job order, each as
+    /// [`super::cpu::bake_cells`] returns it.
+    pub fn bake_jobs(
+        &self,
+        jobs: &[LevelJob<'_>],
+        options: &BakeOptions,
+    ) -> Result<(Vec<JobResult>, BatchReport), GpuError> {
+        let fill = options.fill_holes;
+        let mut report = BatchReport { budget_bytes: self.budget, ..BatchReport::default() };
+        let mut results: Vec<Option<JobResult>> = vec![None; jobs.len()];
+        let prepared: Vec<Result<Prepared, Unfit>> =
+            jobs.par_iter().enumerate().map(|(n, j)| prepare(n, j)).collect();
+        let mut queue: std::collections::VecDeque<Prepared> = std::collections::VecDeque::new();
+        let mut cpu: Vec<usize> = Vec::new();
+        for (n, p) in prepared.into_iter().enumerate() {
+            match p {
+                Ok(p) if p.bytes(fill) <= self.budget && self.fits_bindings(&p, fill) => queue.push_back(p),
+                Ok(_) | Err(Unfit::TooLarge) => cpu.push(n),
+                Err(Unfit::Empty(stats)) => results[n] = Some((Vec::new(), stats)),
+            }
+        }
+        report.gpu_jobs = queue.len() as u64;
+        report.cpu_jobs = cpu.len() as u64;
+
+        // Double buffering: submit the next batch before reading back the previous one.
+        let mut in_flight: Option<InFlight> = None;
+        loop {
+            let batch = self.take_batch(&mut queue, fill);
+            let submitted = if batch.is_empty() { None } else { Some(self.submit(batch, jobs, fill)?) };
+            if let Some(f) = in_flight.take() {
+                report.batches += 1;
+                report.peak_batch_bytes = report.peak_batch_bytes.max(f.bytes);
+                for (p, r) in self.finish(f, jobs)? {
+                    if let Some(r) = r {
+                        results[p.job] = Some(r);
+                    } else {
+                        let mut p = p;
+                        p.grow();
+                        report.retried_jobs += 1;
+                        if p.bytes(fill) <= self.budget && self.fits_bindings(&p, fill) {
+                            queue.push_back(p);
+                        } else {
+                            report.cpu_jobs += 1;
+                            report.gpu_jobs -= 1;
+                            cpu.push(p.job);
+                        }
+                    }
+                }
+            }
+            in_flight = submitted;
+            if in_flight.is_none() && queue.is_empty() {
+                break;
+            }
+        }
+        let cpu_results: Vec<(usize, JobResult)> = cpu
+            .par_iter()
+            .map(|&n| (n, super::cpu::bake_cells(jobs[n].mesh, jobs[n].origin, jobs[n].cell, options)))
+            .collect();
+        for (n, r) in cpu_results {
+            results[n] = Some(r);
+        }
+        let results = results
+            .into_iter()
+            .map(|r| r.ok_or_else(|| GpuError::Failed("a job was left without a result".into())))
+            .collect::<Result<_, _>>()?;
+        Ok((results, report))
+    }
+
+    fn fits_bindings(&self, p: &Prepared, fill: bool) -> bool {
+        let m = self.max_binding;
+        p.table_slots * SLOT_BYTES <= m
+            && p.out_cap * POINT_BYTES <= m
+            && p.columns(fill) * COLUMN_BYTES <= m
+            && p.verts.len() as u64 * 4 <= m
+            && p.tris.len() as u64 * 4 <= m
+    }
+
+    /// Takes jobs from the front of `queue` while the batch stays within the budget, the
+    /// binding limits and 32-bit item counts.
+    fn take_batch(&self, queue: &mut std::collections::VecDeque<Prepared>, fill: bool) -> Vec<Prepared> {
+        let mut batch = Vec::new();
+        let (mut bytes, mut slots, mut out, mut cols, mut verts, mut tris) =
+            (0u64, 0u64, 0u64, 0u64, 0u64, 0u64);
+        let limit_items = u64::from(u32::MAX / 2);
+        while let Some(p) = queue.front() {
+            let nb = bytes + p.bytes(fill);
+            let ns = slots + p.table_slots;
+            let no = out + p.out_cap;
+            let nc = cols + p.columns(fill);
+            let nv = verts + p.verts.len() as u64;
+            let nt = tris + p.tris.len() as u64;
+            let fits = nb <= self.budget
+                && ns * SLOT_BYTES <= self.max_binding
+                && no * POINT_BYTES <= self.max_binding
+                && nc * COLUMN_BYTES <= self.max_binding
+                && nv * 4 <= self.max_binding
+                && nt * 4 <= self.max_binding
+                && ns.max(nc).max(nt / 2) <= limit_items;
+            if !fits && !batch.is_empty() {
+                break;
+            }
+            (bytes, slots, out, cols, verts, tris) = (nb, ns, no, nc, nv, nt);
+            if let Some(p) = queue.pop_front() {
+                batch.push(p);
+            }
+        }
+        batch
+    }
+
+    /// Uploads a batch, records the passes and the read-back copy, and submits.
+    fn submit(&self, batch: Vec<Prepared>, jobs: &[LevelJob<'_>], fill: bool) -> Result<InFlight, GpuError> {
+        let _ = jobs;
+        let mut gjobs = Vec::with_capacity(batch.len());
+        let mut verts: Vec<f32> = Vec::new();
+        let mut tris: Vec<u32> = Vec::new();
+        let (mut raster, mut slots, mut out, mut cols) = (0u64, 0u64, 0u64, 0u64);
+        let mut out_offsets = Vec::with_capacity(batch.len());
+        for p in &batch {
+            let tri_count = (p.tris.len() / 6) as u64;
+            gjobs.push(GpuJob {
+                tri_start: (tris.len() / 6) as u32,
+                tri_count: tri_count as u32,
+                vert_start: (verts.len() / 3) as u32,
+                raster_start: raster as u32,
+                nx: p.dims[0],
+                ny: p.dims[1],
+                nz: p.dims[2],
+                slot_start: slots as u32,
+                table_mask: (p.table_slots - 1) as u32,
+                out_start: out as u32,
+                out_cap: p.out_cap as u32,
+                col_start: cols as u32,
+                fill: u32::from(fill),
+                pad: [0; 3],
+            });
+            out_offsets.push(out);
+            verts.extend_from_slice(&p.verts);
+            tris.extend_from_slice(&p.tris);
+            raster += tri_count * 3;
+            slots += p.table_slots;
+            out += p.out_cap;
+            cols += p.columns(fill);
+        }
+        let params = GpuParams {
+            n_jobs: gjobs.len() as u32,
+            raster_items: raster as u32,
+            slots: slots as u32,
+            col_items: cols as u32,
+        };
+        let d = &self.device;
+        let scope = d.push_error_scope(wgpu::ErrorFilter::Validation);
+        let init = |label: &str, bytes: &[u8], usage: wgpu::BufferUsages| {
+            // Bindings may not be empty.
+            let padded;
+            let contents = if bytes.is_empty() {
+                padded = [0u8; 16];
+                &padded[..]
+            } else {
+                bytes
+            };
+            d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
+        };
+        let zeroed = |label: &str, size: u64, usage: wgpu::BufferUsages| {
+            d.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: size.max(16),
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        let storage = wgpu::BufferUsages::STORAGE;
+        let counters_bytes = (gjobs.len() * COUNTER_WORDS * 4) as u64;
+        let out_bytes = out * POINT_BYTES;
+        let b_params = init("params", bytemuck::bytes_of(&params), wgpu::BufferUsages::UNIFORM);
+        let b_jobs = init("jobs", bytemuck::cast_slice(&gjobs), storage);
+        let b_verts = init("verts", bytemuck::cast_slice(&verts), storage);
+        let b_tris = init("tris", bytemuck::cast_slice(&tris), storage);
+        let b_counters = zeroed("counters", counters_bytes, storage | wgpu::BufferUsages::COPY_SRC);
+        let b_table = zeroed("table", slots * SLOT_BYTES, storage);
+        let b_columns = zeroed("columns", cols * COLUMN_BYTES, storage);
+        let b_points = zeroed("points", out_bytes, storage | wgpu::BufferUsages::COPY_SRC);
+        let staging = zeroed(
+            "read-back",
+            counters_bytes + out_bytes,
+            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        );
+        let bytes =
+            [&b_params, &b_jobs, &b_verts, &b_tris, &b_counters, &b_table, &b_columns, &b_points, &staging]
+                .iter()
+                .map(|b| b.size())
+                .sum();
+        let group = d.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("lod::gpu batch"),
+            layout: &self.layout,
+            entries: &[
+                entry(0, &b_params),
+                entry(1, &b_jobs),
+                entry(2, &b_counters),
+                entry(3, &b_table),
+                entry(4, &b_columns),
+                entry(5, &b_verts),
+                entry(6, &b_tris),
+                entry(7, &b_points),
+            ],
+        });
+        let mut enc =
+            d.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lod::gpu batch") });
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("bake"),
+                timestamp_writes: None,
+            });
+            pass.set_bind_group(0, &group, &[]);
+            let [p_raster, p_columns, p_cells, p_fill, p_compact] = &self.pipelines;
+            let mut run = |p: &wgpu::ComputePipeline, items: u64| {
+                if items == 0 {
+                    return;
+                }
+                let groups = items.div_ceil(u64::from(WORKGROUP));
+                let x = groups.min(u64::from(MAX_GROUPS_X));
+                let y = groups.div_ceil(x);
+                pass.set_pipeline(p);
+                pass.dispatch_workgroups(x as u32, y as u32, 1);
+            };
+            run(p_raster, raster);
+            if fill {
+                run(p_columns, slots);
+                run(p_cells, slots);
+                run(p_fill, cols);
+            }
+            run(p_compact, slots);
+        }
+        enc.copy_buffer_to_buffer(&b_counters, 0, &staging, 0, counters_bytes);
+        if out_bytes > 0 {
+            enc.copy_buffer_to_buffer(&b_points, 0, &staging, counters_bytes, out_bytes);
+        }
+        self.queue.submit([enc.finish()]);
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(GpuError::Failed(format!("batch submission on {}: {e}", self.adapter)));
+        }
+        let (tx, rx) = mpsc::channel();
+        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        Ok(InFlight { jobs: batch, staging, counters_bytes, out_offsets, mapped: rx, bytes })
+    }
+
+    /// Waits for a batch's read-back and decodes each job; `None` for a job that overflowed.
+    fn finish(
+        &self,
+        f: InFlight,
+        jobs: &[LevelJob<'_>],
+    ) -> Result<Vec<(Prepared, Option<JobResult>)>, GpuError> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Failed(format!("waiting for the device: {e}")))?;
+        f.mapped
+            .recv()
+            .map_err(|_| GpuError::Failed("read-back callback dropped".into()))?
+            .map_err(|e| GpuError::Failed(format!("read-back: {e}")))?;
+        let out = {
+            let view = f
+                .staging
+                .slice(..)
+                .get_mapped_range()
+                .map_err(|e| GpuError::Failed(format!("read-back mapping: {e}")))?;
+            let words: &[u32] = bytemuck::cast_slice(&view);
+            let counters = &words[..f.counters_bytes as usize / 4];
+            let points = &words[f.counters_bytes as usize / 4..];
+            f.jobs
+                .into_par_iter()
+                .zip(f.out_offsets.par_iter())
+                .enumerate()
+                .map(|(n, (p, &off))| {
+                    let c = &counters[n * COUNTER_WORDS..(n + 1) * COUNTER_WORDS];
+                    let r = decode(&p, &jobs[p.job], c, &points[off as usize * 8..]);
+                    (p, r)
+                })
+                .collect()
+        };
+        f.staging.unmap();
+        Ok(out)
+    }
+}
+
+fn entry(binding: u32, b: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
+    wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() }
+}
+
+/// Turns one job's counters and points into the reference's output; `None` on overflow.
+fn decode(
+    p: &Prepared,
+    job: &LevelJob<'_>,
+    counters: &[u32],
+    points: &[u32],
+) -> Option<(Vec<BakedCell>, BakeStats)> {
+    let n = u64::from(counters[0]);
+    if n > p.out_cap || counters[5] > 0 {
+        return None;
+    }
+    let filled = counters[1] as usize;
+    let stats = BakeStats {
+        fragments: [u64::from(counters[2]), u64::from(counters[3]), u64::from(counters[4])],
+        occupied: n as usize - filled,
+        filled,
+        skipped_triangles: p.skipped,
+    };
+    let mut recs: Vec<&[u32]> = points[..n as usize * 8].chunks_exact(8).collect();
+    recs.sort_unstable_by_key(|r| r[0]);
+    let [nx, ny, _] = p.dims;
+    let cells = recs
+        .iter()
+        .map(|r| {
+            let key = r[0];
+            let local = [key % nx, (key / nx) % ny, key / nx / ny];
+            let index = [0, 1, 2].map(|d| (p.base[d] + i64::from(local[d])) as i32);
+            let count = r[1] & COUNT_MASK;
+            let denom = f64::from(count.max(1)) * POS_ONE;
+            let position = [0, 1, 2]
+                .map(|d| job.origin[d] + (f64::from(index[d]) + f64::from(r[2 + d]) / denom) * job.cell);
+            let n = [0, 1, 2].map(|d| f64::from(r[5 + d].cast_signed()));
+            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            let normal = if len > 0.0 {
+                [(n[0] / len) as f32, (n[1] / len) as f32, (n[2] / len) as f32]
+            } else {
+                [0.0, 0.0, 1.0]
+            };
+            BakedCell { index, position, normal, samples: u64::from(count), filled: r[1] >= FILL_FLAG }
+        })
+        .collect();
+    Some((cells, stats))
+}
+
+/// The host's share of a job (see the module doc).
+fn prepare(n: usize, job: &LevelJob<'_>) -> Result<Prepared, Unfit> {
+    let mesh = job.mesh;
+    let (origin, cell) = (job.origin, job.cell);
+    let all_skipped = BakeStats { skipped_triangles: mesh.triangles.len(), ..BakeStats::default() };
+    if !(cell.is_finite() && cell > 0.0) || origin.iter().any(|c| !c.is_finite()) {
+        return Err(Unfit::Empty(all_skipped));
+    }
+    let grid: Vec<Option<[f64; 3]>> = mesh
+        .positions
+        .iter()
+        .map(|p| {
+            let g = [0, 1, 2].map(|d| (p[d] - origin[d]) / cell);
+            g.iter().all(|c| c.is_finite() && c.abs() <= MAX_GRID_COORD).then_some(g)
+        })
+        .collect();
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    let mut valid: Vec<([u32; 3], [[f64; 3]; 3])> = Vec::with_capacity(mesh.triangles.len());
+    let mut area = 0.0;
+    for tri in &mesh.triangles {
+        let lead = if tri[0] <= tri[1] && tri[0] <= tri[2] {
+            0
+        } else if tri[1] <= tri[2] {
+            1
+        } else {
+            2
+        };
+        let ids = [tri[lead], tri[(lead + 1) % 3], tri[(lead + 2) % 3]];
+        let g = |id: u32| grid.get(id as usize).copied().flatten();
+        let (Some(a), Some(b), Some(c)) = (g(ids[0]), g(ids[1]), g(ids[2])) else {
+            continue;
+        };
+        for v in [a, b, c] {
+            for d in 0..3 {
+                lo[d] = lo[d].min(v[d]);
+                hi[d] = hi[d].max(v[d]);
+            }
+        }
+        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+        area += 0.5
+            * ((u[1] * v[2] - u[2] * v[1]).abs()
+                + (u[2] * v[0] - u[0] * v[2]).abs()
+                + (u[0] * v[1] - u[1] * v[0]).abs());
+        valid.push((ids, [a, b, c]));
+    }
+    let skipped = mesh.triangles.len() - valid.len();
+    if valid.is_empty() {
+        return Err(Unfit::Empty(all_skipped));
+    }
+    // One cell of margin below and above the vertices' floor box, as the reference.
+    let base = [0, 1, 2].map(|d| lo[d].floor() as i64 - 1);
+    let top = [0, 1, 2].map(|d| hi[d].floor() as i64 + 1);
+    let ext = [0, 1, 2].map(|d| top[d] - base[d] + 1);
+    if ext.iter().any(|&e| e > MAX_EXTENT) || ext.iter().product::<i64>() >= i64::from(u32::MAX) - 1 {
+        return Err(Unfit::TooLarge);
+    }
+    let mut verts = vec![0f32; mesh.positions.len() * 3];
+    for (k, g) in grid.iter().enumerate() {
+        if let Some(g) = g {
+            for d in 0..3 {
+                verts[k * 3 + d] = (g[d] - base[d] as f64) as f32;
+            }
+        }
+    }
+    let normal_one = f64::from(1u32 << NORMAL_FRACTION_BITS);
+    let limit = f64::from((1u32 << NORMAL_FRACTION_BITS) - 1);
+    let mut tris = Vec::with_capacity(valid.len() * 6);
+    for (ids, _) in &valid {
+        let w = ids.map(|i| mesh.positions[i as usize]);
+        let nrm = triangle_normal(w[0], w[1], w[2]);
+        tris.extend_from_slice(ids);
+        for c in nrm {
+            tris.push(((c * normal_one + 0.5).floor().clamp(-limit, limit) as i32).cast_unsigned());
+        }
+    }
+    // Fragments ≈ the projected area; occupied cells ≤ fragments. Overflow re-runs the job.
+    let out_cap = (area * 1.25) as u64 + 256;
+    Ok(Prepared {
+        job: n,
+        base,
+        dims: ext.map(|e| e as u32),
+        verts,
+        tris,
+        skipped,
+        out_cap,
+        table_slots: (2 * out_cap).next_power_of_two(),
+    })
+}

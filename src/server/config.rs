@@ -1,0 +1,289 @@
+//! Server configuration: named defaults, a partial configuration that flags, environment
+//! variables and an optional TOML file each fill, and their merge (flags and environment win
+//! over the file, the file over the defaults).
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::Deserialize;
+
+use super::ServerError;
+use crate::bake::{DEFAULT_GPU_BUDGET_MIB, GpuMode};
+
+/// Address `serve` listens on.
+pub const DEFAULT_BIND: &str = "127.0.0.1:8080";
+/// Most TCP connections served at once; further connections wait in the kernel's backlog.
+pub const DEFAULT_MAX_CONNECTIONS: usize = 4096;
+/// Most requests handled at once; more are answered `503` with `Retry-After`.
+pub const DEFAULT_MAX_IN_FLIGHT: usize = 2048;
+/// Per-request time limit in seconds (including an on-demand bake the request waits for).
+pub const DEFAULT_REQUEST_TIMEOUT_S: u64 = 30;
+/// Largest raster upload accepted by the admin API, in bytes.
+pub const DEFAULT_MAX_BODY_BYTES: u64 = 512 << 20;
+/// Worker threads baking tiles on demand.
+pub const DEFAULT_BAKE_WORKERS: usize = 2;
+/// Tile bakes that may wait for a worker; when full, requests get `503` with `Retry-After`.
+pub const DEFAULT_BAKE_QUEUE: usize = 64;
+/// Bytes of verified blobs kept in memory.
+pub const DEFAULT_CACHE_BYTES: u64 = 256 << 20;
+/// How often the store directory is re-scanned for added, changed and removed tilesets (ms).
+pub const DEFAULT_POLL_MS: u64 = 2000;
+/// Per-client-address request rate (requests per second, bursts of twice that); 0 = no limit.
+pub const DEFAULT_RATE_LIMIT: u32 = 0;
+/// How long in-flight requests may take to finish after SIGTERM/Ctrl-C (seconds).
+pub const DEFAULT_SHUTDOWN_TIMEOUT_S: u64 = 10;
+
+/// How log lines are written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LogFormat {
+    #[default]
+    Human,
+    Json,
+}
+
+/// One on-demand source: tiles of tileset `name` missing from the store are baked from `raster`
+/// with these options (the `bake` command's defaults where unset).
+#[derive(Debug, Clone, PartialEq, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SourceSpec {
+    pub name: String,
+    pub raster: PathBuf,
+    /// PNG height encoding: gray16, terrain-rgb or terrarium.
+    pub encoding: Option<String>,
+    pub cell_size: Option<f64>,
+    pub tile_size: Option<u32>,
+    pub max_error: Option<f64>,
+    pub levels: Option<u8>,
+}
+
+impl std::str::FromStr for SourceSpec {
+    type Err = String;
+    /// `NAME=RASTER[,key=value…]` with keys encoding, cell_size, tile_size, max_error, levels.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (name, rest) = s.split_once('=').ok_or_else(|| format!("expected NAME=RASTER, got {s:?}"))?;
+        if !super::valid_name(name) {
+            return Err(format!("tileset name {name:?} must match [a-z0-9_-]{{1,64}}"));
+        }
+        let mut parts = rest.split(',');
+        let raster = parts.next().unwrap_or_default();
+        if raster.is_empty() {
+            return Err(format!("no raster path in {s:?}"));
+        }
+        let mut spec = Self { name: name.to_owned(), raster: PathBuf::from(raster), ..Self::default() };
+        for kv in parts {
+            let (k, v) =
+                kv.split_once('=').ok_or_else(|| format!("expected key=value, got {kv:?} in {s:?}"))?;
+            let num = |what: &str| format!("{k}={v:?} in {s:?} is not a valid {what}");
+            match k {
+                "encoding" => spec.encoding = Some(v.to_owned()),
+                "cell_size" => spec.cell_size = Some(v.parse().map_err(|_| num("number"))?),
+                "tile_size" => spec.tile_size = Some(v.parse().map_err(|_| num("integer"))?),
+                "max_error" => spec.max_error = Some(v.parse().map_err(|_| num("number"))?),
+                "levels" => spec.levels = Some(v.parse().map_err(|_| num("integer"))?),
+                _ => {
+                    return Err(format!(
+                        "unknown source option {k:?} in {s:?} (encoding, cell_size, tile_size, max_error, levels)"
+                    ));
+                }
+            }
+        }
+        Ok(spec)
+    }
+}
+
+/// Every setting optional: what one layer (flags + environment, or the TOML file) sets.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PartialConfig {
+    pub store: Option<PathBuf>,
+    pub bind: Option<String>,
+    #[serde(default)]
+    pub sources: Vec<SourceSpec>,
+    pub max_connections: Option<usize>,
+    pub max_in_flight: Option<usize>,
+    pub request_timeout_s: Option<u64>,
+    pub max_body_bytes: Option<u64>,
+    pub bake_workers: Option<usize>,
+    pub bake_queue: Option<usize>,
+    pub cache_bytes: Option<u64>,
+    pub poll_ms: Option<u64>,
+    pub rate_limit: Option<u32>,
+    pub shutdown_timeout_s: Option<u64>,
+    pub admin_token: Option<String>,
+    pub read_token: Option<String>,
+    pub log_format: Option<LogFormat>,
+    /// Where on-demand and admin bakes compute point levels: auto, on or off.
+    pub gpu: Option<GpuMode>,
+    /// GPU memory budget of one batch of point levels, MiB.
+    pub gpu_budget_mib: Option<u64>,
+}
+
+impl PartialConfig {
+    /// Reads a TOML file with the same keys as the flags (snake_case).
+    pub fn from_toml_file(path: &Path) -> Result<Self, ServerError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| ServerError::Config(format!("{}: {e}", path.display())))?;
+        toml::from_str(&text).map_err(|e| ServerError::Config(format!("{}: {e}", path.display())))
+    }
+
+    /// `self` where set, else `lower`.
+    #[must_use]
+    pub fn over(self, lower: Self) -> Self {
+        Self {
+            store: self.store.or(lower.store),
+            bind: self.bind.or(lower.bind),
+            sources: if self.sources.is_empty() { lower.sources } else { self.sources },
+            max_connections: self.max_connections.or(lower.max_connections),
+            max_in_flight: self.max_in_flight.or(lower.max_in_flight),
+            request_timeout_s: self.request_timeout_s.or(lower.request_timeout_s),
+            max_body_bytes: self.max_body_bytes.or(lower.max_body_bytes),
+            bake_workers: self.bake_workers.or(lower.bake_workers),
+            bake_queue: self.bake_queue.or(lower.bake_queue),
+            cache_bytes: self.cache_bytes.or(lower.cache_bytes),
+            poll_ms: self.poll_ms.or(lower.poll_ms),
+            rate_limit: self.rate_limit.or(lower.rate_limit),
+            shutdown_timeout_s: self.shutdown_timeout_s.or(lower.shutdown_timeout_s),
+            admin_token: self.admin_token.or(lower.admin_token),
+            read_token: self.read_token.or(lower.read_token),
+            log_format: self.log_format.or(lower.log_format),
+            gpu: self.gpu.or(lower.gpu),
+            gpu_budget_mib: self.gpu_budget_mib.or(lower.gpu_budget_mib),
+        }
+    }
+
+    /// Fills the defaults and checks every value.
+    pub fn resolve(self) -> Result<Config, ServerError> {
+        let bad = |m: String| Err(ServerError::Config(m));
+        let Some(store) = self.store else {
+            return bad("no store directory: pass --store DIR (or TERRASTREAM_STORE, or store = … in the config file)".into());
+        };
+        let bind_s = self.bind.unwrap_or_else(|| DEFAULT_BIND.to_owned());
+        let Ok(bind) = bind_s.parse::<SocketAddr>() else {
+            return bad(format!("--bind {bind_s:?} is not an address like 127.0.0.1:8080"));
+        };
+        let positive = |v: Option<usize>, d: usize, flag: &str| -> Result<usize, ServerError> {
+            match v.unwrap_or(d) {
+                0 => Err(ServerError::Config(format!("{flag} must be at least 1"))),
+                n => Ok(n),
+            }
+        };
+        let mut names: Vec<&str> = self.sources.iter().map(|s| s.name.as_str()).collect();
+        names.sort_unstable();
+        if let Some([w, ..]) = names.windows(2).find(|w| w[0] == w[1]) {
+            return bad(format!("--source {w} is given twice"));
+        }
+        for t in [&self.admin_token, &self.read_token].into_iter().flatten() {
+            if t.len() < 8 || !t.bytes().all(|b| b.is_ascii_graphic()) {
+                return bad("tokens must be at least 8 printable ASCII characters".into());
+            }
+        }
+        let request_timeout_s = self.request_timeout_s.unwrap_or(DEFAULT_REQUEST_TIMEOUT_S);
+        if request_timeout_s == 0 {
+            return bad("--request-timeout must be at least 1 second".into());
+        }
+        Ok(Config {
+            store,
+            bind,
+            sources: self.sources,
+            max_connections: positive(self.max_connections, DEFAULT_MAX_CONNECTIONS, "--max-connections")?,
+            max_in_flight: positive(self.max_in_flight, DEFAULT_MAX_IN_FLIGHT, "--max-in-flight")?,
+            request_timeout: Duration::from_secs(request_timeout_s),
+            max_body_bytes: self.max_body_bytes.unwrap_or(DEFAULT_MAX_BODY_BYTES),
+            bake_workers: positive(self.bake_workers, DEFAULT_BAKE_WORKERS, "--bake-workers")?,
+            bake_queue: self.bake_queue.unwrap_or(DEFAULT_BAKE_QUEUE),
+            cache_bytes: self.cache_bytes.unwrap_or(DEFAULT_CACHE_BYTES),
+            poll: Duration::from_millis(self.poll_ms.unwrap_or(DEFAULT_POLL_MS).max(50)),
+            rate_limit: self.rate_limit.unwrap_or(DEFAULT_RATE_LIMIT),
+            shutdown_timeout: Duration::from_secs(
+                self.shutdown_timeout_s.unwrap_or(DEFAULT_SHUTDOWN_TIMEOUT_S),
+            ),
+            admin_token: self.admin_token,
+            read_token: self.read_token,
+            log_format: self.log_format.unwrap_or_default(),
+            gpu: self.gpu.unwrap_or_default(),
+            gpu_budget_mib: match self.gpu_budget_mib.unwrap_or(DEFAULT_GPU_BUDGET_MIB) {
+                0 => return bad("--gpu-budget-mib must be at least 1".into()),
+                n => n,
+            },
+        })
+    }
+}
+
+/// A complete, checked configuration.
+#[derive(Debug, Clone)]
+pub struct Config {
+    pub store: PathBuf,
+    pub bind: SocketAddr,
+    pub sources: Vec<SourceSpec>,
+    pub max_connections: usize,
+    pub max_in_flight: usize,
+    pub request_timeout: Duration,
+    pub max_body_bytes: u64,
+    pub bake_workers: usize,
+    pub bake_queue: usize,
+    pub cache_bytes: u64,
+    pub poll: Duration,
+    pub rate_limit: u32,
+    pub shutdown_timeout: Duration,
+    pub admin_token: Option<String>,
+    pub read_token: Option<String>,
+    pub log_format: LogFormat,
+    pub gpu: GpuMode,
+    pub gpu_budget_mib: u64,
+}
+
+impl Config {
+    /// Defaults for a store directory (tests and the demo).
+    pub fn for_store(store: &Path) -> Result<Self, ServerError> {
+        PartialConfig { store: Some(store.to_owned()), ..PartialConfig::default() }.resolve()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flags_win_over_file_and_defaults_fill() {
+        let file: PartialConfig = toml::from_str(
+            "store = \"/srv\"\nbind = \"0.0.0.0:9000\"\nbake_workers = 3\nlog_format = \"json\"",
+        )
+        .unwrap();
+        let flags = PartialConfig { bind: Some("127.0.0.1:1".into()), ..PartialConfig::default() };
+        let c = flags.over(file).resolve().unwrap();
+        assert_eq!(c.bind, "127.0.0.1:1".parse().unwrap());
+        assert_eq!(c.store, PathBuf::from("/srv"));
+        assert_eq!(c.bake_workers, 3);
+        assert_eq!(c.log_format, LogFormat::Json);
+        assert_eq!(c.bake_queue, DEFAULT_BAKE_QUEUE);
+        assert_eq!(c.gpu, GpuMode::Auto);
+        let g: PartialConfig = toml::from_str("gpu = \"off\"\ngpu_budget_mib = 64").unwrap();
+        assert_eq!((g.gpu, g.gpu_budget_mib), (Some(GpuMode::Off), Some(64)));
+        assert!(toml::from_str::<PartialConfig>("gpu = \"maybe\"").is_err());
+        assert!(toml::from_str::<PartialConfig>("nope = 1").is_err());
+    }
+
+    #[test]
+    fn bad_values_are_named() {
+        let e = PartialConfig { store: Some("s".into()), bind: Some("x".into()), ..PartialConfig::default() }
+            .resolve()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--bind"), "{e}");
+        let e = PartialConfig { store: Some("s".into()), bake_workers: Some(0), ..PartialConfig::default() }
+            .resolve()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--bake-workers"), "{e}");
+        assert!("Bad=x".parse::<SourceSpec>().is_err());
+        assert_eq!("a-1=/x.tif".parse::<SourceSpec>().unwrap().raster, PathBuf::from("/x.tif"));
+        let s: SourceSpec = "f=/f.png,encoding=terrain-rgb,cell_size=30,levels=2".parse().unwrap();
+        assert_eq!(
+            (s.encoding.as_deref(), s.cell_size, s.levels),
+            (Some("terrain-rgb"), Some(30.0), Some(2))
+        );
+        assert!("f=/f.png,colour=red".parse::<SourceSpec>().is_err());
+    }
+}

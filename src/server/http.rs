@@ -1,0 +1,728 @@
+//! Routes, the front middleware (load shedding, rate limit, read token, timeout, problem
+//! bodies, metrics, access log) and the read handlers with their HTTP caching semantics:
+//! strong ETags, `If-None-Match` → 304, single `Range` → 206/416, `Cache-Control` immutable
+//! only for URLs naming the current content version.
+
+use std::collections::HashMap;
+use std::fmt::Write as _;
+use std::net::IpAddr;
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use axum::Router;
+use axum::body::Body;
+use axum::extract::{ConnectInfo, MatchedPath, Path, RawQuery, Request, State};
+use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, header};
+use axum::middleware::{self, Next};
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use bytes::Bytes;
+use tower_http::cors::{AllowOrigin, CorsLayer};
+
+use super::cache::Entry;
+use super::problem::{self, PROBLEM_JSON, Problem};
+use super::registry::Tileset;
+use super::{App, admin, valid_name};
+use crate::codec;
+use crate::store::SUBTREE_LEVELS;
+use crate::tiling::TileKey;
+
+/// `Cache-Control` of URLs carrying the current content version (`?v=`): they can never change.
+pub const IMMUTABLE: &str = "public, max-age=31536000, immutable";
+/// `Cache-Control` of blobs and index chunks without (or with a stale) content version.
+pub const REVALIDATE: &str = "public, max-age=60, must-revalidate";
+/// `Cache-Control` of manifests and the tileset list: short, then revalidate by ETag.
+pub const SHORT: &str = "public, max-age=10, must-revalidate";
+/// `Cache-Control` of documents that change as tiles bake (on-demand index chunks).
+pub const NO_CACHE: &str = "no-cache";
+/// Media type of blobs.
+pub const BLOB_TYPE: &str = "application/vnd.terrastream.blob";
+/// Seconds a client is asked to wait when the server sheds load.
+pub const SHED_RETRY_AFTER_S: u32 = 1;
+
+pub fn router(app: Arc<App>) -> Router {
+    let cors = CorsLayer::new()
+        .allow_origin(AllowOrigin::any())
+        .allow_methods([Method::GET, Method::HEAD, Method::OPTIONS])
+        .allow_headers([header::RANGE, header::IF_NONE_MATCH, header::IF_RANGE, header::AUTHORIZATION])
+        .expose_headers([
+            header::ETAG,
+            header::CONTENT_RANGE,
+            header::CONTENT_LENGTH,
+            header::ACCEPT_RANGES,
+            header::RETRY_AFTER,
+        ])
+        .max_age(Duration::from_hours(24));
+    Router::new()
+        .route("/healthz", get(healthz))
+        .route("/readyz", get(readyz))
+        .route("/metrics", get(metrics))
+        .route("/openapi.json", get(openapi))
+        .route("/tilesets", get(list))
+        .route("/tilesets/{name}", get(summary).post(admin::upload).delete(admin::delete))
+        .route("/tilesets/{name}/tileset.json", get(manifest))
+        .route("/tilesets/{name}/index/{z}/{x}/{file}", get(index_chunk))
+        .route("/tilesets/{name}/tiles/{z}/{x}/{y}/{level}", get(blob))
+        .route("/jobs/{id}", get(admin::job))
+        .fallback(fallback)
+        .layer(middleware::from_fn_with_state(app.clone(), front))
+        .layer(cors)
+        .with_state(app)
+}
+
+async fn fallback() -> Problem {
+    Problem::not_found("no such resource; see /openapi.json for the API")
+}
+
+/// Per-client token buckets (requests per second, bursts of twice that).
+pub struct RateLimiter {
+    rate: f64,
+    buckets: Mutex<HashMap<IpAddr, (f64, Instant)>>,
+}
+
+impl RateLimiter {
+    pub fn new(rate: u32) -> Self {
+        Self { rate: f64::from(rate), buckets: Mutex::new(HashMap::new()) }
+    }
+
+    /// `None` when the request may go ahead, else seconds to wait.
+    fn check(&self, ip: IpAddr) -> Option<u32> {
+        if self.rate <= 0.0 {
+            return None;
+        }
+        let now = Instant::now();
+        let burst = self.rate * 2.0;
+        let mut b = self.buckets.lock().ok()?;
+        if b.len() > 100_000 {
+            // Forget clients idle long enough to have refilled: bounded memory under many IPs.
+            let horizon = Duration::from_secs_f64(burst / self.rate + 1.0);
+            b.retain(|_, (_, t)| now.duration_since(*t) < horizon);
+        }
+        let (tokens, last) = b.entry(ip).or_insert((burst, now));
+        *tokens = (*tokens + now.duration_since(*last).as_secs_f64() * self.rate).min(burst);
+        *last = now;
+        if *tokens >= 1.0 {
+            *tokens -= 1.0;
+            None
+        } else {
+            Some(((1.0 - *tokens) / self.rate).ceil().max(1.0) as u32)
+        }
+    }
+}
+
+/// Constant-time comparison (no early exit on the first differing byte).
+fn ct_eq(a: &[u8], b: &[u8]) -> bool {
+    let mut diff = a.len() ^ b.len();
+    for i in 0..a.len().max(b.len()) {
+        diff |= usize::from(a.get(i).copied().unwrap_or(0) ^ b.get(i).copied().unwrap_or(0));
+    }
+    diff == 0
+}
+
+/// `401` without a bearer token, `403` with a wrong one.
+pub fn check_bearer(headers: &HeaderMap, expected: &str, what: &str) -> Result<(), Problem> {
+    let given = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer ").or_else(|| v.strip_prefix("bearer ")));
+    match given {
+        None => Err(Problem {
+            challenge: true,
+            ..Problem::new(
+                StatusCode::UNAUTHORIZED,
+                "unauthorized",
+                format!("{what} needs an `Authorization: Bearer <token>` header"),
+            )
+        }),
+        Some(t) if ct_eq(t.trim().as_bytes(), expected.as_bytes()) => Ok(()),
+        Some(_) => Err(Problem::new(StatusCode::FORBIDDEN, "forbidden", format!("wrong token for {what}"))),
+    }
+}
+
+struct InFlight<'a>(&'a App);
+impl Drop for InFlight<'_> {
+    fn drop(&mut self) {
+        self.0.in_flight.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
+async fn front(State(app): State<Arc<App>>, req: Request, next: Next) -> Response {
+    let start = Instant::now();
+    let route = req.extensions().get::<MatchedPath>().map_or("unmatched", MatchedPath::as_str).to_owned();
+    let method = req.method().clone();
+    let path = req.uri().path().to_owned();
+    let probe = matches!(route.as_str(), "/healthz" | "/readyz");
+    let ip = req.extensions().get::<ConnectInfo<super::listener::Peer>>().map(|c| c.0.0.ip());
+    let admin_route = matches!(method, Method::POST | Method::DELETE) || route == "/jobs/{id}";
+
+    let n = app.in_flight.fetch_add(1, Ordering::Relaxed);
+    let guard = InFlight(&app);
+    let resp = if !probe && n >= app.config.max_in_flight {
+        app.metrics.shed.fetch_add(1, Ordering::Relaxed);
+        Problem::unavailable(
+            "overloaded",
+            "the server is at its in-flight request limit; retry later",
+            SHED_RETRY_AFTER_S,
+        )
+        .into_response()
+    } else if let Some(wait) = ip.filter(|_| !probe).and_then(|ip| app.rate.check(ip)) {
+        app.metrics.shed.fetch_add(1, Ordering::Relaxed);
+        Problem {
+            retry_after: Some(wait),
+            ..Problem::new(
+                StatusCode::TOO_MANY_REQUESTS,
+                "rate-limited",
+                "too many requests from this client",
+            )
+        }
+        .into_response()
+    } else if let (Some(tok), false, false) = (&app.config.read_token, probe, admin_route)
+        && let Err(p) = check_bearer(req.headers(), tok, "reading")
+    {
+        p.into_response()
+    } else if admin_route {
+        // Uploads stream large bodies: bounded by size, not by the request timeout.
+        next.run(req).await
+    } else {
+        match tokio::time::timeout(app.config.request_timeout, next.run(req)).await {
+            Ok(r) => r,
+            Err(_) => Problem::unavailable(
+                "timeout",
+                format!("the request took longer than {} s", app.config.request_timeout.as_secs()),
+                SHED_RETRY_AFTER_S,
+            )
+            .into_response(),
+        }
+    };
+    drop(guard);
+    let mut resp = problem_body(resp);
+    if app.config.read_token.is_some() {
+        resp.headers_mut().append(header::VARY, HeaderValue::from_static("authorization"));
+    }
+    if method != Method::HEAD
+        && let Some(len) =
+            resp.headers().get(header::CONTENT_LENGTH).and_then(|v| v.to_str().ok()?.parse::<u64>().ok())
+    {
+        app.metrics.bytes_sent.fetch_add(len, Ordering::Relaxed);
+    }
+    let status = resp.status();
+    app.metrics.record(&route, status.as_u16(), start.elapsed());
+    if status.is_server_error() {
+        tracing::warn!(%method, %path, status = status.as_u16(), ms = start.elapsed().as_secs_f64() * 1e3, "request");
+    } else {
+        tracing::debug!(%method, %path, status = status.as_u16(), ms = start.elapsed().as_secs_f64() * 1e3, "request");
+    }
+    resp
+}
+
+/// Gives error responses made outside our handlers (405 from the method router, extractor
+/// rejections) a problem+json body, keeping their headers (`Allow`).
+fn problem_body(resp: Response) -> Response {
+    let status = resp.status();
+    let is_problem =
+        resp.headers().get(header::CONTENT_TYPE).is_some_and(|v| v.as_bytes() == PROBLEM_JSON.as_bytes());
+    if status.as_u16() < 400 || is_problem {
+        return resp;
+    }
+    let (mut parts, _) = resp.into_parts();
+    let (slug, detail) = problem::generic(status);
+    let body = problem::body(status, slug, detail);
+    parts.headers.insert(header::CONTENT_TYPE, HeaderValue::from_static(PROBLEM_JSON));
+    parts.headers.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    parts.headers.insert(header::CONTENT_LENGTH, HeaderValue::from(body.len()));
+    Response::from_parts(parts, Body::from(body))
+}
+
+async fn healthz() -> Response {
+    json_response(&serde_json::json!({"status": "ok"}), "no-store")
+}
+
+async fn readyz(State(app): State<Arc<App>>) -> Response {
+    let store_ok = app.registry.root().is_dir();
+    let ready = app.ready.load(Ordering::Relaxed) && store_ok;
+    if ready {
+        let n = app.registry.all().len();
+        json_response(&serde_json::json!({"status": "ready", "tilesets": n}), "no-store")
+    } else {
+        Problem::unavailable(
+            "not-ready",
+            format!("the store {} cannot be read", app.registry.root().display()),
+            5,
+        )
+        .into_response()
+    }
+}
+
+async fn metrics(State(app): State<Arc<App>>) -> Response {
+    let mut text = app.metrics.render();
+    let _ = writeln!(
+        text,
+        "# HELP terrastream_cache_bytes Bytes of verified blobs held in memory.\n# TYPE terrastream_cache_bytes gauge\nterrastream_cache_bytes {}",
+        app.cache.bytes()
+    );
+    let mut r = text.into_response();
+    r.headers_mut().insert(header::CONTENT_TYPE, HeaderValue::from_static("text/plain; version=0.0.4"));
+    r.headers_mut().insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    r
+}
+
+async fn openapi() -> Response {
+    json_response(&super::openapi::document(), SHORT)
+}
+
+fn json_response(v: &serde_json::Value, cache: &'static str) -> Response {
+    let body = serde_json::to_vec_pretty(v).unwrap_or_default();
+    let mut r = Response::new(Body::from(body));
+    r.headers_mut().insert(header::CONTENT_TYPE, HeaderValue::from_static("application/json"));
+    r.headers_mut().insert(header::CACHE_CONTROL, HeaderValue::from_static(cache));
+    r
+}
+
+async fn list(State(app): State<Arc<App>>, headers: HeaderMap, method: Method) -> Response {
+    let all: Vec<serde_json::Value> = app.registry.all().iter().map(|t| t.summary.clone()).collect();
+    let body = serde_json::to_vec_pretty(&serde_json::json!({ "tilesets": all })).unwrap_or_default();
+    let etag = etag_value(&super::registry::etag_of(&body));
+    send(&method, &headers, &Entry { bytes: Bytes::from(body), etag }, "application/json", SHORT)
+}
+
+/// The tileset named in a path, or 400 (invalid name) / 404 (unknown).
+pub(super) fn tileset(app: &App, name: &str) -> Result<Arc<Tileset>, Problem> {
+    if !valid_name(name) {
+        return Err(Problem::bad_request(format!(
+            "tileset name {name:?} is invalid: names are 1 to 64 of a-z, 0-9, _ and -"
+        )));
+    }
+    app.registry.get(name).ok_or_else(|| Problem::not_found(format!("no tileset named {name:?}")))
+}
+
+async fn summary(
+    State(app): State<Arc<App>>,
+    path: Result<Path<String>, axum::extract::rejection::PathRejection>,
+) -> Result<Response, Problem> {
+    let Path(name) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
+    let ts = tileset(&app, &name)?;
+    Ok(json_response(&ts.summary, SHORT))
+}
+
+async fn manifest(
+    State(app): State<Arc<App>>,
+    path: Result<Path<String>, axum::extract::rejection::PathRejection>,
+    method: Method,
+    headers: HeaderMap,
+) -> Result<Response, Problem> {
+    let Path(name) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
+    let ts = tileset(&app, &name)?;
+    let entry = Entry { bytes: ts.manifest_json.clone(), etag: etag_value(&ts.manifest_etag) };
+    Ok(send(&method, &headers, &entry, "application/json", SHORT))
+}
+
+fn etag_value(s: &str) -> HeaderValue {
+    HeaderValue::from_str(s).unwrap_or_else(|_| HeaderValue::from_static("\"0\""))
+}
+
+/// A decimal path component: digits only (no sign, no spaces), at most `u32`.
+fn parse_num(s: &str, what: &str) -> Result<u32, Problem> {
+    if s.is_empty() || s.len() > 10 || !s.bytes().all(|b| b.is_ascii_digit()) {
+        return Err(Problem::bad_request(format!("{what} {s:?} is not a non-negative integer")));
+    }
+    s.parse().map_err(|_| Problem::bad_request(format!("{what} {s:?} is too large")))
+}
+
+/// Checks a key against the tileset's quadtree: `400` when it cannot exist at all.
+fn parse_key(ts: &Tileset, z: &str, x: &str, y: &str) -> Result<TileKey, Problem> {
+    let zn = parse_num(z, "z")?;
+    if zn > u32::from(ts.depth) {
+        return Err(Problem::bad_request(format!(
+            "z {zn} is out of range: tileset {:?} has z 0 to {}",
+            ts.name, ts.depth
+        )));
+    }
+    let (xn, yn) = (parse_num(x, "x")?, parse_num(y, "y")?);
+    let side = 1u64 << zn;
+    if u64::from(xn) >= side || u64::from(yn) >= side {
+        return Err(Problem::bad_request(format!(
+            "x {xn} / y {yn} is out of range at z {zn}: 0 to {}",
+            side - 1
+        )));
+    }
+    Ok(TileKey::new(zn as u8, xn, yn))
+}
+
+/// `Cache-Control` of a content-addressed document: immutable only when the request names the
+/// tileset's current content version.
+fn versioned_cache(ts: &Tileset, query: Option<&str>) -> &'static str {
+    let v = query.into_iter().flat_map(|q| q.split('&')).find_map(|kv| kv.strip_prefix("v="));
+    match v {
+        Some(v) if v == ts.content_version => IMMUTABLE,
+        _ => REVALIDATE,
+    }
+}
+
+type ChunkPath = (String, String, String, String);
+
+async fn index_chunk(
+    State(app): State<Arc<App>>,
+    path: Result<Path<ChunkPath>, axum::extract::rejection::PathRejection>,
+    RawQuery(query): RawQuery,
+    method: Method,
+    headers: HeaderMap,
+) -> Result<Response, Problem> {
+    let Path((name, z, x, file)) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
+    let ts = tileset(&app, &name)?;
+    let y = file
+        .strip_suffix(".json")
+        .ok_or_else(|| Problem::bad_request(format!("index chunk {file:?} must be named Y.json")))?;
+    let key = parse_key(&ts, &z, &x, y)?;
+    if key.z % SUBTREE_LEVELS != 0 {
+        return Err(Problem::bad_request(format!(
+            "index chunks are rooted at z = 0, {SUBTREE_LEVELS}, {}, …; z {} is not a chunk root",
+            SUBTREE_LEVELS * 2,
+            key.z
+        )));
+    }
+    if let Some(src) = ts.source.clone().filter(|_| !ts.store.manifest_path().exists()) {
+        // On-demand and not fully baked: the nodes baked so far, rebuilt from their blobs.
+        if !src.pyramid.contains(key) {
+            return Err(Problem::not_found(format!("tile {key} lies outside the data of {name:?}")));
+        }
+        let ts2 = ts.clone();
+        let chunk = tokio::task::spawn_blocking(move || {
+            let mut nodes = Vec::new();
+            let mut frontier = vec![key];
+            for _ in 0..SUBTREE_LEVELS {
+                let mut next = Vec::new();
+                for k in frontier {
+                    if let Some(n) = crate::bake::node_from_blobs(&ts2.store, k, src.opts.levels) {
+                        nodes.push(n);
+                    }
+                    next.extend(src.pyramid.children(k));
+                }
+                frontier = next;
+            }
+            crate::store::IndexChunk { root: key, nodes }
+        })
+        .await
+        .map_err(|_| Problem::internal("index", "building the index chunk failed"))?;
+        let body = serde_json::to_vec_pretty(&chunk).unwrap_or_default();
+        let etag = etag_value(&super::registry::etag_of(&body));
+        return Ok(send(
+            &method,
+            &headers,
+            &Entry { bytes: Bytes::from(body), etag },
+            "application/json",
+            NO_CACHE,
+        ));
+    }
+    let ck = (ts.generation, key, u8::MAX);
+    let entry = if let Some(e) = app.cache.get(&ck) {
+        e
+    } else {
+        let p = ts.store.chunk_path(key);
+        let bytes = match tokio::fs::read(&p).await {
+            Ok(b) => b,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Err(Problem::not_found(format!("no index chunk {key} in tileset {name:?}")));
+            }
+            Err(e) => {
+                tracing::error!(path = %p.display(), error = %e, "cannot read index chunk");
+                return Err(Problem::internal("store-io", "the index chunk could not be read"));
+            }
+        };
+        let e = Entry { etag: etag_value(&super::registry::etag_of(&bytes)), bytes: Bytes::from(bytes) };
+        app.cache.insert(ck, e.clone());
+        e
+    };
+    Ok(send(&method, &headers, &entry, "application/json", versioned_cache(&ts, query.as_deref())))
+}
+
+type BlobPath = (String, String, String, String, String);
+
+async fn blob(
+    State(app): State<Arc<App>>,
+    path: Result<Path<BlobPath>, axum::extract::rejection::PathRejection>,
+    RawQuery(query): RawQuery,
+    method: Method,
+    headers: HeaderMap,
+) -> Result<Response, Problem> {
+    let Path((name, z, x, y, level)) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
+    let ts = tileset(&app, &name)?;
+    let key = parse_key(&ts, &z, &x, &y)?;
+    let level_s = level.strip_suffix(".tsb").unwrap_or(&level);
+    let level = parse_num(level_s, "level")?;
+    if level >= u32::from(ts.level_count) {
+        return Err(Problem::bad_request(format!(
+            "level {level} is out of range: tileset {name:?} has levels 0 to {}",
+            ts.level_count.saturating_sub(1)
+        )));
+    }
+    let entry = load_blob(&app, &ts, key, level as u8).await?;
+    Ok(send(&method, &headers, &entry, BLOB_TYPE, versioned_cache(&ts, query.as_deref())))
+}
+
+/// What reading a blob from disk found.
+enum Read {
+    Ok(Entry),
+    Missing,
+    Corrupt(String),
+}
+
+fn verify(bytes: Vec<u8>, key: TileKey, level: u8) -> Read {
+    let h = match codec::decode_header(&bytes) {
+        Ok(h) => h,
+        Err(e) => return Read::Corrupt(e.to_string()),
+    };
+    if h.key != key || h.level != level {
+        return Read::Corrupt(format!("header names tile {} level {}", h.key, h.level));
+    }
+    if bytes.len() != h.blob_len() {
+        return Read::Corrupt(format!("{} bytes, header says {}", bytes.len(), h.blob_len()));
+    }
+    let computed = crc32fast::hash(&bytes[codec::PREFIX_LEN..]);
+    if computed != h.checksum {
+        return Read::Corrupt(format!("payload checksum {computed:08x}, header says {:08x}", h.checksum));
+    }
+    // Content-derived: the payload's CRC and the header's CRC (which covers the payload CRC,
+    // its length, the key and level), 64 bits in all.
+    let etag = etag_value(&format!("\"{:08x}{:08x}\"", h.checksum, h.header_checksum));
+    Read::Ok(Entry { bytes: Bytes::from(bytes), etag })
+}
+
+async fn read_verified(path: std::path::PathBuf, key: TileKey, level: u8) -> Result<Read, Problem> {
+    match tokio::fs::read(&path).await {
+        Ok(b) => Ok(verify(b, key, level)),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Read::Missing),
+        Err(e) => {
+            tracing::error!(path = %path.display(), error = %e, "cannot read blob");
+            Err(Problem::internal(
+                "store-io",
+                format!("tile {key} level {level} could not be read from the store"),
+            ))
+        }
+    }
+}
+
+/// A verified blob: from memory, from disk, or baked on demand. A blob failing verification is
+/// never sent: it is logged and answered `500` (the stored data is bad — the server's fault,
+/// not the client's, and retrying will not help until it is re-baked); for an on-demand
+/// tileset it is moved aside and baked again.
+async fn load_blob(app: &App, ts: &Arc<Tileset>, key: TileKey, level: u8) -> Result<Entry, Problem> {
+    let ck = (ts.generation, key, level);
+    if let Some(e) = app.cache.get(&ck) {
+        app.metrics.cache_hits.fetch_add(1, Ordering::Relaxed);
+        return Ok(e);
+    }
+    app.metrics.cache_misses.fetch_add(1, Ordering::Relaxed);
+    let path = ts.store.blob_path(key, level);
+    let mut baked = false;
+    loop {
+        match read_verified(path.clone(), key, level).await? {
+            Read::Ok(e) => {
+                app.cache.insert(ck, e.clone());
+                return Ok(e);
+            }
+            Read::Corrupt(why) => {
+                app.metrics.corrupt_blobs.fetch_add(1, Ordering::Relaxed);
+                tracing::error!(
+                    tileset = %ts.name, tile = %key, level, path = %path.display(), error = %why,
+                    "corrupt blob detected; not sent"
+                );
+                if ts.source.is_none() || baked {
+                    return Err(Problem::internal(
+                        "corrupt-blob",
+                        format!(
+                            "the stored blob of tile {key} level {level} failed verification and was not sent"
+                        ),
+                    ));
+                }
+                let aside = path.with_extension("tsb.corrupt");
+                if let Err(e) = tokio::fs::rename(&path, &aside).await {
+                    tracing::error!(error = %e, "cannot move the corrupt blob aside");
+                    return Err(Problem::internal(
+                        "corrupt-blob",
+                        format!("tile {key} level {level} is corrupt"),
+                    ));
+                }
+            }
+            Read::Missing => {
+                let Some(src) = &ts.source else {
+                    return Err(Problem::not_found(format!(
+                        "no tile {key} level {level} in tileset {:?}",
+                        ts.name
+                    )));
+                };
+                if !src.pyramid.contains(key) {
+                    return Err(Problem::not_found(format!(
+                        "tile {key} lies outside the data of {:?}",
+                        ts.name
+                    )));
+                }
+                if baked {
+                    return Err(Problem::internal(
+                        "bake",
+                        format!("tile {key} was baked but level {level} is missing"),
+                    ));
+                }
+            }
+        }
+        let mut rx = app.bakery.request(ts, key, &path)?;
+        let outcome = rx
+            .wait_for(Option::is_some)
+            .await
+            .map_err(|_| Problem::internal("bake", format!("the bake of tile {key} was abandoned")))?
+            .clone();
+        if let Some(Err(e)) = outcome {
+            return Err(Problem::internal("bake", format!("baking tile {key} failed: {e}")));
+        }
+        baked = true;
+    }
+}
+
+/// Does `If-None-Match` match `etag`? (weak comparison, as RFC 9110 specifies for it)
+fn none_match(headers: &HeaderMap, etag: &HeaderValue) -> bool {
+    let Some(inm) = headers.get(header::IF_NONE_MATCH).and_then(|v| v.to_str().ok()) else { return false };
+    let want = etag.as_bytes();
+    inm.split(',').map(str::trim).any(|t| t == "*" || t.trim_start_matches("W/").as_bytes() == want)
+}
+
+enum RangeReq {
+    Full,
+    Part(u64, u64),
+    Unsatisfiable,
+}
+
+/// One `bytes=` range; several ranges or a malformed header are ignored (the full body is sent,
+/// as RFC 9110 allows).
+fn parse_range(h: &str, len: u64) -> RangeReq {
+    let Some(spec) = h.trim().strip_prefix("bytes=") else { return RangeReq::Full };
+    if spec.contains(',') {
+        return RangeReq::Full;
+    }
+    let Some((a, b)) = spec.trim().split_once('-') else { return RangeReq::Full };
+    let num = |s: &str| -> Option<u64> {
+        (!s.is_empty() && s.len() <= 19 && s.bytes().all(|c| c.is_ascii_digit()))
+            .then(|| s.parse().ok())
+            .flatten()
+    };
+    match (num(a), num(b), b.is_empty()) {
+        (Some(start), None, true) => {
+            if start >= len {
+                RangeReq::Unsatisfiable
+            } else {
+                RangeReq::Part(start, len - 1)
+            }
+        }
+        (Some(start), Some(end), _) if start <= end => {
+            if start >= len {
+                RangeReq::Unsatisfiable
+            } else {
+                RangeReq::Part(start, end.min(len - 1))
+            }
+        }
+        (None, Some(n), _) if a.is_empty() => {
+            if n == 0 || len == 0 {
+                RangeReq::Unsatisfiable
+            } else {
+                RangeReq::Part(len.saturating_sub(n), len - 1)
+            }
+        }
+        _ => RangeReq::Full,
+    }
+}
+
+/// The response for a verified body: 304 when `If-None-Match` matches, 206/416 for a range
+/// (honoured only when `If-Range`, if any, names this ETag), else 200. HEAD gets the same
+/// headers (axum drops the body).
+fn send(
+    method: &Method,
+    headers: &HeaderMap,
+    e: &Entry,
+    content_type: &'static str,
+    cache: &'static str,
+) -> Response {
+    let mut b = Response::builder()
+        .header(header::ETAG, e.etag.clone())
+        .header(header::CACHE_CONTROL, cache)
+        .header(header::ACCEPT_RANGES, "bytes");
+    if none_match(headers, &e.etag) {
+        return b.status(StatusCode::NOT_MODIFIED).body(Body::empty()).unwrap_or_default();
+    }
+    b = b.header(header::CONTENT_TYPE, content_type);
+    let len = e.bytes.len() as u64;
+    let range_ok = headers.get(header::IF_RANGE).is_none_or(|v| v.as_bytes() == e.etag.as_bytes());
+    let range = match headers.get(header::RANGE).and_then(|v| v.to_str().ok()) {
+        Some(r) if range_ok && (method == Method::GET || method == Method::HEAD) => parse_range(r, len),
+        _ => RangeReq::Full,
+    };
+    match range {
+        RangeReq::Full => b
+            .status(StatusCode::OK)
+            .header(header::CONTENT_LENGTH, len)
+            .body(Body::from(e.bytes.clone()))
+            .unwrap_or_default(),
+        RangeReq::Part(start, end) => {
+            let body = e.bytes.slice(start as usize..=end as usize);
+            b.status(StatusCode::PARTIAL_CONTENT)
+                .header(header::CONTENT_RANGE, format!("bytes {start}-{end}/{len}"))
+                .header(header::CONTENT_LENGTH, body.len())
+                .body(Body::from(body))
+                .unwrap_or_default()
+        }
+        RangeReq::Unsatisfiable => {
+            let mut r = Problem::new(
+                StatusCode::RANGE_NOT_SATISFIABLE,
+                "range-not-satisfiable",
+                format!("the range lies outside the {len} bytes of this resource"),
+            )
+            .into_response();
+            if let Ok(v) = HeaderValue::from_str(&format!("bytes */{len}")) {
+                r.headers_mut().insert(header::CONTENT_RANGE, v);
+            }
+            r
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ranges() {
+        let p = |h: &str| match parse_range(h, 100) {
+            RangeReq::Full => "full".to_owned(),
+            RangeReq::Part(a, b) => format!("{a}-{b}"),
+            RangeReq::Unsatisfiable => "416".to_owned(),
+        };
+        assert_eq!(p("bytes=0-9"), "0-9");
+        assert_eq!(p("bytes=90-"), "90-99");
+        assert_eq!(p("bytes=-10"), "90-99");
+        assert_eq!(p("bytes=-1000"), "0-99");
+        assert_eq!(p("bytes=50-1000"), "50-99");
+        assert_eq!(p("bytes=100-"), "416");
+        assert_eq!(p("bytes=100-200"), "416");
+        assert_eq!(p("bytes=-0"), "416");
+        assert_eq!(p("bytes=9-1"), "full");
+        assert_eq!(p("bytes=0-1,5-6"), "full");
+        assert_eq!(p("items=0-1"), "full");
+        assert_eq!(p("bytes=a-b"), "full");
+        assert_eq!(p("bytes=-"), "full");
+    }
+
+    #[test]
+    fn constant_time_eq() {
+        assert!(ct_eq(b"secret-token", b"secret-token"));
+        assert!(!ct_eq(b"secret-token", b"secret-tokeN"));
+        assert!(!ct_eq(b"secret-token", b"secret-token-longer"));
+        assert!(!ct_eq(b"", b"x"));
+    }
+
+    #[test]
+    fn rate_limiter_bursts_then_refuses() {
+        let r = RateLimiter::new(2);
+        let ip: IpAddr = "10.0.0.1".parse().unwrap();
+        assert!((0..4).all(|_| r.check(ip).is_none()));
+        assert!(r.check(ip).is_some());
+        assert!(RateLimiter::new(0).check(ip).is_none());
+    }
+}

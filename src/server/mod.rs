@@ -1,0 +1,290 @@
+//! The HTTP server (axum on tokio): serves a store directory of tilesets — manifests, index
+//! chunks and blobs with strong ETags, conditional and range requests, content-versioned
+//! immutable caching, CORS — bakes missing tiles on demand from `--source` rasters, sheds load
+//! with `429`/`503` + `Retry-After`, exposes health, readiness, Prometheus metrics and an
+//! OpenAPI document, and an admin API (bearer token) to upload rasters, follow bake jobs and
+//! delete tilesets. See the README (*HTTP API*) for the API and its caching semantics.
+//!
+//! Every error is `application/problem+json`; a client mistake is a 4xx, never a 500, and no
+//! path or header makes a handler panic (the router is property-tested with random paths).
+
+mod admin;
+mod bakery;
+mod cache;
+mod config;
+pub mod demo;
+mod http;
+mod listener;
+mod metrics;
+mod openapi;
+mod problem;
+mod registry;
+
+use std::collections::HashMap;
+use std::future::Future;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+pub use config::{
+    Config, DEFAULT_BAKE_QUEUE, DEFAULT_BAKE_WORKERS, DEFAULT_BIND, DEFAULT_CACHE_BYTES,
+    DEFAULT_MAX_BODY_BYTES, DEFAULT_MAX_CONNECTIONS, DEFAULT_MAX_IN_FLIGHT, DEFAULT_POLL_MS,
+    DEFAULT_RATE_LIMIT, DEFAULT_REQUEST_TIMEOUT_S, DEFAULT_SHUTDOWN_TIMEOUT_S, LogFormat, PartialConfig,
+    SourceSpec,
+};
+pub use metrics::Metrics;
+
+use crate::bake::{BakeOptions, PointBaker};
+use crate::raster::{Encoding, LoadOptions, Overrides};
+use crate::store::Store;
+use crate::tiling::Pyramid;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ServerError {
+    #[error("serve: {0}")]
+    Config(String),
+    #[error("serve: cannot listen on {addr}: {source}")]
+    Bind { addr: SocketAddr, source: std::io::Error },
+    #[error("serve: {0}")]
+    Io(#[from] std::io::Error),
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
+    #[error("serve: --source {name}: {source}")]
+    Source { name: String, source: Box<crate::Error> },
+}
+
+/// Tileset names: `[a-z0-9_-]{1,64}`. Nothing else can name a directory in the store, so no
+/// request can reach outside it (no `.`, no separator, no encoded separator survives this).
+#[must_use]
+pub fn valid_name(name: &str) -> bool {
+    (1..=64).contains(&name.len())
+        && name.bytes().all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_' || b == b'-')
+}
+
+/// Shared state of a running server.
+pub struct App {
+    pub config: Config,
+    pub metrics: Arc<Metrics>,
+    registry: registry::Registry,
+    cache: cache::BlobCache,
+    bakery: bakery::Bakery,
+    jobs: admin::Jobs,
+    in_flight: AtomicUsize,
+    rate: http::RateLimiter,
+    ready: AtomicBool,
+    /// Computes point levels for on-demand and admin bakes (opened once at startup).
+    baker: Arc<PointBaker>,
+}
+
+impl App {
+    /// Re-scans the store for added, changed and removed tilesets now.
+    pub fn rescan(&self) {
+        match self.registry.scan() {
+            Ok(()) => self.ready.store(true, Ordering::Relaxed),
+            Err(e) => {
+                self.ready.store(false, Ordering::Relaxed);
+                tracing::error!(error = %e, "store scan failed");
+            }
+        }
+    }
+
+    /// What bakes point levels in this server: "cpu" or "gpu: <adapter>".
+    #[must_use]
+    pub fn point_baker(&self) -> String {
+        self.baker.describe()
+    }
+
+    /// Names of the tilesets being served.
+    #[must_use]
+    pub fn tileset_names(&self) -> Vec<String> {
+        self.registry.all().iter().map(|t| t.name.clone()).collect()
+    }
+}
+
+/// Loads an on-demand source and prepares its directory (as `bake` would, so either resumes the
+/// other's work).
+fn open_source(root: &std::path::Path, spec: &SourceSpec) -> Result<registry::OnDemand, ServerError> {
+    let err = |e: crate::Error| ServerError::Source { name: spec.name.clone(), source: Box::new(e) };
+    let encoding = match spec.encoding.as_deref() {
+        None => None,
+        Some("gray16") => Some(Encoding::Gray16),
+        Some("terrain-rgb") => Some(Encoding::TerrainRgb),
+        Some("terrarium") => Some(Encoding::Terrarium),
+        Some(other) => {
+            return Err(ServerError::Config(format!(
+                "--source {}: encoding {other:?} is not gray16, terrain-rgb or terrarium",
+                spec.name
+            )));
+        }
+    };
+    let load = LoadOptions {
+        encoding,
+        overrides: Overrides { cell_size: spec.cell_size, ..Overrides::default() },
+        ..LoadOptions::default()
+    };
+    let raster = crate::raster::load(&spec.raster, &load).map_err(|e| err(e.into()))?;
+    let d = BakeOptions::default();
+    let opts = BakeOptions {
+        tile_size: spec.tile_size.unwrap_or(d.tile_size),
+        max_error: spec.max_error.unwrap_or(d.max_error),
+        levels: spec.levels.unwrap_or(d.levels),
+    };
+    crate::bake::check_options(&opts).map_err(|e| err(e.into()))?;
+    let pyramid = Pyramid::new(raster.heights.width, raster.heights.height, opts.tile_size)
+        .map_err(|e| err(crate::bake::BakeError::from(e).into()))?;
+    let file = spec
+        .raster
+        .file_name()
+        .map_or_else(|| spec.raster.display().to_string(), |n| n.to_string_lossy().into_owned());
+    let options = crate::bake::options_record(&raster, &file, &opts);
+    Store::new(&root.join(&spec.name)).begin_bake(&options).map_err(|e| err(e.into()))?;
+    Ok(registry::OnDemand { source: Arc::new(registry::Source { raster, opts, pyramid }), options })
+}
+
+/// A bound, not yet running server.
+pub struct Server {
+    listener: tokio::net::TcpListener,
+    app: Arc<App>,
+}
+
+impl Server {
+    /// Loads the on-demand sources, scans the store, starts the bake workers and binds.
+    pub async fn bind(config: Config) -> Result<Self, ServerError> {
+        if !config.store.is_dir() {
+            return Err(ServerError::Config(format!(
+                "--store {}: not a directory (create it, or bake into DIR/NAME first)",
+                config.store.display()
+            )));
+        }
+        let mut on_demand = HashMap::new();
+        for spec in &config.sources {
+            let root = config.store.clone();
+            let spec2 = spec.clone();
+            let od = tokio::task::spawn_blocking(move || open_source(&root, &spec2))
+                .await
+                .map_err(|e| ServerError::Config(format!("--source {}: {e}", spec.name)))??;
+            on_demand.insert(spec.name.clone(), od);
+        }
+        let (mode, budget) = (config.gpu, config.gpu_budget_mib.saturating_mul(1 << 20));
+        // A server with no source and no admin API never bakes: no adapter is opened for it.
+        let bakes = !config.sources.is_empty() || config.admin_token.is_some();
+        let mode = if bakes { mode } else { crate::bake::GpuMode::Off };
+        let (baker, notice) = tokio::task::spawn_blocking(move || PointBaker::open(mode, budget))
+            .await
+            .map_err(|e| ServerError::Config(format!("--gpu: {e}")))?
+            .map_err(|e| ServerError::Config(format!("--gpu: {e}")))?;
+        if let Some(n) = notice {
+            tracing::warn!("{n}");
+        }
+        tracing::info!(point_baker = %baker.describe(), "point levels will be baked here");
+        let baker = Arc::new(baker);
+        let metrics = Arc::new(Metrics::default());
+        let app = Arc::new(App {
+            registry: registry::Registry::new(&config.store, on_demand),
+            cache: cache::BlobCache::new(config.cache_bytes),
+            bakery: bakery::Bakery::start(config.bake_workers, config.bake_queue, metrics.clone(), &baker),
+            baker,
+            jobs: admin::Jobs::default(),
+            in_flight: AtomicUsize::new(0),
+            rate: http::RateLimiter::new(config.rate_limit),
+            ready: AtomicBool::new(false),
+            metrics,
+            config,
+        });
+        app.rescan();
+        let listener = tokio::net::TcpListener::bind(app.config.bind)
+            .await
+            .map_err(|source| ServerError::Bind { addr: app.config.bind, source })?;
+        Ok(Self { listener, app })
+    }
+
+    pub fn local_addr(&self) -> Result<SocketAddr, ServerError> {
+        Ok(self.listener.local_addr()?)
+    }
+
+    #[must_use]
+    pub fn app(&self) -> Arc<App> {
+        self.app.clone()
+    }
+
+    /// Serves until `shutdown` completes, then stops accepting, lets in-flight requests finish
+    /// within `Config::shutdown_timeout`, and returns. Blobs are only ever renamed into place
+    /// complete, so a bake cut short leaves no half-written blob.
+    pub async fn run(self, shutdown: impl Future<Output = ()> + Send + 'static) -> Result<(), ServerError> {
+        let app = self.app;
+        let poller = {
+            let app = app.clone();
+            tokio::spawn(async move {
+                let mut tick = tokio::time::interval(app.config.poll);
+                tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+                loop {
+                    tick.tick().await;
+                    let a = app.clone();
+                    let _ = tokio::task::spawn_blocking(move || a.rescan()).await;
+                }
+            })
+        };
+        let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
+        let signal = async move {
+            shutdown.await;
+            tracing::info!("shutting down: no new connections; finishing in-flight requests");
+            let _ = stop_tx.send(true);
+        };
+        let listener = listener::Limited::new(self.listener, app.config.max_connections);
+        let service = http::router(app.clone()).into_make_service_with_connect_info::<listener::Peer>();
+        let serve = axum::serve(listener, service).with_graceful_shutdown(signal);
+        let grace = app.config.shutdown_timeout;
+        let deadline = async move {
+            let _ = stop_rx.wait_for(|v| *v).await;
+            tokio::time::sleep(grace).await;
+        };
+        let result = tokio::select! {
+            r = serve => r.map_err(ServerError::Io),
+            () = deadline => {
+                tracing::warn!(
+                    in_flight = app.in_flight.load(Ordering::Relaxed),
+                    "shutdown timeout reached; dropping the requests still in flight"
+                );
+                Ok(())
+            }
+        };
+        poller.abort();
+        app.bakery.close();
+        result
+    }
+}
+
+/// Completes on Ctrl-C or SIGTERM.
+pub async fn shutdown_signal() {
+    let ctrl_c = async {
+        if tokio::signal::ctrl_c().await.is_err() {
+            std::future::pending::<()>().await;
+        }
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        () = ctrl_c => {},
+        () = term => {},
+    }
+}
+
+/// Runs a server on its own multi-threaded runtime until Ctrl-C or SIGTERM; `on_ready` gets the
+/// bound address (print URLs there).
+pub fn serve_blocking(config: Config, on_ready: impl FnOnce(SocketAddr, &App)) -> Result<(), ServerError> {
+    let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
+    rt.block_on(async move {
+        let server = Server::bind(config).await?;
+        on_ready(server.local_addr()?, &server.app);
+        server.run(shutdown_signal()).await
+    })
+}

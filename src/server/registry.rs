@@ -1,0 +1,258 @@
+//! The tilesets being served: one per subdirectory of the store with a valid manifest, plus the
+//! on-demand tilesets named by `--source`. The store is re-scanned by polling (every
+//! `Config::poll`): a subdirectory whose `tileset.json` appeared, changed (size or mtime) or
+//! vanished is loaded, reloaded or dropped. Polling rather than inotify keeps it portable and
+//! works on network filesystems; the cost is one `stat` per tileset per interval.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, RwLock};
+use std::time::SystemTime;
+
+use bytes::Bytes;
+
+use crate::bake::BakeOptions;
+use crate::raster::LoadedRaster;
+use crate::store::{Manifest, Store};
+use crate::tiling::Pyramid;
+
+use super::{ServerError, valid_name};
+
+/// A raster that tiles of one tileset are baked from on demand.
+pub struct Source {
+    pub raster: LoadedRaster,
+    pub opts: BakeOptions,
+    pub pyramid: Pyramid,
+}
+
+/// One tileset as served. Immutable: a change on disk replaces the whole value (and so starts a
+/// new cache generation).
+pub struct Tileset {
+    pub name: String,
+    pub store: Store,
+    /// The manifest as served (for on-demand tilesets not fully baked: a provisional one).
+    pub manifest_json: Bytes,
+    pub manifest_etag: String,
+    pub content_version: String,
+    pub depth: u8,
+    /// Levels per node (mesh + point levels).
+    pub level_count: u8,
+    pub summary: serde_json::Value,
+    /// Distinguishes this load from earlier loads of the same name in cache keys.
+    pub generation: u64,
+    pub source: Option<Arc<Source>>,
+    stamp: Option<(SystemTime, u64)>,
+}
+
+static GENERATION: AtomicU64 = AtomicU64::new(1);
+
+fn stamp(path: &Path) -> Option<(SystemTime, u64)> {
+    let md = std::fs::metadata(path).ok()?;
+    Some((md.modified().ok()?, md.len()))
+}
+
+pub(super) fn etag_of(bytes: &[u8]) -> String {
+    format!("\"{:08x}{:08x}\"", crc32fast::hash(bytes), bytes.len())
+}
+
+fn summary(name: &str, m: &Manifest, complete: bool) -> serde_json::Value {
+    serde_json::json!({
+        "name": name,
+        "complete": complete,
+        "content_version": m.content_version,
+        "source": m.source,
+        "tile_size": m.tile_size,
+        "depth": m.depth,
+        "levels": m.levels.len(),
+        "bounds": m.bounds,
+        "totals": m.totals,
+        "manifest": format!("/tilesets/{name}/tileset.json?v={}", m.content_version),
+    })
+}
+
+/// Loads a complete (manifest present) tileset directory.
+fn load_complete(name: &str, dir: &Path, source: Option<Arc<Source>>) -> Result<Tileset, ServerError> {
+    let store = Store::new(dir);
+    let st = stamp(&store.manifest_path());
+    let manifest = store.manifest()?;
+    let bytes = std::fs::read(store.manifest_path())
+        .map_err(|e| ServerError::Config(format!("{}: {e}", store.manifest_path().display())))?;
+    Ok(Tileset {
+        name: name.to_owned(),
+        manifest_etag: etag_of(&bytes),
+        manifest_json: Bytes::from(bytes),
+        content_version: manifest.content_version.clone(),
+        depth: manifest.depth,
+        level_count: u8::try_from(manifest.levels.len()).unwrap_or(u8::MAX),
+        summary: summary(name, &manifest, true),
+        generation: GENERATION.fetch_add(1, Ordering::Relaxed),
+        source,
+        store,
+        stamp: st,
+    })
+}
+
+/// An on-demand tileset whose bake is not complete: a provisional manifest describing what the
+/// tiles will be (no totals yet). Its content version is a hash of the bake options record,
+/// which names the source heights and every option: baking is deterministic, so the blobs under
+/// that version can never differ.
+fn load_provisional(name: &str, dir: &Path, source: Arc<Source>, options: &serde_json::Value) -> Tileset {
+    let raster = &source.raster;
+    let hf = &raster.heights;
+    let (lo, hi) = hf.data.iter().fold((f32::MAX, f32::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+    let g = &raster.georef;
+    let (w, h) = (f64::from(hf.width - 1), f64::from(hf.height - 1));
+    let xs = [g.x0, g.x0 + w * g.dx];
+    let ys = [g.y0, g.y0 + h * g.dy];
+    let bounds = crate::geom::Bounds {
+        min: [xs[0].min(xs[1]), ys[0].min(ys[1]), f64::from(lo)],
+        max: [xs[0].max(xs[1]), ys[0].max(ys[1]), f64::from(hi)],
+    };
+    let options_text = serde_json::to_vec(options).unwrap_or_default();
+    let manifest = Manifest {
+        format: crate::store::MANIFEST_FORMAT.into(),
+        version: crate::store::MANIFEST_VERSION,
+        content_version: format!("s{:08x}", crc32fast::hash(&options_text)),
+        source: crate::store::SourceInfo {
+            file: options["source"]["file"].as_str().unwrap_or_default().to_owned(),
+            format: raster.format.clone(),
+            width: hf.width,
+            height: hf.height,
+            nodata_filled: raster.nodata_filled,
+        },
+        frame: raster.georef,
+        tile_size: source.opts.tile_size,
+        depth: source.pyramid.depth,
+        subtree_levels: crate::store::SUBTREE_LEVELS,
+        bounds,
+        levels: crate::bake::level_specs(&source.opts),
+        totals: Vec::new(),
+        options: options.clone(),
+        // Filled in by the bake that completes the tileset.
+        point_baker: String::new(),
+    };
+    let mut value = serde_json::to_value(&manifest).unwrap_or_default();
+    if let Some(o) = value.as_object_mut() {
+        // Not part of a baked manifest: tells clients the index lists only baked nodes so far.
+        o.insert("on_demand".into(), serde_json::Value::Bool(true));
+    }
+    let mut bytes = serde_json::to_vec_pretty(&value).unwrap_or_default();
+    bytes.push(b'\n');
+    Tileset {
+        name: name.to_owned(),
+        store: Store::new(dir),
+        manifest_etag: etag_of(&bytes),
+        manifest_json: Bytes::from(bytes),
+        content_version: manifest.content_version.clone(),
+        depth: manifest.depth,
+        level_count: u8::try_from(manifest.levels.len()).unwrap_or(u8::MAX),
+        summary: summary(name, &manifest, false),
+        generation: GENERATION.fetch_add(1, Ordering::Relaxed),
+        source: Some(source),
+        stamp: None,
+    }
+}
+
+/// An on-demand tileset as configured: its source and its options record.
+pub struct OnDemand {
+    pub source: Arc<Source>,
+    pub options: serde_json::Value,
+}
+
+/// All tilesets, by name.
+pub struct Registry {
+    root: PathBuf,
+    on_demand: HashMap<String, OnDemand>,
+    map: RwLock<HashMap<String, Arc<Tileset>>>,
+}
+
+impl Registry {
+    pub fn new(root: &Path, on_demand: HashMap<String, OnDemand>) -> Self {
+        Self { root: root.to_owned(), on_demand, map: RwLock::new(HashMap::new()) }
+    }
+
+    #[must_use]
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    #[must_use]
+    pub fn get(&self, name: &str) -> Option<Arc<Tileset>> {
+        self.map.read().ok()?.get(name).cloned()
+    }
+
+    #[must_use]
+    pub fn all(&self) -> Vec<Arc<Tileset>> {
+        let mut v: Vec<_> = self.map.read().map(|m| m.values().cloned().collect()).unwrap_or_default();
+        v.sort_by(|a, b| a.name.cmp(&b.name));
+        v
+    }
+
+    #[must_use]
+    pub fn is_on_demand(&self, name: &str) -> bool {
+        self.on_demand.contains_key(name)
+    }
+
+    /// Forgets a tileset at once (its directory is being deleted).
+    pub fn remove(&self, name: &str) {
+        if let Ok(mut m) = self.map.write() {
+            m.remove(name);
+        }
+    }
+
+    /// Re-scans the store; returns an error only when the store itself cannot be read.
+    pub fn scan(&self) -> Result<(), ServerError> {
+        let entries = std::fs::read_dir(&self.root).map_err(|e| {
+            ServerError::Config(format!("{}: cannot read the store: {e}", self.root.display()))
+        })?;
+        let mut seen: HashMap<String, PathBuf> = HashMap::new();
+        for entry in entries.flatten() {
+            let Some(name) = entry.file_name().to_str().map(str::to_owned) else { continue };
+            if !valid_name(&name) || !entry.path().is_dir() {
+                continue;
+            }
+            seen.insert(name, entry.path());
+        }
+        for name in self.on_demand.keys() {
+            seen.entry(name.clone()).or_insert_with(|| self.root.join(name));
+        }
+        let current: HashMap<String, Arc<Tileset>> = self.map.read().map(|m| m.clone()).unwrap_or_default();
+        let mut next = HashMap::with_capacity(seen.len());
+        for (name, dir) in seen {
+            let od = self.on_demand.get(&name);
+            let manifest_path = dir.join(crate::store::MANIFEST_FILE);
+            let st = stamp(&manifest_path);
+            if let Some(old) = current.get(&name)
+                && old.stamp == st
+            {
+                next.insert(name, old.clone());
+                continue;
+            }
+            let loaded = match (st, od) {
+                (Some(_), _) => load_complete(&name, &dir, od.map(|o| o.source.clone())),
+                (None, Some(o)) => Ok(load_provisional(&name, &dir, o.source.clone(), &o.options)),
+                (None, None) => continue,
+            };
+            match loaded {
+                Ok(ts) => {
+                    tracing::info!(tileset = %name, content_version = %ts.content_version, "tileset loaded");
+                    next.insert(name, Arc::new(ts));
+                }
+                Err(e) => {
+                    // A half-copied or foreign directory: skip it now, retry on the next scan.
+                    tracing::warn!(tileset = %name, error = %e, "tileset skipped");
+                }
+            }
+        }
+        for name in current.keys() {
+            if !next.contains_key(name) {
+                tracing::info!(tileset = %name, "tileset removed");
+            }
+        }
+        if let Ok(mut m) = self.map.write() {
+            *m = next;
+        }
+        Ok(())
+    }
+}
