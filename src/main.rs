@@ -480,7 +480,7 @@ fn run_client(a: &ClientArgs) -> Result<()> {
             fetch: client::fetch::FetchParams { max_in_flight: a.max_in_flight, ..defaults.fetch },
             cache_bytes: a.cache_mb.saturating_mul(1 << 20),
         },
-        replay: ReplayOptions { fps: a.fps, settle_s: a.settle },
+        replay: ReplayOptions { fps: a.fps, settle_s: a.settle, speed: 1.0 },
     };
     let report = client::live::run_client(&run, |f| {
         if f.frame % 30 == 0 {

@@ -8,7 +8,7 @@
 //! frames are paced at `fps` and the flight advances `1/fps` per frame, so a slow frame delays
 //! the flight instead of skipping poses.
 
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 use std::net::SocketAddr;
 use std::sync::mpsc::{Receiver, Sender, channel};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -62,7 +62,8 @@ impl Default for SessionOptions {
     }
 }
 
-type Reply = (RequestId, Resource, std::io::Result<http::Response>);
+/// A finished GET: id, resource, result, and when the response had been read in full.
+type Reply = (RequestId, Resource, std::io::Result<http::Response>, Instant);
 
 /// The transport: `max_in_flight` worker threads each doing one blocking GET at a time.
 struct HttpTransport {
@@ -91,7 +92,7 @@ impl HttpTransport {
                             continue;
                         }
                         let res = http::get(addr, &host, &format!("{prefix}/{}", r.path()), timeout);
-                        if reply_tx.send((id, r, res)).is_err() {
+                        if reply_tx.send((id, r, res, Instant::now())).is_err() {
                             return;
                         }
                     }
@@ -178,6 +179,7 @@ pub struct Session {
     frame: u32,
     bytes_total: u64,
     decode_errors: u64,
+    fetched: HashMap<Resource, u32>,
 }
 
 fn net(msg: String) -> ClientError {
@@ -217,6 +219,7 @@ impl Session {
             frame: 0,
             bytes_total: resp.body.len() as u64,
             decode_errors: 0,
+            fetched: HashMap::new(),
             manifest,
         })
     }
@@ -257,6 +260,13 @@ impl Session {
     #[must_use]
     pub fn decode_errors(&self) -> u64 {
         self.decode_errors
+    }
+
+    /// How many times each resource was received complete (more than once means it was
+    /// evicted or failed to decode and had to be fetched again).
+    #[must_use]
+    pub fn fetch_counts(&self) -> &HashMap<Resource, u32> {
+        &self.fetched
     }
 
     /// Seconds since the session started.
@@ -314,7 +324,9 @@ impl Session {
     }
 
     fn take_replies(&mut self, now: f64) -> Result<(), ClientError> {
-        while let Ok((id, r, res)) = self.transport.replies.try_recv() {
+        while let Ok((id, r, res, done)) = self.transport.replies.try_recv() {
+            // Latency ends when the response was read, not at the frame that takes it in.
+            let at = done.saturating_duration_since(self.clock).as_secs_f64().min(now);
             let (outcome, body) = match res {
                 Ok(resp) => {
                     self.bytes_total += resp.body.len() as u64;
@@ -333,8 +345,9 @@ impl Session {
                 }
                 Err(e) => (Outcome::Network(e.to_string()), None),
             };
-            let Some(done) = self.scheduler.complete(id, &outcome, now) else { continue };
+            let Some(done) = self.scheduler.complete(id, &outcome, at) else { continue };
             let (true, Some(body)) = (done.ok, body) else { continue };
+            *self.fetched.entry(r).or_insert(0) += 1;
             match r {
                 Resource::Tile { key, level } => match codec::decode(&body) {
                     Ok(blob) if blob.header.key == key && blob.header.level == level => {
@@ -359,11 +372,13 @@ pub struct ReplayOptions {
     pub fps: f64,
     /// Longest time to hold the last pose waiting for a complete view.
     pub settle_s: f64,
+    /// Flight seconds per wall-clock second (tests fly faster than real time).
+    pub speed: f64,
 }
 
 impl Default for ReplayOptions {
     fn default() -> Self {
-        Self { fps: DEFAULT_FPS, settle_s: DEFAULT_SETTLE_S }
+        Self { fps: DEFAULT_FPS, settle_s: DEFAULT_SETTLE_S, speed: 1.0 }
     }
 }
 
@@ -436,13 +451,16 @@ pub fn replay(
     if !(opts.fps.is_finite() && opts.fps > 0.0) {
         return Err(ClientError::Camera(format!("fps {} must be positive", opts.fps)));
     }
+    if !(opts.speed.is_finite() && opts.speed > 0.0) {
+        return Err(ClientError::Camera(format!("speed {} must be positive", opts.speed)));
+    }
     let world = flight.to_world(&session.manifest.bounds).map_err(ClientError::Camera)?;
     let t0 = session.now();
     let mut frames = Vec::new();
     let mut settle_start = None;
     let mut i: u32 = 0;
     loop {
-        let t = world.start() + f64::from(i) / opts.fps;
+        let t = world.start() + f64::from(i) * opts.speed / opts.fps;
         let phase = if t <= world.end() { "flight" } else { "settle" };
         if phase == "settle" {
             let since = *settle_start.get_or_insert(session.now());
