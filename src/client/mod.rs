@@ -34,6 +34,8 @@ pub enum ClientError {
     Tree(String),
     #[error("client: {0}")]
     Network(String),
+    #[error("client: render: {0}")]
+    Render(String),
     #[error("{path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
     #[error(transparent)]
