@@ -28,6 +28,9 @@ pub enum Error {
     #[cfg(feature = "server")]
     #[error(transparent)]
     Server(#[from] crate::server::ServerError),
+    #[cfg(feature = "client")]
+    #[error(transparent)]
+    Client(#[from] crate::client::ClientError),
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -6,6 +6,8 @@
 
 pub mod bake;
 pub mod bake_model;
+#[cfg(feature = "client")]
+pub mod client;
 pub mod codec;
 mod error;
 pub mod export;

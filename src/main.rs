@@ -9,6 +9,8 @@ use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use terrastream::bake::{self, BakeOptions, BakeSummary};
 use terrastream::bake_model::{self, ModelBakeOptions, ModelLevel};
+#[cfg(feature = "client")]
+use terrastream::client;
 use terrastream::mesh::FileType;
 use terrastream::raster::{self, Encoding, Limits, LoadOptions, Overrides};
 #[cfg(feature = "server")]
@@ -81,6 +83,10 @@ enum Command {
         #[arg(long, value_enum, default_value_t = GpuArg::Auto)]
         gpu: GpuArg,
     },
+    /// Replay a camera flight against a running `terrastream serve`: select, stream and cache
+    /// tiles frame by frame and write OUT/stats.json (per-frame and total figures).
+    #[cfg(feature = "client")]
+    Client(Box<ClientArgs>),
     /// Decode one (tile, level) to PLY or OBJ in world coordinates.
     Export {
         /// Tileset directory.
@@ -94,6 +100,58 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+}
+
+#[cfg(feature = "client")]
+#[derive(clap::Args)]
+struct ClientArgs {
+    /// Server base URL (http://HOST:PORT[/PREFIX]).
+    #[arg(long)]
+    url: String,
+    /// Tileset name on the server.
+    #[arg(long)]
+    tileset: String,
+    /// Flight JSON (timestamped eye/target/up keys; see docs: world or normalized frame).
+    #[arg(long)]
+    flight: PathBuf,
+    /// Viewport width in pixels.
+    #[arg(long, default_value_t = client::live::DEFAULT_WIDTH)]
+    width: u32,
+    /// Viewport height in pixels.
+    #[arg(long, default_value_t = client::live::DEFAULT_HEIGHT)]
+    height: u32,
+    /// Horizontal field of view in degrees.
+    #[arg(long, default_value_t = client::select::DEFAULT_FOV_DEG)]
+    fov: f64,
+    /// Screen-space error threshold in pixels.
+    #[arg(long, default_value_t = client::select::DEFAULT_THRESHOLD_PX)]
+    threshold: f64,
+    /// Level cross-fade duration in seconds (0: switch at once).
+    #[arg(long, default_value_t = client::select::DEFAULT_FADE_SECONDS)]
+    fade: f64,
+    /// Frames per second of the replay.
+    #[arg(long, default_value_t = client::live::DEFAULT_FPS)]
+    fps: f64,
+    /// Longest time (s) to hold the last pose waiting for a complete view.
+    #[arg(long, default_value_t = client::live::DEFAULT_SETTLE_S)]
+    settle: f64,
+    /// Requests running at once.
+    #[arg(long, default_value_t = client::fetch::DEFAULT_MAX_IN_FLIGHT)]
+    max_in_flight: usize,
+    /// Decoded-tile cache budget in MiB.
+    #[arg(long, default_value_t = client::fetch::DEFAULT_CACHE_BYTES >> 20)]
+    cache_mb: usize,
+    /// Render frames (wgpu, headless): auto = with any adapter (software included), replaying
+    /// without rendering when there is none; on = an adapter or an error; off = never.
+    #[arg(long, value_enum, default_value = "auto")]
+    render: GpuArg,
+    /// Write every Nth rendered frame as OUT/frames/NNNNN.png plus the settled view as
+    /// OUT/frames/final.png; 0 = write none (frames are still rendered and timed).
+    #[arg(long, default_value_t = client::live::DEFAULT_FRAMES_EVERY)]
+    frames_every: u32,
+    /// Output directory (stats.json, frames/).
+    #[arg(long, default_value = "out/client")]
+    out: PathBuf,
 }
 
 /// Every serve setting is optional here: unset ones come from the TOML file (--config), then
@@ -395,6 +453,8 @@ fn run(cli: Cli) -> Result<()> {
         }
         #[cfg(feature = "server")]
         Command::Demo { bind, dir, no_serve, gpu } => run_demo(&bind, &dir, no_serve, gpu),
+        #[cfg(feature = "client")]
+        Command::Client(a) => run_client(&a),
         Command::Export { dir, tile, level, format, out } => {
             let format = match format {
                 ExportFormat::Ply => export::Format::Ply,
@@ -405,6 +465,81 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+#[cfg(feature = "client")]
+fn run_client(a: &ClientArgs) -> Result<()> {
+    use client::live::{ClientRun, ReplayOptions, SessionOptions};
+    let defaults = SessionOptions::default();
+    let run = ClientRun {
+        url: a.url.clone(),
+        tileset: a.tileset.clone(),
+        flight: a.flight.clone(),
+        out: a.out.clone(),
+        session: SessionOptions {
+            width: a.width,
+            height: a.height,
+            fov_deg: a.fov,
+            select: client::select::SelectParams {
+                threshold_px: a.threshold,
+                fade_seconds: a.fade,
+                ..defaults.select
+            },
+            fetch: client::fetch::FetchParams { max_in_flight: a.max_in_flight, ..defaults.fetch },
+            cache_bytes: a.cache_mb.saturating_mul(1 << 20),
+        },
+        replay: ReplayOptions { fps: a.fps, settle_s: a.settle, speed: 1.0 },
+        render: match a.render {
+            GpuArg::Auto => client::live::RenderMode::Auto,
+            GpuArg::On => client::live::RenderMode::On,
+            GpuArg::Off => client::live::RenderMode::Off,
+        },
+        frames_every: a.frames_every,
+    };
+    let report = client::live::run_client(&run, |f| {
+        if f.frame % 30 == 0 {
+            eprintln!(
+                "frame {:>5} t {:>6.2}s {:<6} drawn {:?} in flight {:>2} select {:.3} ms frame {:.1} ms",
+                f.frame, f.t, f.phase, f.drawn_per_level, f.requests_in_flight, f.select_ms, f.frame_ms
+            );
+        }
+    })?;
+    let t = &report.totals;
+    println!(
+        "{} frames ({} in flight), {} bytes in {} requests ({} retries, {} failed), latency p50 {:.1} ms p99 {:.1} ms",
+        t.frames,
+        t.flight_frames,
+        t.bytes,
+        t.requests,
+        t.retries,
+        t.failed,
+        t.latency_p50_ms,
+        t.latency_p99_ms
+    );
+    println!(
+        "first complete view {}, frames under {} px: {:.1} %, settled: {}, selection mean {:.3} ms max {:.3} ms",
+        t.first_complete_s.map_or_else(|| "never".to_owned(), |s| format!("at {s:.2} s")),
+        report.threshold_px,
+        100.0 * t.share_under_threshold,
+        t.settled,
+        t.select_ms_mean,
+        t.select_ms_max
+    );
+    println!(
+        "rendering: {}{}",
+        report.rendering,
+        if t.render_ms_mean > 0.0 {
+            format!(" — render mean {:.2} ms max {:.2} ms per frame", t.render_ms_mean, t.render_ms_max)
+        } else {
+            String::new()
+        }
+    );
+    let frames = a.out.join(client::live::FRAMES_DIR);
+    if frames.is_dir() {
+        println!("wrote frames to {}", frames.display());
+    }
+    println!("wrote {}", a.out.join(client::live::STATS_FILE).display());
+    Ok(())
 }
 
 #[cfg(feature = "server")]

@@ -1,0 +1,293 @@
+//! Camera flights: the documented JSON of timestamped eye/target/up keys, its validation, the
+//! normalised frame (so one flight works on any terrain) and interpolation at time `t`.
+//!
+//! ```json
+//! {
+//!   "name": "orbit",
+//!   "frame": "normalized",
+//!   "keys": [
+//!     { "t": 0.0, "eye": [0.5, -0.2, 0.4], "target": [0.5, 0.5, 0.05], "up": [0, 0, 1] },
+//!     { "t": 5.0, "eye": [1.2, 0.5, 0.2], "target": [0.5, 0.5, 0.05] }
+//!   ]
+//! }
+//! ```
+//!
+//! `frame` is `"world"` (the tileset's world units, the default) or `"normalized"`: x and y run
+//! 0..1 across the tileset's extent in x and y, and z is measured from the tileset's lowest point
+//! in multiples of its larger horizontal extent. `up` is a direction (default `[0, 0, 1]`) and is
+//! never scaled. Keys need strictly increasing finite times `t` (seconds); between keys the eye
+//! and target move linearly and the up vector is interpolated and renormalised; before the first
+//! and after the last key the camera holds still.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::{ClientError, v3};
+use crate::geom::Bounds;
+
+/// The up direction when a key gives none.
+pub const DEFAULT_UP: [f64; 3] = [0.0, 0.0, 1.0];
+
+/// The frame a flight's positions are given in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Frame {
+    #[default]
+    World,
+    #[serde(alias = "normalised")]
+    Normalized,
+}
+
+/// One camera key.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Key {
+    pub t: f64,
+    pub eye: [f64; 3],
+    pub target: [f64; 3],
+    #[serde(default = "default_up")]
+    pub up: [f64; 3],
+}
+
+fn default_up() -> [f64; 3] {
+    DEFAULT_UP
+}
+
+/// A camera pose: where the eye is, what it looks at, which way is up (world units).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    pub eye: [f64; 3],
+    pub target: [f64; 3],
+    pub up: [f64; 3],
+}
+
+/// A validated flight.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Flight {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub description: Option<String>,
+    #[serde(default)]
+    pub frame: Frame,
+    pub keys: Vec<Key>,
+}
+
+impl Flight {
+    /// Parses and validates a flight; the error says which key and field is wrong.
+    pub fn from_json(text: &str) -> Result<Self, String> {
+        let f: Self = serde_json::from_str(text).map_err(|e| format!("invalid flight JSON: {e}"))?;
+        f.validate()?;
+        Ok(f)
+    }
+
+    /// Reads a flight file.
+    pub fn load(path: &Path) -> Result<Self, ClientError> {
+        let err = |message: String| ClientError::Flight { path: path.to_owned(), message };
+        let text = std::fs::read_to_string(path).map_err(|e| err(e.to_string()))?;
+        Self::from_json(&text).map_err(err)
+    }
+
+    /// Checks keys: at least one, finite and strictly increasing times, finite positions, eye
+    /// distinct from target, up non-zero and not along the view direction.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.keys.is_empty() {
+            return Err("keys: a flight needs at least one key".into());
+        }
+        for (i, k) in self.keys.iter().enumerate() {
+            if !k.t.is_finite() {
+                return Err(format!("keys[{i}].t: {} is not a finite time", k.t));
+            }
+            if i > 0 && k.t <= self.keys[i - 1].t {
+                return Err(format!(
+                    "keys[{i}].t: {} is not after keys[{}].t = {}",
+                    k.t,
+                    i - 1,
+                    self.keys[i - 1].t
+                ));
+            }
+            for (name, v) in [("eye", k.eye), ("target", k.target), ("up", k.up)] {
+                if !v3::finite(v) {
+                    return Err(format!("keys[{i}].{name}: {v:?} is not finite"));
+                }
+            }
+            let Some(dir) = v3::normalize(v3::sub(k.target, k.eye)) else {
+                return Err(format!("keys[{i}]: eye and target are the same point {:?}", k.eye));
+            };
+            let Some(up) = v3::normalize(k.up) else {
+                return Err(format!("keys[{i}].up: {:?} is not a direction", k.up));
+            };
+            if v3::len(v3::cross(dir, up)) < 1e-6 {
+                return Err(format!("keys[{i}].up: {:?} is parallel to the view direction", k.up));
+            }
+        }
+        Ok(())
+    }
+
+    /// First key time.
+    #[must_use]
+    pub fn start(&self) -> f64 {
+        self.keys.first().map_or(0.0, |k| k.t)
+    }
+
+    /// Last key time.
+    #[must_use]
+    pub fn end(&self) -> f64 {
+        self.keys.last().map_or(0.0, |k| k.t)
+    }
+
+    #[must_use]
+    pub fn duration(&self) -> f64 {
+        self.end() - self.start()
+    }
+
+    /// The same flight in world units for a tileset with `bounds` (a world flight is returned
+    /// as is).
+    pub fn to_world(&self, bounds: &Bounds) -> Result<Self, String> {
+        if self.frame == Frame::World {
+            return Ok(self.clone());
+        }
+        if !bounds.is_valid() {
+            return Err(format!("tileset bounds {:?} .. {:?} are not valid", bounds.min, bounds.max));
+        }
+        let size = bounds.size();
+        let extent = size[0].max(size[1]);
+        if extent <= 0.0 {
+            return Err("tileset has no horizontal extent; a normalized flight needs one".into());
+        }
+        let map = |p: [f64; 3]| {
+            [bounds.min[0] + p[0] * size[0], bounds.min[1] + p[1] * size[1], bounds.min[2] + p[2] * extent]
+        };
+        let keys = self
+            .keys
+            .iter()
+            .map(|k| Key { t: k.t, eye: map(k.eye), target: map(k.target), up: k.up })
+            .collect();
+        let f = Self {
+            name: self.name.clone(),
+            description: self.description.clone(),
+            frame: Frame::World,
+            keys,
+        };
+        f.validate()?;
+        Ok(f)
+    }
+
+    /// The pose at time `t` (held before the first key and after the last). Positions are in
+    /// the flight's own frame: call [`Flight::to_world`] first for a normalised flight.
+    #[must_use]
+    pub fn pose_at(&self, t: f64) -> Pose {
+        let keys = &self.keys;
+        let Some(first) = keys.first() else {
+            return Pose { eye: [0.0, 0.0, 1.0], target: [0.0; 3], up: [0.0, 1.0, 0.0] };
+        };
+        // Index of the first key after t.
+        let i = keys.partition_point(|k| k.t <= t);
+        if i == 0 || !t.is_finite() {
+            return pose(first);
+        }
+        if i >= keys.len() {
+            return pose(&keys[keys.len() - 1]);
+        }
+        let (a, b) = (&keys[i - 1], &keys[i]);
+        let s = ((t - a.t) / (b.t - a.t)).clamp(0.0, 1.0);
+        let eye = v3::lerp(a.eye, b.eye, s);
+        let target = v3::lerp(a.target, b.target, s);
+        let dir = v3::sub(target, eye);
+        // Up must stay a direction off the view axis; fall back to the nearer key's.
+        let up = v3::normalize(v3::lerp(a.up, b.up, s))
+            .filter(|u| v3::len(v3::cross(*u, dir)) > 1e-9 * v3::len(dir))
+            .unwrap_or(if s < 0.5 { a.up } else { b.up });
+        Pose { eye, target, up }
+    }
+
+    /// Pretty JSON of the flight.
+    pub fn to_json(&self) -> Result<String, String> {
+        serde_json::to_string_pretty(self).map_err(|e| e.to_string())
+    }
+}
+
+fn pose(k: &Key) -> Pose {
+    Pose { eye: k.eye, target: k.target, up: k.up }
+}
+
+#[cfg(test)]
+#[allow(clippy::float_cmp)] // interpolation of exactly representable keys is exact
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_interpolates_and_holds() {
+        let f = Flight::from_json(
+            r#"{"frame":"world","keys":[
+                {"t":0,"eye":[0,0,10],"target":[10,0,0]},
+                {"t":2,"eye":[20,0,10],"target":[10,10,0],"up":[0,0,2]}]}"#,
+        )
+        .unwrap();
+        assert_eq!(f.keys[0].up, DEFAULT_UP);
+        let p = f.pose_at(1.0);
+        assert_eq!(p.eye, [10.0, 0.0, 10.0]);
+        assert_eq!(p.target, [10.0, 5.0, 0.0]);
+        assert!((v3::len(p.up) - 1.0).abs() < 1e-12);
+        assert_eq!(f.pose_at(-5.0).eye, [0.0, 0.0, 10.0]);
+        assert_eq!(f.pose_at(99.0).eye, [20.0, 0.0, 10.0]);
+        assert_eq!(f.pose_at(2.0).eye, [20.0, 0.0, 10.0]);
+        assert!((f.duration() - 2.0).abs() < 1e-12);
+        // Round trip.
+        assert_eq!(Flight::from_json(&f.to_json().unwrap()).unwrap(), f);
+    }
+
+    #[test]
+    fn errors_name_key_and_field() {
+        let e = |s: &str| Flight::from_json(s).unwrap_err();
+        assert!(e(r#"{"keys":[]}"#).contains("at least one key"));
+        assert!(
+            e(r#"{"keys":[{"t":1,"eye":[0,0,1],"target":[1,0,0]},{"t":1,"eye":[0,0,1],"target":[1,0,0]}]}"#)
+                .contains("keys[1].t: 1 is not after keys[0].t = 1")
+        );
+        assert!(
+            e(r#"{"keys":[{"t":0,"eye":[1,1,1],"target":[1,1,1]}]}"#).contains("keys[0]: eye and target")
+        );
+        assert!(e(r#"{"keys":[{"t":0,"eye":[0,0,5],"target":[0,0,0]}]}"#).contains("keys[0].up"));
+        assert!(
+            e(r#"{"keys":[{"t":0,"eye":[0,0,5],"target":[0,0,0],"up":[0,0,0]}]}"#)
+                .contains("not a direction")
+        );
+        assert!(e(r#"{"keys":[{"t":0,"eye":[0,0],"target":[0,0,0]}]}"#).contains("invalid flight JSON"));
+        assert!(e(r#"{"frame":"polar","keys":[]}"#).contains("invalid flight JSON"));
+        assert!(e(r#"{"keys":[{"t":0,"eye":[0,0,1],"target":[1,0,0],"fov":3}]}"#).contains("unknown field"));
+        assert!(e("not json").contains("line 1"));
+        let err = Flight::load(Path::new("/nonexistent/flight.json")).unwrap_err().to_string();
+        assert!(err.starts_with("/nonexistent/flight.json:"), "{err}");
+    }
+
+    #[test]
+    fn normalized_frame_maps_to_bounds() {
+        let f = Flight::from_json(
+            r#"{"frame":"normalised","keys":[{"t":0,"eye":[0.5,0,0.25],"target":[1,1,0]}]}"#,
+        )
+        .unwrap();
+        let b = Bounds { min: [100.0, 200.0, 10.0], max: [500.0, 400.0, 60.0] };
+        let w = f.to_world(&b).unwrap();
+        assert_eq!(w.frame, Frame::World);
+        assert_eq!(w.keys[0].eye, [300.0, 200.0, 110.0]);
+        assert_eq!(w.keys[0].target, [500.0, 400.0, 10.0]);
+        assert!(f.to_world(&Bounds::empty()).is_err());
+    }
+
+    #[test]
+    fn shipped_flight_is_valid_and_normalised() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/flight-orbit.json");
+        let f = Flight::load(&path).unwrap();
+        assert_eq!(f.frame, Frame::Normalized);
+        assert!(f.duration() > 10.0);
+        let b = Bounds { min: [0.0, 0.0, 0.0], max: [15360.0, 15360.0, 3700.0] };
+        let w = f.to_world(&b).unwrap();
+        for i in 0..=100 {
+            let p = w.pose_at(w.start() + w.duration() * f64::from(i) / 100.0);
+            assert!(v3::finite(p.eye) && p.eye[2] > 0.0);
+        }
+    }
+}
