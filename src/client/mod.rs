@@ -11,6 +11,7 @@
 //! rule is unit-testable and the selection can be benchmarked alone (`examples/select_bench.rs`).
 //! Rendering, the HTTP transport and flight replay build on these types.
 
+pub mod eval;
 pub mod fetch;
 pub mod flight;
 pub mod http;
