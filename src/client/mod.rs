@@ -4,7 +4,8 @@
 //! ([`fetch`]).
 //!
 //! The live parts build on them: [`http`] (a minimal blocking HTTP/1.1 GET) and [`live`] (a
-//! streaming session against `terrastream serve`, flight replay and its statistics).
+//! streaming session against `terrastream serve`, flight replay and its statistics), and with
+//! the `gpu` feature [`render`] (headless wgpu rendering of what is drawn, PNG frames).
 //!
 //! Nothing in the pure parts opens a socket, spawns a task or touches a GPU: time is passed in as seconds, the
 //! network sits behind [`fetch::Transport`] and residency behind [`select::Residency`], so every
@@ -16,6 +17,8 @@ pub mod fetch;
 pub mod flight;
 pub mod http;
 pub mod live;
+#[cfg(feature = "gpu")]
+pub mod render;
 pub mod select;
 pub mod tree;
 

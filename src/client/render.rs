@@ -1,0 +1,514 @@
+//! The client's headless wgpu renderer: tile meshes (with crack-hiding skirts) shaded by their
+//! normals, point levels as instanced screen-space quads sized by the level's point spacing,
+//! into an offscreen colour + depth target read back as an RGBA image (PNG with
+//! [`Renderer::save_png`]). Each (tile, level) is uploaded once into its own GPU buffers (the
+//! third paper) and drawn from there every frame until [`Renderer::evict`].
+//!
+//! Positions are uploaded relative to an origin (the tileset's lower corner) so f32 keeps
+//! centimetres on tilesets hundreds of kilometres wide. The device and queue are passed in.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::mpsc;
+
+use bytemuck::{Pod, Zeroable};
+
+use super::select::{Camera, DrawItem, add_skirts};
+use super::v3;
+use crate::codec::{Blob, Geometry};
+use crate::geom::{Bounds, Mesh};
+use crate::lod::gpu::GpuError;
+use crate::tiling::TileKey;
+
+/// The pipelines' WGSL (name, source), for validation without an adapter.
+pub const SHADERS: [(&str, &str); 2] = [
+    (
+        "render_mesh",
+        concat!(
+            include_str!("../../shaders/render_common.wgsl"),
+            include_str!("../../shaders/render_mesh.wgsl")
+        ),
+    ),
+    (
+        "render_points",
+        concat!(
+            include_str!("../../shaders/render_common.wgsl"),
+            include_str!("../../shaders/render_points.wgsl")
+        ),
+    ),
+];
+
+const COLOR: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+const DEPTH: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// Background colour (RGBA8): pure black, which no shaded surface reaches (ambient floor).
+pub const BACKGROUND: [u8; 4] = [0, 0, 0, 255];
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct Globals {
+    view_proj: [[f32; 4]; 4],
+    light: [f32; 4],
+    viewport: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct TileUniform {
+    spacing: f32,
+    pad: [f32; 3],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct Vertex {
+    p: [f32; 3],
+    n: [f32; 3],
+}
+
+struct GpuTile {
+    vertices: wgpu::Buffer,
+    indices: Option<wgpu::Buffer>,
+    count: u32,
+    bind: wgpu::BindGroup,
+    bytes: u64,
+}
+
+/// A headless renderer of one viewport size.
+pub struct Renderer {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    width: u32,
+    height: u32,
+    origin: [f64; 3],
+    mesh: wgpu::RenderPipeline,
+    points: wgpu::RenderPipeline,
+    globals: wgpu::Buffer,
+    globals_bind: wgpu::BindGroup,
+    tile_layout: wgpu::BindGroupLayout,
+    color: wgpu::Texture,
+    depth: wgpu::Texture,
+    tiles: HashMap<(TileKey, u8), GpuTile>,
+}
+
+fn fail(m: impl Into<String>) -> GpuError {
+    GpuError::Failed(m.into())
+}
+
+impl Renderer {
+    /// Builds the pipelines and targets. `origin` is subtracted from every position uploaded.
+    pub fn new(
+        device: wgpu::Device,
+        queue: wgpu::Queue,
+        width: u32,
+        height: u32,
+        origin: [f64; 3],
+    ) -> Result<Self, GpuError> {
+        let max = device.limits().max_texture_dimension_2d;
+        if width == 0 || height == 0 || width > max || height > max {
+            return Err(fail(format!("render: viewport {width}×{height} (1 to {max} per side)")));
+        }
+        let uniform = |binding, visibility| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let vf = wgpu::ShaderStages::VERTEX_FRAGMENT;
+        let globals_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("render globals"),
+            entries: &[uniform(0, vf)],
+        });
+        let tile_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("render tile"),
+            entries: &[uniform(0, vf)],
+        });
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("render"),
+            bind_group_layouts: &[Some(&globals_layout), Some(&tile_layout)],
+            immediate_size: 0,
+        });
+        let attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3];
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let make = |(name, src): (&str, &str), step: wgpu::VertexStepMode| {
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(name),
+                source: wgpu::ShaderSource::Wgsl(src.into()),
+            });
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(name),
+                layout: Some(&layout),
+                vertex: wgpu::VertexState {
+                    module: &module,
+                    entry_point: Some("vs_main"),
+                    compilation_options: wgpu::PipelineCompilationOptions::default(),
+                    buffers: &[Some(wgpu::VertexBufferLayout {
+                        array_stride: std::mem::size_of::<Vertex>() as u64,
+                        step_mode: step,
+                        attributes: &attrs,
+                    })],
+                },
+                // No culling: skirts and TIN winding are both seen from either side.
+                primitive: wgpu::PrimitiveState::default(),
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: DEPTH,
+                    depth_write_enabled: Some(true),
+                    depth_compare: Some(wgpu::CompareFunction::Less),
+                    stencil: wgpu::StencilState::default(),
+                    bias: wgpu::DepthBiasState::default(),
+                }),
+                multisample: wgpu::MultisampleState::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &module,
+                    entry_point: Some("fs_main"),
+                    compilation_options: wgpu::PipelineCompilationOptions::default(),
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format: COLOR,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let mesh = make(SHADERS[0], wgpu::VertexStepMode::Vertex);
+        let points = make(SHADERS[1], wgpu::VertexStepMode::Instance);
+        let globals = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("render globals"),
+            size: std::mem::size_of::<Globals>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let globals_bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("render globals"),
+            layout: &globals_layout,
+            entries: &[wgpu::BindGroupEntry { binding: 0, resource: globals.as_entire_binding() }],
+        });
+        let target = |format, usage| {
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: Some("render target"),
+                size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage,
+                view_formats: &[],
+            })
+        };
+        let color = target(COLOR, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC);
+        let depth = target(DEPTH, wgpu::TextureUsages::RENDER_ATTACHMENT);
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(fail(format!("render: pipeline creation: {e}")));
+        }
+        Ok(Self {
+            device,
+            queue,
+            width,
+            height,
+            origin,
+            mesh,
+            points,
+            globals,
+            globals_bind,
+            tile_layout,
+            color,
+            depth,
+            tiles: HashMap::new(),
+        })
+    }
+
+    /// True when the (tile, level) is on the GPU.
+    #[must_use]
+    pub fn has(&self, key: TileKey, level: u8) -> bool {
+        self.tiles.contains_key(&(key, level))
+    }
+
+    /// GPU bytes held by uploaded tiles.
+    #[must_use]
+    pub fn gpu_bytes(&self) -> u64 {
+        self.tiles.values().map(|t| t.bytes).sum()
+    }
+
+    /// Uploads a decoded blob once: a mesh with skirts `skirt_depth` deep (none on the dataset's
+    /// `outer` border), or points drawn as quads `point_spacing` wide (world units).
+    pub fn upload(&mut self, blob: &Blob, skirt_depth: f64, outer: Option<&Bounds>, point_spacing: f64) {
+        let key = (blob.header.key, blob.header.level);
+        if self.tiles.contains_key(&key) {
+            return;
+        }
+        let o = self.origin;
+        let rel = |p: [f64; 3]| [(p[0] - o[0]) as f32, (p[1] - o[1]) as f32, (p[2] - o[2]) as f32];
+        let (vertices, indices): (Vec<Vertex>, Option<Vec<u32>>) = match &blob.geometry {
+            Geometry::Mesh(m) => {
+                let sk = add_skirts(m, skirt_depth, outer);
+                let normals = skirted_normals(&sk.mesh, sk.first_skirt_vertex, sk.first_skirt_triangle);
+                let v = sk
+                    .mesh
+                    .positions
+                    .iter()
+                    .zip(&normals)
+                    .map(|(p, n)| Vertex { p: rel(*p), n: *n })
+                    .collect();
+                (v, Some(sk.mesh.triangles.iter().flatten().copied().collect()))
+            }
+            Geometry::Points(pc) => {
+                let v = pc
+                    .positions
+                    .iter()
+                    .zip(pc.normals.iter().chain(std::iter::repeat(&[0.0, 0.0, 1.0])))
+                    .map(|(p, n)| Vertex { p: rel(*p), n: *n })
+                    .collect();
+                (v, None)
+            }
+        };
+        let buf = |label, contents: &[u8], usage| {
+            let b = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: (contents.len() as u64).max(4).next_multiple_of(4),
+                usage: usage | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            if !contents.is_empty() {
+                self.queue.write_buffer(&b, 0, contents);
+            }
+            b
+        };
+        let vb = buf("tile vertices", bytemuck::cast_slice(&vertices), wgpu::BufferUsages::VERTEX);
+        let ib =
+            indices.as_ref().map(|i| buf("tile indices", bytemuck::cast_slice(i), wgpu::BufferUsages::INDEX));
+        let u = TileUniform { spacing: point_spacing as f32, pad: [0.0; 3] };
+        let ub = buf("tile uniform", bytemuck::bytes_of(&u), wgpu::BufferUsages::UNIFORM);
+        let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("render tile"),
+            layout: &self.tile_layout,
+            entries: &[wgpu::BindGroupEntry { binding: 0, resource: ub.as_entire_binding() }],
+        });
+        let count = indices.as_ref().map_or(vertices.len(), Vec::len) as u32;
+        let bytes = vb.size() + ib.as_ref().map_or(0, wgpu::Buffer::size);
+        self.tiles.insert(key, GpuTile { vertices: vb, indices: ib, count, bind, bytes });
+    }
+
+    /// Frees a tile's GPU buffers.
+    pub fn evict(&mut self, key: TileKey, level: u8) {
+        self.tiles.remove(&(key, level));
+    }
+
+    /// Draws the non-retiring items that are uploaded and reads the frame back (RGBA8, rows top
+    /// to bottom). `far` is the far-plane distance (the whole dataset must fit in it).
+    pub fn render(
+        &self,
+        camera: &Camera,
+        draws: &[DrawItem],
+        far: f64,
+    ) -> Result<image::RgbaImage, GpuError> {
+        let view = camera.view().map_err(|e| fail(format!("render: {e}")))?;
+        let far = far.max(1e-3);
+        let near = (far * 1e-5).max(1e-3);
+        let vp = view_proj(&view, self.origin, near, far, f64::from(self.width) / f64::from(self.height));
+        let g = Globals {
+            view_proj: vp,
+            light: [0.4, 0.3, 0.86, 0.0],
+            viewport: [self.width as f32, self.height as f32, view.k as f32, 0.0],
+        };
+        self.queue.write_buffer(&self.globals, 0, bytemuck::bytes_of(&g));
+        let cview = self.color.create_view(&wgpu::TextureViewDescriptor::default());
+        let dview = self.depth.create_view(&wgpu::TextureViewDescriptor::default());
+        let mut enc =
+            self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("render") });
+        {
+            let bg = wgpu::Color {
+                r: f64::from(BACKGROUND[0]) / 255.0,
+                g: f64::from(BACKGROUND[1]) / 255.0,
+                b: f64::from(BACKGROUND[2]) / 255.0,
+                a: 1.0,
+            };
+            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("render"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &cview,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations { load: wgpu::LoadOp::Clear(bg), store: wgpu::StoreOp::Store },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &dview,
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(1.0),
+                        store: wgpu::StoreOp::Store,
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_bind_group(0, &self.globals_bind, &[]);
+            for d in draws.iter().filter(|d| !d.retiring) {
+                let Some(t) = self.tiles.get(&(d.key, d.level)) else { continue };
+                if t.count == 0 {
+                    continue;
+                }
+                pass.set_bind_group(1, &t.bind, &[]);
+                pass.set_vertex_buffer(0, t.vertices.slice(..));
+                if let Some(ib) = &t.indices {
+                    pass.set_pipeline(&self.mesh);
+                    pass.set_index_buffer(ib.slice(..), wgpu::IndexFormat::Uint32);
+                    pass.draw_indexed(0..t.count, 0, 0..1);
+                } else {
+                    pass.set_pipeline(&self.points);
+                    pass.draw(0..6, 0..t.count);
+                }
+            }
+        }
+        let row = (self.width * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("render read-back"),
+            size: u64::from(row) * u64::from(self.height),
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        enc.copy_texture_to_buffer(
+            wgpu::TexelCopyTextureInfo {
+                texture: &self.color,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            wgpu::TexelCopyBufferInfo {
+                buffer: &staging,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(row),
+                    rows_per_image: Some(self.height),
+                },
+            },
+            wgpu::Extent3d { width: self.width, height: self.height, depth_or_array_layers: 1 },
+        );
+        self.queue.submit([enc.finish()]);
+        let (tx, rx) = mpsc::channel();
+        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| fail(format!("render: waiting for the device: {e}")))?;
+        rx.recv()
+            .map_err(|_| fail("render: read-back callback dropped"))?
+            .map_err(|e| fail(format!("render: read-back: {e}")))?;
+        let data = staging.slice(..).get_mapped_range().map_err(|e| fail(format!("render: mapping: {e}")))?;
+        let mut px = Vec::with_capacity((self.width * self.height * 4) as usize);
+        for r in 0..self.height as usize {
+            let s = r * row as usize;
+            px.extend_from_slice(&data[s..s + self.width as usize * 4]);
+        }
+        drop(data);
+        image::RgbaImage::from_raw(self.width, self.height, px).ok_or_else(|| fail("render: image size"))
+    }
+
+    /// Writes a frame as PNG.
+    pub fn save_png(img: &image::RgbaImage, path: &Path) -> Result<(), GpuError> {
+        img.save_with_format(path, image::ImageFormat::Png)
+            .map_err(|e| fail(format!("{}: {e}", path.display())))
+    }
+}
+
+/// Pixels of `img` that are not the background.
+#[must_use]
+pub fn covered(img: &image::RgbaImage) -> Vec<bool> {
+    img.pixels().map(|p| p.0 != BACKGROUND).collect()
+}
+
+/// Area-weighted vertex normals of the surface triangles; a skirt vertex takes the normal of
+/// the border vertex above it (same x, y) so the wall reads as the surface.
+fn skirted_normals(m: &Mesh, first_skirt_vertex: usize, first_skirt_triangle: usize) -> Vec<[f32; 3]> {
+    let mut acc = vec![[0.0f64; 3]; m.positions.len()];
+    for t in &m.triangles[..first_skirt_triangle.min(m.triangles.len())] {
+        let [a, b, c] = t.map(|i| m.positions[i as usize]);
+        let n = v3::cross(v3::sub(b, a), v3::sub(c, a));
+        for &i in t {
+            acc[i as usize] = v3::add(acc[i as usize], n);
+        }
+    }
+    let key = |p: [f64; 3]| (p[0].to_bits(), p[1].to_bits());
+    let above: HashMap<(u64, u64), usize> =
+        m.positions[..first_skirt_vertex].iter().enumerate().map(|(i, p)| (key(*p), i)).collect();
+    for i in first_skirt_vertex..m.positions.len() {
+        if let Some(&j) = above.get(&key(m.positions[i])) {
+            acc[i] = acc[j];
+        }
+    }
+    acc.iter()
+        .map(|n| v3::normalize(*n).map_or([0.0, 0.0, 1.0], |n| [n[0] as f32, n[1] as f32, n[2] as f32]))
+        .collect()
+}
+
+/// Column-major view-projection (wgpu depth 0..1, right-handed) for positions relative to
+/// `origin`.
+fn view_proj(v: &super::select::View, origin: [f64; 3], near: f64, far: f64, aspect: f64) -> [[f32; 4]; 4] {
+    let eye = v3::sub(v.eye, origin);
+    let (s, u, f) = (v.right, v.up, v.forward);
+    // Rows of the view matrix.
+    let view = [
+        [s[0], s[1], s[2], -v3::dot(s, eye)],
+        [u[0], u[1], u[2], -v3::dot(u, eye)],
+        [-f[0], -f[1], -f[2], v3::dot(f, eye)],
+        [0.0, 0.0, 0.0, 1.0],
+    ];
+    let sx = 1.0 / v.tan_h;
+    let sy = sx * aspect;
+    let proj = [
+        [sx, 0.0, 0.0, 0.0],
+        [0.0, sy, 0.0, 0.0],
+        [0.0, 0.0, far / (near - far), near * far / (near - far)],
+        [0.0, 0.0, -1.0, 0.0],
+    ];
+    let mut out = [[0.0f32; 4]; 4];
+    for (c, col) in out.iter_mut().enumerate() {
+        for (r, cell) in col.iter_mut().enumerate() {
+            *cell = (0..4).map(|k| proj[r][k] * view[k][c]).sum::<f64>() as f32;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shaders_validate_with_naga() {
+        for (name, src) in SHADERS {
+            let module = naga::front::wgsl::parse_str(src).map_err(|e| e.emit_to_string(src)).unwrap();
+            naga::valid::Validator::new(
+                naga::valid::ValidationFlags::all(),
+                naga::valid::Capabilities::empty(),
+            )
+            .validate(&module)
+            .map_err(|e| format!("{name}: {}", e.emit_to_string(src)))
+            .unwrap();
+        }
+    }
+
+    #[test]
+    fn projection_maps_target_to_centre() {
+        let cam = Camera {
+            eye: [100.0, 0.0, 50.0],
+            target: [100.0, 100.0, 0.0],
+            up: [0.0, 0.0, 1.0],
+            width: 200,
+            height: 100,
+            fov_deg: 60.0,
+        };
+        let v = cam.view().unwrap();
+        let m = view_proj(&v, [100.0, 0.0, 0.0], 1.0, 1000.0, 2.0);
+        let p = [0.0f32, 100.0, 0.0, 1.0];
+        let clip: Vec<f32> = (0..4).map(|r| (0..4).map(|c| m[c][r] * p[c]).sum()).collect();
+        assert!((clip[0] / clip[3]).abs() < 1e-5 && (clip[1] / clip[3]).abs() < 1e-5, "{clip:?}");
+        assert!(clip[2] / clip[3] > 0.0 && clip[2] / clip[3] < 1.0);
+    }
+}
