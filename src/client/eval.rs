@@ -97,7 +97,9 @@ pub struct EvalCamera {
     pub distance: f64,
     pub azimuth_deg: f64,
     pub elevation_deg: f64,
-    /// A far plane that holds the whole bounding sphere.
+    /// Clip planes that hold the whole bounding sphere (near as close as it allows, for depth
+    /// precision).
+    pub near: f64,
     pub far: f64,
 }
 
@@ -134,7 +136,7 @@ pub fn cameras(bounds: &Bounds, subject: Subject, plan: &CameraPlan) -> Result<V
     if plan.azimuths == 0 {
         return Err("azimuths must be 1 or more".into());
     }
-    if plan.elevations.is_empty() || plan.elevations.iter().any(|e| !(e.abs() < 89.0)) {
+    if plan.elevations.is_empty() || plan.elevations.iter().any(|e| e.is_nan() || e.abs() >= 89.0) {
         return Err(format!("elevations {:?} must lie strictly between -89 and 89 degrees", plan.elevations));
     }
     let (c, r) = bounding_sphere(bounds);
@@ -148,7 +150,8 @@ pub fn cameras(bounds: &Bounds, subject: Subject, plan: &CameraPlan) -> Result<V
                 let az = 360.0 * f64::from(i) / f64::from(plan.azimuths);
                 let (sa, ca) = az.to_radians().sin_cos();
                 let (se, ce) = el.to_radians().sin_cos();
-                let dir = v3::add(v3::add(v3::scale(u1, ce * ca), v3::scale(u2, ce * sa)), v3::scale(pole, se));
+                let dir =
+                    v3::add(v3::add(v3::scale(u1, ce * ca), v3::scale(u2, ce * sa)), v3::scale(pole, se));
                 let eye = v3::add(c, v3::scale(dir, d));
                 out.push(EvalCamera {
                     camera: Camera {
@@ -163,6 +166,7 @@ pub fn cameras(bounds: &Bounds, subject: Subject, plan: &CameraPlan) -> Result<V
                     distance: d,
                     azimuth_deg: az,
                     elevation_deg: el,
+                    near: (d - 1.05 * r).max(d * 1e-3),
                     far: d + 1.05 * r,
                 });
             }
@@ -292,9 +296,15 @@ pub struct CameraResult {
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Summary {
     pub cameras: u32,
+    /// Pixel counts summed over the cameras (pooled; close views weigh most).
     pub lod: Confusion,
-    /// Mean of the per-camera F-measures (the overall figure sums the pixel counts instead).
-    pub mean_camera_f: f64,
+    /// Means over the cameras of the per-camera recall, precision and F-measure: every view
+    /// weighs the same, as the paper averages over camera positions. The headline figures.
+    pub mean_recall: f64,
+    pub mean_precision: f64,
+    pub mean_f: f64,
+    /// Per level forced: mean over the cameras of the per-camera F-measure.
+    pub per_level_mean_f: Vec<f64>,
     pub depth: DepthDiff,
     pub drawn_per_level: Vec<u64>,
     pub points_drawn: u64,
@@ -306,10 +316,12 @@ pub struct Summary {
 #[must_use]
 pub fn summarize<'a>(results: impl IntoIterator<Item = &'a CameraResult>) -> Summary {
     let mut s = Summary::default();
-    let mut f_sum = 0.0;
+    let (mut r_sum, mut p_sum, mut f_sum) = (0.0, 0.0, 0.0);
     for r in results {
         s.cameras += 1;
         s.lod.add(&r.lod);
+        r_sum += r.lod.recall();
+        p_sum += r.lod.precision();
         f_sum += r.lod.f_measure();
         s.depth.add(&r.depth);
         grow_add(&mut s.drawn_per_level, r.drawn_per_level.iter().map(|&c| u64::from(c)));
@@ -318,12 +330,24 @@ pub fn summarize<'a>(results: impl IntoIterator<Item = &'a CameraResult>) -> Sum
         if s.per_level.len() < r.per_level.len() {
             s.per_level.resize(r.per_level.len(), Confusion::default());
         }
+        if s.per_level_mean_f.len() < r.per_level.len() {
+            s.per_level_mean_f.resize(r.per_level.len(), 0.0);
+        }
         for (a, b) in s.per_level.iter_mut().zip(&r.per_level) {
             a.add(b);
         }
+        for (a, b) in s.per_level_mean_f.iter_mut().zip(&r.per_level) {
+            *a += b.f_measure();
+        }
     }
     if s.cameras > 0 {
-        s.mean_camera_f = f_sum / f64::from(s.cameras);
+        let n = f64::from(s.cameras);
+        s.mean_recall = r_sum / n;
+        s.mean_precision = p_sum / n;
+        s.mean_f = f_sum / n;
+        for f in &mut s.per_level_mean_f {
+            *f /= n;
+        }
     }
     s
 }
@@ -377,7 +401,18 @@ pub fn grid_offsets(n: u32, spacing: f64, subject: Subject) -> Vec<[f64; 3]> {
 /// The camera that sees a whole `n × n` grid of objects with bounding sphere `(c, r)`, from
 /// the fit distance of the grid's sphere at [`GRID_ELEVATION_DEG`].
 #[must_use]
-pub fn grid_camera(c: [f64; 3], r: f64, n: u32, spacing: f64, subject: Subject, w: u32, h: u32, fov: f64) -> EvalCamera {
+// The camera needs the grid (n, spacing, subject), the object's sphere and the viewport.
+#[allow(clippy::too_many_arguments)]
+pub fn grid_camera(
+    c: [f64; 3],
+    r: f64,
+    n: u32,
+    spacing: f64,
+    subject: Subject,
+    w: u32,
+    h: u32,
+    fov: f64,
+) -> EvalCamera {
     let half_extent = f64::from(n.saturating_sub(1)) * 0.5 * spacing;
     let grid_r = (2.0f64.sqrt() * half_extent + r).max(r);
     let d = fit_distance(grid_r, w, h, fov);
@@ -390,6 +425,7 @@ pub fn grid_camera(c: [f64; 3], r: f64, n: u32, spacing: f64, subject: Subject, 
         distance: d,
         azimuth_deg: 180.0,
         elevation_deg: GRID_ELEVATION_DEG,
+        near: (d - 1.05 * grid_r).max(d * 1e-3),
         far: d + 1.05 * grid_r,
     }
 }
@@ -487,17 +523,17 @@ impl Report {
                 s,
                 "{f:>7.2}×  {:>7}  {:>6.4}  {:>9.4}  {:>9.4}  {:>12}  {:?}",
                 g.cameras,
-                g.lod.recall(),
-                g.lod.precision(),
-                g.lod.f_measure(),
+                g.mean_recall,
+                g.mean_precision,
+                g.mean_f,
                 fmt_opt(g.depth.mean()),
                 g.drawn_per_level
             );
         }
-        for (l, c) in o.per_level.iter().enumerate() {
+        for (l, (c, f)) in o.per_level.iter().zip(&o.per_level_mean_f).enumerate() {
             let _ = writeln!(
                 s,
-                "level {l} forced: recall {:.4}, precision {:.4}, F-measure {:.4}",
+                "level {l} forced: F-measure {f:.4} (pooled pixels: recall {:.4}, precision {:.4}, F {:.4})",
                 c.recall(),
                 c.precision(),
                 c.f_measure()
@@ -506,10 +542,12 @@ impl Report {
         let (pf, what) = self.paper_f();
         let _ = writeln!(
             s,
-            "LOD selection: recall {:.4}, precision {:.4}, mean per-camera F {:.4}; mean |Δdepth| {}; paper: {pf} ({what}), {PAPER_F_AVERAGE} (average)",
+            "LOD selection: recall {:.4}, precision {:.4} (pooled pixels: {:.4}, {:.4}, F {:.4}); mean |Δdepth| {}; paper: F {pf} ({what}), {PAPER_F_AVERAGE} (average)",
+            o.mean_recall,
+            o.mean_precision,
             o.lod.recall(),
             o.lod.precision(),
-            o.mean_camera_f,
+            o.lod.f_measure(),
             fmt_opt(o.depth.mean())
         );
         for row in &self.instances {
@@ -527,13 +565,14 @@ impl Report {
         if let Some(n) = &self.instances_note {
             let _ = writeln!(s, "instances: {n}");
         }
-        let _ = write!(s, "F-measure: {:.4}", o.lod.f_measure());
+        let _ = write!(s, "F-measure: {:.4}", o.mean_f);
         s
     }
 
-    /// The Markdown report; `fmeasure_png` and `frametime_png` are the charts' file names.
+    /// The Markdown report; `fmeasure_png` and `frametime_png` are the charts' file names and
+    /// `extra` is Markdown placed before the final `F-measure:` line.
     #[must_use]
-    pub fn markdown(&self, fmeasure_png: &str, frametime_png: Option<&str>) -> String {
+    pub fn markdown(&self, fmeasure_png: &str, frametime_png: Option<&str>, extra: &str) -> String {
         let o = self.overall();
         let (pf, what) = self.paper_f();
         let mut s = String::new();
@@ -555,12 +594,16 @@ impl Report {
         let _ = writeln!(s, "| | recall | precision | F-measure |\n|---|---|---|---|");
         let _ = writeln!(
             s,
-            "| LOD selection (all cameras, pixel counts summed) | {:.4} | {:.4} | **{:.4}** |",
+            "| LOD selection, mean over the cameras | {:.4} | {:.4} | **{:.4}** |",
+            o.mean_recall, o.mean_precision, o.mean_f
+        );
+        let _ = writeln!(
+            s,
+            "| LOD selection, pixel counts pooled over the cameras | {:.4} | {:.4} | {:.4} |",
             o.lod.recall(),
             o.lod.precision(),
             o.lod.f_measure()
         );
-        let _ = writeln!(s, "| LOD selection, mean of per-camera F | | | {:.4} |", o.mean_camera_f);
         let _ = writeln!(s, "| the paper, {what} | | | {pf} |");
         let _ = writeln!(s, "| the paper, average | 0.952 | 0.944 | {PAPER_F_AVERAGE} |\n");
         let _ = writeln!(
@@ -574,28 +617,36 @@ impl Report {
             s,
             "Full detail drawn per camera: {} points, {} triangles. LOD selection, summed over \
              all cameras: {} points, {} triangles; draws per level {:?}.\n",
-            self.reference_points, self.reference_triangles, o.points_drawn, o.triangles_drawn, o.drawn_per_level
+            self.reference_points,
+            self.reference_triangles,
+            o.points_drawn,
+            o.triangles_drawn,
+            o.drawn_per_level
         );
         let _ = writeln!(s, "Levels: {}\n", self.levels.join("; "));
         let _ = writeln!(s, "## F-measure by distance\n");
         let _ = writeln!(
             s,
             "![F-measure by distance]({fmeasure_png})\n\nx: distance in multiples of the fit \
-             distance (the bounding sphere just fills the view), log scale; y: F-measure from 0.80 \
+             distance (the bounding sphere just fills the view; ticks at the distances of the \
+             table below), log scale; y: mean F-measure from 0.80 \
              (bottom) to 1.00 (top), grid lines every 0.02. Black: the LOD selection; colours: each \
              level forced on the nodes the selection draws (level 0 red, 1 orange, 2 green, 3 blue, \
-             4 purple, 5 grey). Dashed: 0.98 (the target).\n"
+             4 purple, 5 grey); values under 0.80 are drawn at 0.80. Dashed: 0.98 (the target).\n"
         );
-        let _ = writeln!(s, "| distance | cameras | recall | precision | F-measure | mean \\|Δdepth\\| | draws per level | points | triangles |");
+        let _ = writeln!(
+            s,
+            "| distance | cameras | recall | precision | F-measure | mean \\|Δdepth\\| | draws per level | points | triangles |"
+        );
         let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
         for (f, g) in by_distance(&self.results) {
             let _ = writeln!(
                 s,
                 "| {f}× | {} | {:.4} | {:.4} | {:.4} | {} | {:?} | {} | {} |",
                 g.cameras,
-                g.lod.recall(),
-                g.lod.precision(),
-                g.lod.f_measure(),
+                g.mean_recall,
+                g.mean_precision,
+                g.mean_f,
                 fmt_opt(g.depth.mean()),
                 g.drawn_per_level,
                 g.points_drawn,
@@ -612,28 +663,34 @@ impl Report {
         let _ = writeln!(s, "{head}\n{rule}");
         for (f, g) in by_distance(&self.results) {
             let mut row = format!("| {f}× |");
-            for c in &g.per_level {
-                let _ = write!(row, " {:.4} |", c.f_measure());
+            for f in &g.per_level_mean_f {
+                let _ = write!(row, " {f:.4} |");
             }
             let _ = writeln!(s, "{row}");
         }
         let mut row = String::from("| all |");
-        for c in &o.per_level {
-            let _ = write!(row, " {:.4} |", c.f_measure());
+        for f in &o.per_level_mean_f {
+            let _ = write!(row, " {f:.4} |");
         }
         let _ = writeln!(s, "{row}\n");
         let _ = writeln!(s, "## Rendering experiment: N×N instances with and without LOD\n");
-        if let Some(png) = frametime_png {
+        if let (Some(png), Some(ch)) = (frametime_png, frametime_chart(&self.instances)) {
             let _ = writeln!(
                 s,
-                "![frame time by instance count]({png})\n\nx: instances N², log scale; y: median \
-                 frame time in ms, log scale, grid lines at powers of ten. Red: without LOD (every \
-                 instance draws the full mesh); blue: with LOD (each instance at the coarsest level \
-                 under the threshold).\n"
+                "![frame time by instance count]({png})\n\nx: instances N² (ticks at {:?}), log \
+                 scale; y: median frame time from {} ms (bottom) to {} ms (top), log scale, grid \
+                 lines at powers of ten. Red: without LOD (every instance draws the full mesh); blue: \
+                 with LOD (each instance at the coarsest level under the threshold).\n",
+                self.instances.iter().map(|r| r.n * r.n).collect::<Vec<_>>(),
+                ch.y_range.0,
+                ch.y_range.1
             );
         }
         if !self.instances.is_empty() {
-            let _ = writeln!(s, "| N² | without LOD (ms) | with LOD (ms) | ratio | paper's ratio | triangles without | triangles with | points with | instances per level |");
+            let _ = writeln!(
+                s,
+                "| N² | without LOD (ms) | with LOD (ms) | ratio | paper's ratio | triangles without | triangles with | points with | instances per level |"
+            );
             let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
             for r in &self.instances {
                 let _ = writeln!(
@@ -661,18 +718,29 @@ impl Report {
         if let Some(n) = &self.instances_note {
             let _ = writeln!(s, "{n}\n");
         }
-        let _ = writeln!(s, "F-measure: {:.4}", o.lod.f_measure());
+        s.push_str(extra);
+        let _ = writeln!(s, "F-measure: {:.4}", o.mean_f);
         s
     }
 }
 
+/// Four significant digits whatever the tileset's units (metres of terrain, a bunny 0.15 wide).
 fn fmt_opt(v: Option<f64>) -> String {
-    v.map_or_else(|| "n/a".into(), |v| format!("{v:.3}"))
+    v.map_or_else(
+        || "n/a".into(),
+        |v| if v == 0.0 || v.abs() >= 0.1 { format!("{v:.4}") } else { format!("{v:.3e}") },
+    )
 }
 
 /// Chart colours (RGBA): level 0.. then black for the LOD selection.
-pub const PALETTE: [[u8; 4]; 6] =
-    [[214, 39, 40, 255], [255, 127, 14, 255], [44, 160, 44, 255], [31, 119, 180, 255], [148, 103, 189, 255], [127, 127, 127, 255]];
+pub const PALETTE: [[u8; 4]; 6] = [
+    [214, 39, 40, 255],
+    [255, 127, 14, 255],
+    [44, 160, 44, 255],
+    [31, 119, 180, 255],
+    [148, 103, 189, 255],
+    [127, 127, 127, 255],
+];
 const BLACK: [u8; 4] = [0, 0, 0, 255];
 
 /// A line series: colour and (x, y) points in data units.
@@ -761,7 +829,16 @@ fn put(img: &mut image::RgbaImage, x: i64, y: i64, c: [u8; 4]) {
 }
 
 #[allow(clippy::too_many_arguments, clippy::fn_params_excessive_bools)]
-fn line(img: &mut image::RgbaImage, x0: f64, y0: f64, x1: f64, y1: f64, c: [u8; 4], thick: bool, dashed: bool) {
+fn line(
+    img: &mut image::RgbaImage,
+    x0: f64,
+    y0: f64,
+    x1: f64,
+    y1: f64,
+    c: [u8; 4],
+    thick: bool,
+    dashed: bool,
+) {
     let steps = (x1 - x0).abs().max((y1 - y0).abs()).ceil().max(1.0) as i64;
     for i in 0..=steps {
         if dashed && (i / 6) % 2 == 1 {
@@ -804,14 +881,14 @@ pub fn fmeasure_chart(report: &Report) -> Chart {
             thick: false,
             points: groups
                 .iter()
-                .filter_map(|(f, g)| g.per_level.get(l).map(|c| (*f, c.f_measure().max(0.8))))
+                .filter_map(|(f, g)| g.per_level_mean_f.get(l).map(|v| (*f, v.max(0.8))))
                 .collect(),
         })
         .collect();
     series.push(Series {
         color: BLACK,
         thick: true,
-        points: groups.iter().map(|(f, g)| (*f, g.lod.f_measure().max(0.8))).collect(),
+        points: groups.iter().map(|(f, g)| (*f, g.mean_f.max(0.8))).collect(),
     });
     Chart {
         width: 640,
@@ -838,9 +915,11 @@ pub fn frametime_chart(rows: &[InstanceRow]) -> Option<Chart> {
     if !(lo.is_finite() && hi > 0.0) {
         return None;
     }
-    let (y0, y1) = (10f64.powf(lo.log10().floor()), 10f64.powf(hi.log10().ceil().max(lo.log10().floor() + 1.0)));
+    let (y0, y1) =
+        (10f64.powf(lo.log10().floor()), 10f64.powf(hi.log10().ceil().max(lo.log10().floor() + 1.0)));
     let n2 = |r: &InstanceRow| f64::from(r.n * r.n);
-    let (x0, x1) = (rows.iter().map(n2).fold(f64::INFINITY, f64::min), rows.iter().map(n2).fold(0.0, f64::max));
+    let (x0, x1) =
+        (rows.iter().map(n2).fold(f64::INFINITY, f64::min), rows.iter().map(n2).fold(0.0, f64::max));
     let mut grid = Vec::new();
     let mut g = y0;
     while g <= y1 * 1.0001 {
@@ -857,13 +936,22 @@ pub fn frametime_chart(rows: &[InstanceRow]) -> Option<Chart> {
         y_grid: grid,
         y_mark: None,
         series: vec![
-            Series { color: PALETTE[0], thick: true, points: rows.iter().map(|r| (n2(r), r.ms_full)).collect() },
-            Series { color: PALETTE[3], thick: true, points: rows.iter().map(|r| (n2(r), r.ms_lod)).collect() },
+            Series {
+                color: PALETTE[0],
+                thick: true,
+                points: rows.iter().map(|r| (n2(r), r.ms_full)).collect(),
+            },
+            Series {
+                color: PALETTE[3],
+                thick: true,
+                points: rows.iter().map(|r| (n2(r), r.ms_lod)).collect(),
+            },
         ],
     })
 }
 
 #[cfg(test)]
+#[allow(clippy::float_cmp)]
 mod tests {
     use super::*;
 
@@ -944,7 +1032,7 @@ mod tests {
             // Elevation above the horizontal plane matches.
             let el = ((e.camera.eye[2] - c[2]) / d).asin().to_degrees();
             assert!((el - e.elevation_deg).abs() < 1e-9);
-            assert!(e.far > d + r);
+            assert!(e.far > d + r && e.near > 0.0 && e.near < d - r);
             let view = e.camera.view().unwrap();
             // At the fit distance every corner of the box is inside the frustum.
             if e.distance_factor == 1.0 {
@@ -1025,7 +1113,10 @@ mod tests {
         assert_eq!(s.per_level[1], Confusion { tp: 3, fp: 0, fn_: 3 });
         assert!((s.depth.mean().unwrap() - 0.5).abs() < 1e-12);
         let f: Vec<f64> = rs.iter().map(|r| r.lod.f_measure()).collect();
-        assert!((s.mean_camera_f - f.iter().sum::<f64>() / 3.0).abs() < 1e-12);
+        assert!((s.mean_f - f.iter().sum::<f64>() / 3.0).abs() < 1e-12);
+        assert!((s.per_level_mean_f[1] - 2.0 / 3.0).abs() < 1e-12);
+        let rec: Vec<f64> = rs.iter().map(|r| r.lod.recall()).collect();
+        assert!((s.mean_recall - rec.iter().sum::<f64>() / 3.0).abs() < 1e-12);
         let g = by_distance(&rs);
         assert_eq!(g.len(), 2);
         assert_eq!(g[0].0, 1.0);
@@ -1088,7 +1179,8 @@ mod tests {
         let t = rep.text();
         assert_eq!(t.lines().last().unwrap(), "F-measure: 0.9800");
         assert!(t.contains("ratio 4.00"));
-        let md = rep.markdown("f.png", Some("t.png"));
+        let md = rep.markdown("f.png", Some("t.png"), "EXTRA\n");
+        assert!(md.contains("EXTRA\nF-measure"));
         assert!(md.contains("![F-measure by distance](f.png)"));
         assert!(md.contains("| 121 | 10.00 | 2.50 | 4.00 |"));
         assert!(md.contains("N = [81]"));
@@ -1098,8 +1190,24 @@ mod tests {
     #[test]
     fn charts_draw_lines_in_their_colours() {
         let rep_rows = vec![
-            InstanceRow { n: 11, ms_full: 10.0, ms_lod: 2.0, per_level: vec![], triangles_full: 0, triangles_lod: 0, points_lod: 0 },
-            InstanceRow { n: 21, ms_full: 40.0, ms_lod: 5.0, per_level: vec![], triangles_full: 0, triangles_lod: 0, points_lod: 0 },
+            InstanceRow {
+                n: 11,
+                ms_full: 10.0,
+                ms_lod: 2.0,
+                per_level: vec![],
+                triangles_full: 0,
+                triangles_lod: 0,
+                points_lod: 0,
+            },
+            InstanceRow {
+                n: 21,
+                ms_full: 40.0,
+                ms_lod: 5.0,
+                per_level: vec![],
+                triangles_full: 0,
+                triangles_lod: 0,
+                points_lod: 0,
+            },
         ];
         let img = frametime_chart(&rep_rows).unwrap().draw();
         assert_eq!(img.dimensions(), (640, 400));
@@ -1108,7 +1216,17 @@ mod tests {
         assert!(count([0, 0, 0, 255]) > 500, "axes");
         assert!(frametime_chart(&[]).is_none());
         // A point outside a log axis (0) is skipped, not drawn at infinity.
-        let ch = Chart { width: 100, height: 80, x_range: (1.0, 10.0), y_range: (1.0, 10.0), log_x: true, log_y: true, y_grid: vec![], y_mark: None, series: vec![Series { color: PALETTE[1], thick: false, points: vec![(0.0, 1.0), (2.0, 2.0)] }] };
+        let ch = Chart {
+            width: 100,
+            height: 80,
+            x_range: (1.0, 10.0),
+            y_range: (1.0, 10.0),
+            log_x: true,
+            log_y: true,
+            y_grid: vec![],
+            y_mark: None,
+            series: vec![Series { color: PALETTE[1], thick: false, points: vec![(0.0, 1.0), (2.0, 2.0)] }],
+        };
         let img = ch.draw();
         assert!(img.pixels().filter(|p| p.0 == PALETTE[1]).count() > 10);
     }
