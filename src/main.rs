@@ -192,7 +192,15 @@ struct ClientArgs {
     /// Decoded-tile cache budget in MiB.
     #[arg(long, default_value_t = client::fetch::DEFAULT_CACHE_BYTES >> 20)]
     cache_mb: usize,
-    /// Output directory (stats.json).
+    /// Render frames (wgpu, headless): auto = with any adapter (software included), replaying
+    /// without rendering when there is none; on = an adapter or an error; off = never.
+    #[arg(long, value_enum, default_value = "auto")]
+    render: GpuArg,
+    /// Write every Nth rendered frame as OUT/frames/NNNNN.png plus the settled view as
+    /// OUT/frames/final.png; 0 = write none (frames are still rendered and timed).
+    #[arg(long, default_value_t = client::live::DEFAULT_FRAMES_EVERY)]
+    frames_every: u32,
+    /// Output directory (stats.json, frames/).
     #[arg(long, default_value = "out/client")]
     out: PathBuf,
 }
@@ -561,12 +569,18 @@ fn run_client(a: &ClientArgs) -> Result<()> {
             cache_bytes: a.cache_mb.saturating_mul(1 << 20),
         },
         replay: ReplayOptions { fps: a.fps, settle_s: a.settle, speed: 1.0 },
+        render: match a.render {
+            GpuArg::Auto => client::live::RenderMode::Auto,
+            GpuArg::On => client::live::RenderMode::On,
+            GpuArg::Off => client::live::RenderMode::Off,
+        },
+        frames_every: a.frames_every,
     };
     let report = client::live::run_client(&run, |f| {
         if f.frame % 30 == 0 {
             eprintln!(
-                "frame {:>5} t {:>6.2}s {:<6} drawn {:?} in flight {:>2} select {:.3} ms",
-                f.frame, f.t, f.phase, f.drawn_per_level, f.requests_in_flight, f.select_ms
+                "frame {:>5} t {:>6.2}s {:<6} drawn {:?} in flight {:>2} select {:.3} ms frame {:.1} ms",
+                f.frame, f.t, f.phase, f.drawn_per_level, f.requests_in_flight, f.select_ms, f.frame_ms
             );
         }
     })?;
@@ -591,6 +605,19 @@ fn run_client(a: &ClientArgs) -> Result<()> {
         t.select_ms_mean,
         t.select_ms_max
     );
+    println!(
+        "rendering: {}{}",
+        report.rendering,
+        if t.render_ms_mean > 0.0 {
+            format!(" — render mean {:.2} ms max {:.2} ms per frame", t.render_ms_mean, t.render_ms_max)
+        } else {
+            String::new()
+        }
+    );
+    let frames = a.out.join(client::live::FRAMES_DIR);
+    if frames.is_dir() {
+        println!("wrote frames to {}", frames.display());
+    }
     println!("wrote {}", a.out.join(client::live::STATS_FILE).display());
     Ok(())
 }

@@ -2,7 +2,11 @@
 //! tileset baked from fuji.png: the shipped flight replayed end to end (threshold met once the
 //! view settles, bytes under a bound), and outages — the server answering `503` with
 //! `Retry-After`, then stopped outright — during which the client keeps drawing what it has and
-//! after which it recovers.
+//! after which it recovers; with an adapter, the settled view rendered by the client against a
+//! render of the full-resolution TIN from the same camera (no empty pixel where terrain is).
+//!
+//! GPU parts skip (with the reason printed) when no adapter is found, unless
+//! `TERRASTREAM_REQUIRE_GPU=1`: then they fail.
 
 // Helpers outside `#[test]` functions unwrap too: a failure there is a test failure.
 #![cfg(all(feature = "client", feature = "server"))]
@@ -300,7 +304,19 @@ fn client_command_writes_stats_json() {
     let o = Command::new(env!("CARGO_BIN_EXE_terrastream"))
         .args(["client", "--url", &format!("http://{}", server.addr), "--tileset", TILESET, "--flight"])
         .arg(&fl)
-        .args(["--width", "320", "--height", "200", "--fov", "50", "--threshold", "3", "--out"])
+        .args([
+            "--width",
+            "320",
+            "--height",
+            "200",
+            "--fov",
+            "50",
+            "--threshold",
+            "3",
+            "--frames-every",
+            "15",
+        ])
+        .arg("--out")
         .arg(&out)
         .output()
         .unwrap();
@@ -320,6 +336,27 @@ fn client_command_writes_stats_json() {
         assert!(stats["totals"].get(k).is_some(), "total {k} missing");
     }
     assert!(stats["totals"]["bytes"].as_u64().unwrap() > 0);
+    // Rendering (auto): with an adapter every frame is rendered and timed inside the frame
+    // time, and every 15th frame plus the settled view is written as PNG.
+    let rendering = stats["rendering"].as_str().unwrap();
+    if rendering.starts_with("off") {
+        assert!(!require_gpu(), "TERRASTREAM_REQUIRE_GPU=1 but the client did not render: {rendering}");
+        println!("client did not render: {rendering}");
+    } else {
+        for f in frames {
+            let (r, t) = (f["render_ms"].as_f64().unwrap(), f["frame_ms"].as_f64().unwrap());
+            assert!(r > 0.0 && t >= r, "render {r} ms, frame {t} ms");
+        }
+        let written: Vec<String> = std::fs::read_dir(out.join("frames"))
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert!(written.contains(&"00000.png".to_owned()) && written.contains(&"00015.png".to_owned()));
+        assert!(written.contains(&"final.png".to_owned()), "{written:?}");
+        assert!(!written.contains(&"00001.png".to_owned()));
+        let img = image::open(out.join("frames/final.png")).unwrap();
+        assert_eq!((img.width(), img.height()), (320, 200));
+    }
     // Bad input: a flight that is not there is named.
     let o = Command::new(env!("CARGO_BIN_EXE_terrastream"))
         .args(["client", "--url", &format!("http://{}", server.addr), "--tileset", TILESET, "--flight"])
@@ -328,5 +365,103 @@ fn client_command_writes_stats_json() {
         .unwrap();
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("missing.json"));
+    server.stop();
+}
+
+fn require_gpu() -> bool {
+    std::env::var("TERRASTREAM_REQUIRE_GPU").is_ok_and(|v| v == "1")
+}
+
+/// (b) The client renders every frame of the shipped flight; once the view has settled, its
+/// frame is compared with a render of the full-resolution TIN (every leaf's level-0 mesh, read
+/// from the tileset on disk) from the same camera: no pixel where the reference shows terrain
+/// may be empty in the client's frame.
+#[cfg(feature = "gpu")]
+#[test]
+fn settled_view_covers_the_full_resolution_terrain() {
+    use terrastream::client::render::{Renderer, SessionView, covered};
+    use terrastream::client::select::DrawItem;
+    use terrastream::client::tree::TileTree;
+
+    let ctx = match terrastream::lod::gpu::open() {
+        Ok(c) => c,
+        Err(e) if require_gpu() => panic!("TERRASTREAM_REQUIRE_GPU=1 but {e}"),
+        Err(e) => {
+            eprintln!("skipping GPU streaming test: {e} (set TERRASTREAM_REQUIRE_GPU=1 to fail instead)");
+            return;
+        }
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    bake(tmp.path());
+    let server = start(tmp.path(), "127.0.0.1:0");
+    let opts = options();
+    let mut session = Session::connect(&format!("http://{}", server.addr), TILESET, opts).unwrap();
+    let (device, queue) = (ctx.device.clone(), ctx.queue.clone());
+    let mut view = SessionView::new(ctx, &session, opts.width, opts.height).unwrap();
+    let flight = flight();
+    let replay = ReplayOptions { fps: 30.0, settle_s: 20.0, speed: 4.0 };
+    let (frames, totals) = live::replay(&mut session, &flight, &replay, |s, f| {
+        let start = std::time::Instant::now();
+        view.draw(s, false).unwrap();
+        f.render_ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(())
+    })
+    .unwrap();
+    assert!(totals.settled, "view never completed: {:?}", frames.last());
+    assert!(frames.iter().all(|f| f.render_ms > 0.0));
+    let lod = view.draw(&session, true).unwrap().unwrap();
+    // Each drawn (tile, level) was uploaded once, or again only when its skirt had to grow.
+    assert!(view.uploads() <= 2 * session.fetch_counts().len() as u64, "{} uploads", view.uploads());
+
+    // The reference from the tileset on disk, same camera, same origin and far plane.
+    let store = Store::new(&tmp.path().join(TILESET));
+    let manifest = store.manifest().unwrap();
+    let tree = TileTree::load(&store).unwrap();
+    let mut reference = Renderer::new(device, queue, opts.width, opts.height, manifest.bounds.min).unwrap();
+    let leaves: Vec<DrawItem> = tree
+        .nodes()
+        .iter()
+        .enumerate()
+        .filter(|(_, n)| n.is_leaf())
+        .map(|(i, n)| {
+            let blob = terrastream::codec::decode(&store.read_blob(n.key, 0).unwrap().unwrap()).unwrap();
+            // Leaves share their border vertices: no skirts needed at full resolution.
+            reference.upload(&blob, 0.0, Some(&manifest.bounds), 0.0);
+            DrawItem {
+                node: i as u32,
+                key: n.key,
+                level: 0,
+                alpha: 1.0,
+                retiring: false,
+                error_px: 0.0,
+                error_world: 0.0,
+            }
+        })
+        .collect();
+    let size = manifest.bounds.size();
+    let far = 8.0 * (size[0].abs() + size[1].abs() + size[2].abs());
+    let camera = *session.camera().unwrap();
+    let full = reference.render(&camera, &leaves, far).unwrap();
+    let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("client-streaming");
+    std::fs::create_dir_all(&out).unwrap();
+    Renderer::save_png(&full, &out.join("full-resolution.png")).unwrap();
+    Renderer::save_png(&lod, &out.join("client.png")).unwrap();
+    let (a, b) = (covered(&full), covered(&lod));
+    let terrain = a.iter().filter(|&&c| c).count();
+    let empty: Vec<usize> = (0..a.len()).filter(|&i| a[i] && !b[i]).collect();
+    println!(
+        "settled view: {} tiles drawn (per level {:?}); terrain {terrain} px, empty in the client's frame {} px; frames in {}",
+        session.draws().len(),
+        frames.last().unwrap().drawn_per_level,
+        empty.len(),
+        out.display()
+    );
+    assert!(terrain > (opts.width * opts.height / 4) as usize, "the reference shows little terrain");
+    assert!(
+        empty.is_empty(),
+        "{} terrain pixels empty in the client's frame, first at {:?}",
+        empty.len(),
+        empty.iter().take(5).map(|&i| (i % opts.width as usize, i / opts.width as usize)).collect::<Vec<_>>()
+    );
     server.stop();
 }

@@ -203,9 +203,15 @@ mod tests {
                 "HTTP/1.1 503 Busy\r\nRetry-After: 2\r\nContent-Length: 0\r\n\r\n",
             ] {
                 let (mut c, _) = l.accept().unwrap();
-                let mut req = [0u8; 1024];
-                let _ = c.read(&mut req).unwrap();
-                assert!(req.starts_with(b"GET /a HTTP/1.1\r\n"));
+                // The request may arrive in several reads: read up to the end of the head.
+                let mut req = Vec::new();
+                let mut buf = [0u8; 1024];
+                while !req.windows(4).any(|w| w == b"\r\n\r\n") {
+                    let n = c.read(&mut buf).unwrap();
+                    assert!(n > 0, "connection closed mid-request: {req:?}");
+                    req.extend_from_slice(&buf[..n]);
+                }
+                assert!(req.starts_with(b"GET /a HTTP/1.1\r\n"), "{:?}", String::from_utf8_lossy(&req));
                 c.write_all(body.as_bytes()).unwrap();
             }
         });

@@ -160,8 +160,13 @@ pub struct FrameStats {
     /// Resources wanted and not yet resident (running, waiting or queued).
     pub pending: u32,
     pub select_ms: f64,
-    /// Whole frame: replies handled, selection, scheduling (and rendering when enabled).
+    /// Rendering: uploads of newly drawn tiles, the draw, waiting for the GPU, and the
+    /// read-back on frames written as PNG (0 when not rendering).
+    pub render_ms: f64,
+    /// Whole frame: replies handled, selection, scheduling and rendering (`render_ms`).
     pub frame_ms: f64,
+    /// PNG encoding and writing of this frame (not in `frame_ms`; 0 when not written).
+    pub write_ms: f64,
     pub cache_bytes: u64,
 }
 
@@ -176,6 +181,7 @@ pub struct Session {
     transport: HttpTransport,
     clock: Instant,
     draws: Vec<DrawItem>,
+    camera: Option<Camera>,
     frame: u32,
     bytes_total: u64,
     decode_errors: u64,
@@ -216,6 +222,7 @@ impl Session {
             transport,
             clock: Instant::now(),
             draws: Vec::new(),
+            camera: None,
             frame: 0,
             bytes_total: resp.body.len() as u64,
             decode_errors: 0,
@@ -248,6 +255,12 @@ impl Session {
     #[must_use]
     pub fn draws(&self) -> &[DrawItem] {
         &self.draws
+    }
+
+    /// The camera of the last frame (`None` before the first).
+    #[must_use]
+    pub fn camera(&self) -> Option<&Camera> {
+        self.camera.as_ref()
     }
 
     /// Response body bytes received so far (manifest included).
@@ -311,6 +324,7 @@ impl Session {
         };
         self.draws.clear();
         self.draws.extend_from_slice(&sel.draws);
+        self.camera = Some(camera);
         self.cache.set_drawn(self.draws.iter().map(|d| (d.key, d.level)));
         self.scheduler.update(&wants, now);
         self.scheduler.pump(now, &mut self.transport);
@@ -410,6 +424,8 @@ pub struct Totals {
     pub select_ms_max: f64,
     pub frame_ms_mean: f64,
     pub frame_ms_max: f64,
+    pub render_ms_mean: f64,
+    pub render_ms_max: f64,
 }
 
 /// `stats.json`.
@@ -423,6 +439,8 @@ pub struct Report {
     pub fov_deg: f64,
     pub threshold_px: f64,
     pub fps: f64,
+    /// The adapter frames were rendered on, or `off: <why>`.
+    pub rendering: String,
     pub totals: Totals,
     pub frames: Vec<FrameStats>,
 }
@@ -441,12 +459,13 @@ pub fn percentile(v: &[f64], p: f64) -> f64 {
 
 /// Flies `flight` (any frame; normalised keys are mapped onto the tileset's bounds) through a
 /// session in real time, then holds the last pose until the view is complete or `settle_s` has
-/// passed. `on_frame` sees the session after each frame (rendering hooks in there).
+/// passed. `on_frame` sees the session after each frame (rendering hooks in there, adding its
+/// time to the frame's `render_ms` and `frame_ms`).
 pub fn replay(
     session: &mut Session,
     flight: &Flight,
     opts: &ReplayOptions,
-    mut on_frame: impl FnMut(&Session, &FrameStats) -> Result<(), ClientError>,
+    mut on_frame: impl FnMut(&Session, &mut FrameStats) -> Result<(), ClientError>,
 ) -> Result<(Vec<FrameStats>, Totals), ClientError> {
     if !(opts.fps.is_finite() && opts.fps > 0.0) {
         return Err(ClientError::Camera(format!("fps {} must be positive", opts.fps)));
@@ -470,8 +489,8 @@ pub fn replay(
             }
         }
         let pose = world.pose_at(t);
-        let f = session.frame(&pose, t.min(world.end()), phase)?;
-        on_frame(session, &f)?;
+        let mut f = session.frame(&pose, t.min(world.end()), phase)?;
+        on_frame(session, &mut f)?;
         frames.push(f);
         i += 1;
         let due = t0 + f64::from(i) / opts.fps;
@@ -506,11 +525,34 @@ fn totals(session: &Session, frames: &[FrameStats]) -> Totals {
         select_ms_max: frames.iter().map(|f| f.select_ms).fold(0.0, f64::max),
         frame_ms_mean: frames.iter().map(|f| f.frame_ms).sum::<f64>() / n,
         frame_ms_max: frames.iter().map(|f| f.frame_ms).fold(0.0, f64::max),
+        render_ms_mean: frames.iter().map(|f| f.render_ms).sum::<f64>() / n,
+        render_ms_max: frames.iter().map(|f| f.render_ms).fold(0.0, f64::max),
     }
 }
 
 /// Name of the statistics file a replay writes into its output directory.
 pub const STATS_FILE: &str = "stats.json";
+
+/// The settled view's PNG, in the frames folder.
+pub const FINAL_FRAME: &str = "final.png";
+/// Folder under `--out` that PNG frames are written to.
+pub const FRAMES_DIR: &str = "frames";
+/// Every how many frames one is written as PNG (`--frames-every`; 0 = none). At 30 frames per
+/// second this is three pictures per flight second, plus the settled view (`final.png`).
+pub const DEFAULT_FRAMES_EVERY: u32 = 10;
+
+/// Whether `terrastream client` renders (`--render`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum RenderMode {
+    /// With any adapter (software ones such as Mesa lavapipe included); without one, replays
+    /// without rendering and says so.
+    #[default]
+    Auto,
+    /// An adapter or a clear error.
+    On,
+    /// Selection and streaming only.
+    Off,
+}
 
 /// Everything `terrastream client` needs.
 #[derive(Debug, Clone)]
@@ -521,17 +563,91 @@ pub struct ClientRun {
     pub out: std::path::PathBuf,
     pub session: SessionOptions,
     pub replay: ReplayOptions,
+    pub render: RenderMode,
+    /// Write every Nth frame as `OUT/frames/NNNNN.png` (0: none), and the settled view as
+    /// `OUT/frames/final.png` (unless 0).
+    pub frames_every: u32,
 }
 
-/// Connects, replays the flight and writes `OUT/stats.json`; `on_frame` sees every frame's
-/// figures (progress output). Returns the report that was written.
+/// The renderer of a run, or why there is none.
+#[cfg(feature = "gpu")]
+fn open_view(
+    mode: RenderMode,
+    session: &Session,
+    opts: &SessionOptions,
+) -> Result<(Option<super::render::SessionView>, String), ClientError> {
+    if mode == RenderMode::Off {
+        return Ok((None, "off (--render off)".into()));
+    }
+    let render_err = |e: crate::lod::gpu::GpuError| ClientError::Render(e.to_string());
+    match crate::lod::gpu::open() {
+        Ok(ctx) => {
+            let adapter = ctx.adapter.clone();
+            let view =
+                super::render::SessionView::new(ctx, session, opts.width, opts.height).map_err(render_err)?;
+            Ok((Some(view), adapter))
+        }
+        Err(e) if mode == RenderMode::On => Err(render_err(e)),
+        Err(e) => {
+            tracing::warn!("not rendering: {e}");
+            Ok((None, format!("off: {e}")))
+        }
+    }
+}
+
+/// Connects, replays the flight (rendering each frame unless `--render off` or no adapter under
+/// `auto`), writes PNG frames and `OUT/stats.json`; `on_frame` sees every frame's figures
+/// (progress output). Returns the report that was written.
 pub fn run_client(run: &ClientRun, mut on_frame: impl FnMut(&FrameStats)) -> Result<Report, ClientError> {
     let flight = Flight::load(&run.flight)?;
     let mut session = Session::connect(&run.url, &run.tileset, run.session)?;
-    let (frames, totals) = replay(&mut session, &flight, &run.replay, |_, f| {
+    let io = |path: &std::path::Path| {
+        let path = path.to_owned();
+        move |source| ClientError::Io { path, source }
+    };
+    std::fs::create_dir_all(&run.out).map_err(io(&run.out))?;
+    let frames_dir = run.out.join(FRAMES_DIR);
+    #[cfg(feature = "gpu")]
+    let (mut view, rendering) = open_view(run.render, &session, &run.session)?;
+    #[cfg(not(feature = "gpu"))]
+    let rendering = match run.render {
+        RenderMode::On => {
+            return Err(ClientError::Render("this build has no `gpu` feature: cannot render".into()));
+        }
+        _ => "off: built without the `gpu` feature".to_owned(),
+    };
+    #[cfg(feature = "gpu")]
+    if view.is_some() && run.frames_every > 0 {
+        std::fs::create_dir_all(&frames_dir).map_err(io(&frames_dir))?;
+    }
+    let (frames, totals) = replay(&mut session, &flight, &run.replay, |s, f| {
+        #[cfg(feature = "gpu")]
+        if let Some(v) = view.as_mut() {
+            let write = run.frames_every > 0 && f.frame % run.frames_every == 0;
+            let start = Instant::now();
+            let img = v.draw(s, write).map_err(|e| ClientError::Render(e.to_string()))?;
+            f.render_ms = start.elapsed().as_secs_f64() * 1e3;
+            f.frame_ms += f.render_ms;
+            if let Some(img) = img {
+                let start = Instant::now();
+                let path = frames_dir.join(format!("{:05}.png", f.frame));
+                super::render::Renderer::save_png(&img, &path)
+                    .map_err(|e| ClientError::Render(e.to_string()))?;
+                f.write_ms = start.elapsed().as_secs_f64() * 1e3;
+            }
+        }
+        #[cfg(not(feature = "gpu"))]
+        let _ = (s, &frames_dir);
         on_frame(f);
         Ok(())
     })?;
+    #[cfg(feature = "gpu")]
+    if let (Some(v), true) = (view.as_mut(), run.frames_every > 0)
+        && let Some(img) = v.draw(&session, true).map_err(|e| ClientError::Render(e.to_string()))?
+    {
+        super::render::Renderer::save_png(&img, &frames_dir.join(FINAL_FRAME))
+            .map_err(|e| ClientError::Render(e.to_string()))?;
+    }
     let report = Report {
         tileset: run.tileset.clone(),
         url: run.url.clone(),
@@ -541,14 +657,10 @@ pub fn run_client(run: &ClientRun, mut on_frame: impl FnMut(&FrameStats)) -> Res
         fov_deg: run.session.fov_deg,
         threshold_px: run.session.select.threshold_px,
         fps: run.replay.fps,
+        rendering,
         totals,
         frames,
     };
-    let io = |path: &std::path::Path| {
-        let path = path.to_owned();
-        move |source| ClientError::Io { path, source }
-    };
-    std::fs::create_dir_all(&run.out).map_err(io(&run.out))?;
     let path = run.out.join(STATS_FILE);
     let json = serde_json::to_vec_pretty(&report)
         .map_err(|e| ClientError::Io { path: path.clone(), source: std::io::Error::other(e) })?;

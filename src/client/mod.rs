@@ -46,6 +46,8 @@ pub enum ClientError {
     Network(String),
     #[error("eval: {0}")]
     Eval(String),
+    #[error("client: render: {0}")]
+    Render(String),
     #[error("{path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
     #[error(transparent)]

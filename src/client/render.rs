@@ -13,11 +13,14 @@ use std::sync::mpsc;
 
 use bytemuck::{Pod, Zeroable};
 
-use super::select::{Camera, DrawItem, add_skirts};
+use super::live::Session;
+use super::select::{Camera, DrawItem, add_skirts, skirt_depth};
+use super::tree::TileTree;
 use super::v3;
 use crate::codec::{Blob, Geometry};
 use crate::geom::{Bounds, Mesh};
-use crate::lod::gpu::GpuError;
+use crate::lod::gpu::{GpuContext, GpuError};
+use crate::store::Manifest;
 use crate::tiling::TileKey;
 
 /// The pipelines' WGSL (name, source), for validation without an adapter.
@@ -58,6 +61,15 @@ struct TileUniform {
     pad: [f32; 3],
 }
 
+/// Per-draw fade state (group 2, one slot per draw at a dynamic offset).
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct DrawUniform {
+    alpha: f32,
+    retiring: f32,
+    pad: [f32; 2],
+}
+
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct Vertex {
@@ -85,6 +97,8 @@ pub struct Renderer {
     globals: wgpu::Buffer,
     globals_bind: wgpu::BindGroup,
     tile_layout: wgpu::BindGroupLayout,
+    draw_layout: wgpu::BindGroupLayout,
+    draw_stride: u64,
     color: wgpu::Texture,
     depth: wgpu::Texture,
     tiles: HashMap<(TileKey, u8), GpuTile>,
@@ -107,12 +121,12 @@ impl Renderer {
         if width == 0 || height == 0 || width > max || height > max {
             return Err(fail(format!("render: viewport {width}×{height} (1 to {max} per side)")));
         }
-        let uniform = |binding, visibility| wgpu::BindGroupLayoutEntry {
+        let uniform = |binding, visibility, has_dynamic_offset| wgpu::BindGroupLayoutEntry {
             binding,
             visibility,
             ty: wgpu::BindingType::Buffer {
                 ty: wgpu::BufferBindingType::Uniform,
-                has_dynamic_offset: false,
+                has_dynamic_offset,
                 min_binding_size: None,
             },
             count: None,
@@ -120,15 +134,21 @@ impl Renderer {
         let vf = wgpu::ShaderStages::VERTEX_FRAGMENT;
         let globals_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("render globals"),
-            entries: &[uniform(0, vf)],
+            entries: &[uniform(0, vf, false)],
         });
         let tile_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("render tile"),
-            entries: &[uniform(0, vf)],
+            entries: &[uniform(0, vf, false)],
         });
+        let draw_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("render draw"),
+            entries: &[uniform(0, wgpu::ShaderStages::FRAGMENT, true)],
+        });
+        let draw_stride = (std::mem::size_of::<DrawUniform>() as u64)
+            .next_multiple_of(u64::from(device.limits().min_uniform_buffer_offset_alignment.max(1)));
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("render"),
-            bind_group_layouts: &[Some(&globals_layout), Some(&tile_layout)],
+            bind_group_layouts: &[Some(&globals_layout), Some(&tile_layout), Some(&draw_layout)],
             immediate_size: 0,
         });
         let attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3];
@@ -217,6 +237,8 @@ impl Renderer {
             globals,
             globals_bind,
             tile_layout,
+            draw_layout,
+            draw_stride,
             color,
             depth,
             tiles: HashMap::new(),
@@ -299,8 +321,10 @@ impl Renderer {
         self.tiles.remove(&(key, level));
     }
 
-    /// Draws the non-retiring items that are uploaded and reads the frame back (RGBA8, rows top
-    /// to bottom). `far` is the far-plane distance (the whole dataset must fit in it).
+    /// Draws the items that are uploaded and reads the frame back (RGBA8, rows top to bottom).
+    /// Fading items (`alpha < 1`, or `retiring`) are drawn with complementary ordered-dither
+    /// masks (see [`DrawItem::retiring`]); items not uploaded are skipped. `far` is the
+    /// far-plane distance (the whole dataset must fit in it).
     pub fn render(
         &self,
         camera: &Camera,
@@ -308,7 +332,7 @@ impl Renderer {
         far: f64,
     ) -> Result<image::RgbaImage, GpuError> {
         let (near, far) = clip_planes(far);
-        Ok(self.draw(camera, draws, near, far, false)?.0)
+        Ok(self.frame(camera, draws, near, far, true, false)?.ok_or_else(|| fail("render: no read-back"))?.0)
     }
 
     /// As [`Renderer::render`] with explicit clip planes (`0 < near < far`; a near plane close
@@ -325,17 +349,25 @@ impl Renderer {
         if !(near.is_finite() && far.is_finite() && near > 0.0 && near < far) {
             return Err(fail(format!("render: clip planes {near}..{far} (need 0 < near < far)")));
         }
-        self.draw(camera, draws, near, far, true)
+        self.frame(camera, draws, near, far, true, true)?.ok_or_else(|| fail("render: no read-back"))
     }
 
-    fn draw(
+    /// As [`Renderer::render`] and waits for the GPU to finish, without reading the frame back
+    /// (frames that are timed but not written).
+    pub fn draw(&self, camera: &Camera, draws: &[DrawItem], far: f64) -> Result<(), GpuError> {
+        let (near, far) = clip_planes(far);
+        self.frame(camera, draws, near, far, false, false).map(|_| ())
+    }
+
+    fn frame(
         &self,
         camera: &Camera,
         draws: &[DrawItem],
         near: f64,
         far: f64,
+        read_back: bool,
         with_depth: bool,
-    ) -> Result<(image::RgbaImage, Vec<f32>), GpuError> {
+    ) -> Result<Option<(image::RgbaImage, Vec<f32>)>, GpuError> {
         let view = camera.view().map_err(|e| fail(format!("render: {e}")))?;
         let vp = view_proj(&view, self.origin, near, far, f64::from(self.width) / f64::from(self.height));
         let g = Globals {
@@ -344,6 +376,45 @@ impl Renderer {
             viewport: [self.width as f32, self.height as f32, view.k as f32, 0.0],
         };
         self.queue.write_buffer(&self.globals, 0, bytemuck::bytes_of(&g));
+        // What is drawn, with each draw's fade state in its own slot of one per-frame buffer.
+        let list: Vec<(&GpuTile, DrawUniform)> = draws
+            .iter()
+            .filter(|d| d.alpha > 0.0)
+            .filter_map(|d| {
+                let t = self.tiles.get(&(d.key, d.level)).filter(|t| t.count > 0)?;
+                let u = DrawUniform {
+                    alpha: d.alpha.min(1.0),
+                    retiring: if d.retiring { 1.0 } else { 0.0 },
+                    pad: [0.0; 2],
+                };
+                Some((t, u))
+            })
+            .collect();
+        let stride = self.draw_stride as usize;
+        let mut slots = vec![0u8; (list.len().max(1)) * stride];
+        for (i, (_, u)) in list.iter().enumerate() {
+            slots[i * stride..i * stride + std::mem::size_of::<DrawUniform>()]
+                .copy_from_slice(bytemuck::bytes_of(u));
+        }
+        let draw_buf = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("render draws"),
+            size: slots.len() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        self.queue.write_buffer(&draw_buf, 0, &slots);
+        let draw_bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("render draws"),
+            layout: &self.draw_layout,
+            entries: &[wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                    buffer: &draw_buf,
+                    offset: 0,
+                    size: wgpu::BufferSize::new(std::mem::size_of::<DrawUniform>() as u64),
+                }),
+            }],
+        });
         let cview = self.color.create_view(&wgpu::TextureViewDescriptor::default());
         let dview = self.depth.create_view(&wgpu::TextureViewDescriptor::default());
         let mut enc =
@@ -376,12 +447,9 @@ impl Renderer {
                 multiview_mask: None,
             });
             pass.set_bind_group(0, &self.globals_bind, &[]);
-            for d in draws.iter().filter(|d| !d.retiring) {
-                let Some(t) = self.tiles.get(&(d.key, d.level)) else { continue };
-                if t.count == 0 {
-                    continue;
-                }
+            for (i, (t, _)) in list.iter().enumerate() {
                 pass.set_bind_group(1, &t.bind, &[]);
+                pass.set_bind_group(2, &draw_bind, &[(i * stride) as u32]);
                 pass.set_vertex_buffer(0, t.vertices.slice(..));
                 if let Some(ib) = &t.indices {
                     pass.set_pipeline(&self.mesh);
@@ -392,6 +460,13 @@ impl Renderer {
                     pass.draw(0..6, 0..t.count);
                 }
             }
+        }
+        if !read_back {
+            self.queue.submit([enc.finish()]);
+            self.device
+                .poll(wgpu::PollType::wait_indefinitely())
+                .map_err(|e| fail(format!("render: waiting for the device: {e}")))?;
+            return Ok(None);
         }
         let row = (self.width * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
@@ -483,13 +558,116 @@ impl Renderer {
         }
         let img = image::RgbaImage::from_raw(self.width, self.height, px)
             .ok_or_else(|| fail("render: image size"))?;
-        Ok((img, depth))
+        Ok(Some((img, depth)))
     }
 
     /// Writes a frame as PNG.
     pub fn save_png(img: &image::RgbaImage, path: &Path) -> Result<(), GpuError> {
         img.save_with_format(path, image::ImageFormat::Png)
             .map_err(|e| fail(format!("{}: {e}", path.display())))
+    }
+}
+
+/// Draws a live [`Session`]'s frames: each (tile, level) the selection draws is uploaded from
+/// the session's cache the first time it is drawn and kept on the GPU until the cache drops it
+/// (so GPU memory is bounded by the cache budget).
+///
+/// Mesh skirts: a mesh's neighbour is one of the tiles drawn with it, so the crack to hide is at
+/// most `skirt_depth(own, largest drawn error)`. A mesh is uploaded with twice the depth the
+/// frame needs and re-made only when a later frame needs more than it has: depths grow
+/// geometrically, so re-uploads are rare, and a deeper skirt than needed is hidden below the
+/// neighbouring surface.
+pub struct SessionView {
+    renderer: Renderer,
+    skirts: HashMap<(TileKey, u8), f64>,
+    outer: Bounds,
+    far: f64,
+    uploads: u64,
+}
+
+impl SessionView {
+    /// A renderer of the session's viewport on `ctx`'s device, origin at the tileset's lower
+    /// corner.
+    pub fn new(ctx: GpuContext, session: &Session, width: u32, height: u32) -> Result<Self, GpuError> {
+        let b = session.manifest().bounds;
+        let size = b.size();
+        let renderer = Renderer::new(ctx.device, ctx.queue, width, height, b.min)?;
+        // Far plane: the flight may leave the tileset; several extents cover any sensible pose.
+        let far = 8.0 * (size[0].abs() + size[1].abs() + size[2].abs()).max(1.0);
+        Ok(Self { renderer, skirts: HashMap::new(), outer: b, far, uploads: 0 })
+    }
+
+    #[must_use]
+    pub fn renderer(&self) -> &Renderer {
+        &self.renderer
+    }
+
+    /// Uploads (re-made tiles included) so far.
+    #[must_use]
+    pub fn uploads(&self) -> u64 {
+        self.uploads
+    }
+
+    /// Draws the session's last frame; reads it back when `read_back`. Nothing is drawn before
+    /// the session's first frame.
+    pub fn draw(&mut self, session: &Session, read_back: bool) -> Result<Option<image::RgbaImage>, GpuError> {
+        let Some(camera) = session.camera().copied() else { return Ok(None) };
+        let cache = session.cache();
+        // Free what the cache no longer holds.
+        let gone: Vec<(TileKey, u8)> =
+            self.skirts.keys().copied().filter(|&(k, l)| !cache.contains(k, l)).collect();
+        for (k, l) in gone {
+            self.skirts.remove(&(k, l));
+            self.renderer.evict(k, l);
+        }
+        let draws = session.draws();
+        let max_e = draws.iter().map(|d| d.error_world).fold(0.0, f64::max);
+        for d in draws {
+            let needed = skirt_depth(d.error_world, max_e);
+            let have = self.skirts.get(&(d.key, d.level)).copied();
+            if have.is_some_and(|h| h >= needed) {
+                continue;
+            }
+            let Some(blob) = cache.peek(d.key, d.level) else { continue };
+            let depth = 2.0 * needed;
+            if have.is_some() {
+                self.renderer.evict(d.key, d.level);
+            }
+            let spacing = point_spacing(session.manifest(), session.tree(), d.key, d.level);
+            self.renderer.upload(blob, depth, Some(&self.outer), spacing);
+            // Point levels have no skirts: any depth will do for them.
+            let kept = if matches!(blob.geometry, Geometry::Mesh(_)) { depth } else { f64::INFINITY };
+            self.skirts.insert((d.key, d.level), kept);
+            self.uploads += 1;
+        }
+        if read_back {
+            self.renderer.render(&camera, draws, self.far).map(Some)
+        } else {
+            self.renderer.draw(&camera, draws, self.far).map(|()| None)
+        }
+    }
+}
+
+/// World-space point spacing of `level` at node `key` (the splat size): a terrain level's
+/// slicing cell (`cell_leaf_cells` leaf cells, scaled by the node's sample step); else, for a
+/// model level, the node's largest extent over the level's texture size; 0 for a mesh level or
+/// when unknown (splats are then one pixel).
+#[must_use]
+pub fn point_spacing(manifest: &Manifest, tree: &TileTree, key: TileKey, level: u8) -> f64 {
+    let Some(spec) = manifest.levels.get(usize::from(level)) else { return 0.0 };
+    if spec.kind != "points" {
+        return 0.0;
+    }
+    let cell = manifest.frame.dx.abs().max(manifest.frame.dy.abs());
+    if let (Some(c), true) = (spec.cell_leaf_cells, cell > 0.0) {
+        return f64::from(c) * f64::from(tree.pyramid().step(key.z)) * cell;
+    }
+    match (spec.texture_size, tree.find(key)) {
+        (Some(t), Some(n)) if t > 0 => {
+            let s = tree.node(n).bounds.size();
+            s[0].abs().max(s[1].abs()).max(s[2].abs()) / f64::from(t)
+        }
+        _ => 0.0,
     }
 }
 
@@ -527,7 +705,7 @@ fn skirted_normals(m: &Mesh, first_skirt_vertex: usize, first_skirt_triangle: us
 #[must_use]
 pub fn clip_planes(far: f64) -> (f64, f64) {
     let far = far.max(1e-3);
-    (((far * 1e-5).max(1e-3)).min(far * 0.5), far)
+    ((far * 1e-5).max(1e-3).min(far * 0.5), far)
 }
 
 /// Column-major view-projection (wgpu depth 0..1, right-handed) for positions relative to
