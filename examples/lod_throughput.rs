@@ -4,7 +4,9 @@
 //! takes over. `bench/gpu_vs_cpu.sh` runs it next to the end-to-end `bake --gpu off|on`.
 //!
 //! `lod_throughput RASTER [--tile-size N] [--levels K] [--max-error E] [--gpu-budget-mib M]`
-//! prints one line per path and one JSON line with all the figures.
+//! prints one line per path and one JSON line with all the figures (`*_cpu_s`: CPU seconds the
+//! process spent in each path, all threads, lavapipe's included: steadier than wall time when
+//! other work shares the machine).
 use std::time::Instant;
 
 use anyhow::{Context, bail};
@@ -14,6 +16,18 @@ use terrastream::lod::cpu;
 use terrastream::lod::gpu::{GpuBaker, LevelJob};
 use terrastream::raster::{self, LoadOptions};
 use terrastream::tiling::Pyramid;
+
+/// CPU seconds (user + system, all threads) this process has used, from `/proc/self/stat`
+/// (Linux; 0 elsewhere): unlike wall time it hardly moves when other processes share the
+/// cores, so it compares builds on a busy machine. lavapipe runs on the CPU, so it counts there.
+fn process_cpu_s() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return 0.0 };
+    // Fields after the parenthesised command name; utime and stime are the 12th and 13th.
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<f64> = rest.split_whitespace().skip(11).take(2).filter_map(|v| v.parse().ok()).collect();
+    // Clock ticks: 100 per second on Linux.
+    f.iter().sum::<f64>() / 100.0
+}
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -57,8 +71,10 @@ fn main() -> anyhow::Result<()> {
     let lod = cpu::BakeOptions::default();
 
     let t = Instant::now();
+    let c = process_cpu_s();
     let cpu_out: Vec<_> = jobs.par_iter().map(|j| cpu::bake_cells(j.mesh, j.origin, j.cell, &lod)).collect();
     let cpu_s = t.elapsed().as_secs_f64();
+    let cpu_cpu_s = process_cpu_s() - c;
     let cpu_points: usize = cpu_out.iter().map(|(c, _)| c.len()).sum();
     drop(cpu_out);
 
@@ -66,8 +82,10 @@ fn main() -> anyhow::Result<()> {
     let gpu = GpuBaker::open_default(budget_mib << 20)?;
     let open_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
+    let c = process_cpu_s();
     let (gpu_out, report) = gpu.bake_jobs(&jobs, &lod)?;
     let gpu_s = t.elapsed().as_secs_f64();
+    let gpu_cpu_s = process_cpu_s() - c;
     let gpu_points: usize = gpu_out.iter().map(|(c, _)| c.len()).sum();
 
     let nodes = meshes.len() as f64;
@@ -90,7 +108,7 @@ fn main() -> anyhow::Result<()> {
         report.cpu_jobs
     );
     println!(
-        "{{\"nodes\":{},\"level_jobs\":{},\"cpu_threads\":{threads},\"cpu_points\":{cpu_points},\"cpu_s\":{cpu_s:.4},\"gpu_adapter\":{:?},\"gpu_points\":{gpu_points},\"gpu_s\":{gpu_s:.4},\"gpu_batches\":{},\"gpu_peak_batch_bytes\":{},\"gpu_budget_bytes\":{}}}",
+        "{{\"nodes\":{},\"level_jobs\":{},\"cpu_threads\":{threads},\"cpu_points\":{cpu_points},\"cpu_s\":{cpu_s:.4},\"cpu_cpu_s\":{cpu_cpu_s:.2},\"gpu_adapter\":{:?},\"gpu_points\":{gpu_points},\"gpu_s\":{gpu_s:.4},\"gpu_cpu_s\":{gpu_cpu_s:.2},\"gpu_batches\":{},\"gpu_peak_batch_bytes\":{},\"gpu_budget_bytes\":{}}}",
         meshes.len(),
         jobs.len(),
         gpu.adapter(),

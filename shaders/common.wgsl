@@ -1,26 +1,46 @@
-// Shared head of every `lod::gpu` pipeline: prepended to each pipeline's own file, so the
-// bindings below are the same in all of them.
+// Shared head of every `lod::gpu` pipeline: prepended to each pipeline's own file. Binding
+// numbers are the same in all pipelines, but each pipeline declares (and its bind group layout
+// holds) only the buffers it uses, read-only where it only reads them: on llvmpipe every
+// atomic access is scalarised per lane, a plain read of a read-only binding is not.
 //
 // Bindings (group 0):
 //   0  params    uniform        `Params`: job count and the item count of each pass
 //   1  jobs      storage, read  `Job` per (mesh, level) of the batch (see `lod::gpu::GpuJob`)
-//   2  counters  storage, rw    8 atomic words per job: 0 points out, 1 filled cells,
-//                               2..4 fragments per view axis, 5 overflow (table or output full)
-//   3  table     storage, rw    the cell hash table, `SLOT_WORDS` atomic words per slot:
-//                               0 packed local cell key + 1 (0 = empty), 1 count (+ FILL_FLAG per
-//                               fill contribution), 2..4 position offset sums (units cell/2^16),
-//                               5..7 normal sums (i32 bits, units 2^-15)
-// Pipelines add their own from 4 on, numbered apart so that one bind group layout serves all
-// five: 4 columns (rw), 5 verts (read), 6 tris (read), 7 points (rw).
+//   2  counters  storage        8 words per job: 0 cells inserted (the job's cell list
+//                               length), 2..4 fragments per view axis, 5 overflow (table
+//                               full), 6 count overflow (a cell's per-axis count full)
+//   3  table     storage        the cell hash table, `SLOT_WORDS` words per slot: 0 packed
+//                               local cell key + 1 (0 = empty), 1 per-view-axis counts
+//                               (`COUNT_BITS` each from bit 0, axis after axis; FILL_BIT set
+//                               on a filled cell), 2..4 per-view-axis sums of the depth
+//                               offsets (units cell/2^16), 5..7 normal sums (i32 bits, units
+//                               2^-15). A fragment of view `axis` lies at the pixel centre on
+//                               the other two axes, so the position sum on axis d is sum d plus
+//                               POS_HALF per fragment of the other views: the host rebuilds
+//                               the three position sums exactly, with two atomics per
+//                               fragment instead of four.
+//   4  columns   storage        per-view column occupancy (`columns.wgsl`)
+//   5  verts, 6 tris  storage, read  raster inputs (`raster.wgsl`)
+//   7  points    storage        8 words per output point, job after job (room `job.out_cap`
+//                               from `job.out_start`): word 0 first holds the table slot of
+//                               the job's n-th inserted cell (the cell list, written on
+//                               insertion by `raster` and `fill`), then `compact` overwrites
+//                               the record with the point (`compact.wgsl`)
+// `insert.wgsl` declares 2, 3 and 7 read-write with atomics for the passes that insert cells
+// (`raster`, `fill`); the others declare what they read as plain read-only arrays.
 //
-// Work is a flat list of items per pass (triangle × axis, table slot, or column), laid out job
-// after job; an invocation finds its job by binary search over the jobs' item starts.
+// Work is a flat list of items per pass (triangle × axis, column, or cell-list entry), laid out
+// job after job; an invocation finds its job by binary search over the jobs' item starts.
 
 struct Params {
     n_jobs: u32,
     raster_items: u32,
     slots: u32,
     col_items: u32,
+    out_items: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
 struct Job {
@@ -44,27 +64,28 @@ struct Job {
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> jobs: array<Job>;
-@group(0) @binding(2) var<storage, read_write> counters: array<atomic<u32>>;
-@group(0) @binding(3) var<storage, read_write> table: array<atomic<u32>>;
 
 const WORKGROUP: u32 = 64u;
 const SLOT_WORDS: u32 = 8u;
 const COUNTER_WORDS: u32 = 8u;
 const C_OUT: u32 = 0u;
-const C_FILLED: u32 = 1u;
 const C_FRAGS: u32 = 2u;
 const C_OVERFLOW: u32 = 5u;
-// Fill contributions are counted in the high bits of the count word: a filled cell never holds
-// fragments, and a cell gets far fewer than 2^20 fragments.
-const FILL_FLAG: u32 = 1048576u;
-const COUNT_MASK: u32 = 1048575u;
+const C_COUNT_OVERFLOW: u32 = 6u;
+// Per-axis counts: fragments of one view in one cell all lie on the same pixel centre, one per
+// triangle, so a field rarely gets near 2^COUNT_BITS; one that fills up is reported
+// (C_COUNT_OVERFLOW) and the host bakes that job with the CPU reference instead.
+const COUNT_BITS: u32 = 10u;
+const COUNT_FIELD: u32 = 1023u;
+// A filled cell never holds fragments; its counts are its fill contributions.
+const FILL_BIT: u32 = 2147483648u;
 // Position offsets: 2^16 units per cell, the pixel centre at 2^15.
 const POS_ONE: f32 = 65536.0;
 const POS_HALF: u32 = 32768u;
 // Column occupancy: front stored as FRONT_BASE - slice (so atomicMax keeps the lowest slice),
 // back as slice + 1; 0 means empty either way.
 const FRONT_BASE: u32 = 1073741824u;
-const COLUMN_WORDS: u32 = 4u;
+const COLUMN_WORDS: u32 = 2u;
 
 // The invocation's flat item index over a 2D dispatch (one dimension caps at 65535 groups).
 fn flat_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
@@ -74,7 +95,7 @@ fn flat_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
 fn item_start(j: u32, which: u32) -> u32 {
     switch which {
         case 0u: { return jobs[j].raster_start; }
-        case 1u: { return jobs[j].slot_start; }
+        case 1u: { return jobs[j].out_start; }
         default: { return jobs[j].col_start; }
     }
 }
@@ -102,36 +123,6 @@ fn hash32(k: u32) -> u32 {
     x = x * 0x846ca68bu;
     x = x ^ (x >> 16u);
     return x;
-}
-
-// The global slot of cell `key` (packed local index) in the job's table, inserting it when
-// missing (linear probing); -1 when the table is full. Slots depend on insertion order, the
-// sums in them do not; the output is sorted by cell on the host.
-fn find_or_insert(job: Job, key: u32) -> i32 {
-    let key1 = key + 1u;
-    var h = hash32(key) & job.table_mask;
-    for (var probe = 0u; probe <= job.table_mask; probe++) {
-        let s = job.slot_start + h;
-        let w = s * SLOT_WORDS;
-        loop {
-            let cur = atomicLoad(&table[w]);
-            if cur == key1 {
-                return i32(s);
-            }
-            if cur != 0u {
-                break;
-            }
-            let r = atomicCompareExchangeWeak(&table[w], 0u, key1);
-            if r.exchanged || r.old_value == key1 {
-                return i32(s);
-            }
-            if r.old_value != 0u {
-                break;
-            }
-        }
-        h = (h + 1u) & job.table_mask;
-    }
-    return -1;
 }
 
 fn job_dims(job: Job) -> vec3<u32> {

@@ -5,12 +5,12 @@
 // to the cell table like fragments. It reads only the pre-fill column data, so the result does
 // not depend on the order in which invocations run.
 //
-// Bindings (after common.wgsl's 0..3):
-//   4  columns  storage, rw  as in `columns.wgsl` (only read here)
+// Bindings (after common.wgsl's 0..1, and insert.wgsl's 2, 3, 7 read-write):
+//   4  columns  storage, read  as in `columns.wgsl`
 //
 // Items: every column of the three views of every job.
 
-@group(0) @binding(4) var<storage, read_write> columns: array<atomic<u32>>;
+@group(0) @binding(4) var<storage, read> columns: array<u32>;
 
 const FILL_MIN_NEIGHBOURS: u32 = 5u;
 const NORMAL_ONE: f32 = 32768.0;
@@ -20,7 +20,7 @@ fn occupied(job: Job, axis: u32, u: i32, v: i32, nu: i32, nv: i32) -> u32 {
         return 0u;
     }
     let col = column_index(job, axis, u32(u), u32(v)) * COLUMN_WORDS;
-    if atomicLoad(&columns[col]) == 0u {
+    if columns[col] == 0u {
         return 0u;
     }
     return col + 1u;
@@ -62,6 +62,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         vec2<i32>(1, 0), vec2<i32>(-1, 1), vec2<i32>(0, 1), vec2<i32>(1, 1),
     );
     var around = array<u32, 8>();
+    var dirs = array<u32, 8>();
     var n = 0u;
     var edge = 0u;
     for (var k = 0u; k < 8u; k++) {
@@ -69,6 +70,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         let col = occupied(job, axis, u + o.x, v + o.y, nu, nv);
         if col != 0u {
             around[n] = col - 1u;
+            dirs[n] = k;
             n += 1u;
             if o.x == 0 || o.y == 0 {
                 edge += 1u;
@@ -82,14 +84,36 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         var keys = array<u32, 8>();
         var normal = vec3<i32>(0, 0, 0);
         for (var k = 0u; k < n; k++) {
-            let slot = atomicLoad(&columns[around[k] + 2u + back]) - 1u;
-            let w = slot * SLOT_WORDS;
-            let c = unpack_key(job, atomicLoad(&table[w]) - 1u);
-            let count = atomicLoad(&table[w + 1u]) & COUNT_MASK;
-            let mean = (atomicLoad(&table[w + 2u + axis]) + count / 2u) / max(count, 1u);
+            // The neighbour's front (back) cell: its slice from the column, its slot from the
+            // table. Its probe chain was filled before this pass, so fills inserted meanwhile
+            // do not change what the lookup finds.
+            let col = around[k];
+            var slice = FRONT_BASE - columns[col];
+            if back == 1u {
+                slice = columns[col + 1u] - 1u;
+            }
+            let o = offsets[dirs[k]];
+            var c = vec3<u32>(0u, 0u, 0u);
+            c[axis] = slice;
+            c[ua] = u32(u + o.x);
+            c[va] = u32(v + o.y);
+            let slot = find(job, pack_key(job, c));
+            if slot < 0 {
+                atomicAdd(&counters[j * COUNTER_WORDS + C_OVERFLOW], 1u);
+                return;
+            }
+            let w = u32(slot) * SLOT_WORDS;
+            // The mean offset on `axis` (see the table layout in common.wgsl); a neighbour
+            // holds fragments only (no fills yet), at most 3 × COUNT_FIELD of them.
+            let counts = atomicLoad(&table[w + 1u]);
+            let own = (counts >> (axis * COUNT_BITS)) & COUNT_FIELD;
+            let count = (counts & COUNT_FIELD) + ((counts >> COUNT_BITS) & COUNT_FIELD)
+                + ((counts >> (2u * COUNT_BITS)) & COUNT_FIELD);
+            let sum = atomicLoad(&table[w + 2u + axis]) + POS_HALF * (count - own);
+            let mean = (sum + count / 2u) / max(count, 1u);
             // Slices stay below 2^16 (the host checks the job's extents), so one word holds
             // slice and offset in key order.
-            keys[k] = (c[axis] << 16u) + mean;
+            keys[k] = (slice << 16u) + mean;
             normal += vec3<i32>(
                 bitcast<i32>(atomicLoad(&table[w + 5u])),
                 bitcast<i32>(atomicLoad(&table[w + 6u])),
@@ -121,15 +145,18 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         if len > 0.0 {
             nq = vec3<i32>(floor(m / len * NORMAL_ONE + 0.5));
         }
-        let slot = find_or_insert(job, pack_key(job, c));
+        let slot = find_or_insert(j, job, pack_key(job, c));
         if slot < 0 {
             atomicAdd(&counters[j * COUNTER_WORDS + C_OVERFLOW], 1u);
             continue;
         }
         let w = u32(slot) * SLOT_WORDS;
-        atomicAdd(&table[w + 1u], 1u + FILL_FLAG);
+        atomicOr(&table[w + 1u], FILL_BIT);
+        if !add_count(w + 1u, axis) {
+            atomicAdd(&counters[j * COUNTER_WORDS + C_COUNT_OVERFLOW], 1u);
+        }
+        atomicAdd(&table[w + 2u + axis], key & 65535u);
         for (var k = 0u; k < 3u; k++) {
-            atomicAdd(&table[w + 2u + k], select(POS_HALF, key & 65535u, k == axis));
             atomicAdd(&table[w + 5u + k], bitcast<u32>(nq[k]));
         }
     }

@@ -2,13 +2,16 @@
 // the fragments into the cell table (the module doc of `lod::cpu` is the specification; this
 // is the same rule in f32 on job-local grid coordinates).
 //
-// Bindings (after common.wgsl's 0..3):
+// Bindings (after common.wgsl's 0..1, and insert.wgsl's 2, 3, 7 read-write):
 //   5  verts  storage, read  f32 × 3 per vertex: grid coordinates relative to the job's base
 //                            cell (host-computed in f64), so cell indices start at 0
 //   6  tris   storage, read  u32 × 6 per triangle: vertex indices relative to the job's first
 //                            vertex, smallest first, then the quantized normal (i32 bits)
 //
-// Items: job.tri_count × 3 per job, item = triangle × 3 + axis.
+// Items: job.tri_count × 3 per job, item = axis × tri_count + triangle: neighbouring
+// invocations (one SIMD batch on llvmpipe) rasterize the same view, whose triangles have
+// similar projected sizes (for terrain the top view is large, the side views thin), so fewer
+// lanes idle while the others loop over their pixels.
 
 @group(0) @binding(5) var<storage, read> verts: array<f32>;
 @group(0) @binding(6) var<storage, read> tris: array<u32>;
@@ -96,8 +99,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let j = find_job(item, 0u);
     let job = jobs[j];
     let local = item - job.raster_start;
-    let axis = local % 3u;
-    let tb = (job.tri_start + local / 3u) * 6u;
+    let axis = local / job.tri_count;
+    let tb = (job.tri_start + local - axis * job.tri_count) * 6u;
     let g0 = vert(job, tris[tb]);
     let g1 = vert(job, tris[tb + 1u]);
     let g2 = vert(job, tris[tb + 2u]);
@@ -139,6 +142,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
 
     var count = 0u;
     var overflow = 0u;
+    var count_overflow = 0u;
     for (var pj = j0; pj <= j1; pj++) {
         let y = f32(pj) + 0.5;
         var span = vec2<i32>(i0, i1);
@@ -171,15 +175,17 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             if any(c >= dims) {
                 continue;
             }
-            let slot = find_or_insert(job, pack_key(job, c));
+            let slot = find_or_insert(j, job, pack_key(job, c));
             if slot < 0 {
                 overflow += 1u;
                 continue;
             }
             let w = u32(slot) * SLOT_WORDS;
-            atomicAdd(&table[w + 1u], 1u);
+            if !add_count(w + 1u, axis) {
+                count_overflow += 1u;
+            }
+            atomicAdd(&table[w + 2u + axis], q);
             for (var k = 0u; k < 3u; k++) {
-                atomicAdd(&table[w + 2u + k], select(POS_HALF, q, k == axis));
                 atomicAdd(&table[w + 5u + k], bitcast<u32>(n[k]));
             }
             count += 1u;
@@ -190,5 +196,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     }
     if overflow > 0u {
         atomicAdd(&counters[j * COUNTER_WORDS + C_OVERFLOW], overflow);
+    }
+    if count_overflow > 0u {
+        atomicAdd(&counters[j * COUNTER_WORDS + C_COUNT_OVERFLOW], count_overflow);
     }
 }

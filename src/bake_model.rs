@@ -225,6 +225,49 @@ struct BakedLevel {
     checksum: u32,
 }
 
+/// A model file read and cleaned, ready for [`bake_read_model`].
+#[derive(Debug, Clone)]
+pub struct ModelFile {
+    pub model: Model,
+    pub source: SourceFile,
+    /// Reading and cleaning the model.
+    pub read_seconds: f64,
+}
+
+/// Reads and cleans the model at `path` (its type from `file_type`, else the extension, else
+/// sniffed). Separate from baking so a caller can refuse a bad file before it opens a GPU.
+pub fn read_model_file(path: &Path, file_type: Option<FileType>) -> Result<ModelFile, ModelBakeError> {
+    let t0 = Instant::now();
+    let bytes = std::fs::read(path).map_err(|source| MeshError::Io { path: path.to_owned(), source })?;
+    let shown = path.display().to_string();
+    let ty = file_type.or_else(|| {
+        match path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).as_deref() {
+            Some("obj") => Some(FileType::Obj),
+            Some("stl") => Some(FileType::Stl),
+            Some("ply") => Some(FileType::Ply),
+            _ => None,
+        }
+    });
+    let model = mesh::parse(&bytes, &shown, ty)?;
+    let name = path.file_name().map_or_else(|| shown.clone(), |n| n.to_string_lossy().into_owned());
+    let source =
+        SourceFile { name, bytes: bytes.len() as u64, crc32: format!("{:08x}", crc32fast::hash(&bytes)) };
+    Ok(ModelFile { model, source, read_seconds: t0.elapsed().as_secs_f64() })
+}
+
+/// Bakes a model read by [`read_model_file`] into `store`; the summary's times include the read.
+pub fn bake_read_model(
+    file: &ModelFile,
+    opts: &ModelBakeOptions,
+    baker: &PointBaker,
+    store: &Store,
+) -> Result<ModelBakeSummary, ModelBakeError> {
+    let mut summary = bake_model(&file.model, &file.source, opts, baker, store)?;
+    summary.read_seconds = file.read_seconds;
+    summary.seconds += file.read_seconds;
+    Ok(summary)
+}
+
 /// Reads `path` and bakes it into `store` (see the module doc). Nothing is written when the
 /// model cannot be read or baked.
 pub fn bake_model_file(
@@ -234,27 +277,8 @@ pub fn bake_model_file(
     store: &Store,
 ) -> Result<ModelBakeSummary, ModelBakeError> {
     check_options(opts)?;
-    let t0 = Instant::now();
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Io { path: path.to_owned(), source })?;
-    let shown = path.display().to_string();
-    let ty = opts.file_type.or_else(|| {
-        match path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).as_deref() {
-            Some("obj") => Some(FileType::Obj),
-            Some("stl") => Some(FileType::Stl),
-            Some("ply") => Some(FileType::Ply),
-            _ => None,
-        }
-    });
-    let model = mesh::parse(&bytes, &shown, ty)?;
-    let read_seconds = t0.elapsed().as_secs_f64();
-    let name = path.file_name().map_or_else(|| shown.clone(), |n| n.to_string_lossy().into_owned());
-    let source =
-        SourceFile { name, bytes: bytes.len() as u64, crc32: format!("{:08x}", crc32fast::hash(&bytes)) };
-    drop(bytes);
-    let mut summary = bake_model(&model, &source, opts, baker, store)?;
-    summary.read_seconds = read_seconds;
-    summary.seconds = t0.elapsed().as_secs_f64();
-    Ok(summary)
+    let file = read_model_file(path, opts.file_type)?;
+    bake_read_model(&file, opts, baker, store)
 }
 
 /// The model file as the manifest and the resume check name it.

@@ -764,11 +764,15 @@ fn run_bake_model(a: &BakeModelArgs) -> Result<()> {
             ModelFormatArg::Ply => FileType::Ply,
         }),
     };
+    // Options and the file are checked before a GPU is opened, so a bad input is refused
+    // quickly and with nothing but its own error on stderr.
+    bake_model::check_options(&opts)?;
+    let file = bake_model::read_model_file(&a.model, opts.file_type)?;
     let (baker, notice) = bake::PointBaker::open(gpu_mode(a.gpu), a.gpu_budget_mib.saturating_mul(1 << 20))?;
     if let Some(n) = notice {
         eprintln!("{n}");
     }
-    let s = bake_model::bake_model_file(&a.model, &opts, &baker, &Store::new(&a.out))?;
+    let s = bake_model::bake_read_model(&file, &opts, &baker, &Store::new(&a.out))?;
     let st = &s.stats;
     println!(
         "{} ({}): {} faces → {} triangles read, {} degenerate skipped; {} vertices read, {} unreferenced \

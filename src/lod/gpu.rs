@@ -21,14 +21,21 @@
 //! # Passes (one submission per batch)
 //!
 //! 1. `raster`: fragments → a per-job open-addressing hash table of cells keyed by the packed
-//!    cell index, summing in fixed point with atomics (count, position offsets in cell/2^16,
-//!    quantized normals in 2^-15): integer sums, so the result does not depend on the order in
-//!    which fragments arrive.
-//! 2. `columns`, `column_cells`: per view, each column's front and back cell (before fills).
-//! 3. `fill`: the median hole filler, one invocation per column, adding fills to the table.
-//! 4. `compact`: every occupied cell → one point record (cell, count, position and normal
-//!    sums), appended to its job's output range.
+//!    cell index, summing in fixed point with atomics (per-axis counts, depth offsets in
+//!    cell/2^16, quantized normals in 2^-15): integer sums, so the result does not depend on the order in
+//!    which fragments arrive. The invocation that inserts a cell appends its slot to the job's
+//!    cell list (in the job's output range), so no later pass scans the whole table.
+//! 2. `columns`: per view, each column's front and back slice (before fills), one invocation
+//!    per cell-list entry.
+//! 3. `fill`: the median hole filler, one invocation per column, looking up its neighbours'
+//!    front and back cells in the table by key and adding fills to the table (and to the
+//!    cell list).
+//! 4. `compact`: every cell-list entry → its point record (cell, count, position and normal
+//!    sums), in place.
 //! 5. One copy of the counters and all points into one staging buffer, one map (read-back).
+//!
+//! Each pipeline binds only the buffers it uses, read-only where it only reads: on lavapipe
+//! every atomic access is scalarised per lane, plain loads are not.
 //!
 //! Slots in the table and the append order depend on scheduling; the host sorts each job's
 //! points by cell `(k, j, i)` as the CPU does, so two bakes are identical. The host prepares
@@ -45,7 +52,9 @@
 //! table or output overflows is re-run in a later batch with four times the room, so sizes are
 //! an estimate but results never depend on them. A job that alone exceeds the budget, or whose
 //! cell box does not fit the 32-bit keys (an extent over 2^16 − 1 cells, or over 2^32 − 2 cells
-//! in all), is baked by the CPU reference instead and counted in [`BatchReport::cpu_jobs`].
+//! in all), or in which one cell gets over 1023 fragments of one view (the per-axis count
+//! fields of the table, see `shaders/common.wgsl`), is baked by the CPU reference instead and
+//! counted in [`BatchReport::cpu_jobs`].
 //! While the GPU runs one batch the host prepares and submits the next and decodes the
 //! previous, so at most two batches are in flight: the device memory peak is at most twice the
 //! batch budget.
@@ -62,33 +71,71 @@ use crate::geom::{Mesh, triangle_normal};
 /// Default GPU memory budget of one batch, in MiB.
 pub const DEFAULT_BATCH_BUDGET_MIB: u64 = 256;
 
-/// WGSL sources, one per pipeline, each prefixed by the shared head. Public so the CPU-only
-/// validation test can parse and validate them with naga.
-pub const SHADERS: [(&str, &str); 5] = [
-    ("raster", concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/raster.wgsl"))),
+/// WGSL sources, one per pipeline, each prefixed by the shared head (and, for the passes that
+/// insert cells, by `insert.wgsl`). Public so the CPU-only validation test can parse and
+/// validate them with naga.
+pub const SHADERS: [(&str, &str); 4] = [
+    (
+        "raster",
+        concat!(
+            include_str!("../../shaders/common.wgsl"),
+            include_str!("../../shaders/insert.wgsl"),
+            include_str!("../../shaders/raster.wgsl")
+        ),
+    ),
     (
         "columns",
         concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/columns.wgsl")),
     ),
     (
-        "column_cells",
-        concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/column_cells.wgsl")),
+        "fill",
+        concat!(
+            include_str!("../../shaders/common.wgsl"),
+            include_str!("../../shaders/insert.wgsl"),
+            include_str!("../../shaders/fill.wgsl")
+        ),
     ),
-    ("fill", concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/fill.wgsl"))),
     (
         "compact",
         concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/compact.wgsl")),
     ),
 ];
 
+/// How a pipeline binds a buffer.
+#[derive(Clone, Copy)]
+enum Access {
+    Uniform,
+    Read,
+    ReadWrite,
+}
+
+/// The bindings of each pipeline of [`SHADERS`], in order: only what its WGSL declares, read-only
+/// where it only reads (plain loads rather than atomics; see `shaders/common.wgsl`).
+const BINDINGS: [&[(u32, Access)]; 4] = {
+    use Access::{Read as R, ReadWrite as W, Uniform as U};
+    [
+        &[(0, U), (1, R), (2, W), (3, W), (5, R), (6, R), (7, W)],
+        &[(0, U), (1, R), (2, R), (3, R), (4, W), (7, R)],
+        &[(0, U), (1, R), (2, W), (3, W), (4, R), (7, W)],
+        &[(0, U), (1, R), (2, R), (3, R), (7, W)],
+    ]
+};
+/// Storage buffers of the pipeline with the most.
+const MAX_STORAGE_BINDINGS: u32 = 6;
+
 const WORKGROUP: u32 = 64;
 const MAX_GROUPS_X: u32 = 65_535;
 const SLOT_BYTES: u64 = 32;
 const POINT_BYTES: u64 = 32;
-const COLUMN_BYTES: u64 = 16;
+const COLUMN_BYTES: u64 = 8;
 const COUNTER_WORDS: usize = 8;
-const FILL_FLAG: u32 = 1 << 20;
-const COUNT_MASK: u32 = FILL_FLAG - 1;
+/// Count word of a slot (`shaders/common.wgsl`): per-view-axis counts of `COUNT_BITS` each,
+/// `FILL_BIT` on a filled cell.
+const COUNT_BITS: u32 = 10;
+const COUNT_FIELD: u32 = (1 << COUNT_BITS) - 1;
+const FILL_BIT: u32 = 1 << 31;
+/// Position offset of a pixel centre, in cell/2^16.
+const POS_HALF: u64 = 1 << (super::cpu::POSITION_FRACTION_BITS - 1);
 /// Largest job extent on any axis: slices must fit 16 bits in the fill keys.
 const MAX_EXTENT: i64 = 65_535;
 /// Room multiplier for a job re-run after its table or output overflowed.
@@ -213,6 +260,8 @@ pub struct GpuParams {
     pub raster_items: u32,
     pub slots: u32,
     pub col_items: u32,
+    pub out_items: u32,
+    pub pad: [u32; 3],
 }
 
 /// The host's part of a job: what the CPU reference computes in f64, ready to upload.
@@ -284,14 +333,14 @@ pub struct GpuBaker {
     device: wgpu::Device,
     queue: wgpu::Queue,
     adapter: String,
-    layout: wgpu::BindGroupLayout,
-    pipelines: [wgpu::ComputePipeline; 5],
+    layouts: [wgpu::BindGroupLayout; 4],
+    pipelines: [wgpu::ComputePipeline; 4],
     budget: u64,
     max_binding: u64,
 }
 
 impl GpuBaker {
-    /// Builds the five pipelines. `budget_bytes` caps the buffers of one batch; `adapter`
+    /// Builds the four pipelines. `budget_bytes` caps the buffers of one batch; `adapter`
     /// names the adapter in reports.
     pub fn new(
         device: wgpu::Device,
@@ -300,51 +349,45 @@ impl GpuBaker {
         budget_bytes: u64,
     ) -> Result<Self, GpuError> {
         let limits = device.limits();
-        if limits.max_storage_buffers_per_shader_stage < 7 {
+        if limits.max_storage_buffers_per_shader_stage < MAX_STORAGE_BINDINGS {
             return Err(GpuError::Failed(format!(
-                "adapter {adapter} allows {} storage buffers per shader stage, the bake needs 7",
+                "adapter {adapter} allows {} storage buffers per shader stage, the bake needs {MAX_STORAGE_BINDINGS}",
                 limits.max_storage_buffers_per_shader_stage
             )));
         }
-        let storage = |binding: u32, read_only: bool| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("lod::gpu"),
-            entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
+        let layouts = BINDINGS.map(|bindings| {
+            let entries: Vec<wgpu::BindGroupLayoutEntry> = bindings
+                .iter()
+                .map(|&(binding, access)| wgpu::BindGroupLayoutEntry {
+                    binding,
                     visibility: wgpu::ShaderStages::COMPUTE,
                     ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
+                        ty: match access {
+                            Access::Uniform => wgpu::BufferBindingType::Uniform,
+                            Access::Read => wgpu::BufferBindingType::Storage { read_only: true },
+                            Access::ReadWrite => wgpu::BufferBindingType::Storage { read_only: false },
+                        },
                         has_dynamic_offset: false,
                         min_binding_size: None,
                     },
                     count: None,
-                },
-                storage(1, true),
-                storage(2, false),
-                storage(3, false),
-                storage(4, false),
-                storage(5, true),
-                storage(6, true),
-                storage(7, false),
-            ],
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("lod::gpu"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
+                })
+                .collect();
+            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("lod::gpu"),
+                entries: &entries,
+            })
         });
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let mut n = 0;
         let pipelines = SHADERS.map(|(name, source)| {
+            let layout = &layouts[n];
+            n += 1;
+            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(name),
+                bind_group_layouts: &[Some(layout)],
+                immediate_size: 0,
+            });
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some(name),
                 source: wgpu::ShaderSource::Wgsl(source.into()),
@@ -362,7 +405,15 @@ impl GpuBaker {
             return Err(GpuError::Failed(format!("pipeline creation on {adapter}: {e}")));
         }
         let max_binding = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
-        Ok(Self { device, queue, adapter, layout, pipelines, budget: budget_bytes.max(1 << 20), max_binding })
+        Ok(Self {
+            device,
+            queue,
+            adapter,
+            layouts,
+            pipelines,
+            budget: budget_bytes.max(1 << 20),
+            max_binding,
+        })
     }
 
     /// Opens the default adapter ([`open`]) and builds a baker on it.
@@ -428,18 +479,24 @@ impl GpuBaker {
                 report.batches += 1;
                 report.peak_batch_bytes = report.peak_batch_bytes.max(f.bytes);
                 for (p, r) in self.finish(f, jobs)? {
-                    if let Some(r) = r {
-                        results[p.job] = Some(r);
-                    } else {
-                        let mut p = p;
-                        p.grow();
-                        report.retried_jobs += 1;
-                        if p.bytes(fill) <= self.budget && self.fits_bindings(&p, fill) {
-                            queue.push_back(p);
-                        } else {
+                    match r {
+                        Ok(r) => results[p.job] = Some(r),
+                        Err(Redo::Cpu) => {
                             report.cpu_jobs += 1;
                             report.gpu_jobs -= 1;
                             cpu.push(p.job);
+                        }
+                        Err(Redo::Grow) => {
+                            let mut p = p;
+                            p.grow();
+                            report.retried_jobs += 1;
+                            if p.bytes(fill) <= self.budget && self.fits_bindings(&p, fill) {
+                                queue.push_back(p);
+                            } else {
+                                report.cpu_jobs += 1;
+                                report.gpu_jobs -= 1;
+                                cpu.push(p.job);
+                            }
                         }
                     }
                 }
@@ -543,6 +600,8 @@ impl GpuBaker {
             raster_items: raster as u32,
             slots: slots as u32,
             col_items: cols as u32,
+            out_items: out as u32,
+            pad: [0; 3],
         };
         let d = &self.device;
         let scope = d.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -586,20 +645,25 @@ impl GpuBaker {
                 .iter()
                 .map(|b| b.size())
                 .sum();
-        let group = d.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("lod::gpu batch"),
-            layout: &self.layout,
-            entries: &[
-                entry(0, &b_params),
-                entry(1, &b_jobs),
-                entry(2, &b_counters),
-                entry(3, &b_table),
-                entry(4, &b_columns),
-                entry(5, &b_verts),
-                entry(6, &b_tris),
-                entry(7, &b_points),
-            ],
-        });
+        let buffers = [&b_params, &b_jobs, &b_counters, &b_table, &b_columns, &b_verts, &b_tris, &b_points];
+        let groups: Vec<wgpu::BindGroup> = BINDINGS
+            .iter()
+            .zip(&self.layouts)
+            .map(|(bindings, layout)| {
+                let entries: Vec<wgpu::BindGroupEntry<'_>> = bindings
+                    .iter()
+                    .map(|&(binding, _)| wgpu::BindGroupEntry {
+                        binding,
+                        resource: buffers[binding as usize].as_entire_binding(),
+                    })
+                    .collect();
+                d.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("lod::gpu batch"),
+                    layout,
+                    entries: &entries,
+                })
+            })
+            .collect();
         let mut enc =
             d.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lod::gpu batch") });
         {
@@ -607,25 +671,25 @@ impl GpuBaker {
                 label: Some("bake"),
                 timestamp_writes: None,
             });
-            pass.set_bind_group(0, &group, &[]);
-            let [p_raster, p_columns, p_cells, p_fill, p_compact] = &self.pipelines;
-            let mut run = |p: &wgpu::ComputePipeline, items: u64| {
+            let mut run = |n: usize, items: u64| {
                 if items == 0 {
                     return;
                 }
-                let groups = items.div_ceil(u64::from(WORKGROUP));
-                let x = groups.min(u64::from(MAX_GROUPS_X));
-                let y = groups.div_ceil(x);
-                pass.set_pipeline(p);
+                let wgs = items.div_ceil(u64::from(WORKGROUP));
+                let x = wgs.min(u64::from(MAX_GROUPS_X));
+                let y = wgs.div_ceil(x);
+                pass.set_pipeline(&self.pipelines[n]);
+                pass.set_bind_group(0, &groups[n], &[]);
                 pass.dispatch_workgroups(x as u32, y as u32, 1);
             };
-            run(p_raster, raster);
+            // Pipelines in `SHADERS` order: raster, columns, fill, compact. The passes after
+            // `raster` run over the cell lists (room `out` in all), not the tables.
+            run(0, raster);
             if fill {
-                run(p_columns, slots);
-                run(p_cells, slots);
-                run(p_fill, cols);
+                run(1, out);
+                run(2, cols);
             }
-            run(p_compact, slots);
+            run(3, out);
         }
         enc.copy_buffer_to_buffer(&b_counters, 0, &staging, 0, counters_bytes);
         if out_bytes > 0 {
@@ -642,12 +706,8 @@ impl GpuBaker {
         Ok(InFlight { jobs: batch, staging, counters_bytes, out_offsets, mapped: rx, bytes })
     }
 
-    /// Waits for a batch's read-back and decodes each job; `None` for a job that overflowed.
-    fn finish(
-        &self,
-        f: InFlight,
-        jobs: &[LevelJob<'_>],
-    ) -> Result<Vec<(Prepared, Option<JobResult>)>, GpuError> {
+    /// Waits for a batch's read-back and decodes each job.
+    fn finish(&self, f: InFlight, jobs: &[LevelJob<'_>]) -> Result<Vec<(Prepared, Decoded)>, GpuError> {
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| GpuError::Failed(format!("waiting for the device: {e}")))?;
@@ -680,29 +740,35 @@ impl GpuBaker {
     }
 }
 
-fn entry(binding: u32, b: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
-    wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() }
+/// Why a job's GPU result was not used.
+enum Redo {
+    /// Its table or output overflowed: re-run with more room.
+    Grow,
+    /// A cell's per-axis count filled up: bake it with the CPU reference.
+    Cpu,
 }
 
-/// Turns one job's counters and points into the reference's output; `None` on overflow.
-fn decode(
-    p: &Prepared,
-    job: &LevelJob<'_>,
-    counters: &[u32],
-    points: &[u32],
-) -> Option<(Vec<BakedCell>, BakeStats)> {
+/// A job's GPU result, or why it is not used.
+type Decoded = Result<JobResult, Redo>;
+
+/// Turns one job's counters and points into the reference's output.
+fn decode(p: &Prepared, job: &LevelJob<'_>, counters: &[u32], points: &[u32]) -> Decoded {
     let n = u64::from(counters[0]);
-    if n > p.out_cap || counters[5] > 0 {
-        return None;
+    if counters[6] > 0 {
+        return Err(Redo::Cpu);
     }
-    let filled = counters[1] as usize;
+    if n > p.out_cap || counters[5] > 0 {
+        return Err(Redo::Grow);
+    }
+    let recs = &points[..n as usize * 8];
+    let filled = recs.chunks_exact(8).filter(|r| r[1] & FILL_BIT != 0).count();
     let stats = BakeStats {
         fragments: [u64::from(counters[2]), u64::from(counters[3]), u64::from(counters[4])],
         occupied: n as usize - filled,
         filled,
         skipped_triangles: p.skipped,
     };
-    let mut recs: Vec<&[u32]> = points[..n as usize * 8].chunks_exact(8).collect();
+    let mut recs: Vec<&[u32]> = recs.chunks_exact(8).collect();
     recs.sort_unstable_by_key(|r| r[0]);
     let [nx, ny, _] = p.dims;
     let cells = recs
@@ -711,10 +777,14 @@ fn decode(
             let key = r[0];
             let local = [key % nx, (key / nx) % ny, key / nx / ny];
             let index = [0, 1, 2].map(|d| (p.base[d] + i64::from(local[d])) as i32);
-            let count = r[1] & COUNT_MASK;
-            let denom = f64::from(count.max(1)) * POS_ONE;
-            let position = [0, 1, 2]
-                .map(|d| job.origin[d] + (f64::from(index[d]) + f64::from(r[2 + d]) / denom) * job.cell);
+            // Per-axis counts and depth sums → the three position sums (`shaders/common.wgsl`).
+            let counts = [0, 1, 2].map(|d: u32| u64::from((r[1] >> (d * COUNT_BITS)) & COUNT_FIELD));
+            let count = counts.iter().sum::<u64>();
+            let denom = count.max(1) as f64 * POS_ONE;
+            let position = [0, 1, 2].map(|d| {
+                let sum = u64::from(r[2 + d]) + POS_HALF * (count - counts[d]);
+                job.origin[d] + (f64::from(index[d]) + sum as f64 / denom) * job.cell
+            });
             let n = [0, 1, 2].map(|d| f64::from(r[5 + d].cast_signed()));
             let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
             let normal = if len > 0.0 {
@@ -722,10 +792,10 @@ fn decode(
             } else {
                 [0.0, 0.0, 1.0]
             };
-            BakedCell { index, position, normal, samples: u64::from(count), filled: r[1] >= FILL_FLAG }
+            BakedCell { index, position, normal, samples: count, filled: r[1] & FILL_BIT != 0 }
         })
         .collect();
-    Some((cells, stats))
+    Ok((cells, stats))
 }
 
 /// The host's share of a job (see the module doc).

@@ -1,0 +1,71 @@
+// Cell insertion, shared by the passes that add cells to the table (`raster`, `fill`): they
+// bind the counters, the table and the points read-write, with atomics where invocations race.
+
+@group(0) @binding(2) var<storage, read_write> counters: array<atomic<u32>>;
+@group(0) @binding(3) var<storage, read_write> table: array<atomic<u32>>;
+@group(0) @binding(7) var<storage, read_write> points: array<u32>;
+
+// The global slot of cell `key` (packed local index) in job `j`'s table, inserting it when
+// missing (linear probing); -1 when the table is full. The invocation that inserts a cell
+// appends its slot to the job's cell list (word 0 of the next point record), so the passes
+// after `raster` run over the occupied cells only, not over the whole table. A list longer
+// than `job.out_cap` is an overflow: the host sees the count and re-runs the job. Slots and
+// list order depend on scheduling, the sums do not; the host sorts the output by cell.
+fn find_or_insert(j: u32, job: Job, key: u32) -> i32 {
+    let key1 = key + 1u;
+    var h = hash32(key) & job.table_mask;
+    for (var probe = 0u; probe <= job.table_mask; probe++) {
+        let s = job.slot_start + h;
+        let w = s * SLOT_WORDS;
+        loop {
+            let cur = atomicLoad(&table[w]);
+            if cur == key1 {
+                return i32(s);
+            }
+            if cur != 0u {
+                break;
+            }
+            let r = atomicCompareExchangeWeak(&table[w], 0u, key1);
+            if r.exchanged {
+                let idx = atomicAdd(&counters[j * COUNTER_WORDS + C_OUT], 1u);
+                if idx < job.out_cap {
+                    points[(job.out_start + idx) * 8u] = s;
+                }
+                return i32(s);
+            }
+            if r.old_value == key1 {
+                return i32(s);
+            }
+            if r.old_value != 0u {
+                break;
+            }
+        }
+        h = (h + 1u) & job.table_mask;
+    }
+    return -1;
+}
+
+// The global slot of cell `key` in the job's table, -1 when absent (lookup only).
+fn find(job: Job, key: u32) -> i32 {
+    let key1 = key + 1u;
+    var h = hash32(key) & job.table_mask;
+    for (var probe = 0u; probe <= job.table_mask; probe++) {
+        let s = job.slot_start + h;
+        let cur = atomicLoad(&table[s * SLOT_WORDS]);
+        if cur == key1 {
+            return i32(s);
+        }
+        if cur == 0u {
+            return -1;
+        }
+        h = (h + 1u) & job.table_mask;
+    }
+    return -1;
+}
+
+// Adds one contribution of view `axis` to the count word at `w`; false when the field was full.
+fn add_count(w: u32, axis: u32) -> bool {
+    let shift = axis * COUNT_BITS;
+    let old = atomicAdd(&table[w], 1u << shift);
+    return ((old >> shift) & COUNT_FIELD) != COUNT_FIELD;
+}
