@@ -96,6 +96,12 @@ fn eval_reports_coverage_and_instances_on_a_model_and_a_terrain() {
     assert_eq!(check_png(&out.join("fmeasure.png")), (640, 400));
     assert_eq!(check_png(&out.join("frametime.png")), (640, 400));
     assert_eq!(check_png(&out.join("frames/lod-d1.png")), (160, 120));
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
+    // 2 distances × 2 elevations × 2 azimuths.
+    assert_eq!(json["cameras"].as_array().unwrap().len(), 8);
+    assert_eq!(json["instances"].as_array().unwrap().len(), 2);
+    assert!((json["f_measure"].as_f64().unwrap() - f).abs() < 1e-4);
 
     // A small synthetic terrain: 129×129 samples in 64-sample tiles (5 nodes).
     let tif = tmp.path().join("synth.tif");

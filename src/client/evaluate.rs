@@ -441,8 +441,55 @@ fn instances(
     Ok(())
 }
 
-/// Writes `out/report.md`, `out/fmeasure.png`, `out/frametime.png` (when the instance
-/// experiment ran) and the sample frames under `out/frames/`; returns the report's path.
+/// The per-camera and per-grid figures as JSON (for scripts; the Markdown is for people).
+#[must_use]
+pub fn results_json(report: &Report) -> serde_json::Value {
+    let conf = |c: &Confusion| {
+        serde_json::json!({
+            "tp": c.tp, "fp": c.fp, "fn": c.fn_,
+            "recall": c.recall(), "precision": c.precision(), "f_measure": c.f_measure(),
+        })
+    };
+    let o = report.overall();
+    serde_json::json!({
+        "tileset": report.tileset,
+        "kind": report.subject.name(),
+        "adapter": report.adapter,
+        "threshold_px": report.threshold_px,
+        "viewport": [report.plan.width, report.plan.height],
+        "fov_deg": report.plan.fov_deg,
+        "f_measure": o.mean_f,
+        "recall": o.mean_recall,
+        "precision": o.mean_precision,
+        "pooled": conf(&o.lod),
+        "mean_abs_depth_diff": o.depth.mean(),
+        "per_level_f_measure": o.per_level_mean_f,
+        "cameras": report.results.iter().map(|r| serde_json::json!({
+            "distance_factor": r.distance_factor,
+            "distance": r.distance,
+            "azimuth_deg": r.azimuth_deg,
+            "elevation_deg": r.elevation_deg,
+            "lod": conf(&r.lod),
+            "mean_abs_depth_diff": r.depth.mean(),
+            "drawn_per_level": r.drawn_per_level,
+            "points_drawn": r.points_drawn,
+            "triangles_drawn": r.triangles_drawn,
+            "per_level": r.per_level.iter().map(conf).collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
+        "instances": report.instances.iter().map(|r| serde_json::json!({
+            "n": r.n, "instances": r.n * r.n,
+            "ms_without_lod": r.ms_full, "ms_with_lod": r.ms_lod, "ratio": r.ratio(),
+            "instances_per_level": r.per_level,
+            "triangles_without_lod": r.triangles_full,
+            "triangles_with_lod": r.triangles_lod, "points_with_lod": r.points_lod,
+        })).collect::<Vec<_>>(),
+        "grid_skipped": report.grid_skipped,
+    })
+}
+
+/// Writes `out/report.md`, `out/results.json`, `out/fmeasure.png`, `out/frametime.png` (when
+/// the instance experiment ran) and the sample frames under `out/frames/`; returns the report's
+/// path.
 pub fn write_report(
     report: &Report,
     samples: &[(String, image::RgbaImage)],
@@ -477,6 +524,10 @@ pub fn write_report(
             md.push_str("\n\n");
         }
     }
+    let json =
+        serde_json::to_vec_pretty(&results_json(report)).map_err(|e| err(format!("results.json: {e}")))?;
+    crate::store::write_atomic(&out.join("results.json"), &json)?;
+    md.push_str("Per-camera figures: [results.json](results.json).\n\n");
     let md = report.markdown("fmeasure.png", ft, &md);
     let path = out.join("report.md");
     crate::store::write_atomic(&path, md.as_bytes())?;
