@@ -17,6 +17,9 @@ use terrastream::client::tree::TileTree;
 use terrastream::codec;
 use terrastream::store::Store;
 
+/// A threshold coarse enough that the first pose draws point levels (splats).
+const POINTS_THRESHOLD_PX: f64 = 24.0;
+
 fn require_gpu() -> bool {
     std::env::var("TERRASTREAM_REQUIRE_GPU").is_ok_and(|v| v == "1")
 }
@@ -88,10 +91,14 @@ fn lod_frames_cover_the_full_resolution_terrain() {
     let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("client-render");
     std::fs::create_dir_all(&out).unwrap();
     let mut worst = 0.0f64;
-    for (i, t) in [0.0, 8.0, 16.0, 24.0].into_iter().enumerate() {
+    // The default threshold (meshes), then a coarse one where point levels are drawn.
+    let cases = [(0.0, 2.0), (8.0, 2.0), (16.0, 2.0), (24.0, 2.0), (0.0, POINTS_THRESHOLD_PX)];
+    let mut points_drawn = 0;
+    for (i, (t, threshold_px)) in cases.into_iter().enumerate() {
         let camera = Camera::new(&flight.pose_at(t), w, h, 60.0);
         let reference = r.render(&camera, &leaves, far).unwrap();
-        let mut sel = Selector::new(SelectParams { fade_seconds: 0.0, ..SelectParams::default() }).unwrap();
+        let params = SelectParams { fade_seconds: 0.0, threshold_px, ..SelectParams::default() };
+        let mut sel = Selector::new(params).unwrap();
         let draws: Vec<DrawItem> = sel.select(&tree, &camera, &AllResident, 0.0).unwrap().draws.clone();
         // A neighbour is one of the drawn tiles: its error is at most the largest drawn.
         let max_e = draws.iter().map(|d| d.error_world).fold(0.0, f64::max);
@@ -116,17 +123,21 @@ fn lod_frames_cover_the_full_resolution_terrain() {
         Renderer::save_png(&lod, &out.join(format!("lod-{i}.png"))).unwrap();
         let (a, b) = (covered(&reference), covered(&lod));
         let terrain = a.iter().filter(|&&c| c).count();
-        let empty = a.iter().zip(&b).filter(|&(&x, &y)| x && !y).count();
+        let empty: Vec<usize> = (0..a.len()).filter(|&k| a[k] && !b[k]).collect();
         let levels: Vec<u8> = draws.iter().map(|d| d.level).collect();
-        let share = empty as f64 / terrain.max(1) as f64;
+        points_drawn += levels.iter().filter(|&&l| l > 0).count();
+        let share = empty.len() as f64 / terrain.max(1) as f64;
         println!(
-            "t {t:>4}: {} tiles drawn (levels {levels:?}); terrain {terrain} px, empty in the LOD frame {empty} px ({:.3} %)",
+            "t {t:>4}, {threshold_px} px: {} tiles drawn (levels {levels:?}); terrain {terrain} px, empty in the LOD frame {} px ({:.3} %), first at {:?}",
             draws.len(),
-            100.0 * share
+            empty.len(),
+            100.0 * share,
+            empty.iter().take(4).map(|&k| (k % w as usize, k / w as usize)).collect::<Vec<_>>()
         );
         assert!(terrain > (w * h / 10) as usize, "reference frame {i} shows little terrain");
         worst = worst.max(share);
     }
     println!("frames written to {}", out.display());
+    assert!(points_drawn > 0, "no point level drawn at {POINTS_THRESHOLD_PX} px");
     assert!(worst <= 0.005, "up to {:.3} % of terrain pixels empty in a LOD frame", 100.0 * worst);
 }
