@@ -47,8 +47,9 @@ fn vs_mesh(@builtin(instance_index) ii: u32, @location(0) p: vec3<f32>, @locatio
     return out;
 }
 
-// Six vertices per point form a screen-aligned quad whose side is the level's point spacing
-// projected at the point's view depth (at least one pixel), as the client's point pipeline.
+// Six vertices per point form a screen-aligned quad whose half-size is the level's point
+// spacing times √2/2 projected at the point's view depth (at least half a pixel), as the
+// client's point pipeline (render_points.wgsl) sizes it.
 @vertex
 fn vs_points(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VOut {
     var corners = array<vec2<f32>, 6>(
@@ -57,7 +58,7 @@ fn vs_points(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -
     );
     let pt = points[vi / 6u];
     let c = g.view_proj * vec4<f32>(pt.p.xyz + offsets[ii].xyz, 1.0);
-    let r_px = max(0.5 * level.spacing * g.viewport.z / max(c.w, 1e-6), 0.5);
+    let r_px = max(0.70710678 * level.spacing * g.viewport.z / max(c.w, 1e-6), 0.5);
     let off = corners[vi % 6u] * r_px * 2.0 / g.viewport.xy * c.w;
     var out: VOut;
     out.pos = vec4<f32>(c.xy + off, c.z, c.w);
