@@ -725,7 +725,7 @@ impl Report {
 }
 
 /// Four significant digits whatever the tileset's units (metres of terrain, a bunny 0.15 wide).
-fn fmt_opt(v: Option<f64>) -> String {
+pub(crate) fn fmt_opt(v: Option<f64>) -> String {
     v.map_or_else(
         || "n/a".into(),
         |v| if v == 0.0 || v.abs() >= 0.1 { format!("{v:.4}") } else { format!("{v:.3e}") },

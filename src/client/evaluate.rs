@@ -124,7 +124,12 @@ impl Tileset {
                 if l.kind == "mesh" {
                     format!("{} mesh ({} vertices, {} triangles)", l.level, t.count, t.triangles)
                 } else {
-                    format!("{} points ({} points, worst error {:.3})", l.level, t.count, t.worst.geometric())
+                    format!(
+                        "{} points ({} points, worst error {})",
+                        l.level,
+                        t.count,
+                        eval::fmt_opt(Some(t.worst.geometric()))
+                    )
                 }
             })
             .collect();
