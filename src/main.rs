@@ -87,6 +87,13 @@ enum Command {
     /// tiles frame by frame and write OUT/stats.json (per-frame and total figures).
     #[cfg(feature = "client")]
     Client(Box<ClientArgs>),
+    /// Evaluate a tileset's LOD (the first paper, section 4.6): render the full-detail geometry
+    /// and the client's LOD selection from cameras spread over distances and two sphere angles,
+    /// compare coverage pixel by pixel (recall, precision, F-measure per distance and level,
+    /// depth differences), time N×N model instances with and without LOD (model tilesets), and
+    /// write REPORT_DIR/report.md with PNG charts. The last line printed is `F-measure: <value>`.
+    #[cfg(all(feature = "client", feature = "gpu"))]
+    Eval(Box<EvalArgs>),
     /// Decode one (tile, level) to PLY or OBJ in world coordinates.
     Export {
         /// Tileset directory.
@@ -100,6 +107,50 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+}
+
+#[cfg(all(feature = "client", feature = "gpu"))]
+#[derive(clap::Args)]
+struct EvalArgs {
+    /// Tileset directory (a terrain `bake` or a `bake-model` output).
+    dir: PathBuf,
+    /// Report directory (report.md, fmeasure.png, frametime.png, frames/).
+    #[arg(long, default_value = "eval-report")]
+    out: PathBuf,
+    /// Viewport width in pixels.
+    #[arg(long, default_value_t = client::eval::DEFAULT_EVAL_WIDTH)]
+    width: u32,
+    /// Viewport height in pixels.
+    #[arg(long, default_value_t = client::eval::DEFAULT_EVAL_HEIGHT)]
+    height: u32,
+    /// Horizontal field of view in degrees.
+    #[arg(long, default_value_t = client::select::DEFAULT_FOV_DEG)]
+    fov: f64,
+    /// Screen-space error threshold in pixels (the client's selection).
+    #[arg(long, default_value_t = client::select::DEFAULT_THRESHOLD_PX)]
+    threshold: f64,
+    /// Camera distances, in multiples of the distance at which the bounding sphere fills the
+    /// view [default: 0.5,1,2,4,8].
+    #[arg(long, value_delimiter = ',')]
+    distances: Vec<f64>,
+    /// Azimuths per distance and elevation, spread evenly over 360°.
+    #[arg(long, default_value_t = client::eval::DEFAULT_AZIMUTHS)]
+    azimuths: u32,
+    /// Elevations in degrees [default: terrain 20,45,70 about +Z; models -45,0,45 about +Y].
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    elevations: Vec<f64>,
+    /// Grid sides N of the instance experiment (N×N instances of the model).
+    #[arg(long, value_delimiter = ',', default_values_t = client::eval::DEFAULT_GRID_SIDES)]
+    grid: Vec<u32>,
+    /// Skip grid sides above this (for slow adapters such as lavapipe).
+    #[arg(long, default_value_t = client::evaluate::DEFAULT_MAX_GRID)]
+    max_grid: u32,
+    /// Frames timed per configuration (median reported; one warm-up frame before).
+    #[arg(long, default_value_t = client::evaluate::DEFAULT_FRAMES)]
+    frames: u32,
+    /// Print only the summary (no per-camera progress).
+    #[arg(long)]
+    quiet: bool,
 }
 
 #[cfg(feature = "client")]
@@ -455,6 +506,8 @@ fn run(cli: Cli) -> Result<()> {
         Command::Demo { bind, dir, no_serve, gpu } => run_demo(&bind, &dir, no_serve, gpu),
         #[cfg(feature = "client")]
         Command::Client(a) => run_client(&a),
+        #[cfg(all(feature = "client", feature = "gpu"))]
+        Command::Eval(a) => run_eval(&a),
         Command::Export { dir, tile, level, format, out } => {
             let format = match format {
                 ExportFormat::Ply => export::Format::Ply,
@@ -465,6 +518,33 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+#[cfg(all(feature = "client", feature = "gpu"))]
+fn run_eval(a: &EvalArgs) -> Result<()> {
+    use client::evaluate::{self, EvalOptions};
+    let opts = EvalOptions {
+        width: a.width,
+        height: a.height,
+        fov_deg: a.fov,
+        threshold_px: a.threshold,
+        distances: a.distances.clone(),
+        azimuths: a.azimuths,
+        elevations: a.elevations.clone(),
+        grid_sides: a.grid.clone(),
+        max_grid: a.max_grid,
+        frames: a.frames,
+    };
+    let quiet = a.quiet;
+    let (report, samples) = evaluate::run(&a.dir, &opts, |line| {
+        if !quiet {
+            eprintln!("{line}");
+        }
+    })?;
+    let path = evaluate::write_report(&report, &samples, &a.out)?;
+    eprintln!("report: {}", path.display());
+    println!("{}", report.text());
+    Ok(())
 }
 
 #[cfg(feature = "client")]

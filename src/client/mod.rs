@@ -7,14 +7,24 @@
 //! streaming session against `terrastream serve`, flight replay and its statistics), and with
 //! the `gpu` feature [`render`] (headless wgpu rendering of what is drawn, PNG frames).
 //!
+//! The first paper's evaluation: [`eval`] (pure: cameras, coverage metrics, report and charts)
+//! and, with the `gpu` feature, [`evaluate`] (`terrastream eval`: renders full detail against
+//! the LOD selection from the tileset directory) and [`instances`] (the N×N instance
+//! experiment).
+//!
 //! Nothing in the pure parts opens a socket, spawns a task or touches a GPU: time is passed in as seconds, the
 //! network sits behind [`fetch::Transport`] and residency behind [`select::Residency`], so every
 //! rule is unit-testable and the selection can be benchmarked alone (`examples/select_bench.rs`).
 //! Rendering, the HTTP transport and flight replay build on these types.
 
+pub mod eval;
+#[cfg(feature = "gpu")]
+pub mod evaluate;
 pub mod fetch;
 pub mod flight;
 pub mod http;
+#[cfg(feature = "gpu")]
+pub mod instances;
 pub mod live;
 #[cfg(feature = "gpu")]
 pub mod render;
@@ -34,6 +44,8 @@ pub enum ClientError {
     Tree(String),
     #[error("client: {0}")]
     Network(String),
+    #[error("eval: {0}")]
+    Eval(String),
     #[error("client: render: {0}")]
     Render(String),
     #[error("{path}: {source}")]

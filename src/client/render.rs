@@ -221,7 +221,8 @@ impl Renderer {
             })
         };
         let color = target(COLOR, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC);
-        let depth = target(DEPTH, wgpu::TextureUsages::RENDER_ATTACHMENT);
+        // COPY_SRC: `render_with_depth` reads the depth back (the evaluation's depth differences).
+        let depth = target(DEPTH, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC);
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(fail(format!("render: pipeline creation: {e}")));
         }
@@ -330,25 +331,44 @@ impl Renderer {
         draws: &[DrawItem],
         far: f64,
     ) -> Result<image::RgbaImage, GpuError> {
-        self.frame(camera, draws, far, true)?.ok_or_else(|| fail("render: no read-back"))
+        let (near, far) = clip_planes(far);
+        Ok(self.frame(camera, draws, near, far, true, false)?.ok_or_else(|| fail("render: no read-back"))?.0)
+    }
+
+    /// As [`Renderer::render`] with explicit clip planes (`0 < near < far`; a near plane close
+    /// to the geometry keeps the depth precise), plus the depth buffer: row-major, rows top to
+    /// bottom, `[0, 1]` (`depth = far·(D − near) / ((far − near)·D)` for view depth `D`), 1
+    /// where nothing was drawn.
+    pub fn render_with_depth(
+        &self,
+        camera: &Camera,
+        draws: &[DrawItem],
+        near: f64,
+        far: f64,
+    ) -> Result<(image::RgbaImage, Vec<f32>), GpuError> {
+        if !(near.is_finite() && far.is_finite() && near > 0.0 && near < far) {
+            return Err(fail(format!("render: clip planes {near}..{far} (need 0 < near < far)")));
+        }
+        self.frame(camera, draws, near, far, true, true)?.ok_or_else(|| fail("render: no read-back"))
     }
 
     /// As [`Renderer::render`] and waits for the GPU to finish, without reading the frame back
     /// (frames that are timed but not written).
     pub fn draw(&self, camera: &Camera, draws: &[DrawItem], far: f64) -> Result<(), GpuError> {
-        self.frame(camera, draws, far, false).map(|_| ())
+        let (near, far) = clip_planes(far);
+        self.frame(camera, draws, near, far, false, false).map(|_| ())
     }
 
     fn frame(
         &self,
         camera: &Camera,
         draws: &[DrawItem],
+        near: f64,
         far: f64,
         read_back: bool,
-    ) -> Result<Option<image::RgbaImage>, GpuError> {
+        with_depth: bool,
+    ) -> Result<Option<(image::RgbaImage, Vec<f32>)>, GpuError> {
         let view = camera.view().map_err(|e| fail(format!("render: {e}")))?;
-        let far = far.max(1e-3);
-        let near = (far * 1e-5).max(1e-3);
         let vp = view_proj(&view, self.origin, near, far, f64::from(self.width) / f64::from(self.height));
         let g = Globals {
             view_proj: vp,
@@ -472,17 +492,53 @@ impl Renderer {
             },
             wgpu::Extent3d { width: self.width, height: self.height, depth_or_array_layers: 1 },
         );
+        let depth_staging = with_depth.then(|| {
+            let b = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("render depth read-back"),
+                size: u64::from(row) * u64::from(self.height),
+                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+                mapped_at_creation: false,
+            });
+            enc.copy_texture_to_buffer(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &self.depth,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::DepthOnly,
+                },
+                wgpu::TexelCopyBufferInfo {
+                    buffer: &b,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(row),
+                        rows_per_image: Some(self.height),
+                    },
+                },
+                wgpu::Extent3d { width: self.width, height: self.height, depth_or_array_layers: 1 },
+            );
+            b
+        });
         self.queue.submit([enc.finish()]);
         let (tx, rx) = mpsc::channel();
+        let tx2 = tx.clone();
         staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
+        if let Some(b) = &depth_staging {
+            b.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+                let _ = tx2.send(r);
+            });
+        } else {
+            drop(tx2);
+        }
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| fail(format!("render: waiting for the device: {e}")))?;
-        rx.recv()
-            .map_err(|_| fail("render: read-back callback dropped"))?
-            .map_err(|e| fail(format!("render: read-back: {e}")))?;
+        for _ in 0..=usize::from(depth_staging.is_some()) {
+            rx.recv()
+                .map_err(|_| fail("render: read-back callback dropped"))?
+                .map_err(|e| fail(format!("render: read-back: {e}")))?;
+        }
         let data = staging.slice(..).get_mapped_range().map_err(|e| fail(format!("render: mapping: {e}")))?;
         let mut px = Vec::with_capacity((self.width * self.height * 4) as usize);
         for r in 0..self.height as usize {
@@ -490,9 +546,19 @@ impl Renderer {
             px.extend_from_slice(&data[s..s + self.width as usize * 4]);
         }
         drop(data);
-        image::RgbaImage::from_raw(self.width, self.height, px)
-            .map(Some)
-            .ok_or_else(|| fail("render: image size"))
+        let mut depth = Vec::new();
+        if let Some(b) = &depth_staging {
+            let data = b.slice(..).get_mapped_range().map_err(|e| fail(format!("render: mapping: {e}")))?;
+            depth.reserve((self.width * self.height) as usize);
+            for r in 0..self.height as usize {
+                let s = r * row as usize;
+                let bytes = &data[s..s + self.width as usize * 4];
+                depth.extend(bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])));
+            }
+        }
+        let img = image::RgbaImage::from_raw(self.width, self.height, px)
+            .ok_or_else(|| fail("render: image size"))?;
+        Ok(Some((img, depth)))
     }
 
     /// Writes a frame as PNG.
@@ -635,9 +701,22 @@ fn skirted_normals(m: &Mesh, first_skirt_vertex: usize, first_skirt_triangle: us
         .collect()
 }
 
+/// Near and far plane distances the renderers use for a far distance `far`.
+#[must_use]
+pub fn clip_planes(far: f64) -> (f64, f64) {
+    let far = far.max(1e-3);
+    ((far * 1e-5).max(1e-3).min(far * 0.5), far)
+}
+
 /// Column-major view-projection (wgpu depth 0..1, right-handed) for positions relative to
 /// `origin`.
-fn view_proj(v: &super::select::View, origin: [f64; 3], near: f64, far: f64, aspect: f64) -> [[f32; 4]; 4] {
+pub(crate) fn view_proj(
+    v: &super::select::View,
+    origin: [f64; 3],
+    near: f64,
+    far: f64,
+    aspect: f64,
+) -> [[f32; 4]; 4] {
     let eye = v3::sub(v.eye, origin);
     let (s, u, f) = (v.right, v.up, v.forward);
     // Rows of the view matrix.
