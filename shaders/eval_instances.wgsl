@@ -1,5 +1,5 @@
 // The rendering experiment of `terrastream eval` (client::instances): N×N instances of one
-// model, each drawn at a level (the mesh, or a point level as screen-space quads).
+// model, each drawn at a level (the mesh, or a point level as oriented splats).
 // Bindings:
 //   group 0, binding 0: Globals (uniform) — view-projection (world relative to the origin),
 //                       light direction, viewport (width px, height px, k = pixels per world
@@ -37,6 +37,8 @@ struct Level {
 struct VOut {
     @builtin(position) pos: vec4<f32>,
     @location(0) normal: vec3<f32>,
+    // Position in a point's splat disc (splat.wgsl); zero for meshes.
+    @location(1) uv: vec2<f32>,
 };
 
 @vertex
@@ -44,12 +46,12 @@ fn vs_mesh(@builtin(instance_index) ii: u32, @location(0) p: vec3<f32>, @locatio
     var out: VOut;
     out.pos = g.view_proj * vec4<f32>(p + offsets[ii].xyz, 1.0);
     out.normal = n;
+    out.uv = vec2<f32>(0.0);
     return out;
 }
 
-// Six vertices per point form a screen-aligned quad whose half-size is the level's point
-// spacing times √2/2 projected at the point's view depth (at least half a pixel), as the
-// client's point pipeline (render_points.wgsl) sizes it.
+// Six vertices per point form its oriented splat (`splat_corner` in splat.wgsl), as the
+// client's point pipeline (render_points.wgsl) draws it.
 @vertex
 fn vs_points(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VOut {
     var corners = array<vec2<f32>, 6>(
@@ -57,17 +59,20 @@ fn vs_points(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -
         vec2<f32>(-1.0, -1.0), vec2<f32>(1.0, 1.0), vec2<f32>(-1.0, 1.0),
     );
     let pt = points[vi / 6u];
-    let c = g.view_proj * vec4<f32>(pt.p.xyz + offsets[ii].xyz, 1.0);
-    let r_px = max(0.70710678 * level.spacing * g.viewport.z / max(c.w, 1e-6), 0.5);
-    let off = corners[vi % 6u] * r_px * 2.0 / g.viewport.xy * c.w;
     var out: VOut;
-    out.pos = vec4<f32>(c.xy + off, c.z, c.w);
+    let unbounded = vec4<f32>(-3.0e38, -3.0e38, 3.0e38, 3.0e38);
+    let s = splat_corner(g.view_proj, g.viewport, pt.p.xyz + offsets[ii].xyz, pt.n.xyz, level.spacing, unbounded, corners[vi % 6u]);
+    out.pos = s.pos;
+    out.uv = s.uv;
     out.normal = pt.n.xyz;
     return out;
 }
 
 @fragment
 fn fs_main(v: VOut) -> @location(0) vec4<f32> {
+    if (dot(v.uv, v.uv) > 1.0) {
+        discard;
+    }
     let n = normalize(v.normal);
     let shade = 0.25 + 0.75 * abs(dot(n, normalize(g.light.xyz)));
     return vec4<f32>(shade * vec3<f32>(0.85, 0.80, 0.70), 1.0);

@@ -19,7 +19,8 @@ use crate::codec::{Blob, Geometry};
 use crate::lod::gpu::GpuError;
 
 /// The pipeline's WGSL, for validation without an adapter.
-pub const SHADER: &str = include_str!("../../shaders/eval_instances.wgsl");
+pub const SHADER: &str =
+    concat!(include_str!("../../shaders/splat.wgsl"), include_str!("../../shaders/eval_instances.wgsl"));
 
 const COLOR: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 const DEPTH: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;

@@ -1,5 +1,5 @@
 //! The client's headless wgpu renderer: tile meshes (with crack-hiding skirts) shaded by their
-//! normals, point levels as instanced screen-space quads sized by the level's point spacing,
+//! normals, point levels as instanced oriented splats sized by the level's point spacing,
 //! into an offscreen colour + depth target read back as an RGBA image (PNG with
 //! [`Renderer::save_png`]). Each (tile, level) is uploaded once into its own GPU buffers (the
 //! third paper) and drawn from there every frame until [`Renderer::evict`].
@@ -36,6 +36,7 @@ pub const SHADERS: [(&str, &str); 2] = [
         "render_points",
         concat!(
             include_str!("../../shaders/render_common.wgsl"),
+            include_str!("../../shaders/splat.wgsl"),
             include_str!("../../shaders/render_points.wgsl")
         ),
     ),
@@ -59,6 +60,9 @@ struct Globals {
 struct TileUniform {
     spacing: f32,
     pad: [f32; 3],
+    /// The dataset's horizontal extent relative to the origin (min x, min y, max x, max y):
+    /// splats are clipped to it (terrain does not go on past its raster).
+    extent: [f32; 4],
 }
 
 /// Per-draw fade state (group 2, one slot per draw at a dynamic offset).
@@ -258,7 +262,8 @@ impl Renderer {
     }
 
     /// Uploads a decoded blob once: a mesh with skirts `skirt_depth` deep (none on the dataset's
-    /// `outer` border), or points drawn as quads `point_spacing` wide (world units).
+    /// `outer` border), or points drawn as oriented splats for a `point_spacing` (world units)
+    /// apart, clipped horizontally to `outer`.
     pub fn upload(&mut self, blob: &Blob, skirt_depth: f64, outer: Option<&Bounds>, point_spacing: f64) {
         let key = (blob.header.key, blob.header.level);
         if self.tiles.contains_key(&key) {
@@ -304,7 +309,11 @@ impl Renderer {
         let vb = buf("tile vertices", bytemuck::cast_slice(&vertices), wgpu::BufferUsages::VERTEX);
         let ib =
             indices.as_ref().map(|i| buf("tile indices", bytemuck::cast_slice(i), wgpu::BufferUsages::INDEX));
-        let u = TileUniform { spacing: point_spacing as f32, pad: [0.0; 3] };
+        let extent = outer.map_or([f32::MIN, f32::MIN, f32::MAX, f32::MAX], |b| {
+            let (lo, hi) = (rel(b.min), rel(b.max));
+            [lo[0], lo[1], hi[0], hi[1]]
+        });
+        let u = TileUniform { spacing: point_spacing as f32, pad: [0.0; 3], extent };
         let ub = buf("tile uniform", bytemuck::bytes_of(&u), wgpu::BufferUsages::UNIFORM);
         let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("render tile"),
