@@ -97,7 +97,7 @@ fn main() -> anyhow::Result<()> {
         nodes / cpu_s
     );
     println!(
-        "lod::gpu ({}): {gpu_points} points in {gpu_s:.2} s (+{open_s:.2} s adapter and pipelines): {:.2} M points/s, {:.1} tiles/s; {} batches, peak {:.1} MiB per batch (budget {} MiB), {} jobs retried, {} left to the cpu",
+        "lod::gpu ({}): {gpu_points} points in {gpu_s:.2} s (+{open_s:.2} s adapter and pipelines): {:.2} M points/s, {:.1} tiles/s; {} batches, peak {:.1} MiB per batch (budget {} MiB), {} jobs retried, {} left to the cpu, {} buffers reused",
         gpu.adapter(),
         gpu_points as f64 / gpu_s / 1e6,
         nodes / gpu_s,
@@ -105,16 +105,18 @@ fn main() -> anyhow::Result<()> {
         report.peak_batch_bytes as f64 / f64::from(1 << 20),
         budget_mib,
         report.retried_jobs,
-        report.cpu_jobs
+        report.cpu_jobs,
+        report.reused_buffers
     );
     println!(
-        "{{\"nodes\":{},\"level_jobs\":{},\"cpu_threads\":{threads},\"cpu_points\":{cpu_points},\"cpu_s\":{cpu_s:.4},\"cpu_cpu_s\":{cpu_cpu_s:.2},\"gpu_adapter\":{:?},\"gpu_points\":{gpu_points},\"gpu_s\":{gpu_s:.4},\"gpu_cpu_s\":{gpu_cpu_s:.2},\"gpu_batches\":{},\"gpu_peak_batch_bytes\":{},\"gpu_budget_bytes\":{}}}",
+        "{{\"nodes\":{},\"level_jobs\":{},\"cpu_threads\":{threads},\"cpu_points\":{cpu_points},\"cpu_s\":{cpu_s:.4},\"cpu_cpu_s\":{cpu_cpu_s:.2},\"gpu_adapter\":{:?},\"gpu_points\":{gpu_points},\"gpu_s\":{gpu_s:.4},\"gpu_cpu_s\":{gpu_cpu_s:.2},\"gpu_batches\":{},\"gpu_peak_batch_bytes\":{},\"gpu_budget_bytes\":{},\"gpu_reused_buffers\":{}}}",
         meshes.len(),
         jobs.len(),
         gpu.adapter(),
         report.batches,
         report.peak_batch_bytes,
-        report.budget_bytes
+        report.budget_bytes,
+        report.reused_buffers
     );
     Ok(())
 }
