@@ -57,7 +57,9 @@
 //! counted in [`BatchReport::cpu_jobs`].
 //! While the GPU runs one batch the host prepares and submits the next and decodes the
 //! previous, so at most two batches are in flight: the device memory peak is at most twice the
-//! batch budget.
+//! batch budget. The buffers of a read batch are kept (two sets at most, between calls too) and
+//! reused by later batches when large enough and at most twice what they need, within the
+//! budget; only the accumulating ranges are cleared ([`BatchReport::reused_buffers`]).
 
 use std::sync::mpsc;
 
@@ -369,9 +371,10 @@ pub struct GpuBaker {
     pipelines: [wgpu::ComputePipeline; 4],
     budget: u64,
     max_binding: u64,
-    /// Buffer sets of finished batches, reused by the next ones: a fresh buffer costs a page
-    /// fault and a zero fill per page on every batch (on lavapipe, a sixth of the bake's CPU
-    /// time), a reused one only the clear of the range the batch uses.
+    /// Buffer sets of finished batches (at most `POOL_SETS`, kept between calls), reused by
+    /// the next ones: a fresh buffer costs a page fault and a zero fill per page on every
+    /// batch (on lavapipe about a tenth of the point stage's time), a reused one only the
+    /// clear of the range the batch uses.
     pool: std::sync::Mutex<Vec<[wgpu::Buffer; 7]>>,
 }
 
