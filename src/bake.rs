@@ -189,6 +189,9 @@ pub enum BakeError {
     Codec { key: TileKey, level: u8, source: codec::CodecError },
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),
+    /// [`Progress::cancelled`] said stop; the reason (cancelled, deadline passed) is its text.
+    #[error("bake stopped: {0}")]
+    Cancelled(String),
     #[cfg(feature = "gpu")]
     #[error("bake: {0}")]
     Gpu(#[from] lod::gpu::GpuError),
@@ -198,6 +201,12 @@ pub enum BakeError {
 pub trait Progress: Sync {
     fn start(&self, total_nodes: u64, resumed_nodes: u64);
     fn node_done(&self);
+    /// Whether the bake should stop: checked before every node, so a cancelled or timed-out
+    /// bake ends with [`BakeError::Cancelled`] after the nodes in flight (each bounded by the
+    /// input limits), leaving only whole blobs behind (a later bake resumes them).
+    fn cancelled(&self) -> Option<String> {
+        None
+    }
 }
 
 /// A `Progress` that reports nothing.
@@ -428,6 +437,10 @@ fn bake_nodes_cpu(
             if failures.load(Ordering::Relaxed) > 0 {
                 return Err(None);
             }
+            if let Some(why) = progress.cancelled() {
+                failures.fetch_add(1, Ordering::Relaxed);
+                return Err(Some(BakeError::Cancelled(why)));
+            }
             let r = bake_node(pyramid, hf, &raster.georef, key, opts, store);
             progress.node_done();
             r.map_err(|e| {
@@ -520,6 +533,9 @@ fn bake_nodes_gpu(
         let mut sent = 0usize;
         let mut received = 0usize;
         for round in pending.chunks(GPU_ROUND_NODES) {
+            if let Some(why) = progress.cancelled() {
+                return Err(BakeError::Cancelled(why));
+            }
             let meshes: Vec<NodeMesh> = round
                 .par_iter()
                 .map(|&i| bake_node_mesh(pyramid, hf, &raster.georef, nodes[i], opts))
