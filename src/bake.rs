@@ -584,14 +584,22 @@ fn heights_crc(data: &[f32]) -> String {
     format!("{:08x}", h.finalize())
 }
 
-/// A node whose every level blob is present and decodes as that node and level is complete:
-/// its index entry is rebuilt from the blob headers.
+/// A node whose every level blob is present, whole (exact length, payload checksum: see
+/// [`codec::verify`]) and names that node and level is complete: its index entry is rebuilt
+/// from the blob headers. Anything else — missing, truncated, extended or flipped — is baked
+/// again (and its blobs replaced).
 fn existing_node(store: &Store, key: TileKey, levels: u8) -> Option<NodeEntry> {
     let mut out = Vec::new();
     let mut bounds = None;
     for level in 0..=levels {
         let bytes = store.read_blob(key, level).ok()??;
-        let h = codec::decode_header(&bytes).ok()?;
+        let h = match codec::verify(&bytes) {
+            Ok(h) => h,
+            Err(e) => {
+                tracing::warn!(tile = %key, level, "re-baking a damaged blob: {e}");
+                return None;
+            }
+        };
         if h.key != key || h.level != level {
             return None;
         }
@@ -650,7 +658,11 @@ impl NodeMesh {
             xy_step: cell / f64::from(POINT_STEPS_PER_CELL),
             z_step: cell / f64::from(POINT_STEPS_PER_CELL),
         };
-        pc.positions = codec::quantize_positions(&pc.positions, &self.bounds, q);
+        // Into the node's box as well as onto the grid: a slice's centre can lie above the
+        // surface's top, and the blob header promises its bounds hold every point. If the
+        // bounds are unusable the encoder reports it.
+        pc.positions = codec::snap_positions(&pc.positions, &self.bounds, q)
+            .unwrap_or_else(|_| codec::quantize_positions(&pc.positions, &self.bounds, q));
         let errors = lod::cpu::measure_points(&self.mesh, &pc, cell);
         (pc, errors, q)
     }
@@ -782,6 +794,9 @@ pub fn bake_node_mesh(
     };
     let mesh_q = Quantization { xy_step, z_step };
     mesh.positions = codec::quantize_positions(&mesh.positions, &bounds, mesh_q);
+    // A vertex rounded up past the box (the top height rarely lies on the grid) stays where it
+    // is — its neighbour stores the same border vertex — and the box grows to hold it.
+    let bounds = codec::quantized_bounds(&bounds, &mesh.positions);
 
     // Measured against every full-resolution sample the node covers, in sample coordinates.
     let cols: Vec<u32> = (span.col0..=span.col1).collect();
@@ -934,5 +949,76 @@ mod one_node_tests {
         }
         assert_eq!(node_from_blobs(&one_store, key, opts.levels), Some(entry));
         assert!(bake_one_node(&raster, TileKey::new(1, 2, 0), &opts, &PointBaker::Cpu, &one_store).is_err());
+    }
+}
+
+/// D1: every blob's positions lie inside the bounds its header states, for random tiles, flat
+/// tiles at random heights, plateaus with lakes, every level ladder and several cell sizes
+/// (the GPU baker is held to the same in tests/gpu.rs).
+#[cfg(test)]
+mod bounds_tests {
+    use proptest::prelude::*;
+
+    use super::*;
+
+    fn check_inside(store: &Store) -> Result<usize, TestCaseError> {
+        let mut n = 0;
+        let m = store.manifest().map_err(|e| TestCaseError::fail(e.to_string()))?;
+        let pyramid = Pyramid::new(m.source.width, m.source.height, m.tile_size).unwrap();
+        for key in pyramid.nodes() {
+            for level in 0..m.levels.len() as u8 {
+                let bytes = store.read_blob(key, level).unwrap().unwrap();
+                let blob = codec::decode(&bytes).map_err(|e| TestCaseError::fail(format!("{key}/{level}: {e}")))?;
+                let b = blob.header.bounds();
+                let ps = match &blob.geometry {
+                    codec::Geometry::Mesh(m) => &m.positions,
+                    codec::Geometry::Points(p) => &p.positions,
+                };
+                for p in ps {
+                    for a in 0..3 {
+                        prop_assert!(b.min[a] <= p[a] && p[a] <= b.max[a], "{key}/{level}: {p:?} outside {b:?}");
+                    }
+                }
+                n += 1;
+            }
+        }
+        Ok(n)
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+        #[test]
+        fn quantized_positions_lie_inside_the_header_bounds(
+            kind in 0u8..3,
+            w in 9u32..48,
+            h in 9u32..48,
+            tile_size in prop::sample::select(vec![8u32, 16, 32]),
+            cell in prop::sample::select(vec![0.25f64, 1.0, 30.0, 0.1]),
+            base in -2000.0f32..9000.0,
+            levels in 1u8..=4,
+            max_error in prop::sample::select(vec![0.0f64, 0.5, 2.0]),
+            seed in 0u64..1000,
+        ) {
+            let n = (w * h) as usize;
+            let data: Vec<f32> = match kind {
+                0 => vec![base; n],
+                1 => (0..n).map(|i| {
+                    let (c, r) = (i as u32 % w, i as u32 / w);
+                    if (2..7).contains(&c) && (2..7).contains(&r) { base - 2.5 } else if c > w / 2 { base + 40.125 } else { base }
+                }).collect(),
+                _ => crate::synth::terrain(w, h, seed).into_iter().map(|z| base + z * 0.1).collect(),
+            };
+            let raster = LoadedRaster {
+                heights: crate::raster::Heightfield { width: w, height: h, data },
+                georef: Georef { dx: cell, dy: -cell, ..Georef::default() },
+                nodata_filled: 0,
+                format: "test".into(),
+            };
+            let dir = tempfile::tempdir().unwrap();
+            let store = Store::new(dir.path());
+            let opts = BakeOptions { tile_size, max_error, levels };
+            bake(&raster, "t.tif", &opts, &store, &NoProgress).map_err(|e| TestCaseError::fail(e.to_string()))?;
+            prop_assert!(check_inside(&store)? > 0);
+        }
     }
 }

@@ -289,6 +289,9 @@ pub struct SourceFile {
     pub crc32: String,
 }
 
+/// Largest |coordinate| of a model accepted by [`bake_model`] (model units).
+pub const MAX_MODEL_COORDINATE: f64 = 1e12;
+
 /// Bakes a decoded model into `store`: every level in memory first, then blobs, index and
 /// manifest (last). An earlier bake of the same file with the same options is overwritten with
 /// identical bytes; one with other options, or a foreign directory, is refused.
@@ -306,9 +309,25 @@ pub fn bake_model(
     if !raw.is_valid() {
         return Err(ModelBakeError::Options(format!("{}: the model has no valid bounds", source.name)));
     }
+    let reach = raw.min.iter().chain(&raw.max).fold(0.0f64, |m, v| m.max(v.abs()));
+    if !(reach <= MAX_MODEL_COORDINATE) {
+        return Err(ModelBakeError::Options(format!(
+            "{}: coordinates reach {reach:e} (box {:?}..{:?}), beyond the supported ±{MAX_MODEL_COORDINATE:e}",
+            source.name, raw.min, raw.max
+        )));
+    }
     let longest = raw.size().into_iter().fold(0.0f64, f64::max);
     if !(longest > 0.0 && longest.is_finite()) {
         return Err(ModelBakeError::Options(format!("{}: the model has zero extent", source.name)));
+    }
+    // Relative to its own size a model may sit far from the origin, but not so far that the
+    // quantization grid (2^-MESH_QUANT_BITS of the extent) loses its steps in f64.
+    if reach / longest > 1e9 {
+        return Err(ModelBakeError::Options(format!(
+            "{}: the model is {longest:e} wide but lies {reach:e} from the origin (more than 1e9 times its \
+             size); move it nearer the origin",
+            source.name
+        )));
     }
     let codec_err = |level: u8| {
         let file = source.name.clone();
@@ -326,6 +345,7 @@ pub fn bake_model(
         positions: codec::quantize_positions(&mesh.positions, &bounds, q0),
         triangles: mesh.triangles.clone(),
     };
+    let bounds = codec::quantized_bounds(&bounds, &quantized.positions);
     let mesh_errors = displacement(&mesh.positions, &quantized.positions);
     let blob0 =
         codec::encode_mesh(MODEL_TILE, 0, &bounds, q0, &quantized, mesh_errors).map_err(codec_err(0))?;
@@ -366,13 +386,8 @@ pub fn bake_model(
             let (occupied, filled) = (stats.occupied as u64, stats.filled as u64);
             let step = cell / f64::from(POINT_STEPS_PER_CELL);
             let q = Quantization { xy_step: step, z_step: step };
-            // The points lie in the surface's box; the clamp only guards float rounding.
-            for p in &mut pc.positions {
-                for (a, v) in p.iter_mut().enumerate() {
-                    *v = v.clamp(raw.min[a], raw.max[a]);
-                }
-            }
-            pc.positions = codec::quantize_positions(&pc.positions, &bounds, q);
+            // Onto the grid and into the box the header states (see `codec::snap_positions`).
+            pc.positions = codec::snap_positions(&pc.positions, &bounds, q).map_err(codec_err(level))?;
             let errors = lod::cpu::measure_points(mesh, &pc, cell);
             let blob =
                 codec::encode_points(MODEL_TILE, level, &bounds, q, &pc, errors).map_err(codec_err(level))?;

@@ -212,11 +212,17 @@ impl Store {
             None
         };
         match earlier {
-            Some(prev) if &prev == options => Ok(true),
+            Some(prev) if &prev == options => {
+                // A bake killed mid-write leaves its temporary files; a resumed bake's tree
+                // must be the same as an uninterrupted one's.
+                self.remove_stale_temps()?;
+                Ok(true)
+            }
             Some(prev) => {
                 Err(StoreError::OptionsChanged { path: self.dir.clone(), what: diff_keys(&prev, options) })
             }
             None => {
+                check_out_dir(&self.dir)?;
                 if self.dir.exists() {
                     let mut entries = fs::read_dir(&self.dir).map_err(io(&self.dir))?;
                     if entries.next().is_some() {
@@ -228,6 +234,45 @@ impl Store {
                 Ok(false)
             }
         }
+    }
+
+    /// Removes the temporary files of [`write_atomic`] (`.NAME.PID.N.tmp`) that a process which
+    /// no longer runs left in the tileset (killed mid-write). Files of a live process other than
+    /// this one are kept (where `/proc` tells; elsewhere all are removed). Walks only the
+    /// tileset's own layout (root, `tiles/` and `index/` down to their blob depth). Returns how
+    /// many were removed.
+    pub fn remove_stale_temps(&self) -> Result<u64, StoreError> {
+        let proc_fs = Path::new("/proc/self").exists();
+        let me = std::process::id();
+        let mut removed = 0u64;
+        let mut stack = vec![(self.dir.clone(), 0u32)];
+        while let Some((dir, depth)) = stack.pop() {
+            let entries = match fs::read_dir(&dir) {
+                Ok(e) => e,
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+                Err(e) => return Err(io(&dir)(e)),
+            };
+            for entry in entries {
+                let entry = entry.map_err(io(&dir))?;
+                let path = entry.path();
+                let ty = entry.file_type().map_err(io(&path))?;
+                let name = entry.file_name();
+                let name = name.to_string_lossy();
+                if ty.is_dir() {
+                    let ours = depth > 0 || name == "tiles" || name == "index";
+                    if ours && depth < 5 {
+                        stack.push((path, depth + 1));
+                    }
+                } else if ty.is_file()
+                    && let Some(pid) = temp_owner(&name)
+                    && (pid == me || !proc_fs || !Path::new(&format!("/proc/{pid}")).exists())
+                {
+                    fs::remove_file(&path).map_err(io(&path))?;
+                    removed += 1;
+                }
+            }
+        }
+        Ok(removed)
     }
 
     /// Marks the bake complete by writing the manifest, last.
@@ -361,6 +406,50 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), StoreError> {
     })
 }
 
+/// A clear error for an output path that cannot become a directory: a dangling symbolic link
+/// (which `create_dir_all` reports as "File exists"), a file, or a path under a file.
+fn check_out_dir(dir: &Path) -> Result<(), StoreError> {
+    let invalid = |message: String| StoreError::Invalid { path: dir.to_owned(), message };
+    if let Ok(meta) = fs::symlink_metadata(dir)
+        && meta.file_type().is_symlink()
+        && !dir.exists()
+    {
+        let target = fs::read_link(dir).map(|t| t.display().to_string()).unwrap_or_else(|_| "?".into());
+        return Err(invalid(format!(
+            "is a symbolic link to {target}, which does not exist; create the target directory or remove the link"
+        )));
+    }
+    if dir.exists() && !dir.is_dir() {
+        return Err(invalid("exists and is not a directory".into()));
+    }
+    let mut up = dir.parent();
+    while let Some(p) = up {
+        if p.as_os_str().is_empty() {
+            break;
+        }
+        if p.exists() {
+            if !p.is_dir() {
+                return Err(invalid(format!("{} is not a directory", p.display())));
+            }
+            break;
+        }
+        up = p.parent();
+    }
+    Ok(())
+}
+
+/// The process id in a [`write_atomic`] temporary file name `.NAME.PID.N.tmp`.
+fn temp_owner(name: &str) -> Option<u32> {
+    let rest = name.strip_prefix('.')?.strip_suffix(".tmp")?;
+    let mut parts = rest.rsplitn(3, '.');
+    let attempt = parts.next()?;
+    let pid = parts.next()?;
+    let target = parts.next()?;
+    let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+    (digits(attempt) && !target.is_empty()).then_some(())?;
+    digits(pid).then(|| pid.parse().ok())?
+}
+
 fn tempfile_in(dir: &Path, path: &Path) -> Result<(PathBuf, fs::File), StoreError> {
     let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("file");
     for attempt in 0..100u32 {
@@ -384,6 +473,54 @@ mod tests {
         assert_eq!(chunk_root(TileKey::new(3, 7, 5)), TileKey::new(0, 0, 0));
         assert_eq!(chunk_root(TileKey::new(4, 9, 3)), TileKey::new(4, 9, 3));
         assert_eq!(chunk_root(TileKey::new(6, 9, 3)), TileKey::new(4, 2, 0));
+    }
+
+    #[test]
+    fn out_dirs_that_cannot_be_made_say_why() {
+        let dir = tempfile::tempdir().unwrap();
+        let opts = serde_json::json!({"a": 1});
+        let link = dir.path().join("link");
+        std::os::unix::fs::symlink(dir.path().join("missing"), &link).unwrap();
+        let e = Store::new(&link).begin_bake(&opts).unwrap_err().to_string();
+        assert!(e.contains("symbolic link") && e.contains("does not exist") && !e.contains("File exists"), "{e}");
+        let file = dir.path().join("file");
+        fs::write(&file, b"x").unwrap();
+        let e = Store::new(&file).begin_bake(&opts).unwrap_err().to_string();
+        assert!(e.contains("not a directory"), "{e}");
+        let e = Store::new(&file.join("sub")).begin_bake(&opts).unwrap_err().to_string();
+        assert!(e.contains("file: ") || e.contains("is not a directory"), "{e}");
+        assert!(!e.contains("os error"), "{e}");
+    }
+
+    #[test]
+    fn temp_names_are_recognised() {
+        assert_eq!(temp_owner(".1.tsb.4242.0.tmp"), Some(4242));
+        assert_eq!(temp_owner(".tileset.json.7.12.tmp"), Some(7));
+        for name in ["1.tsb", ".1.tsb.tmp", ".x.4242.tmp", ".x.a.0.tmp", "..1.0.tmp", ".1.tsb.42.0.tmpx"] {
+            assert_eq!(temp_owner(name), None, "{name}");
+        }
+    }
+
+    #[test]
+    fn resume_removes_temps_of_dead_writers_only() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::new(dir.path());
+        let opts = serde_json::json!({"a": 1});
+        assert!(!store.begin_bake(&opts).unwrap());
+        let blob_dir = dir.path().join("tiles/0/0/0");
+        fs::create_dir_all(&blob_dir).unwrap();
+        // pid 0 is never a user process; u32::MAX - 1 is above any pid_max.
+        let dead = blob_dir.join(format!(".1.tsb.{}.0.tmp", u32::MAX - 1));
+        let mine = dir.path().join(format!(".tileset.json.{}.0.tmp", std::process::id()));
+        let live = blob_dir.join(".0.tsb.1.0.tmp"); // pid 1 (init) is alive wherever /proc exists
+        let other = blob_dir.join("notes.tmp");
+        for p in [&dead, &mine, &live, &other] {
+            fs::write(p, b"x").unwrap();
+        }
+        assert!(store.begin_bake(&opts).unwrap());
+        assert!(!dead.exists() && !mine.exists());
+        assert!(other.exists());
+        assert_eq!(live.exists(), Path::new("/proc/1").exists());
     }
 
     #[test]

@@ -411,3 +411,61 @@ fn bake_model_on_the_gpu_matches_the_cpu() {
         );
     }
 }
+
+/// D1 on the GPU baker: the reported fuji bake (64-cell tiles), a flat raster and a plateau
+/// with a lake bake with every position inside the bounds its blob header states.
+#[test]
+fn gpu_bakes_keep_positions_inside_the_bounds() {
+    if baker().is_none() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let check = |dir: &Path| {
+        let mut n = 0;
+        for (name, bytes) in tree(dir) {
+            if name.extension().is_none_or(|e| e != "tsb") {
+                continue;
+            }
+            let blob = terrastream::codec::decode(&bytes).unwrap();
+            let b = blob.header.bounds();
+            let ps = match &blob.geometry {
+                terrastream::codec::Geometry::Mesh(m) => m.positions.clone(),
+                terrastream::codec::Geometry::Points(p) => p.positions.clone(),
+            };
+            for p in ps {
+                assert!((0..3).all(|a| b.min[a] <= p[a] && p[a] <= b.max[a]), "{name:?}: {p:?} outside {b:?}");
+            }
+            n += 1;
+        }
+        assert!(n > 0);
+    };
+    let run = |args: &[&str], out: &Path, input: &Path| {
+        let o = bin().args(["bake", "--quiet", "--gpu", "on"]).args(args).arg("--out").arg(out).arg(input).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    let out = tmp.path().join("fuji64");
+    run(&["--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "64", "--max-error", "2"], &out, &fuji());
+    check(&out);
+    for (i, plateau) in [false, true].into_iter().enumerate() {
+        let (w, h) = (33u32, 33u32);
+        let data: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (c, r) = (i % w, i / w);
+                if !plateau {
+                    175.187_38
+                } else if (2..8).contains(&c) && (2..8).contains(&r) {
+                    171.5
+                } else if c > 16 {
+                    212.3
+                } else {
+                    175.187_38
+                }
+            })
+            .collect();
+        let tif = tmp.path().join(format!("f{i}.tif"));
+        std::fs::write(&tif, raster::geotiff::encode_f32(w, h, &data, (0.0, 0.0), (1.0, -1.0)).unwrap()).unwrap();
+        let out = tmp.path().join(format!("flat{i}"));
+        run(&["--tile-size", "32", "--levels", "4"], &out, &tif);
+        check(&out);
+    }
+}

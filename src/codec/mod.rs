@@ -37,10 +37,15 @@
 //!
 //! Every position is stored as integers `q = round((p − bounds.min) / step)` per axis (`xy_step`
 //! for x and y, `z_step` for z) and decoded as exactly `bounds.min + q · step` — the value
-//! [`quantize_positions`] returns. `q` must lie in `0..=round((max − min) / step)`, at most
-//! [`MAX_QUANT`] per axis: positions outside the bounds (beyond half a step) are rejected, so a
-//! client may trust the header bounds for culling. A TIN's vertices lie on the raster grid, so
-//! with `xy_step` equal to the cell size their x and y are exact.
+//! [`quantize_positions`] returns. The encoder accepts a position only when its decoded value
+//! `min + q · step` lies inside the bounds (`0 ≤ q ≤ qtop`, `qtop` the largest `q` with
+//! `min + q · step ≤ max`, at most [`MAX_QUANT`] per axis), so a client may trust the header
+//! bounds for culling: writers either state bounds that contain their quantized positions
+//! ([`quantized_bounds`]) or snap positions into the bounds ([`snap_positions`]). Decoders
+//! accept `q` up to `round((max − min) / step)` (`qmax`, which also sizes the sweep code's
+//! rows): blobs written before the encoder was strict can hold positions up to half a step
+//! beyond `max`, and they still decode. A TIN's vertices lie on the raster grid, so with
+//! `xy_step` equal to the cell size their x and y are exact.
 //!
 //! # Payload
 //!
@@ -273,12 +278,53 @@ pub fn quantize_positions(positions: &[[f64; 3]], bounds: &Bounds, q: Quantizati
         .collect()
 }
 
+/// Snaps positions to the quantization grid like [`quantize_positions`], then into the bounds:
+/// each coordinate becomes the nearest grid value `min + q · step` with `min ≤ value ≤ max`, so
+/// [`encode_points`] accepts every one. For point clouds, whose points may sit up to a cell
+/// outside the surface's box (a slice's centre above the top); moving a point into a box that
+/// contains the surface never takes it farther from the surface, except by the last step when
+/// `max` is not on the grid. Positions that are not finite are left as they are (the encoder
+/// rejects them). Errors: bounds or steps the encoder would reject.
+pub fn snap_positions(positions: &[[f64; 3]], bounds: &Bounds, q: Quantization) -> Result<Vec<[f64; 3]>, CodecError> {
+    let frame = Frame::new(bounds, q)?;
+    Ok(positions
+        .iter()
+        .map(|p| {
+            if !p.iter().all(|v| v.is_finite()) {
+                return *p;
+            }
+            let q: [i64; 3] = std::array::from_fn(|a| {
+                let v = ((p[a] - frame.min[a]) / frame.step[a]).round();
+                v.clamp(0.0, frame.qtop[a] as f64) as i64
+            });
+            frame.position(q)
+        })
+        .collect())
+}
+
+/// `bounds` grown to hold `positions` as decoded (each already on the grid of `q` relative to
+/// `bounds.min`, as [`quantize_positions`] returns them), so [`encode_mesh`] accepts every one.
+/// A mesh's vertices cannot be moved into the bounds without opening cracks against the
+/// neighbour that stores the same border vertex, so its bounds grow instead (by less than a
+/// step). Positions that are not finite are skipped (the encoder rejects them).
+#[must_use]
+pub fn quantized_bounds(bounds: &Bounds, positions: &[[f64; 3]]) -> Bounds {
+    let mut out = *bounds;
+    for p in positions.iter().filter(|p| p.iter().all(|v| v.is_finite())) {
+        out.extend(*p);
+    }
+    out
+}
+
 /// The integer grid positions live on: origin, steps and the largest index per axis.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Frame {
     min: [f64; 3],
     step: [f64; 3],
+    /// `round((max − min) / step)`: what decoders accept, and part of the sweep code.
     pub(crate) qmax: [i64; 3],
+    /// The largest `q` whose position `min + q · step` is ≤ `max`: what encoders accept.
+    qtop: [i64; 3],
 }
 
 impl Frame {
@@ -299,7 +345,23 @@ impl Frame {
             }
             qmax[a] = steps as i64;
         }
-        Ok(Self { min: bounds.min, step, qmax })
+        // The float expression `position` uses decides, so the limit is exact whatever the
+        // rounding of the division; two corrections at most either way.
+        let qtop = std::array::from_fn(|a| {
+            let at = |q: i64| bounds.min[a] + (q as f64) * step[a];
+            let mut q = qmax[a];
+            for _ in 0..4 {
+                if q > 0 && at(q) > bounds.max[a] {
+                    q -= 1;
+                } else if q < MAX_QUANT && at(q + 1) <= bounds.max[a] {
+                    q += 1;
+                } else {
+                    break;
+                }
+            }
+            q
+        });
+        Ok(Self { min: bounds.min, step, qmax, qtop })
     }
 
     /// The integer coordinates of `p`; `index` names the position in errors.
@@ -311,7 +373,7 @@ impl Frame {
         for a in 0..3 {
             let v = ((p[a] - self.min[a]) / self.step[a]).round();
             // Compared as floats first so a huge value cannot saturate into range.
-            if v.is_nan() || v < 0.0 || v > self.qmax[a] as f64 {
+            if v.is_nan() || v < 0.0 || v > self.qtop[a] as f64 {
                 return Err(CodecError::OutOfBounds { index, position: p });
             }
             q[a] = v as i64;
@@ -483,9 +545,10 @@ pub fn decode_header(bytes: &[u8]) -> Result<BlobHeader, CodecError> {
     Ok(header)
 }
 
-/// Decodes a whole blob. Errors: everything [`decode_header`] reports, a length other than the
-/// header announces, a payload checksum mismatch, and corrupt payloads.
-pub fn decode(bytes: &[u8]) -> Result<Blob, CodecError> {
+/// Checks a whole blob without decoding its geometry: everything [`decode_header`] checks, the
+/// exact length the header announces and the payload checksum. What a resumed bake checks of
+/// every blob it keeps.
+pub fn verify(bytes: &[u8]) -> Result<BlobHeader, CodecError> {
     let header = decode_header(bytes)?;
     let total = header.blob_len();
     if bytes.len() < total {
@@ -494,11 +557,17 @@ pub fn decode(bytes: &[u8]) -> Result<Blob, CodecError> {
     if bytes.len() > total {
         return Err(CodecError::TrailingBytes { extra: bytes.len() - total });
     }
-    let payload = &bytes[PREFIX_LEN..];
-    let computed = crc32fast::hash(payload);
+    let computed = crc32fast::hash(&bytes[PREFIX_LEN..]);
     if computed != header.checksum {
         return Err(CodecError::PayloadChecksum { found: header.checksum, computed });
     }
+    Ok(header)
+}
+
+/// Decodes a whole blob. Errors: everything [`verify`] reports and corrupt payloads.
+pub fn decode(bytes: &[u8]) -> Result<Blob, CodecError> {
+    let header = verify(bytes)?;
+    let payload = &bytes[PREFIX_LEN..];
     let frame = Frame::new(&header.bounds(), header.quant)?;
     let (v, t, raw_len) =
         (header.vertex_count as usize, header.triangle_count as usize, header.raw_len as usize);

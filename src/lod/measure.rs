@@ -356,12 +356,20 @@ fn valid_triangles(mesh: &Mesh) -> Vec<([V3; 3], [bool; 3])> {
         .collect()
 }
 
+/// Most samples along one edge or row of [`sample_triangle`].
+const MAX_SEGMENTS: u64 = 1 << 20;
+
 /// Calls `f` with surface samples of triangle `t` at spacing ≤ `s`: points along the edges
 /// it owns (its vertices excluded: the caller samples every mesh vertex once) and rows parallel to its longest edge, one row per ≤ `s`
 /// of height, each sampled at ≤ `s`. Rows parallel to the longest edge keep slivers cheap: the
 /// count grows with area/s² + perimeter/s, not with (longest edge/s)².
 fn sample_triangle(t: &[V3; 3], owned: [bool; 3], s: f64, mut f: impl FnMut(V3)) {
-    let segments = |len: f64| (len / s).ceil().max(1.0) as u64;
+    // Never unbounded: a length that is not finite, or an absurd ratio, is sampled at the cap
+    // (inputs are limited long before it: `raster::MAX_RELIEF_CELLS`, tile sizes).
+    let segments = |len: f64| {
+        let n = (len / s).ceil();
+        if n.is_finite() { n.clamp(1.0, MAX_SEGMENTS as f64) as u64 } else { 1 }
+    };
     let mut edge_len = [0.0; 3];
     for e in 0..3 {
         let a = t[e];
@@ -433,7 +441,9 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
         ([a[0] as i64, a[1] as i64, a[2] as i64], [c[0] as i64, c[1] as i64, c[2] as i64])
     };
     let budget = (GRID_BUDGET_PER_ITEM * (tris.len() + pts.len()) as f64).max(GRID_BUDGET_MIN);
-    loop {
+    // Bounded: h doubles each round, so 2,100 rounds pass the f64 range whatever the input (a
+    // NaN count would otherwise never satisfy the test).
+    for _ in 0..2100 {
         let cells: f64 = tris
             .iter()
             .map(|t| {

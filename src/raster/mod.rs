@@ -131,6 +131,21 @@ pub enum Encoding {
     Terrarium,
 }
 
+/// Smallest cell size accepted (world units, after the metric mapping of degree rasters).
+pub const MIN_CELL_SIZE: f64 = 1e-6;
+/// Largest cell size accepted.
+pub const MAX_CELL_SIZE: f64 = 1e6;
+/// Largest |x| or |y| of any sample (world units): 25 times the Earth's circumference in
+/// metres, and small enough that f64 positions keep sub-micrometre steps.
+pub const MAX_COORDINATE: f64 = 1e9;
+/// Largest |height| after z scale and offset (world units): Earth's relief is ±11 km, and this
+/// leaves room for heights in centimetres or millimetres.
+pub const MAX_HEIGHT: f64 = 1e7;
+/// Largest height range of a raster, in cells (of its smaller cell side): the point levels slice
+/// tiles into cubic cells, so their work and quantized ranges grow with the relief in cells.
+/// 2²⁰ cells is 31,000 km at 30 m cells and 10 km at 1 cm cells.
+pub const MAX_RELIEF_CELLS: f64 = 1_048_576.0;
+
 /// Size limits checked before any large allocation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Limits {
@@ -246,8 +261,13 @@ pub enum RasterError {
     #[error("{}: invalid georeference in file: {message}", path.display())]
     BadGeoref { path: PathBuf, message: String },
     /// A user override is zero, negative where a size is meant, or not finite.
-    #[error("{}: invalid {what} override {value}: must be {requirement}", path.display())]
+    #[error("{}: invalid {what} override {value:?}: must be {requirement}", path.display())]
     BadOverride { path: PathBuf, what: &'static str, value: f64, requirement: &'static str },
+    /// A value of the world frame or a height lies outside the documented limits
+    /// ([`MIN_CELL_SIZE`], [`MAX_CELL_SIZE`], [`MAX_COORDINATE`], [`MAX_HEIGHT`],
+    /// [`MAX_RELIEF_CELLS`]); checked right after loading, before any bake work.
+    #[error("{}: {message}", path.display())]
+    OutOfLimits { path: PathBuf, message: String },
     /// The z scale/offset pushed heights beyond the f32 range.
     #[error(
         "{}: heights overflow f32 after z scale {dz} and offset {z0} (raw range {min}..{max})",
@@ -387,7 +407,9 @@ fn finish(path: &Path, decoded: Decoded, overrides: &Overrides) -> Result<Loaded
 
     let mut frame = base_georef(path, georef, height)?;
     apply_overrides(&mut frame, overrides);
+    check_frame(path, &frame, overrides, width, height)?;
     apply_z(path, &mut values, &frame)?;
+    check_heights(path, &values, width, &frame)?;
 
     Ok(LoadedRaster {
         heights: Heightfield { width, height, data: values },
@@ -429,6 +451,71 @@ fn base_georef(path: &Path, georef: FileGeoref, rows: u32) -> Result<Georef, Ras
     }
 }
 
+/// The world frame within the limits: cell sizes in [`MIN_CELL_SIZE`]..=[`MAX_CELL_SIZE`] and
+/// every sample's x, y within ±[`MAX_COORDINATE`]. Messages say whether a value came from the
+/// file or from an option.
+fn check_frame(path: &Path, g: &Georef, o: &Overrides, width: u32, height: u32) -> Result<(), RasterError> {
+    let limit = |message: String| RasterError::OutOfLimits { path: path.to_owned(), message };
+    let from = |overridden: bool| if overridden { "--cell-size" } else { "the file's georeference" };
+    for (axis, d) in [("x", g.dx), ("y", g.dy)] {
+        if !(MIN_CELL_SIZE..=MAX_CELL_SIZE).contains(&d.abs()) {
+            return Err(limit(format!(
+                "cell size {:?} along {axis} (from {}) is outside the supported {MIN_CELL_SIZE:e}..{MAX_CELL_SIZE:e} \
+                 world units",
+                d.abs(),
+                from(o.cell_size.is_some()),
+            )));
+        }
+    }
+    let last = |v0: f64, d: f64, n: u32| v0 + d * f64::from(n.saturating_sub(1));
+    let xs = [g.x0, last(g.x0, g.dx, width)];
+    let ys = [g.y0, last(g.y0, g.dy, height)];
+    if xs.iter().chain(&ys).any(|v| !(v.abs() <= MAX_COORDINATE)) {
+        let origin = if o.origin.is_some() { "--origin" } else { "the file's georeference" };
+        return Err(limit(format!(
+            "samples span x {:?}..{:?}, y {:?}..{:?} (origin from {origin}, cell size from {}), beyond the supported \
+             ±{MAX_COORDINATE:e} world units",
+            xs[0],
+            xs[1],
+            ys[0],
+            ys[1],
+            from(o.cell_size.is_some()),
+        )));
+    }
+    Ok(())
+}
+
+/// Heights within ±[`MAX_HEIGHT`] (the first sample beyond is named) and a relief of at most
+/// [`MAX_RELIEF_CELLS`] cells.
+fn check_heights(path: &Path, values: &[f32], width: u32, g: &Georef) -> Result<(), RasterError> {
+    let limit = |message: String| RasterError::OutOfLimits { path: path.to_owned(), message };
+    let (mut min, mut max) = (f32::INFINITY, f32::NEG_INFINITY);
+    for (i, &v) in values.iter().enumerate() {
+        if !(f64::from(v).abs() <= MAX_HEIGHT) {
+            let w = width.max(1) as usize;
+            return Err(limit(format!(
+                "sample at column {}, row {} has height {v:?} (after z scale {:?} and offset {:?}), beyond the \
+                 supported ±{MAX_HEIGHT:e}; is it an undeclared no-data value?",
+                i % w,
+                i / w,
+                g.dz,
+                g.z0,
+            )));
+        }
+        min = min.min(v);
+        max = max.max(v);
+    }
+    let cell = g.dx.abs().min(g.dy.abs());
+    let relief = f64::from(max) - f64::from(min);
+    if relief > MAX_RELIEF_CELLS * cell {
+        return Err(limit(format!(
+            "heights span {min:?}..{max:?} ({relief:?} world units), more than {MAX_RELIEF_CELLS} cells of {cell:?}; \
+             check the cell size and the z scale (heights and cells must be in the same units)"
+        )));
+    }
+    Ok(())
+}
+
 fn validate_overrides(path: &Path, o: &Overrides) -> Result<(), RasterError> {
     let bad = |what, value, requirement| RasterError::BadOverride {
         path: path.to_owned(),
@@ -442,10 +529,18 @@ fn validate_overrides(path: &Path, o: &Overrides) -> Result<(), RasterError> {
     {
         return Err(bad("cell size", c, "finite and positive"));
     }
+    if let Some(c) = o.cell_size
+        && !(MIN_CELL_SIZE..=MAX_CELL_SIZE).contains(&c)
+    {
+        return Err(bad("cell size", c, "between 1e-6 and 1e6 world units"));
+    }
     if let Some((x, y)) = o.origin {
         for v in [x, y] {
             if !v.is_finite() {
                 return Err(bad("origin", v, "finite"));
+            }
+            if v.abs() > MAX_COORDINATE {
+                return Err(bad("origin", v, "within ±1e9 world units"));
             }
         }
     }
@@ -455,9 +550,9 @@ fn validate_overrides(path: &Path, o: &Overrides) -> Result<(), RasterError> {
         return Err(bad("z scale", s, "finite and non-zero"));
     }
     if let Some(z) = o.z_offset
-        && !z.is_finite()
+        && !(z.is_finite() && z.abs() <= MAX_HEIGHT)
     {
-        return Err(bad("z offset", z, "finite"));
+        return Err(bad("z offset", z, "finite and within ±1e7 world units"));
     }
     Ok(())
 }

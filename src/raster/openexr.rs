@@ -10,6 +10,7 @@ use exr::image::read::image::ReadLayers;
 use exr::image::read::layers::ReadChannels;
 use exr::image::read::read;
 use exr::image::read::specific_channels::ReadSpecificChannel;
+use exr::compression::Compression;
 use exr::meta::MetaData;
 use exr::meta::attribute::{ChannelDescription, SampleType};
 use exr::meta::header::Header;
@@ -23,6 +24,13 @@ fn map_err(path: &Path, e: exr::error::Error) -> RasterError {
         exr::error::Error::NotSupported(m) => RasterError::unsupported(path, FORMAT, m),
         exr::error::Error::Io(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
             RasterError::corrupt(path, FORMAT, format!("unexpected end of file ({io})"))
+        }
+        // A seek to a garbage chunk offset fails with EINVAL ("Invalid argument"): that is the
+        // file's fault, not the disk's.
+        exr::error::Error::Io(io)
+            if matches!(io.kind(), std::io::ErrorKind::InvalidInput | std::io::ErrorKind::InvalidData) =>
+        {
+            RasterError::corrupt(path, FORMAT, format!("a chunk offset or size points outside the file ({io})"))
         }
         exr::error::Error::Io(io) => RasterError::io(path, io),
         other => RasterError::corrupt(path, FORMAT, other.to_string()),
@@ -69,6 +77,56 @@ fn choose<'h>(
     })
 }
 
+/// The most a compression method can shrink pixel data, generously rounded up: RLE codes at
+/// most 128 bytes in 2; zlib (ZIP, PXR24) at most 1,032:1 (PXR24 first drops a quarter of f32
+/// data); B44 packs 32 bytes into at least 3; PIZ (Huffman with run codes) and DWA have no tight
+/// bound, so a loose one.
+fn max_ratio(c: Compression) -> u64 {
+    match c {
+        Compression::Uncompressed => 1,
+        Compression::RLE => 64,
+        Compression::ZIP1 | Compression::ZIP16 => 1_100,
+        Compression::PXR24 => 1_400,
+        Compression::B44 | Compression::B44A => 11,
+        _ => 8_192,
+    }
+}
+
+/// The declared image against what the file can hold, before any pixel memory exists: the
+/// chunk offset table alone takes 8 bytes per chunk, and the pixel data of every channel can
+/// shrink at most by [`max_ratio`] of the header's compression. A small file declaring a huge
+/// image is refused here instead of after the `exr` crate allocated it.
+fn check_holdable(path: &Path, header: &Header, file_len: u64) -> Result<(), RasterError> {
+    let (w, h) = (header.layer_size.width() as u64, header.layer_size.height() as u64);
+    let chunks = header.chunk_count as u64;
+    let table = chunks.saturating_mul(8);
+    let pixel_bytes: u64 = header
+        .channels
+        .list
+        .iter()
+        .map(|c| match c.sample_type {
+            SampleType::F16 => 2u64,
+            SampleType::F32 | SampleType::U32 => 4,
+        })
+        .sum::<u64>()
+        .saturating_mul(w)
+        .saturating_mul(h);
+    let ratio = max_ratio(header.compression);
+    let holdable = file_len.saturating_sub(table).saturating_mul(ratio);
+    if table > file_len || pixel_bytes > holdable {
+        return Err(RasterError::corrupt(
+            path,
+            FORMAT,
+            format!(
+                "the header declares {w}×{h} pixels ({pixel_bytes} bytes of samples in {chunks} chunks, \
+                 {:?} compression) but the file is only {file_len} bytes, which can hold at most {holdable}",
+                header.compression
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// Decodes an `OpenEXR` file whose magic number was already checked.
 pub(super) fn decode(
     path: &Path,
@@ -89,6 +147,8 @@ pub(super) fn decode(
     }
     let (w, h) = (header.layer_size.width(), header.layer_size.height());
     check_size(path, w as u64, h as u64, opts.limits)?;
+    let file_len = reader.seek(SeekFrom::End(0)).map_err(|e| RasterError::io(path, e))?;
+    check_holdable(path, header, file_len)?;
     let name = channel.name.clone();
 
     reader.seek(SeekFrom::Start(0)).map_err(|e| RasterError::io(path, e))?;
@@ -249,5 +309,35 @@ mod tests {
         let e = load(&t).unwrap_err();
         assert!(matches!(e, RasterError::TooLarge { width: 100_000, height: 100_000, .. }), "{e}");
         assert!(start.elapsed().as_millis() < 500);
+    }
+
+    /// D5: a header within the size limits (32000² f32 is 3.8 GiB, under the default 4 GiB) in
+    /// a file of a few hundred bytes is refused from the header, before the `exr` crate
+    /// allocates the declared image.
+    #[test]
+    fn declared_size_beyond_what_the_file_holds() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write_exr(dir.path(), 2, 2, vec![AnyChannel::new("Z", FlatSamples::F32(vec![1.0; 4]))]);
+        let mut bytes = std::fs::read(&p).unwrap();
+        let key = b"dataWindow\0box2i\0";
+        let at = bytes.windows(key.len()).position(|w| w == key).unwrap() + key.len() + 4;
+        bytes[at + 8..at + 12].copy_from_slice(&31_999_i32.to_le_bytes());
+        bytes[at + 12..at + 16].copy_from_slice(&31_999_i32.to_le_bytes());
+        let t = write(dir.path(), "big.exr", &bytes);
+        let e = load(&t).unwrap_err();
+        assert!(matches!(e, RasterError::Corrupt { .. }), "{e}");
+        assert!(e.to_string().contains("32000×32000") && e.to_string().contains("can hold"), "{e}");
+        assert_names_path(&e, &t);
+    }
+
+    /// D8: the seek to a garbage chunk offset fails with EINVAL; that is corruption of the
+    /// file, not "Invalid argument (os error 22)" from the disk.
+    #[test]
+    fn bad_offsets_are_corruption() {
+        let p = Path::new("x.exr");
+        let e = super::map_err(p, exr::error::Error::Io(std::io::Error::from_raw_os_error(22)));
+        assert!(matches!(e, RasterError::Corrupt { .. }), "{e}");
+        let e = super::map_err(p, exr::error::Error::Io(std::io::Error::from_raw_os_error(5)));
+        assert!(matches!(e, RasterError::Io { .. }), "{e}");
     }
 }
