@@ -796,7 +796,7 @@ pub fn bake_node_mesh(
     mesh.positions = codec::quantize_positions(&mesh.positions, &bounds, mesh_q);
     // A vertex rounded up past the box (the top height rarely lies on the grid) stays where it
     // is — its neighbour stores the same border vertex — and the box grows to hold it.
-    let bounds = codec::quantized_bounds(&bounds, &mesh.positions);
+    let bounds = codec::quantized_bounds(&bounds, &mesh.positions, mesh_q);
 
     // Measured against every full-resolution sample the node covers, in sample coordinates.
     let cols: Vec<u32> = (span.col0..=span.col1).collect();

@@ -345,7 +345,7 @@ pub fn bake_model(
         positions: codec::quantize_positions(&mesh.positions, &bounds, q0),
         triangles: mesh.triangles.clone(),
     };
-    let bounds = codec::quantized_bounds(&bounds, &quantized.positions);
+    let bounds = codec::quantized_bounds(&bounds, &quantized.positions, q0);
     let mesh_errors = displacement(&mesh.positions, &quantized.positions);
     let blob0 =
         codec::encode_mesh(MODEL_TILE, 0, &bounds, q0, &quantized, mesh_errors).map_err(codec_err(0))?;

@@ -37,15 +37,16 @@
 //!
 //! Every position is stored as integers `q = round((p − bounds.min) / step)` per axis (`xy_step`
 //! for x and y, `z_step` for z) and decoded as exactly `bounds.min + q · step` — the value
-//! [`quantize_positions`] returns. The encoder accepts a position only when its decoded value
-//! `min + q · step` lies inside the bounds (`0 ≤ q ≤ qtop`, `qtop` the largest `q` with
-//! `min + q · step ≤ max`, at most [`MAX_QUANT`] per axis), so a client may trust the header
-//! bounds for culling: writers either state bounds that contain their quantized positions
-//! ([`quantized_bounds`]) or snap positions into the bounds ([`snap_positions`]). Decoders
-//! accept `q` up to `round((max − min) / step)` (`qmax`, which also sizes the sweep code's
-//! rows): blobs written before the encoder was strict can hold positions up to half a step
-//! beyond `max`, and they still decode. A TIN's vertices lie on the raster grid, so with
-//! `xy_step` equal to the cell size their x and y are exact.
+//! [`quantize_positions`] returns. The encoder accepts positions up to half a step outside the
+//! bounds it is given (`0 ≤ q ≤ round((max − min) / step)`, at most [`MAX_QUANT`] per axis) and
+//! rejects the rest; the header then states those bounds with `max` grown, where a position
+//! rounded up past it, to exactly that position ([`quantized_bounds`]). So every decoded
+//! position lies inside the header bounds and a client may trust them for culling. Decoders
+//! accept `q` up to `qmax = round((max − min) / step)` of the header (which also sizes the sweep
+//! code's rows): blobs written before the header bounds grew may hold positions up to half a
+//! step beyond their `max`, and they still decode. Writers that want positions inside fixed
+//! bounds snap them in first ([`snap_positions`]). A TIN's vertices lie on the raster grid, so
+//! with `xy_step` equal to the cell size their x and y are exact.
 //!
 //! # Payload
 //!
@@ -302,16 +303,27 @@ pub fn snap_positions(positions: &[[f64; 3]], bounds: &Bounds, q: Quantization) 
         .collect())
 }
 
-/// `bounds` grown to hold `positions` as decoded (each already on the grid of `q` relative to
-/// `bounds.min`, as [`quantize_positions`] returns them), so [`encode_mesh`] accepts every one.
-/// A mesh's vertices cannot be moved into the bounds without opening cracks against the
-/// neighbour that stores the same border vertex, so its bounds grow instead (by less than a
-/// step). Positions that are not finite are skipped (the encoder rejects them).
+/// `bounds` with `max` grown to hold `positions` as they decode with steps `q` relative to
+/// `bounds.min`: the bounds [`encode_mesh`] and [`encode_points`] write into the header. A
+/// mesh's vertices cannot be moved into the bounds without opening cracks against the
+/// neighbour that stores the same border vertex, so the bounds grow instead (by less than half
+/// a step). Positions that are not finite, or more than half a step outside, are left for the
+/// encoder to reject. Returns `bounds` unchanged when they or `q` are unusable.
 #[must_use]
-pub fn quantized_bounds(bounds: &Bounds, positions: &[[f64; 3]]) -> Bounds {
+pub fn quantized_bounds(bounds: &Bounds, positions: &[[f64; 3]], q: Quantization) -> Bounds {
+    let Ok(frame) = Frame::new(bounds, q) else { return *bounds };
+    let mut top = [0i64; 3];
+    for p in positions {
+        if let Ok(qp) = frame.quantize_within(*p, frame.qmax) {
+            for a in 0..3 {
+                top[a] = top[a].max(qp[a]);
+            }
+        }
+    }
+    let highest = frame.position(top);
     let mut out = *bounds;
-    for p in positions.iter().filter(|p| p.iter().all(|v| v.is_finite())) {
-        out.extend(*p);
+    for a in 0..3 {
+        out.max[a] = out.max[a].max(highest[a]);
     }
     out
 }
@@ -364,17 +376,26 @@ impl Frame {
         Ok(Self { min: bounds.min, step, qmax, qtop })
     }
 
-    /// The integer coordinates of `p`; `index` names the position in errors.
+    /// The integer coordinates of `p`, which must decode inside the bounds; `index` names the
+    /// position in errors.
     pub(crate) fn quantize(&self, p: [f64; 3], index: usize) -> Result<[i64; 3], CodecError> {
+        self.quantize_within(p, self.qtop).map_err(|e| match e {
+            CodecError::NonFinitePosition { position, .. } => CodecError::NonFinitePosition { index, position },
+            _ => CodecError::OutOfBounds { index, position: p },
+        })
+    }
+
+    /// The integer coordinates of `p` if they lie in `0..=limit` per axis.
+    fn quantize_within(&self, p: [f64; 3], limit: [i64; 3]) -> Result<[i64; 3], CodecError> {
         if !p.iter().all(|v| v.is_finite()) {
-            return Err(CodecError::NonFinitePosition { index, position: p });
+            return Err(CodecError::NonFinitePosition { index: 0, position: p });
         }
         let mut q = [0i64; 3];
         for a in 0..3 {
             let v = ((p[a] - self.min[a]) / self.step[a]).round();
             // Compared as floats first so a huge value cannot saturate into range.
-            if v.is_nan() || v < 0.0 || v > self.qtop[a] as f64 {
-                return Err(CodecError::OutOfBounds { index, position: p });
+            if v.is_nan() || v < 0.0 || v > limit[a] as f64 {
+                return Err(CodecError::OutOfBounds { index: 0, position: p });
             }
             q[a] = v as i64;
         }
@@ -458,8 +479,9 @@ fn assemble(
     Ok(out)
 }
 
-/// Encodes a mesh. Errors: invalid bounds, steps or errors, non-finite or out-of-bounds
-/// positions, out-of-range triangle indices, more than [`MAX_ELEMENTS`] vertices or triangles.
+/// Encodes a mesh; the header states `bounds` grown to hold the quantized positions
+/// ([`quantized_bounds`]). Errors: invalid bounds, steps or errors, non-finite positions or
+/// positions more than half a step outside `bounds`, out-of-range triangle indices, more than [`MAX_ELEMENTS`] vertices or triangles.
 pub fn encode_mesh(
     key: TileKey,
     level: u8,
@@ -468,6 +490,8 @@ pub fn encode_mesh(
     mesh: &Mesh,
     errors: Errors,
 ) -> Result<Vec<u8>, CodecError> {
+    Frame::new(bounds, q)?;
+    let bounds = &quantized_bounds(bounds, &mesh.positions, q);
     let frame = Frame::new(bounds, q)?;
     check_errors(errors)?;
     let v = check_count("vertices", mesh.positions.len())?;
@@ -486,6 +510,8 @@ pub fn encode_points(
     points: &PointCloud,
     errors: Errors,
 ) -> Result<Vec<u8>, CodecError> {
+    Frame::new(bounds, q)?;
+    let bounds = &quantized_bounds(bounds, &points.positions, q);
     let frame = Frame::new(bounds, q)?;
     check_errors(errors)?;
     let n = check_count("points", points.positions.len())?;

@@ -22,6 +22,8 @@ fn tin_blob() -> (Mesh, Bounds, Quantization, Vec<u8>) {
     let b = Bounds::of_points(&m.positions);
     let q = Quantization { xy_step: 30.0, z_step: 0.1 };
     let blob = encode_mesh(KEY, 0, &b, q, &m, ERRORS).unwrap();
+    // The header states the bounds grown to the quantized positions (here by a rounding ulp).
+    let b = quantized_bounds(&b, &m.positions, q);
     (m, b, q, blob)
 }
 
@@ -32,6 +34,31 @@ fn points_blob() -> (PointCloud, Bounds, Quantization, Vec<u8>) {
     let q = Quantization { xy_step: 60.0 / 64.0, z_step: 60.0 / 64.0 };
     let blob = encode_points(KEY, 2, &b, q, &pc, Errors { max: 3.0, rms: 1.0, gap: 40.0 }).unwrap();
     (pc, b, q, blob)
+}
+
+/// D1: the header bounds hold every decoded position, whatever the bounds given, and grow by
+/// less than half a step; positions further out are refused.
+#[test]
+fn header_bounds_hold_every_decoded_position() {
+    let q = Quantization { xy_step: 1.0, z_step: 0.25 };
+    // 835.9 is not on the z grid from 800: the vertex there rounds up to 836.0.
+    let m = Mesh {
+        positions: vec![[0.0, 0.0, 800.0], [4.0, 0.0, 835.9], [0.0, 4.0, 810.0]],
+        triangles: vec![[0, 1, 2]],
+    };
+    let b = Bounds { min: [0.0, 0.0, 800.0], max: [4.0, 4.0, 835.9] };
+    let blob = encode_mesh(KEY, 0, &b, q, &m, ERRORS).unwrap();
+    let d = decode(&blob).unwrap();
+    assert_eq!(d.header.bounds().max[2], 836.0);
+    let Geometry::Mesh(back) = d.geometry else { panic!("kind") };
+    let hb = d.header.bounds();
+    assert!(back.positions.iter().all(|p| (0..3).all(|a| hb.min[a] <= p[a] && p[a] <= hb.max[a])));
+    let far = Mesh { positions: vec![[0.0, 0.0, 800.0], [4.0, 0.0, 836.2], [0.0, 4.0, 810.0]], ..m };
+    assert!(matches!(encode_mesh(KEY, 0, &b, q, &far, ERRORS), Err(CodecError::OutOfBounds { index: 1, .. })));
+    // Points snapped into fixed bounds stay inside them, the top one a step lower.
+    let pts = vec![[1.0, 1.0, 835.9], [2.0, 2.0, 799.9], [9.0, 2.0, 801.0]];
+    let snapped = snap_positions(&pts, &b, q).unwrap();
+    assert_eq!(snapped, vec![[1.0, 1.0, 835.75], [2.0, 2.0, 800.0], [4.0, 2.0, 801.0]]);
 }
 
 #[test]

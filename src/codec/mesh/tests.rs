@@ -16,6 +16,8 @@ fn frame_for(m: &Mesh, xy_step: f64, z_step: f64) -> (Frame, Bounds, Quantizatio
         b = Bounds { min: [0.0; 3], max: [1.0; 3] };
     }
     let q = Quantization { xy_step, z_step };
+    // The bounds the header would state (grown to the rounded-up positions).
+    let b = crate::codec::quantized_bounds(&b, &m.positions, q);
     (Frame::new(&b, q).unwrap(), b, q)
 }
 

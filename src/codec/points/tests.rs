@@ -16,6 +16,8 @@ fn setup(pc: &PointCloud, step: f64) -> (Frame, Bounds, Quantization) {
         b = Bounds { min: [0.0; 3], max: [1.0; 3] };
     }
     let q = Quantization { xy_step: step, z_step: step };
+    // The bounds the header would state (grown to the rounded-up positions).
+    let b = crate::codec::quantized_bounds(&b, &pc.positions, q);
     (Frame::new(&b, q).unwrap(), b, q)
 }
 
