@@ -454,6 +454,7 @@ fn parse_pair(s: &str) -> Result<(f64, f64), String> {
 }
 
 fn main() -> std::process::ExitCode {
+    quiet_mesa_device_select();
     let cli = Cli::parse();
     let json_logs = match &cli.command {
         #[cfg(feature = "server")]
@@ -474,6 +475,29 @@ fn main() -> std::process::ExitCode {
             eprintln!("error: {}", error_chain(&e));
             std::process::ExitCode::FAILURE
         }
+    }
+}
+
+/// Without a usable `XDG_RUNTIME_DIR` (containers, CI, ssh sessions), Mesa's implicit
+/// device-select Vulkan layer asks libwayland for a display while wgpu opens the adapter, and
+/// libwayland prints "error: XDG_RUNTIME_DIR is invalid or not set in the environment." — a
+/// line that means nothing for a headless bake. Without a Wayland session there is nothing for
+/// that layer to select by, so the process re-executes itself once with the layer disabled
+/// (`NODEVICE_SELECT=1`, Mesa's documented switch; same pid, arguments and streams). A user who
+/// sets `NODEVICE_SELECT` themselves is left alone.
+fn quiet_mesa_device_select() {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::unix::process::CommandExt;
+        let runtime_ok = std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|d| std::path::Path::new(&d).is_dir());
+        if runtime_ok || std::env::var_os("NODEVICE_SELECT").is_some() {
+            return;
+        }
+        let Ok(exe) = std::env::current_exe() else { return };
+        let mut args = std::env::args_os();
+        let arg0 = args.next().unwrap_or_else(|| exe.clone().into_os_string());
+        // `exec` returns only if it failed; then run on as we are.
+        let _ = std::process::Command::new(exe).arg0(arg0).args(args).env("NODEVICE_SELECT", "1").exec();
     }
 }
 
