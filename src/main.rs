@@ -1,8 +1,25 @@
 //! The `terrastream` command: argument parsing, logging and progress bars; the work is in the
 //! library.
 
+
+/// `println!` that does not panic when stdout is gone: a closed pipe (`terrastream inspect … |
+/// head`) ends the process quietly, as it ends other Unix tools; any other write error is
+/// reported.
+macro_rules! outln {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        if let Err(e) = writeln!(std::io::stdout(), $($t)*) {
+            if e.kind() != std::io::ErrorKind::BrokenPipe {
+                eprintln!("error: cannot write to standard output: {e}");
+                std::process::exit(1);
+            }
+            std::process::exit(0);
+        }
+    }};
+}
+
 use std::path::PathBuf;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand, ValueEnum};
@@ -369,9 +386,18 @@ struct BakeArgs {
     /// GPU memory budget of one batch of point levels, in MiB.
     #[arg(long, default_value_t = bake::DEFAULT_GPU_BUDGET_MIB)]
     gpu_budget_mib: u64,
+    /// Stop the bake after this many seconds (between tiles; what is baked is kept and a re-run
+    /// resumes it). Default: no limit.
+    #[arg(long, value_name = "SECONDS", value_parser = parse_time_limit)]
+    time_limit: Option<f64>,
     /// No progress bar.
     #[arg(long, short)]
     quiet: bool,
+}
+
+fn parse_time_limit(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|_| format!("{s:?} is not a number of seconds"))?;
+    if v.is_finite() && v > 0.0 && v <= 1e9 { Ok(v) } else { Err(format!("{s} must be > 0 and at most 1e9 seconds")) }
 }
 
 #[derive(clap::Args)]
@@ -536,7 +562,7 @@ fn run(cli: Cli) -> Result<()> {
                 raster::geotiff::encode_f32(width, height, &heights, (0.0, 0.0), (cell_size, -cell_size))
                     .with_context(|| format!("{}: encoding GeoTIFF", out.display()))?;
             terrastream::store::write_atomic(&out, &bytes)?;
-            println!("wrote {} ({width}×{height} samples, {cell_size} m cells, seed {seed})", out.display());
+            outln!("wrote {} ({width}×{height} samples, {cell_size} m cells, seed {seed})", out.display());
             Ok(())
         }
         #[cfg(feature = "server")]
@@ -557,7 +583,7 @@ fn run(cli: Cli) -> Result<()> {
                 ExportFormat::Obj => export::Format::Obj,
             };
             let n = export::export_tile(&Store::new(&dir), tile, level, format, &out)?;
-            println!("wrote {} ({n} {})", out.display(), if level == 0 { "vertices" } else { "points" });
+            outln!("wrote {} ({n} {})", out.display(), if level == 0 { "vertices" } else { "points" });
             Ok(())
         }
     }
@@ -586,7 +612,7 @@ fn run_eval(a: &EvalArgs) -> Result<()> {
     })?;
     let path = evaluate::write_report(&report, &samples, &a.out)?;
     eprintln!("report: {}", path.display());
-    println!("{}", report.text());
+    outln!("{}", report.text());
     Ok(())
 }
 
@@ -628,7 +654,7 @@ fn run_client(a: &ClientArgs) -> Result<()> {
         }
     })?;
     let t = &report.totals;
-    println!(
+    outln!(
         "{} frames ({} in flight), {} bytes in {} requests ({} retries, {} failed), latency p50 {:.1} ms p99 {:.1} ms",
         t.frames,
         t.flight_frames,
@@ -639,7 +665,7 @@ fn run_client(a: &ClientArgs) -> Result<()> {
         t.latency_p50_ms,
         t.latency_p99_ms
     );
-    println!(
+    outln!(
         "first complete view {}, frames under {} px: {:.1} %, settled: {}, selection mean {:.3} ms max {:.3} ms",
         t.first_complete_s.map_or_else(|| "never".to_owned(), |s| format!("at {s:.2} s")),
         report.threshold_px,
@@ -648,7 +674,7 @@ fn run_client(a: &ClientArgs) -> Result<()> {
         t.select_ms_mean,
         t.select_ms_max
     );
-    println!(
+    outln!(
         "rendering: {}{}",
         report.rendering,
         if t.render_ms_mean > 0.0 {
@@ -659,22 +685,22 @@ fn run_client(a: &ClientArgs) -> Result<()> {
     );
     let frames = a.out.join(client::live::FRAMES_DIR);
     if frames.is_dir() {
-        println!("wrote frames to {}", frames.display());
+        outln!("wrote frames to {}", frames.display());
     }
-    println!("wrote {}", a.out.join(client::live::STATS_FILE).display());
+    outln!("wrote {}", a.out.join(client::live::STATS_FILE).display());
     Ok(())
 }
 
 #[cfg(feature = "server")]
 fn print_urls(addr: std::net::SocketAddr, names: &[String]) {
-    println!("serving {} tileset(s) on http://{addr}  (Ctrl-C to stop)", names.len());
-    println!("  http://{addr}/tilesets");
+    outln!("serving {} tileset(s) on http://{addr}  (Ctrl-C to stop)", names.len());
+    outln!("  http://{addr}/tilesets");
     for n in names.iter().take(3) {
-        println!("  http://{addr}/tilesets/{n}/tileset.json");
-        println!("  http://{addr}/tilesets/{n}/index/0/0/0.json");
-        println!("  http://{addr}/tilesets/{n}/tiles/0/0/0/0");
+        outln!("  http://{addr}/tilesets/{n}/tileset.json");
+        outln!("  http://{addr}/tilesets/{n}/index/0/0/0.json");
+        outln!("  http://{addr}/tilesets/{n}/tiles/0/0/0/0");
     }
-    println!("  http://{addr}/openapi.json   http://{addr}/metrics   http://{addr}/readyz");
+    outln!("  http://{addr}/openapi.json   http://{addr}/metrics   http://{addr}/readyz");
 }
 
 #[cfg(feature = "server")]
@@ -684,8 +710,8 @@ fn run_demo(bind: &str, dir: &std::path::Path, no_serve: bool, gpu: GpuArg) -> R
         ProgressStyle::with_template("baking demo terrain {bar:40} {pos}/{len} tiles  ETA {eta}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    let progress = Bar(bar);
-    let t0 = std::time::Instant::now();
+    let progress = Bar(bar, None);
+    let t0 = Instant::now();
     let (baker, notice) = bake::PointBaker::open(gpu_mode(gpu), bake::DEFAULT_GPU_BUDGET_MIB << 20)?;
     if let Some(n) = notice {
         progress.0.println(n);
@@ -693,14 +719,14 @@ fn run_demo(bind: &str, dir: &std::path::Path, no_serve: bool, gpu: GpuArg) -> R
     let (store, baked) = server::demo::prepare(dir, &baker, &progress)?;
     progress.0.finish_and_clear();
     if baked {
-        println!(
+        outln!(
             "baked the demo terrain into {} in {:.1} s (point levels: {})",
             store.display(),
             t0.elapsed().as_secs_f64(),
             baker.describe()
         );
     } else {
-        println!("using the demo tileset already baked in {}", store.display());
+        outln!("using the demo tileset already baked in {}", store.display());
     }
     if no_serve {
         return Ok(());
@@ -710,7 +736,7 @@ fn run_demo(bind: &str, dir: &std::path::Path, no_serve: bool, gpu: GpuArg) -> R
             .resolve()?;
     server::serve_blocking(config, |addr, app| {
         print_urls(addr, &app.tileset_names());
-        println!("try:  curl -sI http://{addr}/tilesets/demo/tiles/1/0/1/0");
+        outln!("try:  curl -sI http://{addr}/tilesets/demo/tiles/1/0/1/0");
     })?;
     Ok(())
 }
@@ -723,7 +749,7 @@ fn gpu_mode(a: GpuArg) -> bake::GpuMode {
     }
 }
 
-struct Bar(ProgressBar);
+struct Bar(ProgressBar, Option<(Instant, Duration)>);
 
 impl bake::Progress for Bar {
     fn start(&self, total: u64, resumed: u64) {
@@ -736,6 +762,12 @@ impl bake::Progress for Bar {
     }
     fn node_done(&self) {
         self.0.inc(1);
+    }
+    fn cancelled(&self) -> Option<String> {
+        let (t0, limit) = self.1?;
+        (t0.elapsed() > limit).then(|| {
+            format!("--time-limit of {} s passed; the tiles baked so far are kept, run again to resume", limit.as_secs_f64())
+        })
     }
 }
 
@@ -780,12 +812,13 @@ fn run_bake(a: &BakeArgs) -> Result<()> {
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     bar.enable_steady_tick(Duration::from_millis(200));
-    let progress = Bar(bar);
+    let progress = Bar(bar, a.time_limit.map(|s| (Instant::now(), Duration::from_secs_f64(s))));
     let (baker, notice) = bake::PointBaker::open(gpu_mode(a.gpu), a.gpu_budget_mib.saturating_mul(1 << 20))?;
     if let Some(n) = notice {
         eprintln!("{n}");
     }
-    let summary = bake::bake_with(&raster, &name, &opts, &baker, &Store::new(&a.out), &progress)?;
+    let summary = bake::bake_with(&raster, &name, &opts, &baker, &Store::new(&a.out), &progress);
+    let summary = summary.inspect_err(|_| progress.0.finish_and_clear())?;
     progress.0.finish_and_clear();
     print_summary(&summary, &a.out);
     Ok(())
@@ -817,7 +850,7 @@ fn run_bake_model(a: &BakeModelArgs) -> Result<()> {
     }
     let s = bake_model::bake_read_model(&file, &opts, &baker, &Store::new(&a.out))?;
     let st = &s.stats;
-    println!(
+    outln!(
         "{} ({}): {} faces → {} triangles read, {} degenerate skipped; {} vertices read, {} unreferenced \
          dropped, {} normals from the file",
         s.file,
@@ -829,7 +862,7 @@ fn run_bake_model(a: &BakeModelArgs) -> Result<()> {
         st.unreferenced,
         st.normals_from_file
     );
-    println!(
+    outln!(
         "baked {} levels into {}{} in {:.3} s (read {:.3} s, bake {:.3} s); bounds {:?} – {:?}",
         s.levels.len(),
         a.out.display(),
@@ -840,18 +873,18 @@ fn run_bake_model(a: &BakeModelArgs) -> Result<()> {
         s.bounds.min,
         s.bounds.max
     );
-    println!("point levels baked by {}", s.point_baker);
+    outln!("point levels baked by {}", s.point_baker);
     print_model_levels(&s.levels);
     Ok(())
 }
 
 fn print_model_levels(levels: &[ModelLevel]) {
-    println!(
+    outln!(
         "{:>5}  {:>6}  {:>5}  {:>10}  {:>9}  {:>9}  {:>9}  {:>10}  {:>10}  {:>10}",
         "level", "kind", "T", "cell", "count", "triangles", "bytes", "max err", "rms", "gap"
     );
     for l in levels {
-        println!(
+        outln!(
             "{:>5}  {:>6}  {:>5}  {:>10}  {:>9}  {:>9}  {:>9}  {:>10.3e}  {:>10.3e}  {:>10.3e}",
             l.level,
             l.kind,
@@ -868,7 +901,7 @@ fn print_model_levels(levels: &[ModelLevel]) {
 }
 
 fn print_summary(s: &BakeSummary, out: &std::path::Path) {
-    println!(
+    outln!(
         "baked {} tiles ({} resumed) into {} in {:.2} s: {:.2} M samples/s, {} no-data samples filled",
         s.nodes,
         s.nodes_resumed,
@@ -878,11 +911,11 @@ fn print_summary(s: &BakeSummary, out: &std::path::Path) {
         s.nodata_filled
     );
     if let Some(mib) = peak_rss_mib() {
-        println!("peak memory (RSS): {mib:.0} MiB");
+        outln!("peak memory (RSS): {mib:.0} MiB");
     }
-    println!("point levels baked by {}", s.point_baker);
+    outln!("point levels baked by {}", s.point_baker);
     if s.gpu_batches > 0 {
-        println!(
+        outln!(
             "gpu: {} batches, peak {:.1} MiB per batch (budget {:.0} MiB), {} levels left to the cpu",
             s.gpu_batches,
             s.gpu_peak_batch_bytes as f64 / f64::from(1 << 20),
@@ -902,7 +935,7 @@ fn peak_rss_mib() -> Option<f64> {
 }
 
 fn print_levels(totals: &[LevelTotals]) {
-    println!(
+    outln!(
         "{:>5}  {:>6}  {:>7}  {:>11}  {:>10}  {:>12}  {:>7}  {:>10}  {:>10}  {:>10}",
         "level",
         "kind",
@@ -916,7 +949,7 @@ fn print_levels(totals: &[LevelTotals]) {
         "worst gap"
     );
     for (l, t) in totals.iter().enumerate() {
-        println!(
+        outln!(
             "{:>5}  {:>6}  {:>7}  {:>11}  {:>10}  {:>12}  {:>7.2}  {:>10.3}  {:>10.3}  {:>10.3}",
             l,
             if l == 0 { "mesh" } else { "points" },
@@ -938,10 +971,10 @@ fn run_inspect(dir: &std::path::Path, json: bool, tile: Option<TileKey>) -> Resu
     if tile.is_none() && store.manifest_kind()? == terrastream::store::KIND_MODEL {
         let m = bake_model::read_manifest(&store)?;
         if json {
-            println!("{}", serde_json::to_string_pretty(&m)?);
+            outln!("{}", serde_json::to_string_pretty(&m)?);
             return Ok(());
         }
-        println!(
+        outln!(
             "{}: model {} ({}, {} vertices, {} triangles; {} degenerate skipped), bounds {:?} – {:?}, \
              content version {}",
             dir.display(),
@@ -962,9 +995,9 @@ fn run_inspect(dir: &std::path::Path, json: bool, tile: Option<TileKey>) -> Resu
             bail!("{}: no tile {key} in this tileset (depth {})", dir.display(), manifest.depth);
         };
         if json {
-            println!("{}", serde_json::to_string_pretty(&node)?);
+            outln!("{}", serde_json::to_string_pretty(&node)?);
         } else {
-            println!("tile {key}: bounds {:?} – {:?}", node.bounds.min, node.bounds.max);
+            outln!("tile {key}: bounds {:?} – {:?}", node.bounds.min, node.bounds.max);
             let totals: Vec<LevelTotals> = node
                 .levels
                 .iter()
@@ -979,9 +1012,9 @@ fn run_inspect(dir: &std::path::Path, json: bool, tile: Option<TileKey>) -> Resu
         return Ok(());
     }
     if json {
-        println!("{}", serde_json::to_string_pretty(&manifest)?);
+        outln!("{}", serde_json::to_string_pretty(&manifest)?);
     } else {
-        println!(
+        outln!(
             "{}: {} ({}×{} samples, {}), tile size {}, depth {}, content version {}",
             dir.display(),
             manifest.source.file,

@@ -349,3 +349,47 @@ fn d8_messages_name_the_cause_once() {
     );
     assert!(e.contains("symbolic link") && !e.contains("File exists"), "{e}");
 }
+
+/// Found while testing these: a closed stdout (`… | head -1`) made every command panic in
+/// `println!`; now it ends quietly. Deterministic: the pipe's read end is closed before the
+/// command starts.
+#[test]
+fn closed_stdout_is_not_a_panic() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("t");
+    ok(bin()
+        .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "256"])
+        .args(["--levels", "1", "--gpu", "off", "--out"])
+        .arg(&out)
+        .arg(fuji()));
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let o = bin().arg("inspect").arg(&out).stdout(writer).stderr(Stdio::piped()).output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(o.status.success(), "{stderr}");
+}
+
+/// D2: a bake that runs past `--time-limit` is stopped between tiles and says so; what it
+/// baked is kept and a re-run finishes it.
+#[test]
+fn time_limit_stops_a_bake_and_it_resumes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("t");
+    let base = |limit: Option<&str>| {
+        let mut c = bin();
+        c.args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "32"])
+            .args(["--gpu", "off"]);
+        if let Some(l) = limit {
+            c.args(["--time-limit", l]);
+        }
+        c.arg("--out").arg(&out).arg(fuji());
+        c
+    };
+    let e = fails(&mut base(Some("0.000001")));
+    assert!(e.contains("--time-limit") && e.contains("resume"), "{e}");
+    assert!(!e.contains("panicked"), "{e}");
+    ok(&mut base(None));
+    assert!(Store::new(&out).manifest().is_ok());
+    assert!(fails(&mut base(Some("0"))).contains("time-limit"));
+}
