@@ -968,7 +968,8 @@ mod bounds_tests {
         for key in pyramid.nodes() {
             for level in 0..m.levels.len() as u8 {
                 let bytes = store.read_blob(key, level).unwrap().unwrap();
-                let blob = codec::decode(&bytes).map_err(|e| TestCaseError::fail(format!("{key}/{level}: {e}")))?;
+                let blob =
+                    codec::decode(&bytes).map_err(|e| TestCaseError::fail(format!("{key}/{level}: {e}")))?;
                 let b = blob.header.bounds();
                 let ps = match &blob.geometry {
                     codec::Geometry::Mesh(m) => &m.positions,
@@ -976,7 +977,10 @@ mod bounds_tests {
                 };
                 for p in ps {
                     for a in 0..3 {
-                        prop_assert!(b.min[a] <= p[a] && p[a] <= b.max[a], "{key}/{level}: {p:?} outside {b:?}");
+                        prop_assert!(
+                            b.min[a] <= p[a] && p[a] <= b.max[a],
+                            "{key}/{level}: {p:?} outside {b:?}"
+                        );
                     }
                 }
                 n += 1;

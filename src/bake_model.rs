@@ -310,7 +310,7 @@ pub fn bake_model(
         return Err(ModelBakeError::Options(format!("{}: the model has no valid bounds", source.name)));
     }
     let reach = raw.min.iter().chain(&raw.max).fold(0.0f64, |m, v| m.max(v.abs()));
-    if !(reach <= MAX_MODEL_COORDINATE) {
+    if reach.is_nan() || reach > MAX_MODEL_COORDINATE {
         return Err(ModelBakeError::Options(format!(
             "{}: coordinates reach {reach:e} (box {:?}..{:?}), beyond the supported ±{MAX_MODEL_COORDINATE:e}",
             source.name, raw.min, raw.max

@@ -1,7 +1,6 @@
 //! The `terrastream` command: argument parsing, logging and progress bars; the work is in the
 //! library.
 
-
 /// `println!` that does not panic when stdout is gone: a closed pipe (`terrastream inspect … |
 /// head`) ends the process quietly, as it ends other Unix tools; any other write error is
 /// reported.
@@ -397,7 +396,11 @@ struct BakeArgs {
 
 fn parse_time_limit(s: &str) -> Result<f64, String> {
     let v: f64 = s.parse().map_err(|_| format!("{s:?} is not a number of seconds"))?;
-    if v.is_finite() && v > 0.0 && v <= 1e9 { Ok(v) } else { Err(format!("{s} must be > 0 and at most 1e9 seconds")) }
+    if v.is_finite() && v > 0.0 && v <= 1e9 {
+        Ok(v)
+    } else {
+        Err(format!("{s} must be > 0 and at most 1e9 seconds"))
+    }
 }
 
 #[derive(clap::Args)]
@@ -515,7 +518,8 @@ fn quiet_mesa_device_select() {
     #[cfg(target_os = "linux")]
     {
         use std::os::unix::process::CommandExt;
-        let runtime_ok = std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|d| std::path::Path::new(&d).is_dir());
+        let runtime_ok =
+            std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|d| std::path::Path::new(&d).is_dir());
         if runtime_ok || std::env::var_os("NODEVICE_SELECT").is_some() {
             return;
         }
@@ -766,7 +770,10 @@ impl bake::Progress for Bar {
     fn cancelled(&self) -> Option<String> {
         let (t0, limit) = self.1?;
         (t0.elapsed() > limit).then(|| {
-            format!("--time-limit of {} s passed; the tiles baked so far are kept, run again to resume", limit.as_secs_f64())
+            format!(
+                "--time-limit of {} s passed; the tiles baked so far are kept, run again to resume",
+                limit.as_secs_f64()
+            )
         })
     }
 }
@@ -881,7 +888,16 @@ fn run_bake_model(a: &BakeModelArgs) -> Result<()> {
 fn print_model_levels(levels: &[ModelLevel]) {
     outln!(
         "{:>5}  {:>6}  {:>5}  {:>10}  {:>9}  {:>9}  {:>9}  {:>10}  {:>10}  {:>10}",
-        "level", "kind", "T", "cell", "count", "triangles", "bytes", "max err", "rms", "gap"
+        "level",
+        "kind",
+        "T",
+        "cell",
+        "count",
+        "triangles",
+        "bytes",
+        "max err",
+        "rms",
+        "gap"
     );
     for l in levels {
         outln!(

@@ -414,7 +414,7 @@ fn check_out_dir(dir: &Path) -> Result<(), StoreError> {
         && meta.file_type().is_symlink()
         && !dir.exists()
     {
-        let target = fs::read_link(dir).map(|t| t.display().to_string()).unwrap_or_else(|_| "?".into());
+        let target = fs::read_link(dir).map_or_else(|_| "?".into(), |t| t.display().to_string());
         return Err(invalid(format!(
             "is a symbolic link to {target}, which does not exist; create the target directory or remove the link"
         )));
@@ -482,7 +482,10 @@ mod tests {
         let link = dir.path().join("link");
         std::os::unix::fs::symlink(dir.path().join("missing"), &link).unwrap();
         let e = Store::new(&link).begin_bake(&opts).unwrap_err().to_string();
-        assert!(e.contains("symbolic link") && e.contains("does not exist") && !e.contains("File exists"), "{e}");
+        assert!(
+            e.contains("symbolic link") && e.contains("does not exist") && !e.contains("File exists"),
+            "{e}"
+        );
         let file = dir.path().join("file");
         fs::write(&file, b"x").unwrap();
         let e = Store::new(&file).begin_bake(&opts).unwrap_err().to_string();

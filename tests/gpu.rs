@@ -433,7 +433,10 @@ fn gpu_bakes_keep_positions_inside_the_bounds() {
                 terrastream::codec::Geometry::Points(p) => p.positions.clone(),
             };
             for p in ps {
-                assert!((0..3).all(|a| b.min[a] <= p[a] && p[a] <= b.max[a]), "{name:?}: {p:?} outside {b:?}");
+                assert!(
+                    (0..3).all(|a| b.min[a] <= p[a] && p[a] <= b.max[a]),
+                    "{name:?}: {p:?} outside {b:?}"
+                );
             }
             n += 1;
         }
@@ -457,7 +460,11 @@ fn gpu_bakes_keep_positions_inside_the_bounds() {
         assert!(!stderr.contains("error"), "alarming lines in a normal GPU run: {stderr}");
     };
     let out = tmp.path().join("fuji64");
-    run(&["--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "64", "--max-error", "2"], &out, &fuji());
+    run(
+        &["--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "64", "--max-error", "2"],
+        &out,
+        &fuji(),
+    );
     check(&out);
     for (i, plateau) in [false, true].into_iter().enumerate() {
         let (w, h) = (33u32, 33u32);
@@ -476,7 +483,8 @@ fn gpu_bakes_keep_positions_inside_the_bounds() {
             })
             .collect();
         let tif = tmp.path().join(format!("f{i}.tif"));
-        std::fs::write(&tif, raster::geotiff::encode_f32(w, h, &data, (0.0, 0.0), (1.0, -1.0)).unwrap()).unwrap();
+        std::fs::write(&tif, raster::geotiff::encode_f32(w, h, &data, (0.0, 0.0), (1.0, -1.0)).unwrap())
+            .unwrap();
         let out = tmp.path().join(format!("flat{i}"));
         run(&["--tile-size", "32", "--levels", "4"], &out, &tif);
         check(&out);

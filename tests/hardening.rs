@@ -4,7 +4,16 @@
 //! killed bake (D6), bad values found late (D7) and misleading messages (D8). Server defects
 //! are in tests/server.rs, parser fuzz finds in tests/fuzz_regressions.rs.
 
-#![allow(clippy::unwrap_used, clippy::float_cmp)]
+// Helpers outside `#[test]` functions unwrap and panic as the tests do; 175.1873779296875 is the
+// exact f32 from the report (clippy counts its digits, not its bits).
+#![allow(
+    clippy::unwrap_used,
+    clippy::panic,
+    clippy::float_cmp,
+    clippy::excessive_precision,
+    clippy::duration_suboptimal_units,
+    clippy::case_sensitive_file_extension_comparisons
+)]
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -84,7 +93,12 @@ fn assert_positions_inside_bounds(dir: &Path) -> usize {
         };
         for p in positions {
             for a in 0..3 {
-                assert!(b.min[a] <= p[a] && p[a] <= b.max[a], "{name}: {p:?} outside {:?}..{:?}", b.min, b.max);
+                assert!(
+                    b.min[a] <= p[a] && p[a] <= b.max[a],
+                    "{name}: {p:?} outside {:?}..{:?}",
+                    b.min,
+                    b.max
+                );
             }
         }
         n += 1;
@@ -198,7 +212,9 @@ fn d2_d7_absurd_values_are_refused_up_front() {
         let e = fails(bin().args(["bake", "--quiet", "--gpu", "off", "--out"]).arg(&out).arg(&tif));
         let (c, r) = (at % 8, at / 8);
         assert!(
-            e.contains("bad-height.tif") && e.contains(&format!("column {c}, row {r}")) && !e.contains("quantization"),
+            e.contains("bad-height.tif")
+                && e.contains(&format!("column {c}, row {r}"))
+                && !e.contains("quantization"),
             "{e}"
         );
         assert!(!out.exists());
@@ -264,7 +280,9 @@ fn killed_bakes_resume_to_the_identical_tree() {
     ok(bin().args(["synth", "--width", "769", "--seed", "7", "--out"]).arg(&tif));
     let args = |out: &Path| {
         let mut c = bin();
-        c.args(["bake", "--quiet", "--tile-size", "64", "--levels", "3", "--gpu", "off", "--out"]).arg(out).arg(&tif);
+        c.args(["bake", "--quiet", "--tile-size", "64", "--levels", "3", "--gpu", "off", "--out"])
+            .arg(out)
+            .arg(&tif);
         c
     };
     let reference = tmp.path().join("ref");
@@ -311,7 +329,11 @@ fn count_files(dir: &Path, suffix: &str) -> usize {
         .filter_map(Result::ok)
         .map(|e| {
             let p = e.path();
-            if p.is_dir() { count_files(&p, suffix) } else { usize::from(p.to_string_lossy().ends_with(suffix)) }
+            if p.is_dir() {
+                count_files(&p, suffix)
+            } else {
+                usize::from(p.to_string_lossy().ends_with(suffix))
+            }
         })
         .sum()
 }
@@ -345,7 +367,10 @@ fn d8_messages_name_the_cause_once() {
     let link = tmp.path().join("link");
     std::os::unix::fs::symlink(tmp.path().join("missing"), &link).unwrap();
     let e = fails(
-        bin().args(["bake", "--quiet", "--encoding", "terrain-rgb", "--gpu", "off", "--out"]).arg(&link).arg(fuji()),
+        bin()
+            .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--gpu", "off", "--out"])
+            .arg(&link)
+            .arg(fuji()),
     );
     assert!(e.contains("symbolic link") && !e.contains("File exists"), "{e}");
 }

@@ -286,7 +286,11 @@ pub fn quantize_positions(positions: &[[f64; 3]], bounds: &Bounds, q: Quantizati
 /// contains the surface never takes it farther from the surface, except by the last step when
 /// `max` is not on the grid. Positions that are not finite are left as they are (the encoder
 /// rejects them). Errors: bounds or steps the encoder would reject.
-pub fn snap_positions(positions: &[[f64; 3]], bounds: &Bounds, q: Quantization) -> Result<Vec<[f64; 3]>, CodecError> {
+pub fn snap_positions(
+    positions: &[[f64; 3]],
+    bounds: &Bounds,
+    q: Quantization,
+) -> Result<Vec<[f64; 3]>, CodecError> {
     let frame = Frame::new(bounds, q)?;
     Ok(positions
         .iter()
@@ -322,8 +326,8 @@ pub fn quantized_bounds(bounds: &Bounds, positions: &[[f64; 3]], q: Quantization
     }
     let highest = frame.position(top);
     let mut out = *bounds;
-    for a in 0..3 {
-        out.max[a] = out.max[a].max(highest[a]);
+    for (m, h) in out.max.iter_mut().zip(highest) {
+        *m = m.max(h);
     }
     out
 }
@@ -380,7 +384,9 @@ impl Frame {
     /// position in errors.
     pub(crate) fn quantize(&self, p: [f64; 3], index: usize) -> Result<[i64; 3], CodecError> {
         self.quantize_within(p, self.qtop).map_err(|e| match e {
-            CodecError::NonFinitePosition { position, .. } => CodecError::NonFinitePosition { index, position },
+            CodecError::NonFinitePosition { position, .. } => {
+                CodecError::NonFinitePosition { index, position }
+            }
             _ => CodecError::OutOfBounds { index, position: p },
         })
     }

@@ -54,7 +54,10 @@ fn header_bounds_hold_every_decoded_position() {
     let hb = d.header.bounds();
     assert!(back.positions.iter().all(|p| (0..3).all(|a| hb.min[a] <= p[a] && p[a] <= hb.max[a])));
     let far = Mesh { positions: vec![[0.0, 0.0, 800.0], [4.0, 0.0, 836.2], [0.0, 4.0, 810.0]], ..m };
-    assert!(matches!(encode_mesh(KEY, 0, &b, q, &far, ERRORS), Err(CodecError::OutOfBounds { index: 1, .. })));
+    assert!(matches!(
+        encode_mesh(KEY, 0, &b, q, &far, ERRORS),
+        Err(CodecError::OutOfBounds { index: 1, .. })
+    ));
     // Points snapped into fixed bounds stay inside them, the top one a step lower.
     let pts = vec![[1.0, 1.0, 835.9], [2.0, 2.0, 799.9], [9.0, 2.0, 801.0]];
     let snapped = snap_positions(&pts, &b, q).unwrap();

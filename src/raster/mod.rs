@@ -470,7 +470,7 @@ fn check_frame(path: &Path, g: &Georef, o: &Overrides, width: u32, height: u32) 
     let last = |v0: f64, d: f64, n: u32| v0 + d * f64::from(n.saturating_sub(1));
     let xs = [g.x0, last(g.x0, g.dx, width)];
     let ys = [g.y0, last(g.y0, g.dy, height)];
-    if xs.iter().chain(&ys).any(|v| !(v.abs() <= MAX_COORDINATE)) {
+    if xs.iter().chain(&ys).any(|v| v.is_nan() || v.abs() > MAX_COORDINATE) {
         let origin = if o.origin.is_some() { "--origin" } else { "the file's georeference" };
         return Err(limit(format!(
             "samples span x {:?}..{:?}, y {:?}..{:?} (origin from {origin}, cell size from {}), beyond the supported \
@@ -491,7 +491,7 @@ fn check_heights(path: &Path, values: &[f32], width: u32, g: &Georef) -> Result<
     let limit = |message: String| RasterError::OutOfLimits { path: path.to_owned(), message };
     let (mut min, mut max) = (f32::INFINITY, f32::NEG_INFINITY);
     for (i, &v) in values.iter().enumerate() {
-        if !(f64::from(v).abs() <= MAX_HEIGHT) {
+        if v.is_nan() || f64::from(v).abs() > MAX_HEIGHT {
             let w = width.max(1) as usize;
             return Err(limit(format!(
                 "sample at column {}, row {} has height {v:?} (after z scale {:?} and offset {:?}), beyond the \

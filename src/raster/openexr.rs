@@ -6,11 +6,11 @@
 use std::io::{BufRead, Seek, SeekFrom};
 use std::path::Path;
 
+use exr::compression::Compression;
 use exr::image::read::image::ReadLayers;
 use exr::image::read::layers::ReadChannels;
 use exr::image::read::read;
 use exr::image::read::specific_channels::ReadSpecificChannel;
-use exr::compression::Compression;
 use exr::meta::MetaData;
 use exr::meta::attribute::{ChannelDescription, SampleType};
 use exr::meta::header::Header;
@@ -30,7 +30,11 @@ fn map_err(path: &Path, e: exr::error::Error) -> RasterError {
         exr::error::Error::Io(io)
             if matches!(io.kind(), std::io::ErrorKind::InvalidInput | std::io::ErrorKind::InvalidData) =>
         {
-            RasterError::corrupt(path, FORMAT, format!("a chunk offset or size points outside the file ({io})"))
+            RasterError::corrupt(
+                path,
+                FORMAT,
+                format!("a chunk offset or size points outside the file ({io})"),
+            )
         }
         exr::error::Error::Io(io) => RasterError::io(path, io),
         other => RasterError::corrupt(path, FORMAT, other.to_string()),
