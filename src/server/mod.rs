@@ -175,6 +175,19 @@ fn remove_staging_leftovers(root: &std::path::Path) {
     }
 }
 
+/// Connections the kernel queues for `accept` (capped by `net.core.somaxconn`): room for a
+/// burst of clients while the server is at `--max-connections` or accepting a flood; the
+/// 1024 of a plain `bind` drops SYNs of a burst, which then wait seconds to be retried.
+const LISTEN_BACKLOG: u32 = 4096;
+
+fn listen(addr: SocketAddr) -> std::io::Result<tokio::net::TcpListener> {
+    let socket =
+        if addr.is_ipv4() { tokio::net::TcpSocket::new_v4()? } else { tokio::net::TcpSocket::new_v6()? };
+    socket.set_reuseaddr(true)?;
+    socket.bind(addr)?;
+    socket.listen(LISTEN_BACKLOG)
+}
+
 /// A bound, not yet running server.
 pub struct Server {
     listener: tokio::net::TcpListener,
@@ -230,9 +243,8 @@ impl Server {
             config,
         });
         app.rescan();
-        let listener = tokio::net::TcpListener::bind(app.config.bind)
-            .await
-            .map_err(|source| ServerError::Bind { addr: app.config.bind, source })?;
+        let listener =
+            listen(app.config.bind).map_err(|source| ServerError::Bind { addr: app.config.bind, source })?;
         Ok(Self { listener, app })
     }
 
