@@ -257,7 +257,7 @@ impl Drop for Busy {
 }
 
 /// What a client past its connection cap gets before the connection is closed.
-const TOO_MANY: &[u8] = b"HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/problem+json\r\ncache-control: no-store\r\nretry-after: 5\r\nconnection: close\r\ncontent-length: 171\r\n\r\n{\"type\":\"urn:terrastream:problem:too-many-connections\",\"title\":\"Service Unavailable\",\"status\":503,\"detail\":\"this client has too many connections open to the server\"}";
+const TOO_MANY: &[u8] = b"HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/problem+json\r\ncache-control: no-store\r\nretry-after: 5\r\nconnection: close\r\ncontent-length: 165\r\n\r\n{\"type\":\"urn:terrastream:problem:too-many-connections\",\"title\":\"Service Unavailable\",\"status\":503,\"detail\":\"this client has too many connections open to the server\"}";
 
 /// Accepts connections until `stop` turns true, serving each with `service` under `limits`;
 /// then asks every connection to close once its request in flight is answered, and returns
@@ -400,6 +400,6 @@ mod tests {
             drop(s);
             true
         })));
-        assert_eq!(TOO_MANY.len() - TOO_MANY.windows(4).position(|w| w == b"\r\n\r\n").unwrap() - 4, 171);
+        assert_eq!(TOO_MANY.len() - TOO_MANY.windows(4).position(|w| w == b"\r\n\r\n").unwrap() - 4, 165);
     }
 }
