@@ -1108,9 +1108,22 @@ async fn an_unreadable_store_is_503_not_404() {
     let r = get(a, "/tilesets/t/index/0/0/0.json").await;
     r.assert_problem(503);
     assert!(r.header("retry-after").is_some(), "{r:?}");
-    // A blob that is simply missing is still a 404 … (restore the store first)
+    // The whole tileset directory replaced by a file: still listed (store scans keep it), its
+    // blobs 503, not 404; once the directory is back, served again.
+    std::fs::remove_file(&index).unwrap();
+    std::fs::rename(store.join("t/index.away"), &index).unwrap();
     std::fs::remove_file(&tiles).unwrap();
     std::fs::rename(store.join("t/tiles.away"), &tiles).unwrap();
+    std::fs::rename(store.join("t"), store.join("t.away")).unwrap();
+    std::fs::write(store.join("t"), b"not a directory").unwrap();
+    tokio::time::sleep(Duration::from_millis(500)).await; // several re-scans (poll 100 ms)
+    let r = get(a, "/tilesets/t/tiles/1/0/0/0").await;
+    r.assert_problem(503);
+    assert!(r.header("retry-after").is_some(), "{r:?}");
+    assert_eq!(get(a, "/tilesets/t").await.status, 200);
+    std::fs::remove_file(store.join("t")).unwrap();
+    std::fs::rename(store.join("t.away"), store.join("t")).unwrap();
+    // A blob that is simply missing is still a 404.
     std::fs::remove_file(store.join("t/tiles/1/0/0/0.tsb")).unwrap();
     get(a, "/tilesets/t/tiles/1/0/0/0").await.assert_problem(404);
     assert_eq!(get(a, "/tilesets/t/tiles/1/0/0/1").await.status, 200);
