@@ -266,6 +266,16 @@ struct ServeArgs {
     rate_limit: Option<u32>,
     #[arg(long, env = "TERRASTREAM_SHUTDOWN_TIMEOUT", value_name = "SECONDS", help = format!("Time in-flight requests get after SIGTERM [default: {}]", server::DEFAULT_SHUTDOWN_TIMEOUT_S))]
     shutdown_timeout: Option<u64>,
+    #[arg(long, env = "TERRASTREAM_MAX_CONNECTIONS_PER_CLIENT", help = format!("Most open connections from one client IP; more get 503 and are closed; 0 = no limit [default: {}]", server::DEFAULT_MAX_CONNECTIONS_PER_CLIENT))]
+    max_connections_per_client: Option<usize>,
+    #[arg(long, env = "TERRASTREAM_HEADER_TIMEOUT", value_name = "SECONDS", help = format!("Time a client has to send a request head from its first byte [default: {}]", server::DEFAULT_HEADER_TIMEOUT_S))]
+    header_timeout: Option<u64>,
+    #[arg(long, env = "TERRASTREAM_IDLE_TIMEOUT", value_name = "SECONDS", help = format!("A connection with no request in flight is closed after this long idle [default: {}]", server::DEFAULT_IDLE_TIMEOUT_S))]
+    idle_timeout: Option<u64>,
+    #[arg(long, env = "TERRASTREAM_JOB_TIMEOUT", value_name = "SECONDS", help = format!("Longest an admin bake job may run before it is stopped (failed) [default: {}]", server::DEFAULT_JOB_TIMEOUT_S))]
+    job_timeout: Option<u64>,
+    #[arg(long, env = "TERRASTREAM_JOB_TTL", value_name = "SECONDS", help = format!("How long ended admin jobs stay at /jobs/ID [default: {}]", server::DEFAULT_JOB_TTL_S))]
+    job_ttl: Option<u64>,
     #[arg(
         long,
         env = "TERRASTREAM_ADMIN_TOKEN",
@@ -318,6 +328,11 @@ impl ServeArgs {
             poll_ms: self.poll_ms,
             rate_limit: self.rate_limit,
             shutdown_timeout_s: self.shutdown_timeout,
+            max_connections_per_client: self.max_connections_per_client,
+            header_timeout_s: self.header_timeout,
+            idle_timeout_s: self.idle_timeout,
+            job_timeout_s: self.job_timeout,
+            job_ttl_s: self.job_ttl,
             admin_token: self.admin_token.clone(),
             read_token: self.read_token.clone(),
             log_format: self.log_format.map(|f| match f {

@@ -8,7 +8,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::float_cmp, clippy::panic)]
 #![allow(clippy::large_futures, clippy::duration_suboptimal_units, clippy::format_push_string)]
 
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -65,8 +65,32 @@ fn dechunk(mut b: &[u8]) -> Vec<u8> {
 
 /// One request on its own connection (`Connection: close`), answered within 60 s.
 async fn request(addr: SocketAddr, method: &str, path: &str, headers: &[(&str, &str)], body: &[u8]) -> Resp {
+    request_from(None, addr, method, path, headers, body).await
+}
+
+/// A connection from source address `from` (any of 127/8 on Linux: a different "client").
+async fn connect_from(from: Option<IpAddr>, addr: SocketAddr) -> TcpStream {
+    match from {
+        None => TcpStream::connect(addr).await.unwrap(),
+        Some(ip) => {
+            let sock = tokio::net::TcpSocket::new_v4().unwrap();
+            sock.bind(SocketAddr::new(ip, 0)).unwrap();
+            sock.connect(addr).await.unwrap()
+        }
+    }
+}
+
+/// `request` from source address `from`.
+async fn request_from(
+    from: Option<IpAddr>,
+    addr: SocketAddr,
+    method: &str,
+    path: &str,
+    headers: &[(&str, &str)],
+    body: &[u8],
+) -> Resp {
     tokio::time::timeout(Duration::from_secs(60), async {
-        let mut s = TcpStream::connect(addr).await.unwrap();
+        let mut s = connect_from(from, addr).await;
         let mut req = format!("{method} {path} HTTP/1.1\r\nHost: test\r\nConnection: close\r\n");
         for (k, v) in headers {
             req.push_str(&format!("{k}: {v}\r\n"));
@@ -841,5 +865,410 @@ async fn tilesets_added_and_removed_while_serving_are_picked_up() {
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     assert!(gone, "the removed tileset is still served");
+    srv.stop().await;
+}
+
+/// Reads until the server closes the connection (EOF or reset); `None` when it stays open for
+/// `within`.
+async fn closed_within(s: &mut TcpStream, within: Duration) -> Option<Vec<u8>> {
+    let mut got = Vec::new();
+    let mut buf = vec![0u8; 65536];
+    tokio::time::timeout(within, async {
+        loop {
+            match s.read(&mut buf).await {
+                Ok(0) | Err(_) => return,
+                Ok(n) => got.extend_from_slice(&buf[..n]),
+            }
+        }
+    })
+    .await
+    .ok()
+    .map(|()| got)
+}
+
+/// D3: idle connections, slowloris heads and one client opening more than its share are all
+/// closed by the server (idle timeout, header timeout, per-client cap), and a normal client is
+/// served throughout.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn idle_slowloris_and_greedy_connections_are_closed_and_others_still_served() {
+    let (_tmp, store, _) = baked_store();
+    let cfg = PartialConfig {
+        max_connections: Some(32),
+        max_connections_per_client: Some(8),
+        header_timeout_s: Some(1),
+        idle_timeout_s: Some(3),
+        ..store_config(&store)
+    };
+    let srv = Running::start(cfg).await;
+    let a = srv.addr;
+    let greedy: IpAddr = "127.0.0.3".parse().unwrap();
+    let slow: IpAddr = "127.0.0.4".parse().unwrap();
+    let normal: Option<IpAddr> = Some("127.0.0.2".parse().unwrap());
+    let t0 = std::time::Instant::now();
+
+    // One client opens 12 idle connections: 8 are held, the 4 past its cap are refused at once.
+    let mut idle = Vec::new();
+    for _ in 0..12 {
+        idle.push(connect_from(Some(greedy), a).await);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let mut refused = 0;
+    for s in &mut idle[8..] {
+        let got =
+            closed_within(s, Duration::from_secs(1)).await.expect("a connection past the cap stayed open");
+        assert!(got.is_empty() || got.starts_with(b"HTTP/1.1 503"), "{}", String::from_utf8_lossy(&got));
+        refused += 1;
+    }
+    assert_eq!(refused, 4);
+    idle.truncate(8);
+
+    // Slowloris: 5 connections trickling a request head, one byte every 200 ms.
+    let mut slow_tasks = Vec::new();
+    for _ in 0..5 {
+        let mut s = connect_from(Some(slow), a).await;
+        slow_tasks.push(tokio::spawn(async move {
+            let start = std::time::Instant::now();
+            let head = b"GET /healthz HTTP/1.1\r\nHost: x\r\nX-Padding: aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa\r\n";
+            for b in head {
+                if s.write_all(&[*b]).await.is_err() {
+                    return start.elapsed();
+                }
+                tokio::time::sleep(Duration::from_millis(200)).await;
+            }
+            panic!("the server read a slowloris head for {:?}", start.elapsed());
+        }));
+    }
+
+    // During the abuse, another client is served: health and a blob (from disk, then memory).
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert_eq!(request_from(normal, a, "GET", "/healthz", &[], &[]).await.status, 200);
+    for _ in 0..2 {
+        let r = request_from(normal, a, "GET", "/tilesets/t/tiles/1/0/0/0", &[], &[]).await;
+        assert_eq!(r.status, 200);
+        assert!(r.body.starts_with(b"TSB1"));
+    }
+
+    // Slowloris heads are cut after the header timeout (1 s), though bytes keep arriving.
+    for t in slow_tasks {
+        let took = t.await.unwrap();
+        assert!(took < Duration::from_millis(2800), "a slowloris connection lived {took:?}");
+    }
+    // Idle connections close after the idle timeout (3 s), not the header timeout.
+    for s in &mut idle {
+        let got = closed_within(s, Duration::from_secs(6)).await.expect("an idle connection stayed open");
+        assert!(got.is_empty());
+    }
+    let idle_for = t0.elapsed();
+    assert!(idle_for >= Duration::from_millis(2500), "idle connections closed after {idle_for:?}");
+
+    // The greedy client's slots are free again.
+    let r = request_from(Some(greedy), a, "GET", "/healthz", &[], &[]).await;
+    assert_eq!(r.status, 200);
+    let text = String::from_utf8(get(a, "/metrics").await.body).unwrap();
+    assert_eq!(metric(&text, "terrastream_connections_refused_total"), 4.0, "{text}");
+    assert!(metric(&text, "terrastream_connections_header_timeouts_total") >= 5.0, "{text}");
+    assert!(metric(&text, "terrastream_connections_idle_closed_total") >= 8.0, "{text}");
+    srv.stop().await;
+}
+
+/// D3: with the per-client cap off, one client can fill `--max-connections`; the idle timeout
+/// still gives the slots back, so a new client gets in after it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn idle_connections_filling_the_server_are_closed_and_it_serves_again() {
+    let (_tmp, store, _) = baked_store();
+    let cfg = PartialConfig {
+        max_connections: Some(16),
+        max_connections_per_client: Some(0),
+        idle_timeout_s: Some(1),
+        ..store_config(&store)
+    };
+    let srv = Running::start(cfg).await;
+    let a = srv.addr;
+    let mut idle = Vec::new();
+    for _ in 0..16 {
+        idle.push(connect_from(Some("127.0.0.5".parse().unwrap()), a).await);
+    }
+    let start = std::time::Instant::now();
+    let r = request_from(Some("127.0.0.6".parse().unwrap()), a, "GET", "/healthz", &[], &[]).await;
+    assert_eq!(r.status, 200);
+    assert!(start.elapsed() < Duration::from_secs(5), "served after {:?}", start.elapsed());
+    for s in &mut idle {
+        closed_within(s, Duration::from_secs(5)).await.expect("an idle connection stayed open");
+    }
+    srv.stop().await;
+}
+
+/// Every pipelined request is answered when the client half-closes after sending them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn pipelined_requests_then_half_close_are_all_answered() {
+    let (_tmp, store, _) = baked_store();
+    let srv = Running::start(store_config(&store)).await;
+    let n = 2000;
+    let mut reqs = String::new();
+    for i in 0..n {
+        let path = match i % 3 {
+            0 => "/healthz",
+            1 => "/tilesets/t/tiles/1/1/0/1",
+            _ => "/tilesets/nope/tileset.json",
+        };
+        reqs.push_str(&format!("GET {path} HTTP/1.1\r\nHost: t\r\n\r\n"));
+    }
+    let s = TcpStream::connect(srv.addr).await.unwrap();
+    let (mut rd, mut wr) = s.into_split();
+    let reader = tokio::spawn(async move {
+        let mut got = Vec::new();
+        rd.read_to_end(&mut got).await.unwrap();
+        got
+    });
+    wr.write_all(reqs.as_bytes()).await.unwrap();
+    wr.shutdown().await.unwrap();
+    let got = tokio::time::timeout(Duration::from_secs(60), reader).await.unwrap().unwrap();
+    let count = |needle: &[u8]| got.windows(needle.len()).filter(|w| *w == needle).count();
+    assert_eq!(count(b"HTTP/1.1 "), n, "responses to {n} pipelined requests");
+    assert_eq!(count(b"HTTP/1.1 200 "), n - n / 3);
+    assert_eq!(count(b"HTTP/1.1 404 "), n / 3);
+    drop(wr);
+    srv.stop().await;
+}
+
+/// RFC 9112 §3.2: an HTTP/1.1 request needs exactly one valid Host; HTTP/1.0 needs none.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_request_without_one_valid_host_is_400() {
+    let (_tmp, store, _) = baked_store();
+    let srv = Running::start(store_config(&store)).await;
+    let raw = |head: &'static str| async move {
+        let mut s = TcpStream::connect(srv.addr).await.unwrap();
+        s.write_all(head.as_bytes()).await.unwrap();
+        let got = closed_within(&mut s, Duration::from_secs(30)).await.unwrap();
+        String::from_utf8_lossy(&got).into_owned()
+    };
+    for (head, status) in [
+        ("GET /healthz HTTP/1.1\r\nConnection: close\r\n\r\n", "400"),
+        ("GET /tilesets/t/tiles/1/1/0/1 HTTP/1.1\r\nConnection: close\r\n\r\n", "400"),
+        ("GET /healthz HTTP/1.1\r\nHost: a\r\nHost: b\r\nConnection: close\r\n\r\n", "400"),
+        ("GET /healthz HTTP/1.1\r\nHost: a b\r\nConnection: close\r\n\r\n", "400"),
+        ("GET /healthz HTTP/1.0\r\n\r\n", "200"),
+        ("GET /healthz HTTP/1.1\r\nHost: example.org:8080\r\nConnection: close\r\n\r\n", "200"),
+        ("GET /healthz HTTP/1.1\r\nHost:\r\nConnection: close\r\n\r\n", "200"),
+    ] {
+        let got = raw(head).await;
+        assert!(
+            got.starts_with(&format!("HTTP/1.1 {status} "))
+                || got.starts_with(&format!("HTTP/1.0 {status} ")),
+            "{head:?} → {got}"
+        );
+        if status == "400" {
+            assert!(got.to_ascii_lowercase().contains("content-type: application/problem+json"), "{got}");
+            assert!(got.contains("Host"), "{got}");
+        }
+    }
+    srv.stop().await;
+}
+
+/// A failing on-demand bake runs once; requests meanwhile get its error without a new bake.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_failed_on_demand_bake_is_remembered_not_rerun() {
+    let (_tmp, store, spec) = on_demand_store(513);
+    let cfg = PartialConfig { sources: vec![spec.parse().unwrap()], ..store_config(&store) };
+    let srv = Running::start(cfg).await;
+    let a = srv.addr;
+    // Level 2 of node 1/1/1 cannot be written (a non-empty directory sits at its path; the
+    // bake writes it first), so the node's bake fails; level 1 is what is requested (missing,
+    // so it bakes).
+    std::fs::create_dir_all(store.join("od/tiles/1/1/1/2.tsb/x")).unwrap();
+    let first = get(a, "/tilesets/od/tiles/1/1/1/1").await;
+    first.assert_problem(500);
+    let second = get(a, "/tilesets/od/tiles/1/1/1/1").await;
+    second.assert_problem(500);
+    assert!(second.json()["detail"].as_str().unwrap().contains("not retried"), "{:?}", second.json());
+    let text = String::from_utf8(get(a, "/metrics").await.body).unwrap();
+    assert_eq!(metric(&text, "terrastream_bakes_failed_total"), 1.0, "{text}");
+    assert_eq!(metric(&text, "terrastream_bakes_done_total"), 0.0, "{text}");
+    // Another node bakes normally.
+    assert_eq!(get(a, "/tilesets/od/tiles/1/0/0/1").await.status, 200);
+    srv.stop().await;
+}
+
+/// A store that cannot be read (here: a tileset's tiles directory replaced by a file, so every
+/// blob path fails with ENOTDIR) is a 503 with Retry-After, not a 404.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn an_unreadable_store_is_503_not_404() {
+    let (_tmp, store, _) = baked_store();
+    let srv = Running::start(store_config(&store)).await;
+    let a = srv.addr;
+    let tiles = store.join("t/tiles");
+    std::fs::rename(&tiles, store.join("t/tiles.away")).unwrap();
+    std::fs::write(&tiles, b"not a directory").unwrap();
+    let index = store.join("t/index");
+    std::fs::rename(&index, store.join("t/index.away")).unwrap();
+    std::fs::write(&index, b"not a directory").unwrap();
+    let r = get(a, "/tilesets/t/tiles/1/0/0/0").await;
+    r.assert_problem(503);
+    assert!(r.header("retry-after").is_some(), "{r:?}");
+    let r = get(a, "/tilesets/t/index/0/0/0.json").await;
+    r.assert_problem(503);
+    assert!(r.header("retry-after").is_some(), "{r:?}");
+    // The whole tileset directory replaced by a file: still listed (store scans keep it), its
+    // blobs 503, not 404; once the directory is back, served again.
+    std::fs::remove_file(&index).unwrap();
+    std::fs::rename(store.join("t/index.away"), &index).unwrap();
+    std::fs::remove_file(&tiles).unwrap();
+    std::fs::rename(store.join("t/tiles.away"), &tiles).unwrap();
+    std::fs::rename(store.join("t"), store.join("t.away")).unwrap();
+    std::fs::write(store.join("t"), b"not a directory").unwrap();
+    tokio::time::sleep(Duration::from_millis(500)).await; // several re-scans (poll 100 ms)
+    let r = get(a, "/tilesets/t/tiles/1/0/0/0").await;
+    r.assert_problem(503);
+    assert!(r.header("retry-after").is_some(), "{r:?}");
+    assert_eq!(get(a, "/tilesets/t").await.status, 200);
+    std::fs::remove_file(store.join("t")).unwrap();
+    std::fs::rename(store.join("t.away"), store.join("t")).unwrap();
+    // A blob that is simply missing is still a 404.
+    std::fs::remove_file(store.join("t/tiles/1/0/0/0.tsb")).unwrap();
+    get(a, "/tilesets/t/tiles/1/0/0/0").await.assert_problem(404);
+    assert_eq!(get(a, "/tilesets/t/tiles/1/0/0/1").await.status, 200);
+    srv.stop().await;
+}
+
+/// Polls a job until `done(state)`, at most 60 s; returns its last JSON.
+async fn wait_job(
+    a: SocketAddr,
+    loc: &str,
+    admin: &[(&str, &str)],
+    done: impl Fn(&str) -> bool,
+) -> serde_json::Value {
+    let mut j = serde_json::Value::Null;
+    for _ in 0..1200 {
+        j = request(a, "GET", loc, admin, &[]).await.json();
+        if done(j["state"].as_str().unwrap_or_default()) {
+            return j;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    panic!("job {loc} never reached the state wanted: {j}");
+}
+
+fn no_staging(store: &Path) {
+    for e in std::fs::read_dir(store).unwrap() {
+        let n = e.unwrap().file_name().to_string_lossy().into_owned();
+        assert!(!n.starts_with(".job-") && !n.starts_with(".upload-"), "left behind: {n}");
+    }
+}
+
+/// D2: a queued job is cancelled at once, a running bake stops at its next node and its job
+/// ends `cancelled` with nothing published; the upload slot is free again afterwards; ended
+/// jobs are forgotten after the TTL.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn admin_jobs_can_be_cancelled_and_expire() {
+    let (tmp, store, tif) = baked_store();
+    let big = tmp.path().join("big.tif");
+    write_raster(&big, (1025, 1025), 5);
+    let cfg = PartialConfig {
+        admin_token: Some("admin-secret-1".into()),
+        job_ttl_s: Some(2),
+        gpu: Some(terrastream::bake::GpuMode::Off),
+        ..store_config(&store)
+    };
+    let srv = Running::start(cfg).await;
+    let a = srv.addr;
+    // The scheme is case-insensitive.
+    let admin = [("Authorization", "BEARER admin-secret-1")];
+    let body = std::fs::read(&big).unwrap();
+    let up = request(a, "POST", "/tilesets/big?tile_size=64&levels=2", &admin, &body).await;
+    assert_eq!(up.status, 202, "{}", String::from_utf8_lossy(&up.body));
+    let running = up.header("location").unwrap().to_owned();
+    // A second upload waits for the slot; cancelling it ends it at once.
+    let small = std::fs::read(&tif).unwrap();
+    let q = request(a, "POST", "/tilesets/queued?tile_size=128&levels=1", &admin, &small).await;
+    assert_eq!(q.status, 202);
+    let queued = q.header("location").unwrap().to_owned();
+    let j = wait_job(a, &running, &admin, |s| s != "queued").await;
+    assert_eq!(j["state"], "running", "{j}");
+    assert_eq!(request(a, "GET", &queued, &admin, &[]).await.json()["state"], "queued");
+    assert_eq!(request(a, "DELETE", &queued, &admin, &[]).await.status, 204);
+    assert_eq!(request(a, "GET", &queued, &admin, &[]).await.json()["state"], "cancelled");
+    assert_eq!(request(a, "DELETE", &queued, &admin, &[]).await.status, 204, "idempotent");
+    // Cancel the running bake once it has done some nodes.
+    wait_job(a, &running, &admin, |_| true).await;
+    let c = request(a, "DELETE", &running, &admin, &[]).await;
+    assert_eq!(c.status, 202, "{}", String::from_utf8_lossy(&c.body));
+    let j = wait_job(a, &running, &admin, |s| s != "running").await;
+    assert_eq!(j["state"], "cancelled", "{j}");
+    assert!(j["nodes_done"].as_u64().unwrap() < j["nodes_total"].as_u64().unwrap(), "{j}");
+    assert!(!store.join("big").exists() && !store.join("queued").exists());
+    no_staging(&store);
+    request(a, "GET", "/tilesets/big/tileset.json", &[], &[]).await.assert_problem(404);
+    // The slot is free: a new upload bakes.
+    let up = request(a, "POST", "/tilesets/after?tile_size=128&levels=1", &admin, &small).await;
+    let after = up.header("location").unwrap().to_owned();
+    let j = wait_job(a, &after, &admin, |s| s == "done" || s == "failed").await;
+    assert_eq!(j["state"], "done", "{j}");
+    request(a, "DELETE", &after, &admin, &[]).await.assert_problem(409);
+    request(a, "DELETE", "/jobs/j999", &admin, &[]).await.assert_problem(404);
+    request(a, "DELETE", &after, &[], &[]).await.assert_problem(401);
+    // Ended jobs are forgotten after --job-ttl (2 s).
+    tokio::time::sleep(Duration::from_millis(2500)).await;
+    request(a, "GET", &after, &admin, &[]).await.assert_problem(404);
+    request(a, "GET", &running, &admin, &[]).await.assert_problem(404);
+    srv.stop().await;
+}
+
+/// D2: a job running past --job-timeout is stopped at its next node and fails, naming the
+/// timeout; the slot is released.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_job_past_its_timeout_is_stopped_and_failed() {
+    let (tmp, store, tif) = baked_store();
+    let big = tmp.path().join("big.tif");
+    write_raster(&big, (1025, 1025), 5);
+    let cfg = PartialConfig {
+        admin_token: Some("admin-secret-1".into()),
+        job_timeout_s: Some(1),
+        gpu: Some(terrastream::bake::GpuMode::Off),
+        ..store_config(&store)
+    };
+    let srv = Running::start(cfg).await;
+    let a = srv.addr;
+    let admin = [("Authorization", "Bearer admin-secret-1")];
+    let up = request(a, "POST", "/tilesets/big?tile_size=64&levels=2", &admin, &std::fs::read(&big).unwrap())
+        .await;
+    let loc = up.header("location").unwrap().to_owned();
+    let start = std::time::Instant::now();
+    let j = wait_job(a, &loc, &admin, |s| s == "done" || s == "failed" || s == "cancelled").await;
+    assert_eq!(j["state"], "failed", "{j}");
+    assert!(j["error"].as_str().unwrap().contains("--job-timeout"), "{j}");
+    assert!(start.elapsed() < Duration::from_secs(20), "{:?}", start.elapsed());
+    assert!(!store.join("big").exists());
+    no_staging(&store);
+    // A small job still fits in the timeout: the slot was released.
+    let up =
+        request(a, "POST", "/tilesets/small?tile_size=128&levels=1", &admin, &std::fs::read(&tif).unwrap())
+            .await;
+    let loc = up.header("location").unwrap().to_owned();
+    let j = wait_job(a, &loc, &admin, |s| s == "done" || s == "failed").await;
+    assert!(j["state"] == "done" || j["error"].as_str().unwrap().contains("--job-timeout"), "{j}");
+    srv.stop().await;
+}
+
+/// D6: staging leftovers of an earlier run (exactly `.upload-jN`, `.job-jN`, `.deleted-NAME-N`)
+/// are removed at startup; nothing else is touched.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn staging_leftovers_are_removed_at_startup() {
+    let (_tmp, store, _) = baked_store();
+    std::fs::write(store.join(".upload-j1"), b"half an upload").unwrap();
+    std::fs::create_dir_all(store.join(".job-j1/tiles/0/0/0")).unwrap();
+    std::fs::write(store.join(".job-j1/tiles/0/0/0/0.tsb"), b"x").unwrap();
+    std::fs::create_dir_all(store.join(".deleted-old-1700000000")).unwrap();
+    let keep = [".upload-jx", ".job-j1.keep", "notes.txt", ".hidden"];
+    for k in keep {
+        std::fs::write(store.join(k), b"mine").unwrap();
+    }
+    let srv = Running::start(store_config(&store)).await;
+    for gone in [".upload-j1", ".job-j1", ".deleted-old-1700000000"] {
+        assert!(!store.join(gone).exists(), "{gone} left");
+    }
+    for k in keep {
+        assert!(store.join(k).exists(), "{k} removed");
+    }
+    assert_eq!(get(srv.addr, "/tilesets/t/tiles/0/0/0/0").await.status, 200);
     srv.stop().await;
 }

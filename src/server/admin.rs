@@ -1,13 +1,17 @@
 //! The admin API (bearer token, `--admin-token`): upload a raster and bake it as a new tileset
 //! (`POST /tilesets/{name}`, streamed to disk and size-limited), follow the bake job
-//! (`GET /jobs/{id}`), delete a tileset (`DELETE /tilesets/{name}`). Uploads bake one at a time
-//! on their own thread into a hidden staging directory that is renamed into place when complete,
-//! so readers never see a half-baked tileset.
+//! (`GET /jobs/{id}`) or cancel it (`DELETE /jobs/{id}`), delete a tileset
+//! (`DELETE /tilesets/{name}`). Uploads bake one at a time on their own thread into a hidden
+//! staging directory that is renamed into place when complete, so readers never see a
+//! half-baked tileset. A running job stops at its next node when cancelled or past
+//! `--job-timeout`; ended jobs are forgotten after `--job-ttl`.
 
 use std::collections::HashMap;
+use std::panic::AssertUnwindSafe;
 use std::path::{Path as FsPath, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use axum::body::Body;
 use axum::extract::{Path, Query, State};
@@ -16,6 +20,7 @@ use axum::response::{IntoResponse, Response};
 use http_body_util::BodyExt;
 use serde::Deserialize;
 use tokio::io::AsyncWriteExt;
+use tokio::sync::{Notify, Semaphore};
 
 use super::http::check_bearer;
 use super::problem::Problem;
@@ -24,30 +29,94 @@ use crate::bake::{BakeOptions, PointBaker, Progress};
 use crate::raster::{Encoding, LoadOptions, Overrides};
 use crate::store::Store;
 
+/// Seconds a running job gets to stop at its next node once cancelled or past `--job-timeout`;
+/// after that the job is ended anyway and the upload slot released, whatever its bake thread
+/// is doing (the thread's late result is discarded and its staging directory removed).
+pub const JOB_STOP_GRACE_S: u64 = 30;
+
+const QUEUED: &str = "queued";
+const RUNNING: &str = "running";
+const DONE: &str = "done";
+const FAILED: &str = "failed";
+const CANCELLED: &str = "cancelled";
+
+fn terminal(state: &str) -> bool {
+    matches!(state, DONE | FAILED | CANCELLED)
+}
+
+struct JobState {
+    state: &'static str,
+    error: Option<String>,
+    /// When the job reached a terminal state (for `--job-ttl`).
+    finished: Option<Instant>,
+    /// When a running job must stop (`--job-timeout` after it started running).
+    deadline: Option<Instant>,
+}
+
 /// A bake job started by an upload.
 pub struct Job {
     id: String,
     tileset: String,
-    state: Mutex<(&'static str, Option<String>)>,
+    state: Mutex<JobState>,
     total: AtomicU64,
     done: AtomicU64,
+    /// `DELETE /jobs/{id}` asked it to stop.
+    cancel: AtomicBool,
+    /// Wakes the job's supervisor when `cancel` is set.
+    wake: Notify,
+    timeout: Duration,
 }
 
 impl Job {
     fn json(&self) -> serde_json::Value {
-        let (state, error) = self.state.lock().map_or(("unknown", None), |g| g.clone());
+        let (state, error) = self.state.lock().map_or(("unknown", None), |g| (g.state, g.error.clone()));
         serde_json::json!({
             "id": self.id,
             "tileset": self.tileset,
             "state": state,
             "nodes_total": self.total.load(Ordering::Relaxed),
             "nodes_done": self.done.load(Ordering::Relaxed),
+            "cancel_requested": self.cancel.load(Ordering::Relaxed),
             "error": error,
         })
     }
-    fn set(&self, state: &'static str, error: Option<String>) {
-        if let Ok(mut g) = self.state.lock() {
-            *g = (state, error);
+
+    fn state(&self) -> &'static str {
+        self.state.lock().map_or(FAILED, |g| g.state)
+    }
+
+    /// Starts running: the `--job-timeout` clock starts now.
+    fn set_running(&self) {
+        if let Ok(mut g) = self.state.lock()
+            && !terminal(g.state)
+        {
+            g.state = RUNNING;
+            g.deadline = Some(Instant::now() + self.timeout);
+        }
+    }
+
+    /// Ends the job, unless it has ended already (the first end wins). Returns whether it did.
+    fn finish(&self, state: &'static str, error: Option<String>) -> bool {
+        let Ok(mut g) = self.state.lock() else { return false };
+        if terminal(g.state) {
+            return false;
+        }
+        *g = JobState { state, error, finished: Some(Instant::now()), deadline: g.deadline };
+        true
+    }
+
+    fn timeout_message(&self) -> String {
+        format!("the job ran longer than --job-timeout ({} s) and was stopped", self.timeout.as_secs())
+    }
+
+    fn past_deadline(&self) -> bool {
+        self.state.lock().ok().and_then(|g| g.deadline).is_some_and(|d| Instant::now() >= d)
+    }
+
+    /// Completes once `DELETE /jobs/{id}` has asked the job to stop.
+    async fn cancel_requested(&self) {
+        while !self.cancel.load(Ordering::Acquire) {
+            self.wake.notified().await;
         }
     }
 }
@@ -60,14 +129,40 @@ impl Progress for Job {
     fn node_done(&self) {
         self.done.fetch_add(1, Ordering::Relaxed);
     }
+    /// Checked by the bake before every node: stops it when cancelled or past its deadline.
+    fn cancelled(&self) -> Option<String> {
+        if self.cancel.load(Ordering::Acquire) {
+            return Some(format!("job {} was cancelled", self.id));
+        }
+        self.past_deadline().then(|| self.timeout_message())
+    }
 }
 
-#[derive(Default)]
 pub struct Jobs {
     map: Mutex<HashMap<String, Arc<Job>>>,
     next: AtomicU64,
-    /// Uploaded bakes run one at a time: each already uses every core.
-    bake_lock: Arc<Mutex<()>>,
+    /// Uploaded bakes run one at a time (each already uses every core): the one permit is held
+    /// by the job's supervisor task — never by the bake thread — so it is given back when the
+    /// job ends, is cancelled or times out, whatever the bake thread does.
+    slot: Arc<Semaphore>,
+}
+
+impl Jobs {
+    pub fn new() -> Self {
+        Self { map: Mutex::new(HashMap::new()), next: AtomicU64::new(0), slot: Arc::new(Semaphore::new(1)) }
+    }
+
+    /// Forgets jobs that ended more than `ttl` ago.
+    fn expire(&self, ttl: Duration) {
+        if let Ok(mut m) = self.map.lock() {
+            m.retain(|_, j| j.state.lock().map_or(true, |g| g.finished.is_none_or(|t| t.elapsed() < ttl)));
+        }
+    }
+
+    fn get(&self, id: &str, ttl: Duration) -> Option<Arc<Job>> {
+        self.expire(ttl);
+        self.map.lock().ok().and_then(|m| m.get(id).cloned())
+    }
 }
 
 fn admin(app: &App, headers: &HeaderMap) -> Result<(), Problem> {
@@ -156,45 +251,162 @@ pub async fn upload(
         let _ = tokio::fs::remove_file(&upload).await;
         return Err(p.unwrap_or_else(too_large));
     }
+    app.jobs.expire(app.config.job_ttl);
     let job = Arc::new(Job {
         id: id.clone(),
         tileset: name.clone(),
-        state: Mutex::new(("queued", None)),
+        state: Mutex::new(JobState { state: QUEUED, error: None, finished: None, deadline: None }),
         total: AtomicU64::new(0),
         done: AtomicU64::new(0),
+        cancel: AtomicBool::new(false),
+        wake: Notify::new(),
+        timeout: app.config.job_timeout,
     });
     if let Ok(mut m) = app.jobs.map.lock() {
         m.insert(id.clone(), job.clone());
     }
     let reply = job.json();
     let location = format!("/jobs/{id}");
-    let app2 = app.clone();
-    let lock = app.jobs.bake_lock.clone();
-    let spawned = std::thread::Builder::new().name(format!("job-{id}")).spawn(move || {
-        let _one_at_a_time = lock.lock();
-        job.set("running", None);
-        let src = JobSource { upload: &upload, encoding, cell_size: params.cell_size };
-        let r = run_job(&root, &src, &name, &id, &opts, &app2.baker, &job);
-        let _ = std::fs::remove_file(&upload);
-        match r {
-            Ok(()) => {
-                job.set("done", None);
-                app2.rescan();
-            }
-            Err(e) => {
-                tracing::error!(job = %id, error = %e, "bake job failed");
-                job.set("failed", Some(e));
-            }
-        }
-    });
-    if spawned.is_err() {
-        return Err(Problem::unavailable("jobs", "cannot start the bake job", 5));
-    }
+    let work = Work { root, upload, name, encoding, cell_size: params.cell_size, opts };
+    tokio::spawn(supervise(app.clone(), job, work));
     let mut r = (StatusCode::ACCEPTED, axum::Json(reply)).into_response();
     if let Ok(v) = HeaderValue::from_str(&location) {
         r.headers_mut().insert(header::LOCATION, v);
     }
     Ok(r)
+}
+
+/// What a job bakes.
+struct Work {
+    root: PathBuf,
+    upload: PathBuf,
+    name: String,
+    encoding: Option<Encoding>,
+    cell_size: Option<f64>,
+    opts: BakeOptions,
+}
+
+/// Runs one job: waits for the upload slot (or a cancel), bakes on its own thread, stops it at
+/// the next node when cancelled or past `--job-timeout`, publishes the tileset only if the job
+/// is still running when the bake completes, and gives the slot back in every case.
+async fn supervise(app: Arc<App>, job: Arc<Job>, work: Work) {
+    let permit = tokio::select! {
+        p = app.jobs.slot.clone().acquire_owned() => p.ok(),
+        () = job.cancel_requested() => None,
+    };
+    let Some(permit) = permit.filter(|_| !job.cancel.load(Ordering::Acquire)) else {
+        job.finish(CANCELLED, Some(format!("job {} was cancelled before it started", job.id)));
+        let _ = tokio::fs::remove_file(&work.upload).await;
+        tracing::info!(job = %job.id, "queued bake job cancelled");
+        return;
+    };
+    job.set_running();
+    let (tx, rx) = tokio::sync::oneshot::channel::<Result<PathBuf, String>>();
+    let (job2, baker, upload) = (job.clone(), app.baker.clone(), work.upload.clone());
+    let spawned = std::thread::Builder::new().name(format!("job-{}", job.id)).spawn(move || {
+        let r =
+            std::panic::catch_unwind(AssertUnwindSafe(|| bake_to_staging(&work, &job2.id, &baker, &job2)))
+                .unwrap_or_else(|_| Err("the bake panicked".to_owned()));
+        let _ = std::fs::remove_file(&work.upload);
+        // Nobody listening (the job was ended without us): discard what was baked.
+        if let Err(Ok(staging)) = tx.send(r) {
+            let _ = std::fs::remove_dir_all(staging);
+        }
+    });
+    if spawned.is_err() {
+        job.finish(FAILED, Some("cannot start the bake thread".to_owned()));
+        let _ = tokio::fs::remove_file(&upload).await;
+        return;
+    }
+    let deadline = job.state.lock().ok().and_then(|g| g.deadline).unwrap_or_else(Instant::now);
+    let grace = Duration::from_secs(JOB_STOP_GRACE_S);
+    let stopped_late = async {
+        tokio::select! {
+            () = tokio::time::sleep_until((deadline + grace).into()) => FAILED,
+            () = async { job.cancel_requested().await; tokio::time::sleep(grace).await; } => CANCELLED,
+        }
+    };
+    let outcome = tokio::select! {
+        r = rx => Some(r.unwrap_or_else(|_| Err("the bake thread ended without a result".to_owned()))),
+        state = stopped_late => {
+            let why = if state == FAILED { job.timeout_message() } else { format!("job {} was cancelled", job.id) };
+            tracing::error!(job = %job.id, "bake job did not stop within {JOB_STOP_GRACE_S} s; ended without it");
+            job.finish(state, Some(format!("{why}; its bake did not stop within {JOB_STOP_GRACE_S} s and was abandoned")));
+            let _ = tokio::fs::remove_file(&upload).await;
+            None
+        }
+    };
+    if let Some(r) = outcome {
+        conclude(&app, &job, r);
+    }
+    drop(permit);
+}
+
+/// The end of a job whose bake thread returned: publish the staged tileset if the job still
+/// may (not cancelled, not past its deadline), else discard it.
+fn conclude(app: &App, job: &Job, r: Result<PathBuf, String>) {
+    let stop = job.cancelled();
+    match r {
+        Ok(staging) => {
+            if let Some(why) = stop {
+                let _ = std::fs::remove_dir_all(&staging);
+                let state = if job.cancel.load(Ordering::Acquire) { CANCELLED } else { FAILED };
+                job.finish(state, Some(why));
+                return;
+            }
+            let target = app.registry.root().join(&job.tileset);
+            // Under the job's lock, so no cancel slips between the check and the rename.
+            let Ok(mut g) = job.state.lock() else { return };
+            if terminal(g.state) {
+                let _ = std::fs::remove_dir_all(&staging);
+                return;
+            }
+            let published = if target.exists() {
+                let _ = std::fs::remove_dir_all(&staging);
+                Err(format!("tileset {:?} appeared while baking; upload discarded", job.tileset))
+            } else {
+                std::fs::rename(&staging, &target).map_err(|e| {
+                    let _ = std::fs::remove_dir_all(&staging);
+                    format!("{}: {e}", target.display())
+                })
+            };
+            let (state, error) = match published {
+                Ok(()) => (DONE, None),
+                Err(e) => (FAILED, Some(e)),
+            };
+            *g = JobState {
+                state,
+                error: error.clone(),
+                finished: Some(Instant::now()),
+                deadline: g.deadline,
+            };
+            drop(g);
+            match error {
+                None => {
+                    tracing::info!(job = %job.id, tileset = %job.tileset, "bake job done");
+                    app.rescan();
+                }
+                Some(e) => tracing::error!(job = %job.id, error = %e, "bake job failed"),
+            }
+        }
+        Err(e) => {
+            let state = match stop {
+                Some(_) if job.cancel.load(Ordering::Acquire) => CANCELLED,
+                Some(why) => {
+                    tracing::error!(job = %job.id, "{why}");
+                    job.finish(FAILED, Some(why));
+                    return;
+                }
+                None => FAILED,
+            };
+            if state == FAILED {
+                tracing::error!(job = %job.id, error = %e, "bake job failed");
+            } else {
+                tracing::info!(job = %job.id, "running bake job cancelled");
+            }
+            job.finish(state, Some(e));
+        }
+    }
 }
 
 /// Streams the body to `path`; `Err(None)` when it exceeds `limit`.
@@ -220,43 +432,27 @@ async fn stream_to(path: &FsPath, body: Body, limit: u64) -> Result<(), Option<P
     Ok(())
 }
 
-#[allow(clippy::too_many_arguments)]
-/// The uploaded raster of a job and how to read it.
-struct JobSource<'a> {
-    upload: &'a FsPath,
-    encoding: Option<Encoding>,
-    cell_size: Option<f64>,
-}
-
-fn run_job(
-    root: &FsPath,
-    src: &JobSource<'_>,
-    name: &str,
-    id: &str,
-    opts: &BakeOptions,
-    baker: &PointBaker,
-    job: &Job,
-) -> Result<(), String> {
+/// Loads the upload and bakes it into the job's staging directory `.job-{id}`; returns that
+/// directory, complete. A failed or stopped bake removes it.
+fn bake_to_staging(work: &Work, id: &str, baker: &PointBaker, job: &Job) -> Result<PathBuf, String> {
     let load = LoadOptions {
-        encoding: src.encoding,
-        overrides: Overrides { cell_size: src.cell_size, ..Overrides::default() },
+        encoding: work.encoding,
+        overrides: Overrides { cell_size: work.cell_size, ..Overrides::default() },
         ..LoadOptions::default()
     };
-    let raster = crate::raster::load(src.upload, &load).map_err(|e| e.to_string())?;
-    let staging: PathBuf = root.join(format!(".job-{id}"));
-    let r = crate::bake::bake_with(&raster, name, opts, baker, &Store::new(&staging), job)
+    if let Some(why) = job.cancelled() {
+        return Err(why);
+    }
+    let raster = crate::raster::load(&work.upload, &load).map_err(|e| e.to_string())?;
+    let staging: PathBuf = work.root.join(format!(".job-{id}"));
+    let r = crate::bake::bake_with(&raster, &work.name, &work.opts, baker, &Store::new(&staging), job)
         .map(|_| ())
         .map_err(|e| e.to_string());
     if let Err(e) = r {
         let _ = std::fs::remove_dir_all(&staging);
         return Err(e);
     }
-    let target = root.join(name);
-    if target.exists() {
-        let _ = std::fs::remove_dir_all(&staging);
-        return Err(format!("tileset {name:?} appeared while baking; upload discarded"));
-    }
-    std::fs::rename(&staging, &target).map_err(|e| format!("{}: {e}", target.display()))
+    Ok(staging)
 }
 
 pub async fn job(
@@ -266,9 +462,54 @@ pub async fn job(
 ) -> Result<Response, Problem> {
     admin(&app, &headers)?;
     let Path(id) = path.map_err(|e| problem_of(&e))?;
-    let job = app.jobs.map.lock().ok().and_then(|m| m.get(&id).cloned());
-    let job = job.ok_or_else(|| Problem::not_found(format!("no job {id:?}")))?;
+    let job = app.jobs.get(&id, app.config.job_ttl);
+    let job = job.ok_or_else(|| {
+        Problem::not_found(format!(
+            "no job {id:?} (jobs are forgotten {} s after they end)",
+            app.config.job_ttl.as_secs()
+        ))
+    })?;
     let mut r = axum::Json(job.json()).into_response();
+    r.headers_mut().insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    Ok(r)
+}
+
+/// `DELETE /jobs/{id}`: a queued job is cancelled at once (`204`); a running one is asked to
+/// stop at its next node (`202`, the job as it is; its state becomes `cancelled` when it has
+/// stopped); a job already cancelled answers `204` again; a finished or failed one `409`.
+pub async fn cancel(
+    State(app): State<Arc<App>>,
+    path: Result<Path<String>, axum::extract::rejection::PathRejection>,
+    headers: HeaderMap,
+) -> Result<Response, Problem> {
+    admin(&app, &headers)?;
+    let Path(id) = path.map_err(|e| problem_of(&e))?;
+    let job = app.jobs.get(&id, app.config.job_ttl);
+    let job = job.ok_or_else(|| Problem::not_found(format!("no job {id:?}")))?;
+    match job.state() {
+        CANCELLED => return Ok(StatusCode::NO_CONTENT.into_response()),
+        s @ (DONE | FAILED) => {
+            return Err(Problem::new(
+                StatusCode::CONFLICT,
+                "job-ended",
+                format!("job {id:?} has already ended ({s})"),
+            ));
+        }
+        _ => {}
+    }
+    job.cancel.store(true, Ordering::Release);
+    job.wake.notify_one();
+    if job.state() == QUEUED
+        && job.finish(CANCELLED, Some(format!("job {id} was cancelled before it started")))
+    {
+        tracing::info!(job = %id, "queued bake job cancelled");
+        return Ok(StatusCode::NO_CONTENT.into_response());
+    }
+    if job.state() == CANCELLED {
+        return Ok(StatusCode::NO_CONTENT.into_response());
+    }
+    tracing::info!(job = %id, "cancelling running bake job");
+    let mut r = (StatusCode::ACCEPTED, axum::Json(job.json())).into_response();
     r.headers_mut().insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
     Ok(r)
 }

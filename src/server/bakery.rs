@@ -2,12 +2,15 @@
 //! every request for a node that is being baked waits for that one bake (a node bakes all its
 //! levels at once, so requests for different levels of one node share it too). When the queue
 //! is full the request is refused (`503` + `Retry-After`) rather than queued without limit.
+//! A bake that fails is not retried for `FAILED_BAKE_RETRY_S`: requests for that node meanwhile
+//! get the same error at once instead of each running the failing bake again.
 
 use std::collections::HashMap;
 use std::panic::AssertUnwindSafe;
 use std::sync::atomic::Ordering;
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use tokio::sync::watch;
 
@@ -22,6 +25,13 @@ pub type Outcome = Option<Result<(), String>>;
 
 /// Seconds a client is asked to wait when the queue is full.
 pub const QUEUE_FULL_RETRY_AFTER_S: u32 = 2;
+/// Seconds a failed on-demand bake of a node is remembered: its error is answered for that
+/// node meanwhile, and the bake is tried again only after. Long enough that a client retrying
+/// in a loop cannot keep a worker busy on a bake that fails; short enough that a transient
+/// cause (a full disk freed, a permission fixed) clears by itself.
+pub const FAILED_BAKE_RETRY_S: u64 = 30;
+/// Failures remembered at most (the oldest are forgotten first): bounded memory.
+const MAX_FAILURES: usize = 10_000;
 
 struct Job {
     ts: Arc<Tileset>,
@@ -30,10 +40,13 @@ struct Job {
 }
 
 type Flights = Mutex<HashMap<(String, TileKey), watch::Receiver<Outcome>>>;
+/// Recent failed bakes by node: when, and the error.
+type Failures = Mutex<HashMap<(String, TileKey), (Instant, String)>>;
 
 pub struct Bakery {
     tx: Mutex<Option<SyncSender<Job>>>,
     flights: Arc<Flights>,
+    failures: Arc<Failures>,
     metrics: Arc<Metrics>,
 }
 
@@ -43,16 +56,18 @@ impl Bakery {
         let (tx, rx) = std::sync::mpsc::sync_channel::<Job>(queue);
         let rx = Arc::new(Mutex::new(rx));
         let flights: Arc<Flights> = Arc::default();
+        let failures: Arc<Failures> = Arc::default();
         for i in 0..workers {
             let (rx, flights, metrics, baker) = (rx.clone(), flights.clone(), metrics.clone(), baker.clone());
+            let failures = failures.clone();
             let spawned = std::thread::Builder::new()
                 .name(format!("bake-{i}"))
-                .spawn(move || worker(&rx, &flights, &metrics, &baker));
+                .spawn(move || worker(&rx, &flights, &failures, &metrics, &baker));
             if let Err(e) = spawned {
                 tracing::error!(error = %e, "cannot start a bake worker");
             }
         }
-        Self { tx: Mutex::new(Some(tx)), flights, metrics }
+        Self { tx: Mutex::new(Some(tx)), flights, failures, metrics }
     }
 
     /// Stops taking jobs; workers finish the jobs already queued and exit.
@@ -80,6 +95,9 @@ impl Bakery {
         }
         if level_path.exists() {
             return Ok(watch::channel(Some(Ok(()))).1);
+        }
+        if let Some(e) = self.recent_failure(&ts.name, key) {
+            return Ok(watch::channel(Some(Err(e))).1);
         }
         let (done, rx) = watch::channel(None);
         let tx =
@@ -111,7 +129,41 @@ impl Bakery {
     }
 }
 
-fn worker(rx: &Mutex<Receiver<Job>>, flights: &Flights, metrics: &Metrics, baker: &PointBaker) {
+impl Bakery {
+    /// The error of a bake of `key` that failed less than `FAILED_BAKE_RETRY_S` ago.
+    fn recent_failure(&self, tileset: &str, key: TileKey) -> Option<String> {
+        let mut f = self.failures.lock().ok()?;
+        let k = (tileset.to_owned(), key);
+        let (at, e) = f.get(&k)?;
+        if at.elapsed() < Duration::from_secs(FAILED_BAKE_RETRY_S) {
+            return Some(format!("{e} (not retried until {FAILED_BAKE_RETRY_S} s after the failure)"));
+        }
+        f.remove(&k);
+        None
+    }
+}
+
+fn remember_failure(failures: &Failures, tileset: &str, key: TileKey, error: &str) {
+    let Ok(mut f) = failures.lock() else { return };
+    if f.len() >= MAX_FAILURES {
+        let horizon = Duration::from_secs(FAILED_BAKE_RETRY_S);
+        f.retain(|_, (at, _)| at.elapsed() < horizon);
+        if f.len() >= MAX_FAILURES
+            && let Some(oldest) = f.iter().min_by_key(|(_, (at, _))| *at).map(|(k, _)| k.clone())
+        {
+            f.remove(&oldest);
+        }
+    }
+    f.insert((tileset.to_owned(), key), (Instant::now(), error.to_owned()));
+}
+
+fn worker(
+    rx: &Mutex<Receiver<Job>>,
+    flights: &Flights,
+    failures: &Failures,
+    metrics: &Metrics,
+    baker: &PointBaker,
+) {
     loop {
         let job = {
             let Ok(rx) = rx.lock() else { return };
@@ -139,7 +191,12 @@ fn worker(rx: &Mutex<Receiver<Job>>, flights: &Flights, metrics: &Metrics, baker
             }
             Err(e) => {
                 metrics.bakes_failed.fetch_add(1, Ordering::Relaxed);
-                tracing::error!(tileset = %ts.name, tile = %key, error = %e, "on-demand bake failed");
+                tracing::error!(
+                    tileset = %ts.name, tile = %key, error = %e, retry_after_s = FAILED_BAKE_RETRY_S,
+                    "on-demand bake failed"
+                );
+                // Before the flight is removed: a request arriving in between finds either.
+                remember_failure(failures, &ts.name, key, e);
             }
         }
         if let Ok(mut f) = flights.lock() {

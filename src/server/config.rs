@@ -33,6 +33,22 @@ pub const DEFAULT_POLL_MS: u64 = 2000;
 pub const DEFAULT_RATE_LIMIT: u32 = 0;
 /// How long in-flight requests may take to finish after SIGTERM/Ctrl-C (seconds).
 pub const DEFAULT_SHUTDOWN_TIMEOUT_S: u64 = 10;
+/// Most connections open from one client IP address (0 = no limit). A browser opens about six
+/// per origin, so this leaves room for dozens of users behind one NAT, while one client can hold
+/// only a sixteenth of the default `--max-connections`. Behind a reverse proxy or CDN every
+/// client shares the proxy's address: raise it there, or set 0.
+pub const DEFAULT_MAX_CONNECTIONS_PER_CLIENT: usize = 256;
+/// Seconds a client has to send a whole request head from its first byte (slowloris defence).
+/// A real client sends its head in one packet; 10 s covers very slow links.
+pub const DEFAULT_HEADER_TIMEOUT_S: u64 = 10;
+/// Seconds a connection may sit with no request in flight and no bytes moving before it is
+/// closed (keep-alive idle timeout; also a connection that never sends a request). Long enough
+/// that a viewer panning with pauses keeps its connections.
+pub const DEFAULT_IDLE_TIMEOUT_S: u64 = 60;
+/// Longest an admin bake job may run (seconds) before it is stopped and marked failed.
+pub const DEFAULT_JOB_TIMEOUT_S: u64 = 4 * 3600;
+/// How long finished, failed and cancelled admin jobs stay visible at `/jobs/{id}` (seconds).
+pub const DEFAULT_JOB_TTL_S: u64 = 3600;
 
 /// How log lines are written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
@@ -111,6 +127,11 @@ pub struct PartialConfig {
     pub poll_ms: Option<u64>,
     pub rate_limit: Option<u32>,
     pub shutdown_timeout_s: Option<u64>,
+    pub max_connections_per_client: Option<usize>,
+    pub header_timeout_s: Option<u64>,
+    pub idle_timeout_s: Option<u64>,
+    pub job_timeout_s: Option<u64>,
+    pub job_ttl_s: Option<u64>,
     pub admin_token: Option<String>,
     pub read_token: Option<String>,
     pub log_format: Option<LogFormat>,
@@ -145,6 +166,11 @@ impl PartialConfig {
             poll_ms: self.poll_ms.or(lower.poll_ms),
             rate_limit: self.rate_limit.or(lower.rate_limit),
             shutdown_timeout_s: self.shutdown_timeout_s.or(lower.shutdown_timeout_s),
+            max_connections_per_client: self.max_connections_per_client.or(lower.max_connections_per_client),
+            header_timeout_s: self.header_timeout_s.or(lower.header_timeout_s),
+            idle_timeout_s: self.idle_timeout_s.or(lower.idle_timeout_s),
+            job_timeout_s: self.job_timeout_s.or(lower.job_timeout_s),
+            job_ttl_s: self.job_ttl_s.or(lower.job_ttl_s),
             admin_token: self.admin_token.or(lower.admin_token),
             read_token: self.read_token.or(lower.read_token),
             log_format: self.log_format.or(lower.log_format),
@@ -183,6 +209,12 @@ impl PartialConfig {
         if request_timeout_s == 0 {
             return bad("--request-timeout must be at least 1 second".into());
         }
+        let seconds = |v: Option<u64>, d: u64, flag: &str| -> Result<Duration, ServerError> {
+            match v.unwrap_or(d) {
+                0 => Err(ServerError::Config(format!("{flag} must be at least 1 second"))),
+                n => Ok(Duration::from_secs(n)),
+            }
+        };
         Ok(Config {
             store,
             bind,
@@ -199,6 +231,13 @@ impl PartialConfig {
             shutdown_timeout: Duration::from_secs(
                 self.shutdown_timeout_s.unwrap_or(DEFAULT_SHUTDOWN_TIMEOUT_S),
             ),
+            max_connections_per_client: self
+                .max_connections_per_client
+                .unwrap_or(DEFAULT_MAX_CONNECTIONS_PER_CLIENT),
+            header_timeout: seconds(self.header_timeout_s, DEFAULT_HEADER_TIMEOUT_S, "--header-timeout")?,
+            idle_timeout: seconds(self.idle_timeout_s, DEFAULT_IDLE_TIMEOUT_S, "--idle-timeout")?,
+            job_timeout: seconds(self.job_timeout_s, DEFAULT_JOB_TIMEOUT_S, "--job-timeout")?,
+            job_ttl: seconds(self.job_ttl_s, DEFAULT_JOB_TTL_S, "--job-ttl")?,
             admin_token: self.admin_token,
             read_token: self.read_token,
             log_format: self.log_format.unwrap_or_default(),
@@ -227,6 +266,12 @@ pub struct Config {
     pub poll: Duration,
     pub rate_limit: u32,
     pub shutdown_timeout: Duration,
+    /// 0 = no per-client limit.
+    pub max_connections_per_client: usize,
+    pub header_timeout: Duration,
+    pub idle_timeout: Duration,
+    pub job_timeout: Duration,
+    pub job_ttl: Duration,
     pub admin_token: Option<String>,
     pub read_token: Option<String>,
     pub log_format: LogFormat,
@@ -263,6 +308,29 @@ mod tests {
         assert_eq!((g.gpu, g.gpu_budget_mib), (Some(GpuMode::Off), Some(64)));
         assert!(toml::from_str::<PartialConfig>("gpu = \"maybe\"").is_err());
         assert!(toml::from_str::<PartialConfig>("nope = 1").is_err());
+        assert_eq!(c.max_connections_per_client, DEFAULT_MAX_CONNECTIONS_PER_CLIENT);
+        assert_eq!(c.header_timeout, Duration::from_secs(DEFAULT_HEADER_TIMEOUT_S));
+        let t: PartialConfig = toml::from_str(
+            "store = \"/s\"\nheader_timeout_s = 2\nidle_timeout_s = 3\nmax_connections_per_client = 0\njob_timeout_s = 5\njob_ttl_s = 6",
+        )
+        .unwrap();
+        let c = t.resolve().unwrap();
+        assert_eq!(
+            (c.header_timeout, c.idle_timeout, c.max_connections_per_client, c.job_timeout, c.job_ttl),
+            (
+                Duration::from_secs(2),
+                Duration::from_secs(3),
+                0,
+                Duration::from_secs(5),
+                Duration::from_secs(6)
+            )
+        );
+        let e =
+            PartialConfig { store: Some("s".into()), idle_timeout_s: Some(0), ..PartialConfig::default() }
+                .resolve()
+                .unwrap_err()
+                .to_string();
+        assert!(e.contains("--idle-timeout"), "{e}");
     }
 
     #[test]

@@ -19,12 +19,13 @@ use std::time::Instant;
 
 use axum::Router;
 use axum::extract::Request;
-use axum::http::{HeaderValue, Method, header};
-use axum::response::Response;
+use axum::http::{HeaderValue, Method, Version, header};
+use axum::response::{IntoResponse, Response};
 use tower::Service;
 
 use super::App;
 use super::http::{self, BLOB_ROUTE, Conditional};
+use super::problem::Problem;
 
 /// The router behind the in-memory blob fast path.
 #[derive(Clone)]
@@ -50,11 +51,37 @@ impl Service<Request> for FastPath {
     }
 
     fn call(&mut self, req: Request) -> Self::Future {
-        if let Some(resp) = cached_blob(&self.app, &req) {
+        if let Some(resp) = bad_host(&self.app, &req).or_else(|| cached_blob(&self.app, &req)) {
             return Box::pin(std::future::ready(Ok(resp)));
         }
         Box::pin(self.router.call(req))
     }
+}
+
+/// `400` for a request without the one valid `Host` header RFC 9112 §3.2 requires: an HTTP/1.1
+/// request without `Host`, any request with more than one, or one whose value is not a
+/// `host[:port]` (an empty value is allowed). HTTP/1.0 requests need not send `Host`.
+fn bad_host(app: &App, req: &Request) -> Option<Response> {
+    let start = Instant::now();
+    let mut hosts = req.headers().get_all(header::HOST).iter();
+    let detail = match (hosts.next(), hosts.next()) {
+        (None, _) if req.version() == Version::HTTP_11 => "an HTTP/1.1 request must have a Host header",
+        (None, _) => return None,
+        (Some(_), Some(_)) => "a request must not have more than one Host header",
+        (Some(h), None) => {
+            let ok = h.is_empty()
+                || (!h.as_bytes().contains(&b'@')
+                    && axum::http::uri::Authority::try_from(h.as_bytes()).is_ok());
+            if ok {
+                return None;
+            }
+            "the Host header is not a valid host[:port]"
+        }
+    };
+    let resp = Problem::bad_request(detail).into_response();
+    app.metrics.record("unmatched", 400, start.elapsed());
+    tracing::debug!(method = %req.method(), path = %req.uri().path(), status = 400, "request without a valid Host");
+    Some(resp)
 }
 
 /// The response to `req` when it is a plain `GET` of a blob held in memory, else `None`.

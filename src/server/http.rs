@@ -74,7 +74,7 @@ pub fn router(app: Arc<App>) -> Router {
         .route("/tilesets/{name}/tileset.json", get(manifest))
         .route("/tilesets/{name}/index/{z}/{x}/{file}", get(index_chunk))
         .route(BLOB_ROUTE, get(blob))
-        .route("/jobs/{id}", get(admin::job))
+        .route("/jobs/{id}", get(admin::job).delete(admin::cancel))
         .fallback(fallback)
         .layer(middleware::from_fn_with_state(app.clone(), front))
         .layer(cors)
@@ -137,10 +137,12 @@ fn ct_eq(a: &[u8], b: &[u8]) -> bool {
 
 /// `401` without a bearer token, `403` with a wrong one.
 pub fn check_bearer(headers: &HeaderMap, expected: &str, what: &str) -> Result<(), Problem> {
+    // The scheme is case-insensitive (RFC 9110 §11.1): `Bearer`, `bearer`, `BEARER`, …
     let given = headers
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer ").or_else(|| v.strip_prefix("bearer ")));
+        .and_then(|v| v.trim_start().split_once(' '))
+        .and_then(|(scheme, token)| scheme.eq_ignore_ascii_case("bearer").then_some(token));
     match given {
         None => Err(Problem {
             challenge: true,
@@ -474,7 +476,7 @@ async fn index_chunk(
             }
             Err(e) => {
                 tracing::error!(path = %p.display(), error = %e, "cannot read index chunk");
-                return Err(Problem::internal("store-io", "the index chunk could not be read"));
+                return Err(store_unavailable("the index chunk could not be read from the store".into()));
             }
         };
         let e = Entry { etag: etag_value(&super::registry::etag_of(&bytes)), bytes: Bytes::from(bytes) };
@@ -515,6 +517,17 @@ pub(super) fn parse_level(ts: &Tileset, level: &str) -> Result<u8, Problem> {
     Ok(level as u8)
 }
 
+/// Seconds a client is asked to wait when the store cannot be read.
+pub const STORE_IO_RETRY_AFTER_S: u32 = 5;
+
+/// The answer when reading the store fails other than by a missing file (permissions, a
+/// directory replaced by a file, a failing disk or mount): `503` + `Retry-After`, not `404` —
+/// the resource may well exist, the server cannot tell — and not cached (`no-store`), so a CDN
+/// does not keep the failure once the store is readable again.
+fn store_unavailable(detail: String) -> Problem {
+    Problem::unavailable("store-io", detail, STORE_IO_RETRY_AFTER_S)
+}
+
 /// What reading a blob from disk found.
 enum Read {
     Ok(Entry),
@@ -549,10 +562,7 @@ async fn read_verified(path: std::path::PathBuf, key: TileKey, level: u8) -> Res
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Read::Missing),
         Err(e) => {
             tracing::error!(path = %path.display(), error = %e, "cannot read blob");
-            Err(Problem::internal(
-                "store-io",
-                format!("tile {key} level {level} could not be read from the store"),
-            ))
+            Err(store_unavailable(format!("tile {key} level {level} could not be read from the store")))
         }
     }
 }
@@ -768,6 +778,24 @@ mod tests {
         assert_eq!(p("items=0-1"), "full");
         assert_eq!(p("bytes=a-b"), "full");
         assert_eq!(p("bytes=-"), "full");
+    }
+
+    #[test]
+    fn bearer_scheme_is_case_insensitive() {
+        let h = |v: &str| {
+            let mut m = HeaderMap::new();
+            m.insert(header::AUTHORIZATION, HeaderValue::from_str(v).unwrap());
+            m
+        };
+        for v in
+            ["Bearer secret-token", "bearer secret-token", "BEARER secret-token", "bEaReR  secret-token "]
+        {
+            assert!(check_bearer(&h(v), "secret-token", "x").is_ok(), "{v}");
+        }
+        assert_eq!(check_bearer(&h("Basic secret-token"), "secret-token", "x").unwrap_err().status, 401);
+        assert_eq!(check_bearer(&h("Bearersecret-token"), "secret-token", "x").unwrap_err().status, 401);
+        assert_eq!(check_bearer(&h("BEARER wrong-token"), "secret-token", "x").unwrap_err().status, 403);
+        assert_eq!(check_bearer(&HeaderMap::new(), "secret-token", "x").unwrap_err().status, 401);
     }
 
     #[test]

@@ -41,6 +41,13 @@ pub struct Metrics {
     pub bakes_running: AtomicI64,
     pub bakes_done: AtomicU64,
     pub bakes_failed: AtomicU64,
+    pub connections_open: AtomicI64,
+    /// Connections refused because their client address was at its connection cap.
+    pub connections_refused: AtomicU64,
+    /// Connections closed after `--idle-timeout` with no request in flight.
+    pub connections_idle_closed: AtomicU64,
+    /// Connections closed because a request head took longer than `--header-timeout`.
+    pub connections_header_timeouts: AtomicU64,
 }
 
 impl Metrics {
@@ -164,6 +171,30 @@ impl Metrics {
             "counter",
             "On-demand node bakes failed.",
             get(&self.bakes_failed),
+        );
+        scalar(
+            "terrastream_connections_open",
+            "gauge",
+            "TCP connections open.",
+            self.connections_open.load(Ordering::Relaxed).to_string(),
+        );
+        scalar(
+            "terrastream_connections_refused_total",
+            "counter",
+            "Connections refused (503, closed) because their client address was at --max-connections-per-client.",
+            get(&self.connections_refused),
+        );
+        scalar(
+            "terrastream_connections_idle_closed_total",
+            "counter",
+            "Connections closed after --idle-timeout with no request in flight.",
+            get(&self.connections_idle_closed),
+        );
+        scalar(
+            "terrastream_connections_header_timeouts_total",
+            "counter",
+            "Connections closed because a request head was not complete within --header-timeout.",
+            get(&self.connections_header_timeouts),
         );
         out
     }

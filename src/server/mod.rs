@@ -27,11 +27,13 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
+pub use bakery::FAILED_BAKE_RETRY_S;
 pub use config::{
     Config, DEFAULT_BAKE_QUEUE, DEFAULT_BAKE_WORKERS, DEFAULT_BIND, DEFAULT_CACHE_BYTES,
-    DEFAULT_MAX_BODY_BYTES, DEFAULT_MAX_CONNECTIONS, DEFAULT_MAX_IN_FLIGHT, DEFAULT_POLL_MS,
-    DEFAULT_RATE_LIMIT, DEFAULT_REQUEST_TIMEOUT_S, DEFAULT_SHUTDOWN_TIMEOUT_S, LogFormat, PartialConfig,
-    SourceSpec,
+    DEFAULT_HEADER_TIMEOUT_S, DEFAULT_IDLE_TIMEOUT_S, DEFAULT_JOB_TIMEOUT_S, DEFAULT_JOB_TTL_S,
+    DEFAULT_MAX_BODY_BYTES, DEFAULT_MAX_CONNECTIONS, DEFAULT_MAX_CONNECTIONS_PER_CLIENT,
+    DEFAULT_MAX_IN_FLIGHT, DEFAULT_POLL_MS, DEFAULT_RATE_LIMIT, DEFAULT_REQUEST_TIMEOUT_S,
+    DEFAULT_SHUTDOWN_TIMEOUT_S, LogFormat, PartialConfig, SourceSpec,
 };
 pub use metrics::Metrics;
 
@@ -142,6 +144,50 @@ fn open_source(root: &std::path::Path, spec: &SourceSpec) -> Result<registry::On
     Ok(registry::OnDemand { source: Arc::new(registry::Source { raster, opts, pyramid }), options })
 }
 
+/// Is `name` a staging entry the admin API creates in the store (`.upload-jN`, `.job-jN`) or a
+/// deleted tileset being removed (`.deleted-NAME-NANOS`)? Only these exact shapes.
+fn is_staging_name(name: &str) -> bool {
+    let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+    if let Some(n) = name.strip_prefix(".upload-j").or_else(|| name.strip_prefix(".job-j")) {
+        return digits(n);
+    }
+    name.strip_prefix(".deleted-")
+        .and_then(|r| r.rsplit_once('-'))
+        .is_some_and(|(tileset, nanos)| valid_name(tileset) && digits(nanos))
+}
+
+/// Removes what an earlier server left in the store mid-upload, mid-bake or mid-delete (it was
+/// killed, or the machine went down): job ids restart at 1, so a leftover `.job-j1` would
+/// otherwise be resumed into a different upload. Each removal is logged.
+fn remove_staging_leftovers(root: &std::path::Path) {
+    let Ok(entries) = std::fs::read_dir(root) else { return };
+    for entry in entries.flatten() {
+        if !entry.file_name().to_str().is_some_and(is_staging_name) {
+            continue;
+        }
+        let path = entry.path();
+        let is_dir = entry.file_type().is_ok_and(|t| t.is_dir());
+        let r = if is_dir { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
+        match r {
+            Ok(()) => tracing::info!(path = %path.display(), "removed a staging leftover of an earlier run"),
+            Err(e) => tracing::warn!(path = %path.display(), error = %e, "cannot remove a staging leftover"),
+        }
+    }
+}
+
+/// Connections the kernel queues for `accept` (capped by `net.core.somaxconn`): room for a
+/// burst of clients while the server is at `--max-connections` or accepting a flood; the
+/// 1024 of a plain `bind` drops SYNs of a burst, which then wait seconds to be retried.
+const LISTEN_BACKLOG: u32 = 4096;
+
+fn listen(addr: SocketAddr) -> std::io::Result<tokio::net::TcpListener> {
+    let socket =
+        if addr.is_ipv4() { tokio::net::TcpSocket::new_v4()? } else { tokio::net::TcpSocket::new_v6()? };
+    socket.set_reuseaddr(true)?;
+    socket.bind(addr)?;
+    socket.listen(LISTEN_BACKLOG)
+}
+
 /// A bound, not yet running server.
 pub struct Server {
     listener: tokio::net::TcpListener,
@@ -157,6 +203,10 @@ impl Server {
                 config.store.display()
             )));
         }
+        let root = config.store.clone();
+        tokio::task::spawn_blocking(move || remove_staging_leftovers(&root))
+            .await
+            .map_err(|e| ServerError::Config(format!("--store: {e}")))?;
         let mut on_demand = HashMap::new();
         for spec in &config.sources {
             let root = config.store.clone();
@@ -185,7 +235,7 @@ impl Server {
             cache: cache::BlobCache::new(config.cache_bytes),
             bakery: bakery::Bakery::start(config.bake_workers, config.bake_queue, metrics.clone(), &baker),
             baker,
-            jobs: admin::Jobs::default(),
+            jobs: admin::Jobs::new(),
             in_flight: AtomicUsize::new(0),
             rate: http::RateLimiter::new(config.rate_limit),
             ready: AtomicBool::new(false),
@@ -193,9 +243,8 @@ impl Server {
             config,
         });
         app.rescan();
-        let listener = tokio::net::TcpListener::bind(app.config.bind)
-            .await
-            .map_err(|source| ServerError::Bind { addr: app.config.bind, source })?;
+        let listener =
+            listen(app.config.bind).map_err(|source| ServerError::Bind { addr: app.config.bind, source })?;
         Ok(Self { listener, app })
     }
 
@@ -225,32 +274,35 @@ impl Server {
                 }
             })
         };
-        let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
-        let signal = async move {
-            shutdown.await;
-            tracing::info!("shutting down: no new connections; finishing in-flight requests");
-            let _ = stop_tx.send(true);
+        let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+        let limits = listener::Limits {
+            max_connections: app.config.max_connections,
+            per_client: app.config.max_connections_per_client,
+            header_timeout: app.config.header_timeout,
+            idle_timeout: app.config.idle_timeout,
         };
-        let listener = listener::Limited::new(self.listener, app.config.max_connections);
-        let service = axum::ServiceExt::<axum::extract::Request>::into_make_service_with_connect_info::<
-            listener::Peer,
-        >(fast::FastPath::new(app.clone()));
-        let serve = axum::serve(listener, service).with_graceful_shutdown(signal);
-        let grace = app.config.shutdown_timeout;
-        let deadline = async move {
-            let _ = stop_rx.wait_for(|v| *v).await;
-            tokio::time::sleep(grace).await;
-        };
-        let result = tokio::select! {
-            r = serve => r.map_err(ServerError::Io),
-            () = deadline => {
-                tracing::warn!(
-                    in_flight = app.in_flight.load(Ordering::Relaxed),
-                    "shutdown timeout reached; dropping the requests still in flight"
-                );
-                Ok(())
+        let serve = listener::serve(
+            self.listener,
+            fast::FastPath::new(app.clone()),
+            limits,
+            app.metrics.clone(),
+            stop_rx,
+        );
+        let mut serve = std::pin::pin!(serve);
+        tokio::select! {
+            () = serve.as_mut() => {}
+            () = shutdown => {
+                tracing::info!("shutting down: no new connections; finishing in-flight requests");
+                let _ = stop_tx.send(true);
+                if tokio::time::timeout(app.config.shutdown_timeout, serve).await.is_err() {
+                    tracing::warn!(
+                        in_flight = app.in_flight.load(Ordering::Relaxed),
+                        "shutdown timeout reached; dropping the requests still in flight"
+                    );
+                }
             }
-        };
+        }
+        let result = Ok(());
         poller.abort();
         app.bakery.close();
         result
@@ -290,4 +342,31 @@ pub fn serve_blocking(config: Config, on_ready: impl FnOnce(SocketAddr, &App)) -
         on_ready(server.local_addr()?, &server.app);
         server.run(shutdown_signal()).await
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn staging_names_are_matched_exactly() {
+        for n in [".upload-j1", ".job-j12", ".deleted-t-1700000000000000000", ".deleted-a-b-1"] {
+            assert!(is_staging_name(n), "{n}");
+        }
+        for n in [
+            ".upload-j",
+            ".upload-jx",
+            ".job-1",
+            "job-j1",
+            ".job-j1.bak",
+            ".upload-j1/",
+            ".deleted-t-",
+            ".deleted-T-1",
+            ".deleted-1",
+            "t",
+            ".hidden",
+        ] {
+            assert!(!is_staging_name(n), "{n}");
+        }
+    }
 }

@@ -40,7 +40,10 @@ fn errors(extra: &[(&str, &str)]) -> Map<String, Value> {
     m.insert("403".into(), problem("Wrong bearer token (only when the server runs with --read-token)"));
     m.insert("404".into(), problem("Unknown tileset, or a tile outside the data"));
     m.insert("429".into(), retry_problem("Rate limited (--rate-limit)"));
-    m.insert("503".into(), retry_problem("Overloaded, bake queue full, timed out or not ready"));
+    m.insert(
+        "503".into(),
+        retry_problem("Overloaded, bake queue full, timed out, not ready, or the store cannot be read"),
+    );
     for (k, v) in extra {
         m.insert((*k).into(), problem(v));
     }
@@ -141,9 +144,14 @@ pub fn document() -> Value {
             "/tilesets/{name}/tiles/{z}/{x}/{y}/{level}": cached_get("One blob (baked on first request for --source tilesets; {level}.tsb is accepted too)",
                 &key_params(true), "blob", "application/vnd.terrastream.blob", &json!({"type": "string", "format": "binary"}),
                 &[("500", "Stored blob failed its checksum (never sent) or the bake failed")]),
-            "/jobs/{id}": {"get": {"summary": "Admin: bake job progress", "security": [{"admin": []}],
+            "/jobs/{id}": {
                 "parameters": [{"name": "id", "in": "path", "required": true, "schema": {"type": "string"}}],
-                "responses": admin(&[("200", "Job state"), ("404", "No such job")])}}
+                "get": {"summary": "Admin: bake job progress (state queued, running, done, failed or cancelled; ended jobs are forgotten after --job-ttl)",
+                    "security": [{"admin": []}],
+                    "responses": admin(&[("200", "Job state"), ("404", "No such job (or ended longer than --job-ttl ago)")])},
+                "delete": {"summary": "Admin: cancel a bake job", "security": [{"admin": []}],
+                    "responses": admin(&[("202", "Running: it stops at its next node, then its state is cancelled; body: the job"),
+                        ("204", "Queued (now cancelled) or already cancelled"), ("404", "No such job"), ("409", "The job has already ended (done or failed)")])}}
         },
         "components": {
             "securitySchemes": {

@@ -47,9 +47,14 @@ pub struct Tileset {
 
 static GENERATION: AtomicU64 = AtomicU64::new(1);
 
-fn stamp(path: &Path) -> Option<(SystemTime, u64)> {
-    let md = std::fs::metadata(path).ok()?;
-    Some((md.modified().ok()?, md.len()))
+/// The manifest's mtime and size; `Ok(None)` when it does not exist, `Err` when it cannot be
+/// looked at (permissions, a path component that is not a directory, I/O).
+fn stamp(path: &Path) -> std::io::Result<Option<(SystemTime, u64)>> {
+    match std::fs::metadata(path) {
+        Ok(md) => Ok(md.modified().ok().map(|t| (t, md.len()))),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(e),
+    }
 }
 
 pub(super) fn etag_of(bytes: &[u8]) -> String {
@@ -74,7 +79,7 @@ fn summary(name: &str, m: &Manifest, complete: bool) -> serde_json::Value {
 /// Loads a complete (manifest present) tileset directory.
 fn load_complete(name: &str, dir: &Path, source: Option<Arc<Source>>) -> Result<Tileset, ServerError> {
     let store = Store::new(dir);
-    let st = stamp(&store.manifest_path());
+    let st = stamp(&store.manifest_path()).ok().flatten();
     let manifest = store.manifest()?;
     let bytes = std::fs::read(store.manifest_path())
         .map_err(|e| ServerError::Config(format!("{}: {e}", store.manifest_path().display())))?;
@@ -206,23 +211,54 @@ impl Registry {
         let entries = std::fs::read_dir(&self.root).map_err(|e| {
             ServerError::Config(format!("{}: cannot read the store: {e}", self.root.display()))
         })?;
+        let current: HashMap<String, Arc<Tileset>> = self.map.read().map(|m| m.clone()).unwrap_or_default();
+        let mut next = HashMap::with_capacity(current.len());
+        // A loaded tileset whose directory or manifest cannot be read now (permissions, its
+        // directory replaced by a file, a failing mount) stays loaded: its reads then fail as
+        // `503` (store-io), instead of the tileset vanishing as `404`. Only a directory or
+        // manifest that is not there any more (NotFound) drops it.
+        let keep_unreadable = |name: &str, path: &Path, e: &std::io::Error, next: &mut HashMap<_, _>| {
+            if let Some(old) = current.get(name) {
+                tracing::error!(tileset = %name, path = %path.display(), error = %e, "tileset cannot be read; still listed, its reads fail");
+                next.insert(name.to_owned(), Arc::clone(old));
+            }
+        };
         let mut seen: HashMap<String, PathBuf> = HashMap::new();
         for entry in entries.flatten() {
             let Some(name) = entry.file_name().to_str().map(str::to_owned) else { continue };
-            if !valid_name(&name) || !entry.path().is_dir() {
+            if !valid_name(&name) {
                 continue;
             }
-            seen.insert(name, entry.path());
+            let path = entry.path();
+            match std::fs::metadata(&path) {
+                Ok(md) if md.is_dir() => {
+                    seen.insert(name, path);
+                }
+                Ok(_) => keep_unreadable(
+                    &name,
+                    &path,
+                    &std::io::Error::from(std::io::ErrorKind::NotADirectory),
+                    &mut next,
+                ),
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                Err(e) => keep_unreadable(&name, &path, &e, &mut next),
+            }
         }
         for name in self.on_demand.keys() {
-            seen.entry(name.clone()).or_insert_with(|| self.root.join(name));
+            if !next.contains_key(name) {
+                seen.entry(name.clone()).or_insert_with(|| self.root.join(name));
+            }
         }
-        let current: HashMap<String, Arc<Tileset>> = self.map.read().map(|m| m.clone()).unwrap_or_default();
-        let mut next = HashMap::with_capacity(seen.len());
         for (name, dir) in seen {
             let od = self.on_demand.get(&name);
             let manifest_path = dir.join(crate::store::MANIFEST_FILE);
-            let st = stamp(&manifest_path);
+            let st = match stamp(&manifest_path) {
+                Ok(st) => st,
+                Err(e) => {
+                    keep_unreadable(&name, &manifest_path, &e, &mut next);
+                    continue;
+                }
+            };
             if let Some(old) = current.get(&name)
                 && old.stamp == st
             {
