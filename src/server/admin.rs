@@ -225,6 +225,16 @@ pub async fn upload(
         levels: params.levels.unwrap_or(d.levels),
     };
     crate::bake::check_options(&opts).map_err(|e| Problem::bad_request(e.to_string()))?;
+    // Checked before anything is stored (the raster's own frame is checked when it is read).
+    if let Some(c) = params.cell_size
+        && !(crate::raster::MIN_CELL_SIZE..=crate::raster::MAX_CELL_SIZE).contains(&c)
+    {
+        return Err(Problem::bad_request(format!(
+            "cell_size {c:?} is outside {:e}..{:e} world units",
+            crate::raster::MIN_CELL_SIZE,
+            crate::raster::MAX_CELL_SIZE
+        )));
+    }
     let root = app.registry.root().to_owned();
     if app.registry.get(&name).is_some() || root.join(&name).exists() {
         return Err(Problem::new(

@@ -381,22 +381,28 @@ fn parse_num(s: &str, what: &str) -> Result<u32, Problem> {
 
 /// Checks a key against the tileset's quadtree: `400` when it cannot exist at all.
 pub(super) fn parse_key(ts: &Tileset, z: &str, x: &str, y: &str) -> Result<TileKey, Problem> {
+    // Well-formed keys outside the tileset name no resource: 404, not 400 (RFC 9110 §15.5.5).
     let zn = parse_num(z, "z")?;
+    let (xn, yn) = (parse_num(x, "x")?, parse_num(y, "y")?);
     if zn > u32::from(ts.depth) {
-        return Err(Problem::bad_request(format!(
-            "z {zn} is out of range: tileset {:?} has z 0 to {}",
+        return Err(Problem::not_found(format!(
+            "no tile at z {zn}: tileset {:?} has z 0 to {}",
             ts.name, ts.depth
         )));
     }
-    let (xn, yn) = (parse_num(x, "x")?, parse_num(y, "y")?);
-    let side = 1u64 << zn;
+    // x and y are u32, so every one fits from z 32 on (and a manifest's depth may be anything
+    // up to 255: no shift may overflow).
+    let side = 1u64.checked_shl(zn).unwrap_or(u64::MAX);
     if u64::from(xn) >= side || u64::from(yn) >= side {
-        return Err(Problem::bad_request(format!(
-            "x {xn} / y {yn} is out of range at z {zn}: 0 to {}",
+        return Err(Problem::not_found(format!(
+            "no tile x {xn} / y {yn} at z {zn}: x and y run 0 to {}",
             side - 1
         )));
     }
-    Ok(TileKey::new(zn as u8, xn, yn))
+    let Ok(z8) = u8::try_from(zn) else {
+        return Err(Problem::not_found(format!("no tile at z {zn}")));
+    };
+    Ok(TileKey::new(z8, xn, yn))
 }
 
 /// `Cache-Control` of a content-addressed document: immutable only when the request names the
@@ -425,7 +431,7 @@ async fn index_chunk(
         .ok_or_else(|| Problem::bad_request(format!("index chunk {file:?} must be named Y.json")))?;
     let key = parse_key(&ts, &z, &x, y)?;
     if key.z % SUBTREE_LEVELS != 0 {
-        return Err(Problem::bad_request(format!(
+        return Err(Problem::not_found(format!(
             "index chunks are rooted at z = 0, {SUBTREE_LEVELS}, {}, …; z {} is not a chunk root",
             SUBTREE_LEVELS * 2,
             key.z
@@ -508,8 +514,8 @@ pub(super) fn parse_level(ts: &Tileset, level: &str) -> Result<u8, Problem> {
     let level_s = level.strip_suffix(".tsb").unwrap_or(level);
     let level = parse_num(level_s, "level")?;
     if level >= u32::from(ts.level_count) {
-        return Err(Problem::bad_request(format!(
-            "level {level} is out of range: tileset {:?} has levels 0 to {}",
+        return Err(Problem::not_found(format!(
+            "no level {level}: tileset {:?} has levels 0 to {}",
             ts.name,
             ts.level_count.saturating_sub(1)
         )));

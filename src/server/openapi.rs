@@ -24,7 +24,17 @@ fn name_param() -> Value {
 }
 
 fn int_param(n: &str) -> Value {
-    json!({"name": n, "in": "path", "required": true, "schema": {"type": "integer", "minimum": 0}})
+    json!({"name": n, "in": "path", "required": true, "schema": {"type": "integer", "minimum": 0, "maximum": u32::MAX}})
+}
+
+/// A success answer with no body (204).
+fn empty(desc: &str) -> Value {
+    json!({"description": desc})
+}
+
+/// A success answer whose body is a bake job (`application/json`).
+fn job(desc: &str) -> Value {
+    json!({"description": desc, "content": {"application/json": {"schema": {"$ref": "#/components/schemas/Job"}}}})
 }
 
 fn v_param() -> Value {
@@ -35,10 +45,13 @@ fn v_param() -> Value {
 /// The error answers every read route can give, plus `extra`.
 fn errors(extra: &[(&str, &str)]) -> Map<String, Value> {
     let mut m = Map::new();
-    m.insert("400".into(), problem("Malformed name or key, or z/x/y/level out of range"));
+    m.insert(
+        "400".into(),
+        problem("Malformed name, key or level (not a non-negative integer of at most 2^32 − 1)"),
+    );
     m.insert("401".into(), problem("No bearer token (only when the server runs with --read-token)"));
     m.insert("403".into(), problem("Wrong bearer token (only when the server runs with --read-token)"));
-    m.insert("404".into(), problem("Unknown tileset, or a tile outside the data"));
+    m.insert("404".into(), problem("Unknown tileset, or a z/x/y/level the tileset does not have"));
     m.insert("429".into(), retry_problem("Rate limited (--rate-limit)"));
     m.insert(
         "503".into(),
@@ -96,15 +109,27 @@ pub fn document() -> Value {
         p.push(v_param());
         Value::Array(p)
     };
-    let admin = |extra: &[(&str, &str)]| {
+    // Problems of the admin routes, plus their success answers `ok`.
+    let admin = |extra: &[(&str, &str)], ok: &[(&str, Value)]| {
         let mut m = Map::new();
         m.insert("401".into(), problem("No bearer token"));
         m.insert("403".into(), problem("Wrong token, or the admin API is off (no --admin-token)"));
         for (k, v) in extra {
             m.insert((*k).into(), problem(v));
         }
+        for (k, v) in ok {
+            m.insert((*k).into(), v.clone());
+        }
         Value::Object(m)
     };
+    let mut started = job("Job started; body: the job (its progress is at Location: /jobs/{id})");
+    if let Some(o) = started.as_object_mut() {
+        o.insert("headers".into(), json!({"Location": {"schema": {"type": "string"}}}));
+        o.insert(
+            "links".into(),
+            json!({"job": {"operationId": "getJob", "parameters": {"id": "$response.body#/id"}}}),
+        );
+    }
     let any = json!({});
     json!({
         "openapi": "3.1.0",
@@ -129,14 +154,15 @@ pub fn document() -> Value {
                     "security": [{"admin": []}],
                     "parameters": [
                         {"name": "encoding", "in": "query", "schema": {"enum": ["gray16", "terrain-rgb", "terrarium"]}},
-                        {"name": "cell_size", "in": "query", "schema": {"type": "number"}},
-                        {"name": "tile_size", "in": "query", "schema": {"type": "integer"}},
-                        {"name": "max_error", "in": "query", "schema": {"type": "number"}},
-                        {"name": "levels", "in": "query", "schema": {"type": "integer"}}],
+                        {"name": "cell_size", "in": "query", "schema": {"type": "number", "minimum": crate::raster::MIN_CELL_SIZE, "maximum": crate::raster::MAX_CELL_SIZE}},
+                        {"name": "tile_size", "in": "query", "schema": {"type": "integer", "minimum": 2, "maximum": 65_536}},
+                        {"name": "max_error", "in": "query", "schema": {"type": "number", "minimum": 0, "maximum": 1e300}},
+                        {"name": "levels", "in": "query", "schema": {"type": "integer", "minimum": 0, "maximum": crate::bake::MAX_LEVELS}}],
                     "requestBody": {"content": {"application/octet-stream": {}}},
-                    "responses": admin(&[("202", "Job started (Location: /jobs/{id}); body: the job"), ("400", "Bad name or options"), ("409", "Tileset exists"), ("413", "Upload larger than --max-body-bytes")])},
+                    "description": "The upload is stored, then baked by a job: a file that is not a raster, or a raster beyond the limits, makes the job fail (GET /jobs/{id} says why), not the upload.",
+                    "responses": admin(&[("400", "Options outside their ranges, or unknown query keys"), ("409", "Tileset exists"), ("413", "Upload larger than --max-body-bytes"), ("500", "The upload could not be stored")], &[("202", started)])},
                 "delete": {"summary": "Admin: delete a tileset", "security": [{"admin": []}],
-                    "responses": admin(&[("204", "Deleted"), ("400", "Bad name"), ("404", "No such tileset"), ("409", "On-demand tileset")])}
+                    "responses": admin(&[("400", "Bad name"), ("404", "No such tileset"), ("409", "On-demand tileset")], &[("204", empty("Deleted"))])}
             },
             "/tilesets/{name}/tileset.json": cached_get("Manifest", &json!([name_param()]), "manifest", "application/json", &any, &[]),
             "/tilesets/{name}/index/{z}/{x}/{y}.json": cached_get("Index chunk rooted at a z multiple of 4",
@@ -147,17 +173,24 @@ pub fn document() -> Value {
             "/jobs/{id}": {
                 "parameters": [{"name": "id", "in": "path", "required": true, "schema": {"type": "string"}}],
                 "get": {"summary": "Admin: bake job progress (state queued, running, done, failed or cancelled; ended jobs are forgotten after --job-ttl)",
-                    "security": [{"admin": []}],
-                    "responses": admin(&[("200", "Job state"), ("404", "No such job (or ended longer than --job-ttl ago)")])},
-                "delete": {"summary": "Admin: cancel a bake job", "security": [{"admin": []}],
-                    "responses": admin(&[("202", "Running: it stops at its next node, then its state is cancelled; body: the job"),
-                        ("204", "Queued (now cancelled) or already cancelled"), ("404", "No such job"), ("409", "The job has already ended (done or failed)")])}}
+                    "operationId": "getJob", "security": [{"admin": []}],
+                    "responses": admin(&[("404", "No such job (or ended longer than --job-ttl ago)")], &[("200", job("Job state"))])},
+                "delete": {"summary": "Admin: cancel a bake job (the job stays readable, state cancelled, until --job-ttl)", "security": [{"admin": []}],
+                    "responses": admin(&[("404", "No such job"), ("409", "The job has already ended (done or failed)")],
+                        &[("202", job("Running: it stops at its next node, then its state is cancelled; body: the job")),
+                          ("204", empty("Queued (now cancelled) or already cancelled"))])}}
         },
         "components": {
             "securitySchemes": {
                 "admin": {"type": "http", "scheme": "bearer", "description": "--admin-token"},
                 "read": {"type": "http", "scheme": "bearer", "description": "--read-token; reading is public when it is not set"}},
             "schemas": {
+                "Job": {"type": "object", "required": ["id", "tileset", "state"], "properties": {
+                    "id": {"type": "string"}, "tileset": {"type": "string"},
+                    "state": {"enum": ["queued", "running", "done", "failed", "cancelled"]},
+                    "nodes_total": {"type": "integer"}, "nodes_done": {"type": "integer"},
+                    "cancel_requested": {"type": "boolean"},
+                    "error": {"type": ["string", "null"]}}},
                 "Problem": {"type": "object", "properties": {
                     "type": {"type": "string"}, "title": {"type": "string"}, "status": {"type": "integer"}, "detail": {"type": "string"}}},
                 "Summary": {"type": "object", "properties": {

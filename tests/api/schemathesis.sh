@@ -1,7 +1,12 @@
 #!/usr/bin/env bash
 # Property-based API test: schemathesis against /openapi.json of a running `terrastream serve`
 # with a baked tileset (and the admin API enabled), on 127.0.0.1. Fails on any 5xx, on any
-# response the document does not describe, and on a server crash.
+# response the document does not describe, and on a server crash. One check is off:
+# ensure_resource_availability expects what a POST created to exist at once, but an upload is
+# answered 202 and baked by a job (which may fail on the bytes schemathesis sends), so its
+# tileset appears only when the job is done. And use_after_free expects a DELETEd resource to
+# be gone, but DELETE /jobs/{id} cancels a job, which stays readable (state "cancelled") until
+# --job-ttl so its owner can see how it ended — as the document says.
 # Usage: tests/api/schemathesis.sh TERRASTREAM_BINARY SCHEMATHESIS_BINARY [MAX_EXAMPLES]
 set -euo pipefail
 bin=$1
@@ -30,7 +35,8 @@ curl -fs "http://127.0.0.1:$port/readyz" >/dev/null
 
 set +e
 "$st" run "http://127.0.0.1:$port/openapi.json" \
-  --checks all --max-examples "$examples" --generation-deterministic \
+  --checks all --exclude-checks ensure_resource_availability,use_after_free \
+  --max-examples "$examples" --generation-deterministic \
   --header "Authorization: Bearer schemathesis-token" \
   --max-response-time 10 --suppress-health-check all 2>&1 | tee "$work/st.log"
 rc=${PIPESTATUS[0]}
