@@ -11,7 +11,8 @@
 #
 # Needs nightly and cargo-fuzz (`cargo install cargo-fuzz`). Builds once, without a sanitizer
 # (the project is safe Rust; the findings are panics, overflows, timeouts and OOMs) and with
-# debug assertions, so integer overflow panics as it does in `cargo test`.
+# debug assertions, so integer overflow panics as it does in `cargo test` (SKIP_BUILD=1: use
+# the binaries already built).
 set -euo pipefail
 
 cd "$(dirname "$0")"
@@ -33,9 +34,18 @@ max_len() {
 
 if [ $# -gt 0 ]; then targets=("$@"); else mapfile -t targets < <(cargo +nightly fuzz list); fi
 
-cargo +nightly fuzz build -s none -a
+[ -n "${SKIP_BUILD:-}" ] || cargo +nightly fuzz build -s none -a
 
-rows=()
+{
+    echo
+    echo "### $(date -u +%Y-%m-%d\ %H:%MZ) — $LABEL"
+    echo
+    echo "Host: $(nproc) cores; rss limit ${RSS_LIMIT_MB} MB, timeout 1 s, one process, sanitizer none, debug assertions on."
+    echo
+    echo "| target | executions | seconds | exec/s | corpus files | corpus bytes | crash files | timeout files | oom files | new artifacts |"
+    echo "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+} >>RESULTS.md
+
 for t in "${targets[@]}"; do
     mkdir -p "corpus/$t" "artifacts/$t"
     seeds=()
@@ -78,16 +88,6 @@ for t in "${targets[@]}"; do
     new=$(( $(find "artifacts/$t" -type f | wc -l) - before ))
     row="| $t | $execs | $secs | $(( execs / (secs > 0 ? secs : 1) )) | $files | $bytes | $crashes | $timeouts | $ooms | $new |"
     echo "$row"
-    rows+=("$row")
+    echo "$row" >>RESULTS.md
 done
 
-{
-    echo
-    echo "### $(date -u +%Y-%m-%d\ %H:%MZ) — $LABEL"
-    echo
-    echo "Host: $(nproc) cores; rss limit ${RSS_LIMIT_MB} MB, timeout 1 s, one process, sanitizer none, debug assertions on."
-    echo
-    echo "| target | executions | seconds | exec/s | corpus files | corpus bytes | crash files | timeout files | oom files | new artifacts |"
-    echo "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
-    printf '%s\n' "${rows[@]}"
-} >>RESULTS.md

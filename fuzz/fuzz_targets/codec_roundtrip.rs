@@ -58,7 +58,13 @@ fuzz_target!(|inp: Input| {
                 let k = i64::from(g[a]) % (qmax[a] + 1);
                 // Offsets stay strictly inside ±half a step and never leave [min, max].
                 let o = f64::from(off[a]) / 257.0;
-                let o = if k == 0 { o.max(0.0) } else if k == qmax[a] { o.min(0.0) } else { o };
+                let o = if k == 0 {
+                    o.max(0.0)
+                } else if k == qmax[a] {
+                    o.min(0.0)
+                } else {
+                    o
+                };
                 (min[a] + (k as f64 + o) * s[a]).clamp(min[a], max[a])
             })
         })
@@ -110,7 +116,8 @@ fuzz_target!(|inp: Input| {
         _ => panic!("kind changed"),
     }
     // Deterministic: the same input encodes to the same bytes.
-    let again = terrastream_fuzz::reencode(&blob).unwrap_or_else(|e| panic!("decoded blob does not re-encode: {e}"));
+    let again =
+        terrastream_fuzz::reencode(&blob).unwrap_or_else(|e| panic!("decoded blob does not re-encode: {e}"));
     let back = codec::decode(&again).unwrap_or_else(|e| panic!("re-encoded blob does not decode: {e}"));
     terrastream_fuzz::assert_same_geometry(&blob.geometry, &back.geometry);
 });

@@ -37,7 +37,8 @@ fuzz_target!(|data: &[u8]| {
     let Ok(f) = Flight::from_json(text) else { return };
     check_flight(&f);
     let json = f.to_json().unwrap_or_else(|e| panic!("valid flight does not serialise: {e}"));
-    let back = Flight::from_json(&json).unwrap_or_else(|e| panic!("serialised flight does not parse: {e}\n{json}"));
+    let back =
+        Flight::from_json(&json).unwrap_or_else(|e| panic!("serialised flight does not parse: {e}\n{json}"));
     assert_eq!(f, back, "flight changed through JSON");
     // A normalised flight on a 10 km tileset must stay valid in world units.
     let bounds = Bounds { min: [0.0, 0.0, 100.0], max: [10_000.0, 8_000.0, 2_500.0] };

@@ -66,14 +66,23 @@ fn setup() -> State {
         std::fs::copy(f, &to).expect("copy");
     }
     let mpath = deep.join("tileset.json");
-    let mut m: serde_json::Value = serde_json::from_slice(&std::fs::read(&mpath).expect("manifest")).expect("json");
+    let mut m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&mpath).expect("manifest")).expect("json");
     m["depth"] = 255.into();
     std::fs::write(&mpath, serde_json::to_vec(&m).expect("json")).expect("write");
 
-    let mut known: Vec<String> =
-        ["/healthz", "/readyz", "/metrics", "/openapi.json", "/tilesets", "/jobs/1", "/tilesets/demo", "/tilesets/deep"]
-            .map(str::to_owned)
-            .into();
+    let mut known: Vec<String> = [
+        "/healthz",
+        "/readyz",
+        "/metrics",
+        "/openapi.json",
+        "/tilesets",
+        "/jobs/1",
+        "/tilesets/demo",
+        "/tilesets/deep",
+    ]
+    .map(str::to_owned)
+    .into();
     for f in files {
         let rel = f.strip_prefix(&demo).expect("prefix").to_string_lossy().into_owned();
         let url = if let Some(b) = rel.strip_prefix("tiles/").and_then(|r| r.strip_suffix(".tsb")) {
@@ -133,8 +142,32 @@ enum Seg {
 }
 
 const WORDS: &[&str] = &[
-    "tilesets", "demo", "deep", "tiles", "index", "tileset.json", "0.json", "jobs", "0", "1", "2", "3", "64",
-    "255", "", "..", ".", "%2e%2e", "%2F", "%00", "-1", "+1", "01", "4294967296", "healthz", "metrics",
+    "tilesets",
+    "demo",
+    "deep",
+    "tiles",
+    "index",
+    "tileset.json",
+    "0.json",
+    "jobs",
+    "0",
+    "1",
+    "2",
+    "3",
+    "64",
+    "255",
+    "",
+    "..",
+    ".",
+    "%2e%2e",
+    "%2F",
+    "%00",
+    "-1",
+    "+1",
+    "01",
+    "4294967296",
+    "healthz",
+    "metrics",
 ];
 
 #[derive(Debug, Arbitrary)]
@@ -244,10 +277,18 @@ fuzz_target!(|inp: Input| {
         (status, ct, body)
     });
     let body = body.unwrap_or_else(|e| panic!("{what}: response body failed: {e}"));
-    assert!(!(500..600).contains(&status) || status == 503, "{what}: status {status}: {}", String::from_utf8_lossy(&body));
+    assert!(
+        !(500..600).contains(&status) || status == 503,
+        "{what}: status {status}: {}",
+        String::from_utf8_lossy(&body)
+    );
     assert!(st.allowed.contains(&status), "{what}: status {status} is not in the OpenAPI document");
     if status >= 400 {
         let ct = content_type.unwrap_or_default();
-        assert!(ct.starts_with(b"application/problem+json"), "{what}: status {status} with content-type {:?}", String::from_utf8_lossy(&ct));
+        assert!(
+            ct.starts_with(b"application/problem+json"),
+            "{what}: status {status} with content-type {:?}",
+            String::from_utf8_lossy(&ct)
+        );
     }
 });

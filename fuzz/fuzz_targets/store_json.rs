@@ -10,9 +10,11 @@ where
     T: serde::Serialize + serde::de::DeserializeOwned + PartialEq + std::fmt::Debug,
 {
     let Ok(v) = serde_json::from_slice::<T>(data) else { return };
-    let text = serde_json::to_vec_pretty(&v).unwrap_or_else(|e| panic!("parsed value does not serialise: {e}"));
-    let back: T = serde_json::from_slice(&text)
-        .unwrap_or_else(|e| panic!("re-serialised value does not parse: {e}\n{}", String::from_utf8_lossy(&text)));
+    let text =
+        serde_json::to_vec_pretty(&v).unwrap_or_else(|e| panic!("parsed value does not serialise: {e}"));
+    let back: T = serde_json::from_slice(&text).unwrap_or_else(|e| {
+        panic!("re-serialised value does not parse: {e}\n{}", String::from_utf8_lossy(&text))
+    });
     assert_eq!(v, back, "value changed through JSON");
 }
 

@@ -40,7 +40,12 @@ pub fn check_raster(name: &str, data: &[u8], encoding: Option<Encoding>, channel
         Ok(r) => {
             let h = &r.heights;
             assert!(h.width > 0 && h.height > 0, "zero-size raster {}x{}", h.width, h.height);
-            assert!(h.width <= LIMITS.max_side && h.height <= LIMITS.max_side, "{}x{} over max_side", h.width, h.height);
+            assert!(
+                h.width <= LIMITS.max_side && h.height <= LIMITS.max_side,
+                "{}x{} over max_side",
+                h.width,
+                h.height
+            );
             assert_eq!(h.width as usize * h.height as usize, h.data.len(), "width*height != data.len()");
             assert!(h.data.len() as u64 * 4 <= LIMITS.max_bytes, "{} samples over max_bytes", h.data.len());
             if let Some(i) = h.data.iter().position(|v| !v.is_finite()) {
@@ -48,7 +53,9 @@ pub fn check_raster(name: &str, data: &[u8], encoding: Option<Encoding>, channel
             }
             assert!(r.nodata_filled < h.data.len() as u64, "filled {} of {}", r.nodata_filled, h.data.len());
             let g = r.georef;
-            for (what, v) in [("x0", g.x0), ("y0", g.y0), ("dx", g.dx), ("dy", g.dy), ("z0", g.z0), ("dz", g.dz)] {
+            for (what, v) in
+                [("x0", g.x0), ("y0", g.y0), ("dx", g.dx), ("dy", g.dy), ("z0", g.z0), ("dz", g.dz)]
+            {
                 assert!(v.is_finite(), "georef {what} = {v} ({g:?})");
             }
             assert!(g.dx != 0.0 && g.dy != 0.0 && g.dz != 0.0, "zero georef step {g:?}");
@@ -191,7 +198,10 @@ pub fn check_blob(data: &[u8]) {
     match &blob.geometry {
         Geometry::Mesh(m) => {
             assert_eq!(h.kind, codec::Kind::Mesh);
-            assert_eq!((m.positions.len(), m.triangles.len()), (h.vertex_count as usize, h.triangle_count as usize));
+            assert_eq!(
+                (m.positions.len(), m.triangles.len()),
+                (h.vertex_count as usize, h.triangle_count as usize)
+            );
             check_mesh(m);
             check_in_bounds(h, &m.positions);
         }

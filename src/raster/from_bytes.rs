@@ -37,7 +37,9 @@ mod tests {
     fn agrees_with_load() {
         let dir = tempfile::tempdir().unwrap();
         let png = {
-            let img = image::ImageBuffer::<image::Luma<u16>, _>::from_fn(5, 3, |x, y| image::Luma([(x * 7 + y) as u16]));
+            let img = image::ImageBuffer::<image::Luma<u16>, _>::from_fn(5, 3, |x, y| {
+                image::Luma([(x * 7 + y) as u16])
+            });
             let mut out = Vec::new();
             img.write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png).unwrap();
             out
