@@ -1,8 +1,8 @@
 //! The HTTP server in-process: requests built from the input (method, path, query, headers,
 //! body) go through the service `Server::run` serves (the blob fast path in front of the axum
 //! router) with `tower::ServiceExt::oneshot`, against a store holding a tiny tileset baked
-//! once at start (`demo`) and a copy of it whose manifest claims the largest depth a manifest
-//! can state (`deep`, 255). Invariants: no panic, no 5xx but 503, every status one the OpenAPI
+//! once at start (`demo`) and a copy of it whose manifest states a large depth (`deep`: 63 by
+//! default, see `setup`). Invariants: no panic, no 5xx but 503, every status one the OpenAPI
 //! document lists (or 400/404/405), every error an `application/problem+json` body.
 #![no_main]
 use std::collections::BTreeSet;
@@ -68,7 +68,12 @@ fn setup() -> State {
     let mpath = deep.join("tileset.json");
     let mut m: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&mpath).expect("manifest")).expect("json");
-    m["depth"] = 255.into();
+    // 255 (the largest a manifest can state) panics in `server::http::parse_key` (`1u64 << z`
+    // for z ≥ 64; found by this target, reported, tests/fuzz_regressions.rs). Until that is
+    // fixed the default stays below 64 so the rest of the router gets fuzzed;
+    // TS_FUZZ_DEEP_DEPTH=255 brings the crash back.
+    let depth: u8 = std::env::var("TS_FUZZ_DEEP_DEPTH").ok().and_then(|v| v.parse().ok()).unwrap_or(63);
+    m["depth"] = depth.into();
     std::fs::write(&mpath, serde_json::to_vec(&m).expect("json")).expect("write");
 
     let mut known: Vec<String> = [
