@@ -130,3 +130,17 @@ fn decoded_normals_are_a_fixed_point_of_quantization() {
         }
     }
 }
+
+/// The same defect D1 as `codec_blob` found it: `tests/fuzz-cases/codec-blob-d1-overshoot.tsb`
+/// (278 bytes, the fuzzer's artifact with its checksums repaired as the target repairs them), a
+/// mesh blob with bounds [-1, 1]³ whose vertex 0 decodes to x = 1.0000004842877388.
+#[test]
+#[ignore = "D1: fixed on main"]
+fn fuzzed_blob_stays_inside_its_header_bounds() {
+    let blob = terrastream::codec::decode(&case("codec-blob-d1-overshoot.tsb")).unwrap();
+    let [min, max] = blob.header.bounds;
+    let terrastream::codec::Geometry::Mesh(m) = blob.geometry else { panic!("not a mesh") };
+    for p in &m.positions {
+        assert!((0..3).all(|a| min[a] <= p[a] && p[a] <= max[a]), "{p:?} outside {min:?}..{max:?}");
+    }
+}

@@ -124,8 +124,18 @@ pub fn check_mesh(m: &Mesh) {
 }
 
 /// Every position inside the header bounds (the format promises clients may cull by them).
+///
+/// With `TS_FUZZ_D1_TOLERANT` set, positions may overshoot `max` by up to half a step: the
+/// known defect D1 (being fixed on main), which otherwise stops every `codec_blob` run within
+/// seconds; set it only to fuzz what lies behind that check.
 pub fn check_in_bounds(header: &BlobHeader, positions: &[[f64; 3]]) {
-    let [min, max] = header.bounds;
+    let [min, mut max] = header.bounds;
+    if std::env::var_os("TS_FUZZ_D1_TOLERANT").is_some() {
+        let s = [header.quant.xy_step, header.quant.xy_step, header.quant.z_step];
+        for a in 0..3 {
+            max[a] += s[a] * (0.5 + 1e-9);
+        }
+    }
     for (i, p) in positions.iter().enumerate() {
         for a in 0..3 {
             assert!(
@@ -136,8 +146,8 @@ pub fn check_in_bounds(header: &BlobHeader, positions: &[[f64; 3]]) {
     }
 }
 
-/// A mesh as a sorted multiset of triangles given by their corner positions, each rotated so
-/// its smallest corner comes first (winding kept), plus the sorted positions: equal for two
+/// A mesh as a sorted multiset of triangles given by their corner positions, each as its
+/// lexicographically smallest rotation (winding kept), plus the sorted positions: equal for two
 /// meshes exactly when they hold the same geometry whatever the vertex and triangle order.
 pub fn canonical_mesh(m: &Mesh) -> (Vec<[[u64; 3]; 3]>, Vec<[u64; 3]>) {
     let bits = |p: [f64; 3]| p.map(|v| (v + 0.0).to_bits());
@@ -146,8 +156,9 @@ pub fn canonical_mesh(m: &Mesh) -> (Vec<[[u64; 3]; 3]>, Vec<[u64; 3]>) {
         .iter()
         .map(|t| {
             let c = t.map(|i| bits(m.positions[i as usize]));
-            let r = (0..3).min_by_key(|&k| c[k]).unwrap_or(0);
-            [c[r], c[(r + 1) % 3], c[(r + 2) % 3]]
+            // The smallest of the three rotations: a corner repeated (degenerate triangles
+            // are valid) would make "start at the smallest corner" ambiguous.
+            (0..3).map(|r| [c[r], c[(r + 1) % 3], c[(r + 2) % 3]]).min().unwrap_or(c)
         })
         .collect();
     tris.sort_unstable();
