@@ -179,11 +179,15 @@ pub fn canonical_points(p: &PointCloud) -> Vec<([u64; 3], [u32; 3])> {
     v
 }
 
-/// A point cloud as (position bits, normal) sorted by position then normal.
+/// A point cloud as (position bits, normal) sorted by position, then by the normal rounded to
+/// 1e-4: distinct octahedral normals differ by about 1/254, while the seam's two decodings of
+/// one direction differ by the sign of a zero and an ulp, which must not reorder points that
+/// share a position (exact bits would put −0.0 after every positive value).
 fn canonical_points_positions(p: &PointCloud) -> Vec<([u64; 3], [f32; 3])> {
+    let key = |n: &[f32; 3]| n.map(|c| (f64::from(c) * 1e4).round() as i64);
     let mut v: Vec<_> =
         p.positions.iter().zip(&p.normals).map(|(x, n)| (x.map(|c| (c + 0.0).to_bits()), *n)).collect();
-    v.sort_unstable_by(|a, b| a.0.cmp(&b.0).then(a.1.map(f32::to_bits).cmp(&b.1.map(f32::to_bits))));
+    v.sort_unstable_by(|a, b| a.0.cmp(&b.0).then(key(&a.1).cmp(&key(&b.1))));
     v
 }
 
