@@ -202,6 +202,8 @@ pub(super) fn decode(path: &Path, reader: impl Read + Seek, limits: Limits) -> R
         }
     };
 
+    check_extent(path, georef, width, height)?;
+
     let values = match dec.read_image().map_err(|e| map_err(path, e))? {
         DecodingResult::U8(v) => to_values(&v, nodata, f64::from, false),
         DecodingResult::U16(v) => to_values(&v, nodata, f64::from, false),
@@ -216,6 +218,42 @@ pub(super) fn decode(path: &Path, reader: impl Read + Seek, limits: Limits) -> R
         DecodingResult::F64(v) => to_values(&v, nodata, |s| s, true),
     };
     Ok(Decoded { width, height, values, georef, format: "geotiff" })
+}
+
+/// Rejects a georeference whose far corner cannot be represented: finite origin and steps can
+/// still put sample (width − 1, height − 1) at ±inf (a step near `f64::MAX`), and every later
+/// stage (tiling, bounds, blob quantization) would work on infinities. A geographic raster must
+/// also keep its longitudes within ±360° (both the −180..180 and the 0..360 conventions fit),
+/// and its steps within the globe, so the metric frame built from it (metres per degree ×
+/// degrees) stays finite; latitudes are checked against ±90° when that frame is built.
+fn check_extent(path: &Path, georef: FileGeoref, width: u32, height: u32) -> Result<(), RasterError> {
+    let far = |o: f64, step: f64, n: u32| o + step * f64::from(n.saturating_sub(1));
+    let bad = |message: String| Err(RasterError::BadGeoref { path: path.to_owned(), message });
+    match georef {
+        FileGeoref::None => Ok(()),
+        FileGeoref::Projected { x0, y0, dx, dy } => {
+            let (x1, y1) = (far(x0, dx, width), far(y0, dy, height));
+            if x1.is_finite() && y1.is_finite() {
+                Ok(())
+            } else {
+                bad(format!(
+                    "origin ({x0}, {y0}) and cell size ({dx}, {dy}) put the far corner at ({x1}, {y1})"
+                ))
+            }
+        }
+        FileGeoref::Geographic { lon0, dlon, dlat, .. } => {
+            let lon1 = far(lon0, dlon, width);
+            // The steps too, for a one-sample-wide or -high raster whose far corner is its origin.
+            let within = |v: f64, limit: f64| v.abs() <= limit;
+            if !(within(lon0, 360.0) && within(lon1, 360.0) && within(dlon, 360.0)) {
+                bad(format!("longitudes {lon0}°..{lon1}° (step {dlon}°) leave the range ±360°"))
+            } else if dlat.abs() > 180.0 {
+                bad(format!("latitude step {dlat}° is more than 180°"))
+            } else {
+                Ok(())
+            }
+        }
+    }
 }
 
 /// Encodes a single-band float32 GeoTIFF (strips, projected, PixelIsPoint) whose sample (0, 0)
@@ -411,6 +449,32 @@ mod tests {
         let geo = Geo { transform: Some(m), ..Geo::default() };
         let p = strip_tiff::<colortype::Gray32Float>(dir.path(), 2, 1, &[1.5, 2.5], &geo);
         assert!(matches!(load(&p), Err(RasterError::Unsupported { .. })));
+    }
+
+    /// Found by the `raster_geotiff` fuzz target: finite origins and steps whose far corner, or
+    /// whose metric frame, is infinite.
+    #[test]
+    fn far_corner_must_be_finite() {
+        let dir = tempfile::tempdir().unwrap();
+        let projected = Geo { scale: Some([1.6e308, 1.0, 0.0]), tie: Some([0.0; 6]), ..Geo::default() };
+        let keys = geokeys(2, 1);
+        let wide = Geo { scale: Some([200.0, 1.0, 0.0]), keys: Some(&keys), ..Geo::default() };
+        let huge_step = Geo { scale: Some([1e300, 1.0, 0.0]), keys: Some(&keys), ..Geo::default() };
+        for (w, geo) in [(3, &projected), (3, &wide), (1, &huge_step)] {
+            let p = strip_tiff::<colortype::Gray16>(dir.path(), w, 1, &vec![1; w as usize], geo);
+            let e = load(&p).unwrap_err();
+            assert!(matches!(e, RasterError::BadGeoref { .. }), "{e}");
+            assert_names_path(&e, &p);
+        }
+        // The whole globe in either longitude convention is fine.
+        let globe = Geo {
+            scale: Some([120.0, 1.0, 0.0]),
+            tie: Some([0.0, 0.0, 0.0, 0.0, 0.0, 0.0]),
+            keys: Some(&keys),
+            ..Geo::default()
+        };
+        let p = strip_tiff::<colortype::Gray16>(dir.path(), 3, 1, &[1; 3], &globe);
+        load(&p).unwrap();
     }
 
     #[test]

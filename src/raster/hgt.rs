@@ -58,6 +58,23 @@ pub(super) fn decode(path: &Path, mut reader: impl Read, limits: Limits) -> Resu
             RasterError::io(path, e)
         }
     })?;
+    Ok(samples(&bytes, side, south, west))
+}
+
+/// Decodes an SRTM tile held in memory; `path` names it (position from its file name) and
+/// appears in errors. The same checks as [`decode`], with the length taken from `bytes`.
+pub(super) fn decode_bytes(path: &Path, bytes: &[u8], limits: Limits) -> Result<Decoded, RasterError> {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let (south, west) = corner_from_name(&name)
+        .ok_or_else(|| RasterError::HgtName { path: path.to_owned(), name: name.clone() })?;
+    let len = bytes.len() as u64;
+    let side = side_for_len(len).ok_or(RasterError::HgtLength { path: path.to_owned(), len })?;
+    check_size(path, side.into(), side.into(), limits)?;
+    Ok(samples(bytes, side, south, west))
+}
+
+/// The samples of a `side²` tile whose south-west corner is (`south`, `west`) degrees.
+fn samples(bytes: &[u8], side: u32, south: i32, west: i32) -> Decoded {
     let values = bytes
         .chunks_exact(2)
         .map(|c| match i16::from_be_bytes([c[0], c[1]]) {
@@ -73,7 +90,7 @@ pub(super) fn decode(path: &Path, mut reader: impl Read, limits: Limits) -> Resu
         dlon: step,
         dlat: -step,
     };
-    Ok(Decoded { width: side, height: side, values, georef, format: "hgt" })
+    Decoded { width: side, height: side, values, georef, format: "hgt" }
 }
 
 #[cfg(test)]

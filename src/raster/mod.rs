@@ -8,6 +8,7 @@
 //! starts with the file path.
 
 mod fill;
+mod from_bytes;
 pub mod geotiff;
 mod hgt;
 mod openexr;
@@ -18,6 +19,9 @@ use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
+
+#[doc(hidden)]
+pub use from_bytes::load_bytes;
 
 /// Default limit on either side of a raster, in samples.
 pub const DEFAULT_MAX_SIDE: u32 = 65_536;

@@ -195,6 +195,12 @@ impl PartialConfig {
                 n => Ok(n),
             }
         };
+        // `--source` flags are checked when parsed; a config file's sources only here. The name
+        // becomes a directory under the store, so nothing else may pass (`../x` would bake
+        // outside it).
+        if let Some(s) = self.sources.iter().find(|s| !super::valid_name(&s.name)) {
+            return bad(format!("source name {:?} must match [a-z0-9_-]{{1,64}}", s.name));
+        }
         let mut names: Vec<&str> = self.sources.iter().map(|s| s.name.as_str()).collect();
         names.sort_unstable();
         if let Some([w, ..]) = names.windows(2).find(|w| w[0] == w[1]) {
@@ -353,5 +359,21 @@ mod tests {
             (Some("terrain-rgb"), Some(30.0), Some(2))
         );
         assert!("f=/f.png,colour=red".parse::<SourceSpec>().is_err());
+    }
+
+    /// Found by the `config_toml` fuzz target: a config file's source names were not checked,
+    /// so `name = "../x"` would have baked outside the store.
+    #[test]
+    fn file_source_names_are_checked() {
+        for name in ["../up", "", "A", "a/b", "."] {
+            let text = format!("store = \"s\"\n[[sources]]\nname = {name:?}\nraster = \"r.tif\"\n");
+            let e = toml::from_str::<PartialConfig>(&text).unwrap().resolve().unwrap_err().to_string();
+            assert!(e.contains("source name"), "{name:?}: {e}");
+        }
+        let ok = "store = \"s\"\n[[sources]]\nname = \"fuji_1-a\"\nraster = \"r.tif\"\n";
+        assert_eq!(
+            toml::from_str::<PartialConfig>(ok).unwrap().resolve().unwrap().sources[0].name,
+            "fuji_1-a"
+        );
     }
 }

@@ -257,6 +257,14 @@ impl Server {
         self.app.clone()
     }
 
+    /// The request service `run` serves (the blob fast path in front of the router), for
+    /// driving requests in-process without a connection (fuzzing).
+    #[doc(hidden)]
+    #[must_use]
+    pub fn service(&self) -> fast::FastPath {
+        fast::FastPath::new(self.app.clone())
+    }
+
     /// Serves until `shutdown` completes, then stops accepting, lets in-flight requests finish
     /// within `Config::shutdown_timeout`, and returns. Blobs are only ever renamed into place
     /// complete, so a bake cut short leaves no half-written blob.

@@ -1,0 +1,8 @@
+//! PNG as Terrarium: any bytes through the raster loader.
+#![no_main]
+use libfuzzer_sys::fuzz_target;
+use terrastream::raster::Encoding;
+
+fuzz_target!(|data: &[u8]| {
+    terrastream_fuzz::check_raster("fuzz.png", data, Some(Encoding::Terrarium), None);
+});

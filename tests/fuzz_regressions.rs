@@ -1,0 +1,146 @@
+//! Inputs the `cargo fuzz` targets in `fuzz/` found breaking a decoder, kept as ordinary tests
+//! so they run in plain `cargo test` (stable, no fuzzer). Each test names the target that found
+//! it and what went wrong; the inputs are minimised (`cargo fuzz tmin`) and live under
+//! `tests/fuzz-cases/` or inline. The checks are the fuzz targets' invariants (`fuzz/src/lib.rs`).
+//! Cases in code this branch does not own are `#[ignore]`d with the defect they show.
+
+// Helpers outside `#[test]` functions unwrap and panic too: a failure there is a test failure.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use std::path::Path;
+
+use terrastream::raster::{self, Limits, LoadOptions, RasterError};
+
+/// The limits the raster fuzz targets run with.
+const LIMITS: Limits = Limits { max_side: 4096, max_bytes: 16 << 20 };
+
+fn case(name: &str) -> Vec<u8> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fuzz-cases").join(name);
+    std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// Decodes a raster as the fuzz targets do and checks their invariants on `Ok`.
+fn load_raster(name: &str, bytes: &[u8]) -> Result<raster::LoadedRaster, RasterError> {
+    let opts = LoadOptions { limits: LIMITS, ..LoadOptions::default() };
+    let r = raster::load_bytes(Path::new(name), bytes, &opts)?;
+    let (h, g) = (&r.heights, r.georef);
+    assert_eq!(h.width as usize * h.height as usize, h.data.len());
+    assert!(h.data.iter().all(|v| v.is_finite()));
+    for v in [g.x0, g.y0, g.dx, g.dy, g.z0, g.dz] {
+        assert!(v.is_finite(), "{g:?}");
+    }
+    let far = (g.x0 + g.dx * f64::from(h.width - 1), g.y0 + g.dy * f64::from(h.height - 1));
+    assert!(far.0.is_finite() && far.1.is_finite(), "far corner {far:?} of {g:?}");
+    Ok(r)
+}
+
+/// `raster_geotiff`: a ModelPixelScale of about −1.6e308 with a finite tiepoint gave a finite
+/// origin and cell size (so `load` accepted it) but a far corner at −inf, and every later stage
+/// would have worked on infinities. Fixed in `raster::geotiff::check_extent`.
+#[test]
+fn geotiff_far_corner_overflow_is_a_georef_error() {
+    let e = load_raster("fuzz.tif", &case("geotiff-far-corner-overflow.tif")).unwrap_err();
+    assert!(matches!(e, RasterError::BadGeoref { .. }), "{e}");
+}
+
+/// `codec_blob` / `codec_roundtrip` bounds check (defect D1, being fixed on main): with
+/// `(max − min) / step` rounding up, the largest grid index lies beyond `max`, so a position
+/// the encoder accepts (here x = max = 1.0, index round(1 / 0.6) = 2) decodes to 1.2, outside
+/// the header bounds the format lets clients cull by.
+#[test]
+#[ignore = "D1: fixed on main"]
+fn decoded_positions_stay_inside_the_header_bounds() {
+    use terrastream::codec::{self, Geometry, Quantization};
+    use terrastream::geom::{Bounds, Errors, Mesh};
+    use terrastream::tiling::TileKey;
+
+    let bounds = Bounds { min: [0.0; 3], max: [1.0; 3] };
+    let q = Quantization { xy_step: 0.6, z_step: 0.6 };
+    let mesh = Mesh {
+        positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.5], [0.0, 1.0, 1.0]],
+        triangles: vec![[0, 1, 2]],
+    };
+    let errors = Errors { max: 0.0, rms: 0.0, gap: 0.0 };
+    let blob = codec::encode_mesh(TileKey { z: 0, x: 0, y: 0 }, 0, &bounds, q, &mesh, errors).unwrap();
+    let Geometry::Mesh(m) = codec::decode(&blob).unwrap().geometry else { panic!("not a mesh") };
+    for p in &m.positions {
+        assert!((0..3).all(|a| bounds.min[a] <= p[a] && p[a] <= bounds.max[a]), "{p:?} outside {bounds:?}");
+    }
+}
+
+/// `http_router`: a store whose manifest states depth 255 (any depth ≥ 64) and a request for a
+/// tile or index chunk at z ≥ 64: `parse_key` (src/server/http.rs:390) computes `1u64 << z`,
+/// which overflows — a panic with overflow checks (`cargo test`, debug builds), a wrong range
+/// check in release. The fuzz target found it with
+/// `GET /tilesets/deep/tiles/64/…`; a manifest's depth is not checked against 63 anywhere.
+#[test]
+#[cfg(feature = "server")]
+#[ignore = "fixed on main (8fd569d): parse_key shift overflow at z >= 64"]
+fn tile_key_at_z_64_is_a_client_error() {
+    use terrastream::bake::{BakeOptions, NoProgress};
+    use terrastream::raster::{Georef, Heightfield, LoadedRaster};
+    use terrastream::server::{Config, Server};
+    use terrastream::store::Store;
+    use tower::ServiceExt;
+
+    let dir = tempfile::tempdir().unwrap();
+    let raster = LoadedRaster {
+        heights: Heightfield { width: 17, height: 17, data: terrastream::synth::terrain(17, 17, 1) },
+        georef: Georef::default(),
+        nodata_filled: 0,
+        format: "synthetic".into(),
+    };
+    let opts = BakeOptions { tile_size: 16, max_error: 1.0, levels: 1 };
+    let store = dir.path().join("deep");
+    terrastream::bake::bake(&raster, "s", &opts, &Store::new(&store), &NoProgress).unwrap();
+    let manifest = store.join("tileset.json");
+    let mut m: serde_json::Value = serde_json::from_slice(&std::fs::read(&manifest).unwrap()).unwrap();
+    m["depth"] = 64.into();
+    std::fs::write(&manifest, serde_json::to_vec(&m).unwrap()).unwrap();
+
+    let mut config = Config::for_store(dir.path()).unwrap();
+    config.bind = "127.0.0.1:0".parse().unwrap();
+    config.gpu = terrastream::bake::GpuMode::Off;
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+    rt.block_on(async {
+        let server = Server::bind(config).await.unwrap();
+        for path in ["/tilesets/deep/tiles/64/0/0/0", "/tilesets/deep/index/64/0/0.json"] {
+            let req = axum::extract::Request::get(path).body(axum::body::Body::empty()).unwrap();
+            let status = server.service().oneshot(req).await.unwrap().status();
+            assert!(status.is_client_error(), "{path}: {status}");
+        }
+    });
+}
+
+/// `codec_blob`: a point blob whose normal bytes lie on the octahedral map's lower seam
+/// (`|v| = 1`, e.g. the pair (100, 0)) decodes to a normal that re-encodes to the mirrored pair
+/// (154, 0): the same direction, but decoded as a vector differing in the sign of a zero and
+/// about an ulp ([-0.0, 0.9924124, -0.12295376] against [0.0, 0.9924124, -0.12295368] in the
+/// fuzz case). So decoding is not canonical for normals: decode → encode → decode is not
+/// bit-exact, though within 1e-6. `codec_blob` compares normals within 1e-6 for this reason.
+#[test]
+#[ignore = "codec::points octahedral seam: src/codec is not this branch's; reported"]
+fn decoded_normals_are_a_fixed_point_of_quantization() {
+    use terrastream::codec::{oct_decode, oct_encode};
+    for u in 0..=254_u8 {
+        for v in 0..=254_u8 {
+            let n = oct_decode([u, v]);
+            let again = oct_encode(n).map(oct_decode).unwrap();
+            assert!(n.map(f32::to_bits) == again.map(f32::to_bits), "({u}, {v}): {n:?} then {again:?}");
+        }
+    }
+}
+
+/// The same defect D1 as `codec_blob` found it: `tests/fuzz-cases/codec-blob-d1-overshoot.tsb`
+/// (278 bytes, the fuzzer's artifact with its checksums repaired as the target repairs them), a
+/// mesh blob with bounds [-1, 1]³ whose vertex 0 decodes to x = 1.0000004842877388.
+#[test]
+#[ignore = "D1: fixed on main"]
+fn fuzzed_blob_stays_inside_its_header_bounds() {
+    let blob = terrastream::codec::decode(&case("codec-blob-d1-overshoot.tsb")).unwrap();
+    let [min, max] = blob.header.bounds;
+    let terrastream::codec::Geometry::Mesh(m) = blob.geometry else { panic!("not a mesh") };
+    for p in &m.positions {
+        assert!((0..3).all(|a| min[a] <= p[a] && p[a] <= max[a]), "{p:?} outside {min:?}..{max:?}");
+    }
+}
