@@ -584,17 +584,18 @@ fn heights_crc(data: &[f32]) -> String {
     format!("{:08x}", h.finalize())
 }
 
-/// A node whose every level blob is present, whole (exact length, payload checksum: see
-/// [`codec::verify`]) and names that node and level is complete: its index entry is rebuilt
-/// from the blob headers. Anything else — missing, truncated, extended or flipped — is baked
-/// again (and its blobs replaced).
+/// A node whose every level blob is present, whole and valid (it decodes completely: exact
+/// length, payload checksum, geometry inside its bounds — see [`codec::decode`]) and names that
+/// node and level is complete: its index entry is rebuilt from the blob headers. Anything else —
+/// missing, truncated, extended, flipped, or written by a version whose blobs this one refuses —
+/// is baked again (and its blobs replaced).
 fn existing_node(store: &Store, key: TileKey, levels: u8) -> Option<NodeEntry> {
     let mut out = Vec::new();
     let mut bounds = None;
     for level in 0..=levels {
         let bytes = store.read_blob(key, level).ok()??;
-        let h = match codec::verify(&bytes) {
-            Ok(h) => h,
+        let h = match codec::decode(&bytes) {
+            Ok(b) => b.header,
             Err(e) => {
                 tracing::warn!(tile = %key, level, "re-baking a damaged blob: {e}");
                 return None;

@@ -2,7 +2,7 @@
 //! so they run in plain `cargo test` (stable, no fuzzer). Each test names the target that found
 //! it and what went wrong; the inputs are minimised (`cargo fuzz tmin`) and live under
 //! `tests/fuzz-cases/` or inline. The checks are the fuzz targets' invariants (`fuzz/src/lib.rs`).
-//! Cases in code this branch does not own are `#[ignore]`d with the defect they show.
+//! A case left `#[ignore]`d shows a known, documented defect that is not fixed yet.
 
 // Helpers outside `#[test]` functions unwrap and panic too: a failure there is a test failure.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
@@ -48,7 +48,6 @@ fn geotiff_far_corner_overflow_is_a_georef_error() {
 /// the encoder accepts (here x = max = 1.0, index round(1 / 0.6) = 2) decodes to 1.2, outside
 /// the header bounds the format lets clients cull by.
 #[test]
-#[ignore = "D1: fixed on main"]
 fn decoded_positions_stay_inside_the_header_bounds() {
     use terrastream::codec::{self, Geometry, Quantization};
     use terrastream::geom::{Bounds, Errors, Mesh};
@@ -62,9 +61,14 @@ fn decoded_positions_stay_inside_the_header_bounds() {
     };
     let errors = Errors { max: 0.0, rms: 0.0, gap: 0.0 };
     let blob = codec::encode_mesh(TileKey { z: 0, x: 0, y: 0 }, 0, &bounds, q, &mesh, errors).unwrap();
-    let Geometry::Mesh(m) = codec::decode(&blob).unwrap().geometry else { panic!("not a mesh") };
+    // The header states the bounds grown to the rounded-up position (1.2), and every decoded
+    // position lies inside what it states.
+    let blob = codec::decode(&blob).unwrap();
+    let b = blob.header.bounds();
+    assert_eq!(b.max, [1.2, 1.2, 1.2]);
+    let Geometry::Mesh(m) = blob.geometry else { panic!("not a mesh") };
     for p in &m.positions {
-        assert!((0..3).all(|a| bounds.min[a] <= p[a] && p[a] <= bounds.max[a]), "{p:?} outside {bounds:?}");
+        assert!((0..3).all(|a| b.min[a] <= p[a] && p[a] <= b.max[a]), "{p:?} outside {b:?}");
     }
 }
 
@@ -75,7 +79,6 @@ fn decoded_positions_stay_inside_the_header_bounds() {
 /// `GET /tilesets/deep/tiles/64/…`; a manifest's depth is not checked against 63 anywhere.
 #[test]
 #[cfg(feature = "server")]
-#[ignore = "fixed on main (8fd569d): parse_key shift overflow at z >= 64"]
 fn tile_key_at_z_64_is_a_client_error() {
     use terrastream::bake::{BakeOptions, NoProgress};
     use terrastream::raster::{Georef, Heightfield, LoadedRaster};
@@ -135,12 +138,8 @@ fn decoded_normals_are_a_fixed_point_of_quantization() {
 /// (278 bytes, the fuzzer's artifact with its checksums repaired as the target repairs them), a
 /// mesh blob with bounds [-1, 1]³ whose vertex 0 decodes to x = 1.0000004842877388.
 #[test]
-#[ignore = "D1: fixed on main"]
 fn fuzzed_blob_stays_inside_its_header_bounds() {
-    let blob = terrastream::codec::decode(&case("codec-blob-d1-overshoot.tsb")).unwrap();
-    let [min, max] = blob.header.bounds;
-    let terrastream::codec::Geometry::Mesh(m) = blob.geometry else { panic!("not a mesh") };
-    for p in &m.positions {
-        assert!((0..3).all(|a| min[a] <= p[a] && p[a] <= max[a]), "{p:?} outside {min:?}..{max:?}");
-    }
+    // Such a blob is refused: no accepted blob has a position outside its header bounds.
+    let e = terrastream::codec::decode(&case("codec-blob-d1-overshoot.tsb")).unwrap_err();
+    assert!(matches!(e, terrastream::codec::CodecError::OutOfBounds { index: 0, .. }), "{e}");
 }

@@ -68,11 +68,10 @@ fn setup() -> State {
     let mpath = deep.join("tileset.json");
     let mut m: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&mpath).expect("manifest")).expect("json");
-    // 255 (the largest a manifest can state) panics in `server::http::parse_key` (`1u64 << z`
-    // for z ≥ 64; found by this target, reported, tests/fuzz_regressions.rs). Until that is
-    // fixed the default stays below 64 so the rest of the router gets fuzzed;
-    // TS_FUZZ_DEEP_DEPTH=255 brings the crash back.
-    let depth: u8 = std::env::var("TS_FUZZ_DEEP_DEPTH").ok().and_then(|v| v.parse().ok()).unwrap_or(63);
+    // 255, the largest a manifest can state: this target found `server::http::parse_key`
+    // overflowing `1u64 << z` for z ≥ 64 (fixed; tests/fuzz_regressions.rs).
+    // TS_FUZZ_DEEP_DEPTH sets another depth.
+    let depth: u8 = std::env::var("TS_FUZZ_DEEP_DEPTH").ok().and_then(|v| v.parse().ok()).unwrap_or(255);
     m["depth"] = depth.into();
     std::fs::write(&mpath, serde_json::to_vec(&m).expect("json")).expect("write");
 

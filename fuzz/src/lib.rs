@@ -125,9 +125,9 @@ pub fn check_mesh(m: &Mesh) {
 
 /// Every position inside the header bounds (the format promises clients may cull by them).
 ///
-/// With `TS_FUZZ_D1_TOLERANT` set, positions may overshoot `max` by up to half a step: the
-/// known defect D1 (being fixed on main), which otherwise stops every `codec_blob` run within
-/// seconds; set it only to fuzz what lies behind that check.
+/// With `TS_FUZZ_D1_TOLERANT` set, positions may overshoot `max` by up to half a step (defect
+/// D1, found by `codec_blob`; fixed: `codec::decode` now refuses such blobs, so the check holds
+/// for every accepted blob and the switch is only for fuzzing builds from before the fix).
 pub fn check_in_bounds(header: &BlobHeader, positions: &[[f64; 3]]) {
     let [min, mut max] = header.bounds;
     if std::env::var_os("TS_FUZZ_D1_TOLERANT").is_some() {

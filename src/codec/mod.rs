@@ -41,11 +41,12 @@
 //! bounds it is given (`0 ≤ q ≤ round((max − min) / step)`, at most [`MAX_QUANT`] per axis) and
 //! rejects the rest; the header then states those bounds with `max` grown, where a position
 //! rounded up past it, to exactly that position ([`quantized_bounds`]). So every decoded
-//! position lies inside the header bounds and a client may trust them for culling. Decoders
-//! accept `q` up to `qmax = round((max − min) / step)` of the header (which also sizes the sweep
-//! code's rows): blobs written before the header bounds grew may hold positions up to half a
-//! step beyond their `max`, and they still decode. Writers that want positions inside fixed
-//! bounds snap them in first ([`snap_positions`]). A TIN's vertices lie on the raster grid, so
+//! position lies inside the header bounds and a client may trust them for culling; [`decode`]
+//! refuses a blob with a position outside them. (`qmax = round((max − min) / step)` of the
+//! header also sizes the sweep code's rows.) Blobs written before the header bounds grew
+//! (terrastream 0.1.0 before the hardening release) may hold a position up to half a step past
+//! their `max`: they fail to decode, and a resumed `bake` re-bakes them. Writers that want
+//! positions inside fixed bounds snap them in first ([`snap_positions`]). A TIN's vertices lie on the raster grid, so
 //! with `xy_step` equal to the cell size their x and y are exact.
 //!
 //! # Payload
@@ -607,6 +608,17 @@ pub fn decode(bytes: &[u8]) -> Result<Blob, CodecError> {
         Kind::Mesh => Geometry::Mesh(mesh::decode(&frame, v, t, payload, raw_len)?),
         Kind::Points => Geometry::Points(points::decode(&frame, v, payload, raw_len)?),
     };
+    // The promise clients cull by: every position inside the header bounds, exactly.
+    let positions = match &geometry {
+        Geometry::Mesh(m) => &m.positions,
+        Geometry::Points(p) => &p.positions,
+    };
+    let b = header.bounds();
+    if let Some((index, p)) =
+        positions.iter().enumerate().find(|(_, p)| (0..3).any(|a| p[a] < b.min[a] || p[a] > b.max[a]))
+    {
+        return Err(CodecError::OutOfBounds { index, position: *p });
+    }
     Ok(Blob { header, geometry })
 }
 

@@ -137,8 +137,9 @@ pub enum Encoding {
 
 /// Smallest cell size accepted (world units, after the metric mapping of degree rasters).
 pub const MIN_CELL_SIZE: f64 = 1e-6;
-/// Largest cell size accepted.
-pub const MAX_CELL_SIZE: f64 = 1e6;
+/// Largest cell size accepted: more than the Earth's circumference, so a global raster of a
+/// few samples still loads.
+pub const MAX_CELL_SIZE: f64 = 1e8;
 /// Largest |x| or |y| of any sample (world units): 25 times the Earth's circumference in
 /// metres, and small enough that f64 positions keep sub-micrometre steps.
 pub const MAX_COORDINATE: f64 = 1e9;
@@ -536,7 +537,7 @@ fn validate_overrides(path: &Path, o: &Overrides) -> Result<(), RasterError> {
     if let Some(c) = o.cell_size
         && !(MIN_CELL_SIZE..=MAX_CELL_SIZE).contains(&c)
     {
-        return Err(bad("cell size", c, "between 1e-6 and 1e6 world units"));
+        return Err(bad("cell size", c, "between 1e-6 and 1e8 world units"));
     }
     if let Some((x, y)) = o.origin {
         for v in [x, y] {
