@@ -15,7 +15,9 @@
     clippy::case_sensitive_file_extension_comparisons
 )]
 
-use std::collections::BTreeMap;
+mod common;
+use common::tree;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -58,23 +60,6 @@ fn fails(cmd: &mut Command) -> String {
     let out = run_within(cmd, Duration::from_secs(60));
     assert!(!out.status.success(), "{cmd:?} should fail");
     String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
-/// Every file under `dir` (hidden ones included) with its bytes.
-fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
-    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<String, Vec<u8>>) {
-        for e in std::fs::read_dir(dir).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                walk(root, &p, out);
-            } else {
-                out.insert(p.strip_prefix(root).unwrap().display().to_string(), std::fs::read(&p).unwrap());
-            }
-        }
-    }
-    let mut out = BTreeMap::new();
-    walk(dir, dir, &mut out);
-    out
 }
 
 /// Decodes every blob of a tileset and checks that each position lies inside the bounds its
