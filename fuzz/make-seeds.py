@@ -161,9 +161,10 @@ put("raster_openexr", "f16-z.exr", exr(4, 3, 1, vals))
 put("raster_openexr", "f32-other-name.exr", exr(3, 2, 2, vals[:6], name=b"height"))
 put("raster_openexr", "f32-zip.exr", exr(4, 3, 2, vals, compression=3))
 
-# ---- HGT: name line then data; `!` tiles the data to a full 1201² tile ----
-put("raster_hgt", "tile-N35E138", b"N35E138.hgt!\n" + struct.pack(">hhhh", 1, 2, 3, -32768))
-put("raster_hgt", "tile-s12w077", b"s12w077.SRTMGL1.hgt!\n" + struct.pack(">hh", 500, 501))
+# ---- HGT: name line then data; with `!` the first data byte picks a side 2..=129 and the ----
+# ---- rest is repeated to side² samples (see fuzz_targets/raster_hgt.rs) ----
+put("raster_hgt", "tile-N35E138", b"N35E138.hgt!\n" + bytes([14]) + struct.pack(">hhhh", 1, 2, 3, -32768))
+put("raster_hgt", "tile-s12w077", b"s12w077.SRTMGL1.hgt!\n" + bytes([127]) + struct.pack(">hh", 500, 501))
 put("raster_hgt", "short", b"N00E000.hgt\n" + b"\0" * 16)
 put("raster_hgt", "bad-name", b"elevation.hgt!\n\0\1")
 

@@ -21,6 +21,8 @@ MIN_EXECS=${MIN_EXECS:-10000000}
 MAX_RESTARTS=${MAX_RESTARTS:-5}
 RSS_LIMIT_MB=${RSS_LIMIT_MB:-512}
 LABEL=${LABEL:-"full campaign (MAX_TIME=${MAX_TIME}s, MIN_EXECS=${MIN_EXECS})"}
+# Where the table goes: two campaigns side by side (one per core) each write their own file.
+RESULTS=${RESULTS:-RESULTS.md}
 TRIPLE=$(rustc +nightly -vV | sed -n 's/^host: //p')
 BIN=target/$TRIPLE/release
 
@@ -40,11 +42,11 @@ if [ $# -gt 0 ]; then targets=("$@"); else mapfile -t targets < <(cargo +nightly
     echo
     echo "### $(date -u +%Y-%m-%d\ %H:%MZ) — $LABEL"
     echo
-    echo "Host: $(nproc) cores; rss limit ${RSS_LIMIT_MB} MB, timeout 1 s, one process, sanitizer none, debug assertions on."
+    echo "Host: $(nproc) cores; rss limit ${RSS_LIMIT_MB} MB, timeout 1 s, one process per campaign, sanitizer none, debug assertions on."
     echo
     echo "| target | executions | seconds | exec/s | corpus files | corpus bytes | crash files | timeout files | oom files | new artifacts |"
     echo "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
-} >>RESULTS.md
+} >>"$RESULTS"
 
 for t in "${targets[@]}"; do
     mkdir -p "corpus/$t" "artifacts/$t"
@@ -88,6 +90,6 @@ for t in "${targets[@]}"; do
     new=$(( $(find "artifacts/$t" -type f | wc -l) - before ))
     row="| $t | $execs | $secs | $(( execs / (secs > 0 ? secs : 1) )) | $files | $bytes | $crashes | $timeouts | $ooms | $new |"
     echo "$row"
-    echo "$row" >>RESULTS.md
+    echo "$row" >>"$RESULTS"
 done
 

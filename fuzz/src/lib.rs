@@ -31,7 +31,19 @@ pub fn check_raster(name: &str, data: &[u8], encoding: Option<Encoding>, channel
         limits: LIMITS,
         ..LoadOptions::default()
     };
-    let result = raster::load_bytes(Path::new(name), data, &opts);
+    check_loaded(name, raster::load_bytes(Path::new(name), data, &opts));
+}
+
+/// Decodes `data` as an SRTM tile called `name` with `side` samples a side (any side: see
+/// [`raster::load_hgt_bytes_any_side`]) and checks the result as [`check_raster`] does.
+pub fn check_hgt_any_side(name: &str, data: &[u8], side: u32) {
+    let opts = LoadOptions { limits: LIMITS, ..LoadOptions::default() };
+    check_loaded(name, raster::load_hgt_bytes_any_side(Path::new(name), data, side, &opts));
+}
+
+/// The invariants of a raster decode: a raster within the limits with finite heights and
+/// frame, or an error that starts with the file's name.
+fn check_loaded(name: &str, result: Result<raster::LoadedRaster, raster::RasterError>) {
     show(|| match &result {
         Ok(r) => format!("Ok {} {}x{} {:?}", r.format, r.heights.width, r.heights.height, r.georef),
         Err(e) => format!("Err {e}"),

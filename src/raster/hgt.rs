@@ -69,6 +69,36 @@ pub(super) fn decode_bytes(path: &Path, bytes: &[u8], limits: Limits) -> Result<
         .ok_or_else(|| RasterError::HgtName { path: path.to_owned(), name: name.clone() })?;
     let len = bytes.len() as u64;
     let side = side_for_len(len).ok_or(RasterError::HgtLength { path: path.to_owned(), len })?;
+    decode_side(path, bytes, side, south, west, limits)
+}
+
+/// [`decode_bytes`] for a square of any `side` (the bytes must hold `side²` samples): the
+/// same name parsing, limits and sample decoding without the rule that SRTM tiles are 1201² or
+/// 3601². Only for fuzzing, where a 2.9 MB input per execution would run at 100 exec/s.
+pub(super) fn decode_bytes_any_side(
+    path: &Path,
+    bytes: &[u8],
+    side: u32,
+    limits: Limits,
+) -> Result<Decoded, RasterError> {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let (south, west) = corner_from_name(&name)
+        .ok_or_else(|| RasterError::HgtName { path: path.to_owned(), name: name.clone() })?;
+    let len = bytes.len() as u64;
+    if side < 2 || u64::from(side) * u64::from(side) * 2 != len {
+        return Err(RasterError::HgtLength { path: path.to_owned(), len });
+    }
+    decode_side(path, bytes, side, south, west, limits)
+}
+
+fn decode_side(
+    path: &Path,
+    bytes: &[u8],
+    side: u32,
+    south: i32,
+    west: i32,
+    limits: Limits,
+) -> Result<Decoded, RasterError> {
     check_size(path, side.into(), side.into(), limits)?;
     Ok(samples(bytes, side, south, west))
 }
@@ -100,6 +130,7 @@ mod tests {
     use super::super::test_util::{assert_names_path, load, write};
     use super::super::{GeographicMapping, LoadOptions, RasterError, load as load_with, metres_per_degree};
     use super::{Limits, corner_from_name};
+    use std::path::Path;
 
     /// Big-endian i16 samples of a `side²` tile: value = row·10 + col % 7, voids where `void`.
     fn tile(side: usize, void: impl Fn(usize, usize) -> bool) -> Vec<u8> {
@@ -194,5 +225,25 @@ mod tests {
         let p = write(dir.path(), "N01W001.hgt", &tile(1201, |_, _| true));
         let e = load(&p).unwrap_err();
         assert!(matches!(e, RasterError::AllNoData { samples: 1_442_401, .. }), "{e}");
+    }
+
+    /// The fuzzing entry decodes a small square exactly as a full tile's corner would decode,
+    /// and still refuses a length that is not `side² · 2` and a name without a position.
+    #[test]
+    fn any_side_for_fuzzing() {
+        use super::super::load_hgt_bytes_any_side as any;
+        let opts = LoadOptions::default();
+        let voids = |c: usize, r: usize| c == 1 && r == 2;
+        let r = any(Path::new("N35E138.hgt"), &tile(5, voids), 5, &opts).unwrap();
+        assert_eq!((r.heights.width, r.heights.height, r.nodata_filled), (5, 5, 1));
+        assert_eq!(r.heights.get(4, 3), 34.0);
+        let m = r.georef.geographic.unwrap();
+        assert_eq!(m, GeographicMapping::new(138.0, 36.0, 0.25, -0.25, 5));
+        for (bytes, side) in [(tile(5, voids), 4), (tile(1, |_, _| false), 1), (vec![0; 7], 2)] {
+            let e = any(Path::new("N35E138.hgt"), &bytes, side, &opts).unwrap_err();
+            assert!(matches!(e, RasterError::HgtLength { .. }), "{e}");
+        }
+        let e = any(Path::new("x.hgt"), &tile(5, voids), 5, &opts).unwrap_err();
+        assert!(matches!(e, RasterError::HgtName { .. }), "{e}");
     }
 }

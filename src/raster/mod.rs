@@ -21,7 +21,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 #[doc(hidden)]
-pub use from_bytes::load_bytes;
+pub use from_bytes::{load_bytes, load_hgt_bytes_any_side};
 
 /// Default limit on either side of a raster, in samples.
 pub const DEFAULT_MAX_SIDE: u32 = 65_536;
