@@ -2,7 +2,7 @@
 //! stage that failed while `?` converts between them.
 
 use crate::{
-    bake::BakeError, bake_model::ModelBakeError, codec::CodecError, mesh::MeshError, raster::RasterError,
+    bake::BakeError, bake::model::ModelBakeError, codec::CodecError, model::MeshError, raster::RasterError,
     store::StoreError, tin::TinError,
 };
 

@@ -5,20 +5,17 @@
 //! only; `raster` reads files; `store` and `bake` own the tileset directory.
 
 pub mod bake;
-pub mod bake_model;
 #[cfg(feature = "client")]
 pub mod client;
 pub mod codec;
 mod error;
-pub mod export;
 pub mod geom;
 pub mod lod;
-pub mod mesh;
+pub mod model;
 pub mod raster;
 #[cfg(feature = "server")]
 pub mod server;
 pub mod store;
-pub mod synth;
 pub mod tiling;
 pub mod tin;
 

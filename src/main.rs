@@ -23,17 +23,18 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
+use terrastream::bake::model::{self as bake_model, ModelBakeOptions, ModelLevel};
 use terrastream::bake::{self, BakeOptions, BakeSummary};
-use terrastream::bake_model::{self, ModelBakeOptions, ModelLevel};
 #[cfg(feature = "client")]
 use terrastream::client;
-use terrastream::mesh::FileType;
+use terrastream::model::FileType;
 use terrastream::raster::{self, Encoding, Limits, LoadOptions, Overrides};
 #[cfg(feature = "server")]
 use terrastream::server;
+use terrastream::store::export;
 use terrastream::store::{LevelTotals, Store};
+use terrastream::tiling;
 use terrastream::tiling::TileKey;
-use terrastream::{export, tiling};
 
 #[derive(Parser)]
 #[command(version, about = "Terrain heightfields → tiled TIN + point-cloud LOD blobs, streamed over HTTP")]
@@ -576,7 +577,7 @@ fn run(cli: Cli) -> Result<()> {
             if !(cell_size.is_finite() && cell_size > 0.0) {
                 bail!("--cell-size must be a positive number");
             }
-            let heights = terrastream::synth::terrain(width, height, seed);
+            let heights = terrastream::raster::synth::terrain(width, height, seed);
             let bytes =
                 raster::geotiff::encode_f32(width, height, &heights, (0.0, 0.0), (cell_size, -cell_size))
                     .with_context(|| format!("{}: encoding GeoTIFF", out.display()))?;

@@ -247,7 +247,7 @@ fn generated_geotiff_bakes_with_its_georeference() {
 fn srtm_hgt_with_voids_bakes_in_a_local_metric_frame() {
     let tmp = tempfile::tempdir().unwrap();
     let hgt = tmp.path().join("N35E138.hgt");
-    let heights = terrastream::synth::terrain(1201, 1201, 5);
+    let heights = terrastream::raster::synth::terrain(1201, 1201, 5);
     let mut bytes = Vec::with_capacity(1201 * 1201 * 2);
     for (k, h) in heights.iter().enumerate() {
         // A block of voids in the middle, filled from its neighbours.

@@ -88,7 +88,7 @@ fn tile_key_at_z_64_is_a_client_error() {
 
     let dir = tempfile::tempdir().unwrap();
     let raster = LoadedRaster {
-        heights: Heightfield { width: 17, height: 17, data: terrastream::synth::terrain(17, 17, 1) },
+        heights: Heightfield { width: 17, height: 17, data: terrastream::raster::synth::terrain(17, 17, 1) },
         georef: Georef::default(),
         nodata_filled: 0,
         format: "synthetic".into(),

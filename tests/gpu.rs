@@ -188,7 +188,7 @@ fn agrees_with_cpu_on_fuji_tiles() {
 #[test]
 fn agrees_with_cpu_on_generated_terrain() {
     let Some(gpu) = baker() else { return };
-    let hf = Heightfield { width: 257, height: 257, data: terrastream::synth::terrain(257, 257, 7) };
+    let hf = Heightfield { width: 257, height: 257, data: terrastream::raster::synth::terrain(257, 257, 7) };
     let georef = Georef { dx: 30.0, dy: -30.0, y0: 257.0 * 30.0, ..Georef::default() };
     let meshes = node_meshes(&hf, &georef, 128, 1.0);
     check_jobs("synth", gpu, &level_jobs(&meshes, 3));
@@ -243,7 +243,7 @@ fn agrees_with_cpu_on_the_bunny() {
 #[test]
 fn bakes_are_deterministic_and_independent_of_batching() {
     let Some(gpu) = baker() else { return };
-    let hf = Heightfield { width: 257, height: 257, data: terrastream::synth::terrain(257, 257, 3) };
+    let hf = Heightfield { width: 257, height: 257, data: terrastream::raster::synth::terrain(257, 257, 3) };
     let georef = Georef { dx: 10.0, dy: 10.0, ..Georef::default() };
     let meshes = node_meshes(&hf, &georef, 64, 1.0);
     let jobs = level_jobs(&meshes, 3);
@@ -387,8 +387,8 @@ fn bake_model_on_the_gpu_matches_the_cpu() {
     assert_eq!(tree(&a), tree(&b));
     assert!(summary.contains("point levels baked by gpu: "), "{summary}");
     bake_bunny(&c, "off");
-    let g = terrastream::bake_model::read_manifest(&terrastream::store::Store::new(&a)).unwrap();
-    let cpu = terrastream::bake_model::read_manifest(&terrastream::store::Store::new(&c)).unwrap();
+    let g = terrastream::bake::model::read_manifest(&terrastream::store::Store::new(&a)).unwrap();
+    let cpu = terrastream::bake::model::read_manifest(&terrastream::store::Store::new(&c)).unwrap();
     assert!(g.tileset.point_baker.starts_with("gpu: "), "{}", g.tileset.point_baker);
     assert_eq!(cpu.tileset.point_baker, "cpu");
     assert_eq!(g.model.levels.len(), cpu.model.levels.len());

@@ -11,9 +11,9 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use terrastream::bake_model::{self, MODEL_TILE};
+use terrastream::bake::model::{self as bake_model, MODEL_TILE};
 use terrastream::codec::{self, Geometry};
-use terrastream::mesh::{self, Encoding};
+use terrastream::model::{self, Encoding};
 use terrastream::store::{KIND_MODEL, Store};
 
 fn bin() -> Command {
@@ -177,7 +177,7 @@ fn every_encoding_reads_the_same_cube() {
         (write(d, "le.ply", ply_binary(false)), Encoding::PlyBinaryLe),
         (write(d, "be.ply", ply_binary(true)), Encoding::PlyBinaryBe),
     ];
-    let reference = mesh::load(&files[0].0).unwrap();
+    let reference = model::load(&files[0].0).unwrap();
     // OBJ polygons are fan-triangulated; the normals were missing, so they are computed: at a
     // cube corner the area-weighted sum of the adjacent triangles' normals points outward on
     // every axis (not exactly along the diagonal: a fan gives its root corner two triangles).
@@ -193,11 +193,11 @@ fn every_encoding_reads_the_same_cube() {
         }
     }
     for (path, encoding) in &files {
-        let m = mesh::load(path).unwrap();
+        let m = model::load(path).unwrap();
         assert_eq!(m.encoding, *encoding, "{}", path.display());
         // STL welds its corners in order of first appearance, so its vertex order differs;
         // compare the triangles as coordinate triples.
-        let tris = |m: &mesh::Model| {
+        let tris = |m: &model::Model| {
             let mut t: Vec<[[u64; 3]; 3]> = m
                 .mesh
                 .triangles
@@ -238,7 +238,7 @@ fn polygons_in_obj_and_ply_are_fan_triangulated() {
     // A flat pentagon and a hexagon sharing an edge, with mixed corner syntax.
     let obj = "v 0 0 0\nv 2 0 0\nv 3 1 0\nv 1 2 0\nv -1 1 0\nv 4 -1 0\nv 5 0 0\nv 5 2 0\n\
                vn 0 0 1\nf 1//1 2//1 3//1 4//1 5//1\nf 2 6 7 8 3\n";
-    let m = mesh::parse(obj.as_bytes(), "p.obj", None).unwrap();
+    let m = model::parse(obj.as_bytes(), "p.obj", None).unwrap();
     assert_eq!(m.stats.faces, 2);
     assert_eq!(m.mesh.triangles.len(), 3 + 3);
     assert_eq!(m.mesh.triangles[..3], [[0, 1, 2], [0, 2, 3], [0, 3, 4]]);
@@ -246,7 +246,7 @@ fn polygons_in_obj_and_ply_are_fan_triangulated() {
     let ply = "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\nproperty float z\n\
                element face 1\nproperty list uchar uint vertex_index\nend_header\n\
                0 0 0\n2 0 0\n3 1 0\n1 2 0\n-1 1 0\n5 0 1 2 3 4\n";
-    let p = mesh::parse(ply.as_bytes(), "p.ply", None).unwrap();
+    let p = model::parse(ply.as_bytes(), "p.ply", None).unwrap();
     assert_eq!(p.mesh.triangles, vec![[0, 1, 2], [0, 2, 3], [0, 3, 4]]);
     assert!(p.normals.iter().all(|n| (n[2] - 1.0).abs() < 1e-6));
 }
@@ -460,7 +460,7 @@ fn stanford_bunny_next_to_the_papers_table_3() {
     assert!(text.contains(&format!("{} points", levels[2].count)), "{text}");
     // The exported level reads back through the model reader (no faces: a point cloud is not
     // a model), and the exported mesh does.
-    let e = mesh::load(&ply).unwrap_err().to_string();
+    let e = model::load(&ply).unwrap_err().to_string();
     assert!(e.contains("no faces"), "{e}");
     let obj = tmp.path().join("l0.obj");
     run_ok(
@@ -470,7 +470,7 @@ fn stanford_bunny_next_to_the_papers_table_3() {
             .args(["--tile", "0/0/0", "--level", "0", "--format", "obj", "--out"])
             .arg(&obj),
     );
-    let back = mesh::load(&obj).unwrap();
+    let back = model::load(&obj).unwrap();
     assert_eq!((back.mesh.positions.len(), back.mesh.triangles.len()), (levels[0].count as usize, 69_451));
     let e =
         run_err(bin().arg("export").arg(&out).args(["--tile", "0/0/0", "--level", "9", "--out"]).arg(&obj));

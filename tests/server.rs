@@ -134,7 +134,7 @@ async fn get(addr: SocketAddr, path: &str) -> Resp {
 
 /// Writes the deterministic synthetic raster as a GeoTIFF (10 m cells).
 fn write_raster(path: &Path, (w, h): (u32, u32), seed: u64) {
-    let heights = terrastream::synth::terrain(w, h, seed);
+    let heights = terrastream::raster::synth::terrain(w, h, seed);
     let bytes = raster::geotiff::encode_f32(w, h, &heights, (0.0, 0.0), (10.0, -10.0)).unwrap();
     std::fs::write(path, bytes).unwrap();
 }

@@ -47,7 +47,7 @@ fn setup() -> State {
     let dir = tempfile::tempdir().expect("tempdir");
     let (w, h) = (65, 49);
     let raster = LoadedRaster {
-        heights: Heightfield { width: w, height: h, data: terrastream::synth::terrain(w, h, 7) },
+        heights: Heightfield { width: w, height: h, data: terrastream::raster::synth::terrain(w, h, 7) },
         georef: Georef { dx: 10.0, dy: -10.0, ..Georef::default() },
         nodata_filled: 0,
         format: "synthetic".into(),

@@ -1,7 +1,7 @@
-//! OBJ models: any bytes through `terrastream::mesh::parse`.
+//! OBJ models: any bytes through `terrastream::model::parse`.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use terrastream::mesh::FileType;
+use terrastream::model::FileType;
 
 fuzz_target!(|data: &[u8]| {
     terrastream_fuzz::check_model(data, FileType::Obj);

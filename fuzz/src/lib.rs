@@ -8,7 +8,7 @@ use std::path::Path;
 
 use terrastream::codec::{self, Blob, BlobHeader, Geometry};
 use terrastream::geom::{Mesh, PointCloud};
-use terrastream::mesh::{self, FileType};
+use terrastream::model::{self, FileType};
 use terrastream::raster::{self, Encoding, Limits, LoadOptions};
 
 /// Small limits so a hostile header can never make a decoder allocate near the 512 MB RSS limit
@@ -96,7 +96,7 @@ pub fn check_model(data: &[u8], ty: FileType) {
         FileType::Stl => "fuzz.stl",
         FileType::Ply => "fuzz.ply",
     };
-    let result = mesh::parse(data, name, Some(ty));
+    let result = model::parse(data, name, Some(ty));
     show(|| match &result {
         Ok(m) => format!("Ok {:?} {:?}", m.encoding, m.stats),
         Err(e) => format!("Err {e}"),
@@ -104,7 +104,7 @@ pub fn check_model(data: &[u8], ty: FileType) {
     let Ok(m) = result else { return };
     check_mesh(&m.mesh);
     let n = m.mesh.positions.len();
-    assert!(n <= mesh::MAX_MODEL_ELEMENTS && m.mesh.triangles.len() <= mesh::MAX_MODEL_ELEMENTS);
+    assert!(n <= model::MAX_MODEL_ELEMENTS && m.mesh.triangles.len() <= model::MAX_MODEL_ELEMENTS);
     assert!(!m.mesh.triangles.is_empty(), "Ok model without triangles");
     assert_eq!(m.normals.len(), n, "one normal per vertex");
     for (i, nv) in m.normals.iter().enumerate() {

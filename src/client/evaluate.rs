@@ -22,7 +22,7 @@ use super::instances::InstanceBench;
 use super::render::{Renderer, covered};
 use super::select::{AllResident, DrawItem, SelectParams, Selector, skirt_depth};
 use super::tree::TileTree;
-use crate::bake_model;
+use crate::bake::model as bake_model;
 use crate::codec::{self, Blob, Geometry};
 use crate::geom::Bounds;
 use crate::store::{KIND_MODEL, KIND_TERRAIN, Store};

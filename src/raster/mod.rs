@@ -13,6 +13,7 @@ pub mod geotiff;
 mod hgt;
 mod openexr;
 mod png;
+pub mod synth;
 
 use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};

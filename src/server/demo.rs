@@ -34,7 +34,7 @@ pub fn prepare(
     std::fs::create_dir_all(&store_dir)
         .map_err(|source| crate::store::StoreError::Io { path: store_dir.clone(), source })?;
     let tif = work.join("demo-terrain.tif");
-    let heights = crate::synth::terrain(DEMO_SIDE, DEMO_SIDE, DEMO_SEED);
+    let heights = crate::raster::synth::terrain(DEMO_SIDE, DEMO_SIDE, DEMO_SEED);
     let bytes = crate::raster::geotiff::encode_f32(
         DEMO_SIDE,
         DEMO_SIDE,

@@ -1,4 +1,4 @@
-//! The model bake: a standalone model (OBJ, STL, PLY through [`crate::mesh`]) → a *model
+//! The model bake: a standalone model (OBJ, STL, PLY through [`crate::model`]) → a *model
 //! tileset*, the first paper's own setting (it baked the Stanford models).
 //!
 //! ```text
@@ -53,7 +53,7 @@ use crate::bake::PointBaker;
 use crate::codec::{self, Quantization};
 use crate::geom::{Bounds, Errors, Mesh};
 use crate::lod;
-use crate::mesh::{self, FileType, MeshError, Model, ModelStats};
+use crate::model::{self, FileType, MeshError, Model, ModelStats};
 use crate::raster::Georef;
 use crate::store::{
     IndexChunk, KIND_MODEL, LevelSpec, LevelTotals, MANIFEST_FORMAT, MANIFEST_VERSION, Manifest, NodeEntry,
@@ -248,7 +248,7 @@ pub fn read_model_file(path: &Path, file_type: Option<FileType>) -> Result<Model
             _ => None,
         }
     });
-    let model = mesh::parse(&bytes, &shown, ty)?;
+    let model = model::parse(&bytes, &shown, ty)?;
     let name = path.file_name().map_or_else(|| shown.clone(), |n| n.to_string_lossy().into_owned());
     let source =
         SourceFile { name, bytes: bytes.len() as u64, crc32: format!("{:08x}", crc32fast::hash(&bytes)) };
@@ -568,7 +568,7 @@ mod tests {
     fn tetrahedron_bakes_with_measured_errors_and_a_self_describing_manifest() {
         let dir = tempfile::tempdir().unwrap();
         let store = Store::new(&dir.path().join("ts"));
-        let model = mesh::parse(TET.as_bytes(), "tet.obj", None).unwrap();
+        let model = model::parse(TET.as_bytes(), "tet.obj", None).unwrap();
         let src = SourceFile { name: "tet.obj".into(), bytes: TET.len() as u64, crc32: "0".into() };
         let opts = ModelBakeOptions { resolutions: vec![32, 16, 8], file_type: None };
         let s = bake_model(&model, &src, &opts, &PointBaker::Cpu, &store).unwrap();
@@ -603,7 +603,7 @@ mod tests {
     #[test]
     fn quantized_level0_error_is_measured() {
         let text = "v 0.1 0.2 0.3\nv 1.7 0.01 0\nv 0 1.3 0\nf 1 2 3\n";
-        let model = mesh::parse(text.as_bytes(), "tri.obj", None).unwrap();
+        let model = model::parse(text.as_bytes(), "tri.obj", None).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let store = Store::new(dir.path());
         let src = SourceFile { name: "tri.obj".into(), bytes: 0, crc32: "0".into() };

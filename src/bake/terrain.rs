@@ -927,7 +927,11 @@ mod one_node_tests {
     fn one_node_matches_full_bake() {
         let (w, h) = (65, 49);
         let raster = LoadedRaster {
-            heights: crate::raster::Heightfield { width: w, height: h, data: crate::synth::terrain(w, h, 3) },
+            heights: crate::raster::Heightfield {
+                width: w,
+                height: h,
+                data: crate::raster::synth::terrain(w, h, 3),
+            },
             georef: Georef { dx: 10.0, dy: -10.0, ..Georef::default() },
             nodata_filled: 0,
             format: "test".into(),
@@ -1011,7 +1015,7 @@ mod bounds_tests {
                     let (c, r) = (i as u32 % w, i as u32 / w);
                     if (2..7).contains(&c) && (2..7).contains(&r) { base - 2.5 } else if c > w / 2 { base + 40.125 } else { base }
                 }).collect(),
-                _ => crate::synth::terrain(w, h, seed).into_iter().map(|z| base + z * 0.1).collect(),
+                _ => crate::raster::synth::terrain(w, h, seed).into_iter().map(|z| base + z * 0.1).collect(),
             };
             let raster = LoadedRaster {
                 heights: crate::raster::Heightfield { width: w, height: h, data },

@@ -12,6 +12,8 @@
 //! Every file is written to a temporary name in the same directory and renamed into place, so a
 //! reader (or a resumed bake) sees either the old file or the complete new one, never a torn one.
 
+pub mod export;
+
 use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
