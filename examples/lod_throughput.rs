@@ -12,8 +12,8 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use rayon::prelude::*;
 use terrastream::bake::{self, BakeOptions, NodeMesh};
-use terrastream::lod::cpu;
 use terrastream::lod::gpu::{GpuBaker, LevelJob};
+use terrastream::lod::{self, cpu};
 use terrastream::raster::{self, LoadOptions};
 use terrastream::tiling::Pyramid;
 
@@ -33,7 +33,7 @@ fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let path = args.first().context("usage: lod_throughput RASTER [--tile-size N] [--levels K] …")?;
     let mut opts = BakeOptions::default();
-    let mut budget_mib = bake::DEFAULT_GPU_BUDGET_MIB;
+    let mut budget_mib = lod::DEFAULT_GPU_BUDGET_MIB;
     let mut it = args[1..].iter();
     while let Some(flag) = it.next() {
         let value = it.next().with_context(|| format!("{flag} needs a value"))?;

@@ -103,7 +103,7 @@ fn tile_key_at_z_64_is_a_client_error() {
 
     let mut config = Config::for_store(dir.path()).unwrap();
     config.bind = "127.0.0.1:0".parse().unwrap();
-    config.gpu = terrastream::bake::GpuMode::Off;
+    config.gpu = terrastream::lod::GpuMode::Off;
     let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
     rt.block_on(async {
         let server = Server::bind(config).await.unwrap();

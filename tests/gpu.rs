@@ -16,6 +16,7 @@ use std::sync::OnceLock;
 
 use terrastream::bake::{self, BakeOptions, NodeMesh};
 use terrastream::geom::{Mesh, PointCloud};
+use terrastream::lod;
 use terrastream::lod::cpu::{self, BakedCell};
 use terrastream::lod::gpu::{self, GpuBaker, LevelJob};
 use terrastream::raster::{self, Encoding, Georef, Heightfield, LoadOptions, Overrides};
@@ -357,7 +358,7 @@ fn cli_gpu_bakes_are_byte_identical_and_name_the_adapter() {
 #[test]
 fn point_baker_is_send_and_sync() {
     fn check<T: Send + Sync>() {}
-    check::<bake::PointBaker>();
+    check::<lod::PointBaker>();
     check::<GpuBaker>();
 }
 

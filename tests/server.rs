@@ -1173,7 +1173,7 @@ async fn admin_jobs_can_be_cancelled_and_expire() {
     let cfg = PartialConfig {
         admin_token: Some("admin-secret-1".into()),
         job_ttl_s: Some(2),
-        gpu: Some(terrastream::bake::GpuMode::Off),
+        gpu: Some(terrastream::lod::GpuMode::Off),
         ..store_config(&store)
     };
     let srv = Running::start(cfg).await;
@@ -1230,7 +1230,7 @@ async fn a_job_past_its_timeout_is_stopped_and_failed() {
     let cfg = PartialConfig {
         admin_token: Some("admin-secret-1".into()),
         job_timeout_s: Some(1),
-        gpu: Some(terrastream::bake::GpuMode::Off),
+        gpu: Some(terrastream::lod::GpuMode::Off),
         ..store_config(&store)
     };
     let srv = Running::start(cfg).await;

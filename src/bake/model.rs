@@ -49,10 +49,10 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::bake::PointBaker;
 use crate::codec::{self, Quantization};
 use crate::geom::{Bounds, Errors, Mesh};
 use crate::lod;
+use crate::lod::PointBaker;
 use crate::model::{self, FileType, MeshError, Model, ModelStats};
 use crate::raster::Georef;
 use crate::store::{
@@ -84,8 +84,9 @@ pub enum ModelBakeError {
     Codec { file: String, level: u8, source: codec::CodecError },
     #[error(transparent)]
     Store(#[from] StoreError),
-    #[error("bake-model: {file}: {source}")]
-    Points { file: String, source: crate::bake::BakeError },
+    // "bake: " as when this error came through the terrain bake's error type.
+    #[error("bake-model: {file}: bake: {source}")]
+    Points { file: String, source: crate::lod::BakerError },
 }
 
 /// Options of a model bake: the resolution T of each point level, finest first.
@@ -168,6 +169,37 @@ pub struct ModelLevel {
     pub filled: Option<u64>,
     pub errors: Errors,
     pub bytes: u64,
+}
+
+/// The per-level table `bake-model` and `inspect` print for a model tileset: one header line
+/// and one line per level, without a trailing newline.
+pub struct ModelLevelTable<'a>(pub &'a [ModelLevel]);
+
+impl std::fmt::Display for ModelLevelTable<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{:>5}  {:>6}  {:>5}  {:>10}  {:>9}  {:>9}  {:>9}  {:>10}  {:>10}  {:>10}",
+            "level", "kind", "T", "cell", "count", "triangles", "bytes", "max err", "rms", "gap"
+        )?;
+        for l in self.0 {
+            write!(
+                f,
+                "\n{:>5}  {:>6}  {:>5}  {:>10}  {:>9}  {:>9}  {:>9}  {:>10.3e}  {:>10.3e}  {:>10.3e}",
+                l.level,
+                l.kind,
+                l.resolution.map_or_else(|| "-".to_owned(), |t| t.to_string()),
+                l.cell.map_or_else(|| "-".to_owned(), |c| format!("{c:.3e}")),
+                l.count,
+                l.triangles,
+                l.bytes,
+                l.errors.max,
+                l.errors.rms,
+                l.errors.gap
+            )?;
+        }
+        Ok(())
+    }
 }
 
 /// The `model` object of a model tileset's manifest.

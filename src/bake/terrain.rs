@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::codec::{self, Quantization};
 use crate::geom::{Bounds, Errors, Mesh, PointCloud};
-use crate::lod;
+use crate::lod::{self, PointBaker};
 use crate::raster::{Georef, LoadedRaster, WindowReader};
 use crate::store::{
     IndexChunk, LevelSpec, LevelTotals, MANIFEST_FORMAT, MANIFEST_VERSION, Manifest, NodeEntry, NodeLevel,
@@ -31,12 +31,6 @@ pub const DEFAULT_LEVELS: u8 = 4;
 pub const MESH_Z_STEPS_PER_ERROR: f64 = 64.0;
 /// Point positions are quantized to this fraction of the level's cell edge.
 pub const POINT_STEPS_PER_CELL: u32 = 64;
-/// Default GPU memory budget of one batch of point levels, in MiB.
-#[cfg(feature = "gpu")]
-pub const DEFAULT_GPU_BUDGET_MIB: u64 = lod::gpu::DEFAULT_BATCH_BUDGET_MIB;
-/// Default GPU memory budget of one batch of point levels, in MiB (unused without `gpu`).
-#[cfg(not(feature = "gpu"))]
-pub const DEFAULT_GPU_BUDGET_MIB: u64 = 256;
 /// Most point levels a bake may ask for (cells of 2^16 leaf cells are larger than any raster).
 pub const MAX_LEVELS: u8 = 16;
 
@@ -57,126 +51,6 @@ impl Default for BakeOptions {
     }
 }
 
-/// Where point levels are baked (`--gpu`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum GpuMode {
-    /// Any adapter, software ones (Mesa lavapipe) included; the CPU with a notice when none.
-    #[default]
-    Auto,
-    /// An adapter or a clear error.
-    On,
-    /// The CPU reference.
-    Off,
-}
-
-/// The point-level baker of a bake.
-pub enum PointBaker {
-    /// `lod::cpu`, node by node in parallel.
-    Cpu,
-    /// `lod::gpu`, many nodes and all their levels per submission.
-    #[cfg(feature = "gpu")]
-    Gpu(Box<lod::gpu::GpuBaker>),
-}
-
-impl PointBaker {
-    /// Resolves `mode`; `gpu_budget_bytes` caps one GPU batch. Returns the baker and, when
-    /// `auto` found no adapter, a one-line notice saying the CPU is used.
-    pub fn open(mode: GpuMode, gpu_budget_bytes: u64) -> Result<(Self, Option<String>), BakeError> {
-        if mode == GpuMode::Off {
-            return Ok((Self::Cpu, None));
-        }
-        #[cfg(feature = "gpu")]
-        {
-            match lod::gpu::GpuBaker::open_default(gpu_budget_bytes) {
-                Ok(g) => Ok((Self::Gpu(Box::new(g)), None)),
-                Err(e) if mode == GpuMode::Auto => {
-                    Ok((Self::Cpu, Some(format!("{e}; baking point levels on the CPU"))))
-                }
-                Err(e) => Err(e.into()),
-            }
-        }
-        #[cfg(not(feature = "gpu"))]
-        {
-            let _ = gpu_budget_bytes;
-            match mode {
-                GpuMode::On => Err(BakeError::Options(
-                    "--gpu on: this build has no GPU support (feature `gpu` off)".into(),
-                )),
-                _ => Ok((
-                    Self::Cpu,
-                    Some("built without the `gpu` feature; baking point levels on the CPU".into()),
-                )),
-            }
-        }
-    }
-
-    /// Point levels `1..=levels` of one node, unquantized, with what the GPU path cost (`None`
-    /// on the CPU).
-    pub fn bake_levels(
-        &self,
-        nm: &NodeMesh,
-        levels: u8,
-    ) -> Result<(Vec<PointCloud>, Option<[u64; 4]>), BakeError> {
-        match self {
-            Self::Cpu => Ok((
-                (1..=levels)
-                    .map(|level| {
-                        let (origin, cell) = nm.level_grid(level);
-                        lod::cpu::bake_points(&nm.mesh, origin, cell)
-                    })
-                    .collect(),
-                None,
-            )),
-            #[cfg(feature = "gpu")]
-            Self::Gpu(gpu) => {
-                let jobs: Vec<lod::gpu::LevelJob<'_>> = (1..=levels)
-                    .map(|l| {
-                        let (origin, cell) = nm.level_grid(l);
-                        lod::gpu::LevelJob { mesh: &nm.mesh, origin, cell }
-                    })
-                    .collect();
-                let (results, rep) = gpu.bake_jobs(&jobs, &lod::cpu::BakeOptions::default())?;
-                let clouds = results.into_iter().map(|(cells, _)| cells_to_cloud(&cells)).collect();
-                Ok((clouds, Some([rep.batches, rep.peak_batch_bytes, rep.budget_bytes, rep.cpu_jobs])))
-            }
-        }
-    }
-
-    /// Point clouds of one mesh on several cubic grids (origin, cell edge), with what each bake
-    /// did: the model bake's levels. The GPU takes them all in one submission (split only by
-    /// the batch budget); the CPU bakes them in parallel.
-    pub fn bake_grids(
-        &self,
-        mesh: &crate::geom::Mesh,
-        grids: &[([f64; 3], f64)],
-    ) -> Result<Vec<(PointCloud, lod::cpu::BakeStats)>, BakeError> {
-        match self {
-            Self::Cpu => Ok(grids
-                .par_iter()
-                .map(|&(origin, cell)| lod::cpu::bake_points_with_stats(mesh, origin, cell))
-                .collect()),
-            #[cfg(feature = "gpu")]
-            Self::Gpu(gpu) => {
-                let jobs: Vec<lod::gpu::LevelJob<'_>> =
-                    grids.iter().map(|&(origin, cell)| lod::gpu::LevelJob { mesh, origin, cell }).collect();
-                let (results, _) = gpu.bake_jobs(&jobs, &lod::cpu::BakeOptions::default())?;
-                Ok(results.into_iter().map(|(cells, stats)| (cells_to_cloud(&cells), stats)).collect())
-            }
-        }
-    }
-
-    /// "cpu" or "gpu: <adapter>", as in the summary and the manifest.
-    #[must_use]
-    pub fn describe(&self) -> String {
-        match self {
-            Self::Cpu => "cpu".into(),
-            #[cfg(feature = "gpu")]
-            Self::Gpu(g) => format!("gpu: {}", g.adapter()),
-        }
-    }
-}
-
 #[derive(Debug, thiserror::Error)]
 pub enum BakeError {
     #[error("bake: {0}")]
@@ -192,9 +66,8 @@ pub enum BakeError {
     /// [`Progress::cancelled`] said stop; the reason (cancelled, deadline passed) is its text.
     #[error("bake stopped: {0}")]
     Cancelled(String),
-    #[cfg(feature = "gpu")]
     #[error("bake: {0}")]
-    Gpu(#[from] lod::gpu::GpuError),
+    Baker(#[from] lod::BakerError),
 }
 
 /// Progress of a bake, reported as nodes complete (from any worker thread).
@@ -491,8 +364,9 @@ fn bake_nodes_gpu(
                 })
             })
             .collect();
-        let (results, rep) = gpu.bake_jobs(&jobs, &lod::cpu::BakeOptions::default())?;
-        let clouds = results.into_iter().map(|(cells, _)| cells_to_cloud(&cells)).collect();
+        let (results, rep) =
+            gpu.bake_jobs(&jobs, &lod::cpu::BakeOptions::default()).map_err(lod::BakerError::from)?;
+        let clouds = results.into_iter().map(|(cells, _)| lod::cells_to_cloud(&cells)).collect();
         Ok((clouds, rep))
     };
     std::thread::scope(|scope| -> Result<(), BakeError> {
@@ -565,14 +439,6 @@ fn bake_nodes_gpu(
         .map(|e| e.ok_or_else(|| BakeError::Options("a node was left unbaked".into())))
         .collect::<Result<_, _>>()?;
     Ok((entries, report))
-}
-
-#[cfg(feature = "gpu")]
-fn cells_to_cloud(cells: &[lod::cpu::BakedCell]) -> PointCloud {
-    PointCloud {
-        positions: cells.iter().map(|c| c.position).collect(),
-        normals: cells.iter().map(|c| c.normal).collect(),
-    }
 }
 
 fn heights_crc(data: &[f32]) -> String {
@@ -700,7 +566,8 @@ pub fn bake_node_geometry_with(
     baker: &PointBaker,
 ) -> Result<(NodeBake, Vec<Quantization>), BakeError> {
     let nm = bake_node_mesh(pyramid, reader, georef, key, opts)?;
-    let clouds = baker.bake_levels(&nm, opts.levels)?.0;
+    let grids: Vec<([f64; 3], f64)> = (1..=opts.levels).map(|l| nm.level_grid(l)).collect();
+    let clouds = baker.bake_levels(&nm.mesh, &grids)?.0;
     Ok(finish_node(nm, clouds))
 }
 

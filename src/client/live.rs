@@ -542,6 +542,7 @@ pub const FRAMES_DIR: &str = "frames";
 pub const DEFAULT_FRAMES_EVERY: u32 = 10;
 
 /// Whether `terrastream client` renders (`--render`).
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum RenderMode {
     /// With any adapter (software ones such as Mesa lavapipe included); without one, replays

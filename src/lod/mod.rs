@@ -2,8 +2,13 @@
 //! slicing. `cpu` is the reference implementation; `gpu` (feature `gpu`) runs the same method
 //! with wgpu and is checked against it.
 
+mod baker;
 pub mod cpu;
 mod fasthash;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 mod measure;
+
+#[cfg(feature = "gpu")]
+pub(crate) use baker::cells_to_cloud;
+pub use baker::{BakerError, DEFAULT_GPU_BUDGET_MIB, GpuMode, PointBaker};

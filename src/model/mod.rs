@@ -33,6 +33,7 @@ use crate::geom::Mesh;
 pub const MAX_MODEL_ELEMENTS: usize = crate::codec::MAX_ELEMENTS as usize;
 
 /// The model file types, chosen by extension or, failing that, by signature.
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum FileType {

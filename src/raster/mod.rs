@@ -126,6 +126,7 @@ impl Default for Georef {
 }
 
 /// How a PNG's channels encode height.
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Encoding {
     /// 16-bit grayscale, value = sample.

@@ -25,7 +25,8 @@ use tokio::sync::{Notify, Semaphore};
 use super::http::check_bearer;
 use super::problem::Problem;
 use super::{App, valid_name};
-use crate::bake::{BakeOptions, PointBaker, Progress};
+use crate::bake::{BakeOptions, Progress};
+use crate::lod::PointBaker;
 use crate::raster::{Encoding, LoadOptions, Overrides};
 use crate::store::Store;
 

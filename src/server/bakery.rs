@@ -17,7 +17,7 @@ use tokio::sync::watch;
 use super::metrics::Metrics;
 use super::problem::Problem;
 use super::registry::Tileset;
-use crate::bake::PointBaker;
+use crate::lod::PointBaker;
 use crate::tiling::TileKey;
 
 /// `None` while baking; then the bake's outcome.

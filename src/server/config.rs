@@ -9,7 +9,7 @@ use std::time::Duration;
 use serde::Deserialize;
 
 use super::ServerError;
-use crate::bake::{DEFAULT_GPU_BUDGET_MIB, GpuMode};
+use crate::lod::{DEFAULT_GPU_BUDGET_MIB, GpuMode};
 
 /// Address `serve` listens on.
 pub const DEFAULT_BIND: &str = "127.0.0.1:8080";
@@ -51,6 +51,7 @@ pub const DEFAULT_JOB_TIMEOUT_S: u64 = 4 * 3600;
 pub const DEFAULT_JOB_TTL_S: u64 = 3600;
 
 /// How log lines are written.
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum LogFormat {
@@ -110,34 +111,101 @@ impl std::str::FromStr for SourceSpec {
 }
 
 /// Every setting optional: what one layer (flags + environment, or the TOML file) sets.
+/// With the `cli` feature this is also `serve`'s flags (each with its environment variable):
+/// the command line and the TOML file fill the same struct.
 #[derive(Debug, Clone, Default, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct PartialConfig {
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long,
+            env = "TERRASTREAM_STORE",
+            help = "Store directory: each subdirectory DIR/NAME is a tileset"
+        )
+    )]
     pub store: Option<PathBuf>,
+    #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_BIND", help = format!("Address to listen on [default: {}]", DEFAULT_BIND)))]
     pub bind: Option<String>,
     #[serde(default)]
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long = "source",
+            value_name = "NAME=RASTER[,key=value…]",
+            help = "Bake tiles of tileset NAME missing from the store from RASTER on first request; keys: encoding, cell_size, tile_size, max_error, levels (repeatable)"
+        )
+    )]
     pub sources: Vec<SourceSpec>,
+    #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_MAX_CONNECTIONS", help = format!("Most open connections [default: {}]", DEFAULT_MAX_CONNECTIONS)))]
     pub max_connections: Option<usize>,
+    #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_MAX_IN_FLIGHT", help = format!("Most requests in progress; more get 503 + Retry-After [default: {}]", DEFAULT_MAX_IN_FLIGHT)))]
     pub max_in_flight: Option<usize>,
+    #[cfg_attr(feature = "cli", arg(long = "request-timeout", env = "TERRASTREAM_REQUEST_TIMEOUT", value_name = "SECONDS", help = format!("Per-request time limit [default: {}]", DEFAULT_REQUEST_TIMEOUT_S)))]
     pub request_timeout_s: Option<u64>,
+    #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_MAX_BODY_BYTES", help = format!("Largest admin upload [default: {}]", DEFAULT_MAX_BODY_BYTES)))]
     pub max_body_bytes: Option<u64>,
+    #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_BAKE_WORKERS", help = format!("On-demand bake threads [default: {}]", DEFAULT_BAKE_WORKERS)))]
     pub bake_workers: Option<usize>,
+    #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_BAKE_QUEUE", help = format!("On-demand bakes that may wait; more get 503 + Retry-After [default: {}]", DEFAULT_BAKE_QUEUE)))]
     pub bake_queue: Option<usize>,
+    #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_CACHE_BYTES", help = format!("Memory for verified blobs [default: {}]", DEFAULT_CACHE_BYTES)))]
     pub cache_bytes: Option<u64>,
+    #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_POLL_MS", help = format!("Store re-scan interval in ms [default: {}]", DEFAULT_POLL_MS)))]
     pub poll_ms: Option<u64>,
+    #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_RATE_LIMIT", help = format!("Requests per second per client address, 0 = off [default: {}]", DEFAULT_RATE_LIMIT)))]
     pub rate_limit: Option<u32>,
+    #[cfg_attr(feature = "cli", arg(long = "shutdown-timeout", env = "TERRASTREAM_SHUTDOWN_TIMEOUT", value_name = "SECONDS", help = format!("Time in-flight requests get after SIGTERM [default: {}]", DEFAULT_SHUTDOWN_TIMEOUT_S)))]
     pub shutdown_timeout_s: Option<u64>,
+    #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_MAX_CONNECTIONS_PER_CLIENT", help = format!("Most open connections from one client IP; more get 503 and are closed; 0 = no limit [default: {}]", DEFAULT_MAX_CONNECTIONS_PER_CLIENT)))]
     pub max_connections_per_client: Option<usize>,
+    #[cfg_attr(feature = "cli", arg(long = "header-timeout", env = "TERRASTREAM_HEADER_TIMEOUT", value_name = "SECONDS", help = format!("Time a client has to send a request head from its first byte [default: {}]", DEFAULT_HEADER_TIMEOUT_S)))]
     pub header_timeout_s: Option<u64>,
+    #[cfg_attr(feature = "cli", arg(long = "idle-timeout", env = "TERRASTREAM_IDLE_TIMEOUT", value_name = "SECONDS", help = format!("A connection with no request in flight is closed after this long idle [default: {}]", DEFAULT_IDLE_TIMEOUT_S)))]
     pub idle_timeout_s: Option<u64>,
+    #[cfg_attr(feature = "cli", arg(long = "job-timeout", env = "TERRASTREAM_JOB_TIMEOUT", value_name = "SECONDS", help = format!("Longest an admin bake job may run before it is stopped (failed) [default: {}]", DEFAULT_JOB_TIMEOUT_S)))]
     pub job_timeout_s: Option<u64>,
+    #[cfg_attr(feature = "cli", arg(long = "job-ttl", env = "TERRASTREAM_JOB_TTL", value_name = "SECONDS", help = format!("How long ended admin jobs stay at /jobs/ID [default: {}]", DEFAULT_JOB_TTL_S)))]
     pub job_ttl_s: Option<u64>,
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long,
+            env = "TERRASTREAM_ADMIN_TOKEN",
+            hide_env_values = true,
+            help = "Bearer token of the admin API (disabled without)"
+        )
+    )]
     pub admin_token: Option<String>,
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long,
+            env = "TERRASTREAM_READ_TOKEN",
+            hide_env_values = true,
+            help = "Bearer token required for reading (public without)"
+        )
+    )]
     pub read_token: Option<String>,
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, env = "TERRASTREAM_LOG_FORMAT", value_enum, help = "Log format [default: human]")
+    )]
     pub log_format: Option<LogFormat>,
     /// Where on-demand and admin bakes compute point levels: auto, on or off.
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long,
+            env = "TERRASTREAM_GPU",
+            value_enum,
+            help = "Where on-demand and admin bakes compute point levels: auto (any adapter, else the CPU), on, off [default: auto]"
+        )
+    )]
     pub gpu: Option<GpuMode>,
     /// GPU memory budget of one batch of point levels, MiB.
+    #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_GPU_BUDGET_MIB", help = format!("GPU memory budget of one batch of point levels, MiB [default: {}]", DEFAULT_GPU_BUDGET_MIB)))]
     pub gpu_budget_mib: Option<u64>,
 }
 

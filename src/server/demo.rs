@@ -4,7 +4,8 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::bake::{BakeOptions, PointBaker, Progress};
+use crate::bake::{BakeOptions, Progress};
+use crate::lod::PointBaker;
 use crate::store::Store;
 
 /// Samples per side of the demo terrain.

@@ -37,7 +37,8 @@ pub use config::{
 };
 pub use metrics::Metrics;
 
-use crate::bake::{BakeOptions, PointBaker};
+use crate::bake::BakeOptions;
+use crate::lod::PointBaker;
 use crate::raster::{Encoding, LoadOptions, Overrides};
 use crate::store::Store;
 use crate::tiling::Pyramid;
@@ -219,7 +220,7 @@ impl Server {
         let (mode, budget) = (config.gpu, config.gpu_budget_mib.saturating_mul(1 << 20));
         // A server with no source and no admin API never bakes: no adapter is opened for it.
         let bakes = !config.sources.is_empty() || config.admin_token.is_some();
-        let mode = if bakes { mode } else { crate::bake::GpuMode::Off };
+        let mode = if bakes { mode } else { crate::lod::GpuMode::Off };
         let (baker, notice) = tokio::task::spawn_blocking(move || PointBaker::open(mode, budget))
             .await
             .map_err(|e| ServerError::Config(format!("--gpu: {e}")))?

@@ -6,6 +6,7 @@ use std::io::{self, Write};
 use crate::geom::{Mesh, PointCloud};
 
 /// Interchange formats `export` writes.
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Format {
     /// Binary little-endian PLY: positions as doubles (world coordinates need them), normals as

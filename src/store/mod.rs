@@ -126,6 +126,46 @@ pub struct LevelTotals {
     pub worst: Errors,
 }
 
+/// The per-level table `bake` and `inspect` print: one header line and one line per level
+/// (level 0 the mesh), without a trailing newline.
+pub struct LevelTable<'a>(pub &'a [LevelTotals]);
+
+impl std::fmt::Display for LevelTable<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{:>5}  {:>6}  {:>7}  {:>11}  {:>10}  {:>12}  {:>7}  {:>10}  {:>10}  {:>10}",
+            "level",
+            "kind",
+            "tiles",
+            "vertices/pts",
+            "triangles",
+            "bytes",
+            "B/item",
+            "max err",
+            "worst rms",
+            "worst gap"
+        )?;
+        for (l, t) in self.0.iter().enumerate() {
+            write!(
+                f,
+                "\n{:>5}  {:>6}  {:>7}  {:>11}  {:>10}  {:>12}  {:>7.2}  {:>10.3}  {:>10.3}  {:>10.3}",
+                l,
+                if l == 0 { "mesh" } else { "points" },
+                t.tiles,
+                t.count,
+                t.triangles,
+                t.bytes,
+                t.bytes as f64 / t.count.max(1) as f64,
+                t.worst.max,
+                t.worst.rms,
+                t.worst.gap
+            )?;
+        }
+        Ok(())
+    }
+}
+
 impl LevelTotals {
     pub fn add(&mut self, l: &NodeLevel) {
         self.tiles += 1;

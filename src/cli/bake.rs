@@ -1,0 +1,157 @@
+//! `terrastream bake`: a heightfield raster → a tileset directory (resumes an interrupted bake).
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use terrastream::bake::{self, BakeOptions, BakeSummary};
+use terrastream::raster::{self, Encoding, Limits, LoadOptions, Overrides};
+use terrastream::store::{LevelTable, Store};
+use terrastream::{lod, tiling};
+
+use super::parse_pair;
+use super::progress::{Bar, peak_rss_mib};
+
+#[derive(clap::Args)]
+pub struct BakeArgs {
+    /// Input raster: OpenEXR, 16-bit PNG, terrain-RGB/Terrarium PNG, GeoTIFF or SRTM .hgt.
+    pub input: PathBuf,
+    /// Output tileset directory (created; must be empty or an earlier bake of the same input).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Leaf tile size in raster cells.
+    #[arg(long, default_value_t = tiling::DEFAULT_TILE_SIZE)]
+    pub tile_size: u32,
+    /// TIN error bound for leaf tiles, in metres (parents scale it with their cell size).
+    #[arg(long, default_value_t = bake::DEFAULT_MAX_ERROR)]
+    pub max_error: f64,
+    /// Point-cloud levels below the mesh (cells of 2, 4, 8, … leaf cells).
+    #[arg(long, default_value_t = bake::DEFAULT_LEVELS)]
+    pub levels: u8,
+    /// How a PNG encodes heights.
+    #[arg(long, value_enum)]
+    pub encoding: Option<Encoding>,
+    /// OpenEXR channel to read (default: the first float channel).
+    #[arg(long)]
+    pub channel: Option<String>,
+    /// Horizontal cell size in metres (overrides the file's georeference).
+    #[arg(long)]
+    pub cell_size: Option<f64>,
+    /// World position of sample (0, 0) as X,Y (overrides the file's georeference).
+    #[arg(long, value_parser = parse_pair, allow_hyphen_values = true)]
+    pub origin: Option<(f64, f64)>,
+    /// Multiply raw sample values by this.
+    #[arg(long, allow_hyphen_values = true)]
+    pub z_scale: Option<f64>,
+    /// Add this to heights after scaling.
+    #[arg(long, allow_hyphen_values = true)]
+    pub z_offset: Option<f64>,
+    /// Refuse rasters with a side longer than this many samples.
+    #[arg(long, default_value_t = raster::DEFAULT_MAX_SIDE)]
+    pub max_side: u32,
+    /// Refuse rasters whose decoded heights exceed this many bytes.
+    #[arg(long, default_value_t = raster::DEFAULT_MAX_BYTES)]
+    pub max_bytes: u64,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Where point levels are baked: auto (any GPU adapter, software ones included, else the
+    /// CPU with a notice), on (a GPU adapter or an error), off (CPU).
+    #[arg(long, value_enum, default_value_t = lod::GpuMode::Auto)]
+    pub gpu: lod::GpuMode,
+    /// GPU memory budget of one batch of point levels, in MiB.
+    #[arg(long, default_value_t = lod::DEFAULT_GPU_BUDGET_MIB)]
+    pub gpu_budget_mib: u64,
+    /// Stop the bake after this many seconds (between tiles; what is baked is kept and a re-run
+    /// resumes it). Default: no limit.
+    #[arg(long, value_name = "SECONDS", value_parser = parse_time_limit)]
+    pub time_limit: Option<f64>,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+fn parse_time_limit(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|_| format!("{s:?} is not a number of seconds"))?;
+    if v.is_finite() && v > 0.0 && v <= 1e9 {
+        Ok(v)
+    } else {
+        Err(format!("{s} must be > 0 and at most 1e9 seconds"))
+    }
+}
+
+pub fn run(a: &BakeArgs) -> Result<()> {
+    if let Some(n) = a.threads {
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
+    }
+    let opts = BakeOptions { tile_size: a.tile_size, max_error: a.max_error, levels: a.levels };
+    bake::check_options(&opts)?;
+    let load = LoadOptions {
+        encoding: a.encoding,
+        channel: a.channel.clone(),
+        limits: Limits { max_side: a.max_side, max_bytes: a.max_bytes },
+        overrides: Overrides {
+            cell_size: a.cell_size,
+            origin: a.origin,
+            z_scale: a.z_scale,
+            z_offset: a.z_offset,
+        },
+    };
+    let raster = raster::load(&a.input, &load)?;
+    let name =
+        a.input.file_name().map_or_else(|| a.input.display().to_string(), |n| n.to_string_lossy().into());
+    if !a.quiet {
+        eprintln!(
+            "{name}: {}×{} {} samples, cell {:.3} × {:.3}, {} no-data filled",
+            raster.heights.width,
+            raster.heights.height,
+            raster.format,
+            raster.georef.dx.abs(),
+            raster.georef.dy.abs(),
+            raster.nodata_filled
+        );
+    }
+    let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(0) };
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} tiles  {per_sec}  ETA {eta}  {elapsed}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.enable_steady_tick(Duration::from_millis(200));
+    let progress = Bar(bar, a.time_limit.map(|s| (Instant::now(), Duration::from_secs_f64(s))));
+    let (baker, notice) = lod::PointBaker::open(a.gpu, a.gpu_budget_mib.saturating_mul(1 << 20))?;
+    if let Some(n) = notice {
+        eprintln!("{n}");
+    }
+    let summary = bake::bake_with(&raster, &name, &opts, &baker, &Store::new(&a.out), &progress);
+    let summary = summary.inspect_err(|_| progress.0.finish_and_clear())?;
+    progress.0.finish_and_clear();
+    print_summary(&summary, &a.out);
+    Ok(())
+}
+
+fn print_summary(s: &BakeSummary, out: &std::path::Path) {
+    outln!(
+        "baked {} tiles ({} resumed) into {} in {:.2} s: {:.2} M samples/s, {} no-data samples filled",
+        s.nodes,
+        s.nodes_resumed,
+        out.display(),
+        s.seconds,
+        s.samples_per_second() / 1e6,
+        s.nodata_filled
+    );
+    if let Some(mib) = peak_rss_mib() {
+        outln!("peak memory (RSS): {mib:.0} MiB");
+    }
+    outln!("point levels baked by {}", s.point_baker);
+    if s.gpu_batches > 0 {
+        outln!(
+            "gpu: {} batches, peak {:.1} MiB per batch (budget {:.0} MiB), {} levels left to the cpu",
+            s.gpu_batches,
+            s.gpu_peak_batch_bytes as f64 / f64::from(1 << 20),
+            s.gpu_budget_bytes as f64 / f64::from(1 << 20),
+            s.gpu_cpu_fallback_levels
+        );
+    }
+    outln!("{}", LevelTable(&s.totals));
+}

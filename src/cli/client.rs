@@ -1,0 +1,127 @@
+//! `terrastream client`: replay a camera flight against a running server.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use terrastream::client;
+
+#[derive(clap::Args)]
+pub struct ClientArgs {
+    /// Server base URL (http://HOST:PORT[/PREFIX]).
+    #[arg(long)]
+    pub url: String,
+    /// Tileset name on the server.
+    #[arg(long)]
+    pub tileset: String,
+    /// Flight JSON (timestamped eye/target/up keys; see docs: world or normalized frame).
+    #[arg(long)]
+    pub flight: PathBuf,
+    /// Viewport width in pixels.
+    #[arg(long, default_value_t = client::live::DEFAULT_WIDTH)]
+    pub width: u32,
+    /// Viewport height in pixels.
+    #[arg(long, default_value_t = client::live::DEFAULT_HEIGHT)]
+    pub height: u32,
+    /// Horizontal field of view in degrees.
+    #[arg(long, default_value_t = client::select::DEFAULT_FOV_DEG)]
+    pub fov: f64,
+    /// Screen-space error threshold in pixels.
+    #[arg(long, default_value_t = client::select::DEFAULT_THRESHOLD_PX)]
+    pub threshold: f64,
+    /// Level cross-fade duration in seconds (0: switch at once).
+    #[arg(long, default_value_t = client::select::DEFAULT_FADE_SECONDS)]
+    pub fade: f64,
+    /// Frames per second of the replay.
+    #[arg(long, default_value_t = client::live::DEFAULT_FPS)]
+    pub fps: f64,
+    /// Longest time (s) to hold the last pose waiting for a complete view.
+    #[arg(long, default_value_t = client::live::DEFAULT_SETTLE_S)]
+    pub settle: f64,
+    /// Requests running at once.
+    #[arg(long, default_value_t = client::fetch::DEFAULT_MAX_IN_FLIGHT)]
+    pub max_in_flight: usize,
+    /// Decoded-tile cache budget in MiB.
+    #[arg(long, default_value_t = client::fetch::DEFAULT_CACHE_BYTES >> 20)]
+    pub cache_mb: usize,
+    /// Render frames (wgpu, headless): auto = with any adapter (software included), replaying
+    /// without rendering when there is none; on = an adapter or an error; off = never.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub render: client::live::RenderMode,
+    /// Write every Nth rendered frame as OUT/frames/NNNNN.png plus the settled view as
+    /// OUT/frames/final.png; 0 = write none (frames are still rendered and timed).
+    #[arg(long, default_value_t = client::live::DEFAULT_FRAMES_EVERY)]
+    pub frames_every: u32,
+    /// Output directory (stats.json, frames/).
+    #[arg(long, default_value = "out/client")]
+    pub out: PathBuf,
+}
+
+pub fn run(a: &ClientArgs) -> Result<()> {
+    use client::live::{ClientRun, ReplayOptions, SessionOptions};
+    let defaults = SessionOptions::default();
+    let run = ClientRun {
+        url: a.url.clone(),
+        tileset: a.tileset.clone(),
+        flight: a.flight.clone(),
+        out: a.out.clone(),
+        session: SessionOptions {
+            width: a.width,
+            height: a.height,
+            fov_deg: a.fov,
+            select: client::select::SelectParams {
+                threshold_px: a.threshold,
+                fade_seconds: a.fade,
+                ..defaults.select
+            },
+            fetch: client::fetch::FetchParams { max_in_flight: a.max_in_flight, ..defaults.fetch },
+            cache_bytes: a.cache_mb.saturating_mul(1 << 20),
+        },
+        replay: ReplayOptions { fps: a.fps, settle_s: a.settle, speed: 1.0 },
+        render: a.render,
+        frames_every: a.frames_every,
+    };
+    let report = client::live::run_client(&run, |f| {
+        if f.frame % 30 == 0 {
+            eprintln!(
+                "frame {:>5} t {:>6.2}s {:<6} drawn {:?} in flight {:>2} select {:.3} ms frame {:.1} ms",
+                f.frame, f.t, f.phase, f.drawn_per_level, f.requests_in_flight, f.select_ms, f.frame_ms
+            );
+        }
+    })?;
+    let t = &report.totals;
+    outln!(
+        "{} frames ({} in flight), {} bytes in {} requests ({} retries, {} failed), latency p50 {:.1} ms p99 {:.1} ms",
+        t.frames,
+        t.flight_frames,
+        t.bytes,
+        t.requests,
+        t.retries,
+        t.failed,
+        t.latency_p50_ms,
+        t.latency_p99_ms
+    );
+    outln!(
+        "first complete view {}, frames under {} px: {:.1} %, settled: {}, selection mean {:.3} ms max {:.3} ms",
+        t.first_complete_s.map_or_else(|| "never".to_owned(), |s| format!("at {s:.2} s")),
+        report.threshold_px,
+        100.0 * t.share_under_threshold,
+        t.settled,
+        t.select_ms_mean,
+        t.select_ms_max
+    );
+    outln!(
+        "rendering: {}{}",
+        report.rendering,
+        if t.render_ms_mean > 0.0 {
+            format!(" — render mean {:.2} ms max {:.2} ms per frame", t.render_ms_mean, t.render_ms_max)
+        } else {
+            String::new()
+        }
+    );
+    let frames = a.out.join(client::live::FRAMES_DIR);
+    if frames.is_dir() {
+        outln!("wrote frames to {}", frames.display());
+    }
+    outln!("wrote {}", a.out.join(client::live::STATS_FILE).display());
+    Ok(())
+}

@@ -1,0 +1,145 @@
+//! The point-level baker of a bake: [`cpu`] (the reference) or [`gpu`], chosen once from
+//! `--gpu` and shared by the terrain, node and model bakes and the server's on-demand bakes.
+
+use rayon::prelude::*;
+
+use super::cpu;
+#[cfg(feature = "gpu")]
+use super::gpu;
+use crate::geom::{Mesh, PointCloud};
+
+/// Default GPU memory budget of one batch of point levels, in MiB.
+#[cfg(feature = "gpu")]
+pub const DEFAULT_GPU_BUDGET_MIB: u64 = gpu::DEFAULT_BATCH_BUDGET_MIB;
+/// Default GPU memory budget of one batch of point levels, in MiB (unused without `gpu`).
+#[cfg(not(feature = "gpu"))]
+pub const DEFAULT_GPU_BUDGET_MIB: u64 = 256;
+/// Where point levels are baked (`--gpu`).
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GpuMode {
+    /// Any adapter, software ones (Mesa lavapipe) included; the CPU with a notice when none.
+    #[default]
+    Auto,
+    /// An adapter or a clear error.
+    On,
+    /// The CPU reference.
+    Off,
+}
+
+/// The point-level baker of a bake.
+pub enum PointBaker {
+    /// `lod::cpu`, node by node in parallel.
+    Cpu,
+    /// `lod::gpu`, many nodes and all their levels per submission.
+    #[cfg(feature = "gpu")]
+    Gpu(Box<gpu::GpuBaker>),
+}
+
+impl PointBaker {
+    /// Resolves `mode`; `gpu_budget_bytes` caps one GPU batch. Returns the baker and, when
+    /// `auto` found no adapter, a one-line notice saying the CPU is used.
+    pub fn open(mode: GpuMode, gpu_budget_bytes: u64) -> Result<(Self, Option<String>), BakerError> {
+        if mode == GpuMode::Off {
+            return Ok((Self::Cpu, None));
+        }
+        #[cfg(feature = "gpu")]
+        {
+            match gpu::GpuBaker::open_default(gpu_budget_bytes) {
+                Ok(g) => Ok((Self::Gpu(Box::new(g)), None)),
+                Err(e) if mode == GpuMode::Auto => {
+                    Ok((Self::Cpu, Some(format!("{e}; baking point levels on the CPU"))))
+                }
+                Err(e) => Err(e.into()),
+            }
+        }
+        #[cfg(not(feature = "gpu"))]
+        {
+            let _ = gpu_budget_bytes;
+            match mode {
+                GpuMode::On => Err(BakerError::NoGpuSupport),
+                _ => Ok((
+                    Self::Cpu,
+                    Some("built without the `gpu` feature; baking point levels on the CPU".into()),
+                )),
+            }
+        }
+    }
+
+    /// Point clouds of one mesh on several cubic grids (origin, cell edge), unquantized, with
+    /// what the GPU path cost (`None` on the CPU): one terrain node's levels. The CPU bakes the
+    /// grids one after the other (the caller runs nodes in parallel).
+    pub fn bake_levels(
+        &self,
+        mesh: &Mesh,
+        grids: &[([f64; 3], f64)],
+    ) -> Result<(Vec<PointCloud>, Option<[u64; 4]>), BakerError> {
+        match self {
+            Self::Cpu => {
+                Ok((grids.iter().map(|&(origin, cell)| cpu::bake_points(mesh, origin, cell)).collect(), None))
+            }
+            #[cfg(feature = "gpu")]
+            Self::Gpu(gpu) => {
+                let jobs: Vec<gpu::LevelJob<'_>> =
+                    grids.iter().map(|&(origin, cell)| gpu::LevelJob { mesh, origin, cell }).collect();
+                let (results, rep) = gpu.bake_jobs(&jobs, &cpu::BakeOptions::default())?;
+                let clouds = results.into_iter().map(|(cells, _)| cells_to_cloud(&cells)).collect();
+                Ok((clouds, Some([rep.batches, rep.peak_batch_bytes, rep.budget_bytes, rep.cpu_jobs])))
+            }
+        }
+    }
+
+    /// Point clouds of one mesh on several cubic grids (origin, cell edge), with what each bake
+    /// did: the model bake's levels. The GPU takes them all in one submission (split only by
+    /// the batch budget); the CPU bakes them in parallel.
+    pub fn bake_grids(
+        &self,
+        mesh: &Mesh,
+        grids: &[([f64; 3], f64)],
+    ) -> Result<Vec<(PointCloud, cpu::BakeStats)>, BakerError> {
+        match self {
+            Self::Cpu => Ok(grids
+                .par_iter()
+                .map(|&(origin, cell)| cpu::bake_points_with_stats(mesh, origin, cell))
+                .collect()),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(gpu) => {
+                let jobs: Vec<gpu::LevelJob<'_>> =
+                    grids.iter().map(|&(origin, cell)| gpu::LevelJob { mesh, origin, cell }).collect();
+                let (results, _) = gpu.bake_jobs(&jobs, &cpu::BakeOptions::default())?;
+                Ok(results.into_iter().map(|(cells, stats)| (cells_to_cloud(&cells), stats)).collect())
+            }
+        }
+    }
+
+    /// "cpu" or "gpu: <adapter>", as in the summary and the manifest.
+    #[must_use]
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Cpu => "cpu".into(),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(g) => format!("gpu: {}", g.adapter()),
+        }
+    }
+}
+
+/// Why a [`PointBaker`] could not be opened or failed.
+#[derive(Debug, thiserror::Error)]
+pub enum BakerError {
+    /// `--gpu on` in a build without the `gpu` feature.
+    #[error("--gpu on: this build has no GPU support (feature `gpu` off)")]
+    NoGpuSupport,
+    #[cfg(feature = "gpu")]
+    #[error(transparent)]
+    Gpu(#[from] gpu::GpuError),
+}
+
+/// The GPU's baked cells as a point cloud.
+#[cfg(feature = "gpu")]
+pub(crate) fn cells_to_cloud(cells: &[cpu::BakedCell]) -> PointCloud {
+    PointCloud {
+        positions: cells.iter().map(|c| c.position).collect(),
+        normals: cells.iter().map(|c| c.normal).collect(),
+    }
+}
