@@ -24,11 +24,11 @@
 use std::path::Path;
 use std::time::Instant;
 
-use terrastream::client::flight::{Flight, Frame, Key};
-use terrastream::client::live::percentile;
 use terrastream::client::select::{
     AllResident, Camera, DEFAULT_FOV_DEG, DistanceRule, SelectParams, Selector,
 };
+use terrastream::client::stream::flight::{Flight, Frame, Key};
+use terrastream::client::stream::session::percentile;
 use terrastream::client::tree::{Synthetic, TileTree};
 
 /// The second paper's region-tree control overhead per frame.

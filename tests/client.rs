@@ -20,10 +20,10 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use terrastream::client::fetch::FetchParams;
-use terrastream::client::flight::{Flight, Pose};
-use terrastream::client::live::{self, ReplayOptions, Session, SessionOptions};
 use terrastream::client::select::{Camera, SelectParams};
+use terrastream::client::stream::fetch::FetchParams;
+use terrastream::client::stream::flight::{Flight, Pose};
+use terrastream::client::stream::session::{self as live, ReplayOptions, Session, SessionOptions};
 use terrastream::server::{Config, Server};
 use terrastream::store::Store;
 
@@ -379,8 +379,9 @@ fn require_gpu() -> bool {
 #[cfg(feature = "gpu")]
 #[test]
 fn settled_view_covers_the_full_resolution_terrain() {
-    use terrastream::client::render::{Renderer, SessionView, covered};
+    use terrastream::client::render::{Renderer, covered};
     use terrastream::client::select::DrawItem;
+    use terrastream::client::stream::view::SessionView;
     use terrastream::client::tree::TileTree;
 
     let ctx = match terrastream::lod::gpu::open() {

@@ -10,9 +10,9 @@
 use std::path::Path;
 use std::process::Command;
 
-use terrastream::client::flight::Flight;
 use terrastream::client::render::{Renderer, covered};
 use terrastream::client::select::{AllResident, Camera, DrawItem, SelectParams, Selector, skirt_depth};
+use terrastream::client::stream::flight::Flight;
 use terrastream::client::tree::TileTree;
 use terrastream::codec;
 use terrastream::store::Store;

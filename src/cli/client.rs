@@ -17,10 +17,10 @@ pub struct ClientArgs {
     #[arg(long)]
     pub flight: PathBuf,
     /// Viewport width in pixels.
-    #[arg(long, default_value_t = client::live::DEFAULT_WIDTH)]
+    #[arg(long, default_value_t = client::stream::session::DEFAULT_WIDTH)]
     pub width: u32,
     /// Viewport height in pixels.
-    #[arg(long, default_value_t = client::live::DEFAULT_HEIGHT)]
+    #[arg(long, default_value_t = client::stream::session::DEFAULT_HEIGHT)]
     pub height: u32,
     /// Horizontal field of view in degrees.
     #[arg(long, default_value_t = client::select::DEFAULT_FOV_DEG)]
@@ -32,24 +32,24 @@ pub struct ClientArgs {
     #[arg(long, default_value_t = client::select::DEFAULT_FADE_SECONDS)]
     pub fade: f64,
     /// Frames per second of the replay.
-    #[arg(long, default_value_t = client::live::DEFAULT_FPS)]
+    #[arg(long, default_value_t = client::stream::session::DEFAULT_FPS)]
     pub fps: f64,
     /// Longest time (s) to hold the last pose waiting for a complete view.
-    #[arg(long, default_value_t = client::live::DEFAULT_SETTLE_S)]
+    #[arg(long, default_value_t = client::stream::session::DEFAULT_SETTLE_S)]
     pub settle: f64,
     /// Requests running at once.
-    #[arg(long, default_value_t = client::fetch::DEFAULT_MAX_IN_FLIGHT)]
+    #[arg(long, default_value_t = client::stream::fetch::DEFAULT_MAX_IN_FLIGHT)]
     pub max_in_flight: usize,
     /// Decoded-tile cache budget in MiB.
-    #[arg(long, default_value_t = client::fetch::DEFAULT_CACHE_BYTES >> 20)]
+    #[arg(long, default_value_t = client::stream::fetch::DEFAULT_CACHE_BYTES >> 20)]
     pub cache_mb: usize,
     /// Render frames (wgpu, headless): auto = with any adapter (software included), replaying
     /// without rendering when there is none; on = an adapter or an error; off = never.
     #[arg(long, value_enum, default_value = "auto")]
-    pub render: client::live::RenderMode,
+    pub render: client::stream::session::RenderMode,
     /// Write every Nth rendered frame as OUT/frames/NNNNN.png plus the settled view as
     /// OUT/frames/final.png; 0 = write none (frames are still rendered and timed).
-    #[arg(long, default_value_t = client::live::DEFAULT_FRAMES_EVERY)]
+    #[arg(long, default_value_t = client::stream::session::DEFAULT_FRAMES_EVERY)]
     pub frames_every: u32,
     /// Output directory (stats.json, frames/).
     #[arg(long, default_value = "out/client")]
@@ -57,7 +57,7 @@ pub struct ClientArgs {
 }
 
 pub fn run(a: &ClientArgs) -> Result<()> {
-    use client::live::{ClientRun, ReplayOptions, SessionOptions};
+    use client::stream::session::{ClientRun, ReplayOptions, SessionOptions};
     let defaults = SessionOptions::default();
     let run = ClientRun {
         url: a.url.clone(),
@@ -73,14 +73,14 @@ pub fn run(a: &ClientArgs) -> Result<()> {
                 fade_seconds: a.fade,
                 ..defaults.select
             },
-            fetch: client::fetch::FetchParams { max_in_flight: a.max_in_flight, ..defaults.fetch },
+            fetch: client::stream::fetch::FetchParams { max_in_flight: a.max_in_flight, ..defaults.fetch },
             cache_bytes: a.cache_mb.saturating_mul(1 << 20),
         },
         replay: ReplayOptions { fps: a.fps, settle_s: a.settle, speed: 1.0 },
         render: a.render,
         frames_every: a.frames_every,
     };
-    let report = client::live::run_client(&run, |f| {
+    let report = client::stream::session::run_client(&run, |f| {
         if f.frame % 30 == 0 {
             eprintln!(
                 "frame {:>5} t {:>6.2}s {:<6} drawn {:?} in flight {:>2} select {:.3} ms frame {:.1} ms",
@@ -118,10 +118,10 @@ pub fn run(a: &ClientArgs) -> Result<()> {
             String::new()
         }
     );
-    let frames = a.out.join(client::live::FRAMES_DIR);
+    let frames = a.out.join(client::stream::session::FRAMES_DIR);
     if frames.is_dir() {
         outln!("wrote frames to {}", frames.display());
     }
-    outln!("wrote {}", a.out.join(client::live::STATS_FILE).display());
+    outln!("wrote {}", a.out.join(client::stream::session::STATS_FILE).display());
     Ok(())
 }

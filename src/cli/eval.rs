@@ -13,10 +13,10 @@ pub struct EvalArgs {
     #[arg(long, default_value = "eval-report")]
     pub out: PathBuf,
     /// Viewport width in pixels.
-    #[arg(long, default_value_t = client::eval::DEFAULT_EVAL_WIDTH)]
+    #[arg(long, default_value_t = client::eval::analysis::DEFAULT_EVAL_WIDTH)]
     pub width: u32,
     /// Viewport height in pixels.
-    #[arg(long, default_value_t = client::eval::DEFAULT_EVAL_HEIGHT)]
+    #[arg(long, default_value_t = client::eval::analysis::DEFAULT_EVAL_HEIGHT)]
     pub height: u32,
     /// Horizontal field of view in degrees.
     #[arg(long, default_value_t = client::select::DEFAULT_FOV_DEG)]
@@ -29,19 +29,19 @@ pub struct EvalArgs {
     #[arg(long, value_delimiter = ',')]
     pub distances: Vec<f64>,
     /// Azimuths per distance and elevation, spread evenly over 360°.
-    #[arg(long, default_value_t = client::eval::DEFAULT_AZIMUTHS)]
+    #[arg(long, default_value_t = client::eval::analysis::DEFAULT_AZIMUTHS)]
     pub azimuths: u32,
     /// Elevations in degrees [default: terrain 20,45,70 about +Z; models -45,0,45 about +Y].
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     pub elevations: Vec<f64>,
     /// Grid sides N of the instance experiment (N×N instances of the model).
-    #[arg(long, value_delimiter = ',', default_values_t = client::eval::DEFAULT_GRID_SIDES)]
+    #[arg(long, value_delimiter = ',', default_values_t = client::eval::analysis::DEFAULT_GRID_SIDES)]
     pub grid: Vec<u32>,
     /// Skip grid sides above this (for slow adapters such as lavapipe).
-    #[arg(long, default_value_t = client::evaluate::DEFAULT_MAX_GRID)]
+    #[arg(long, default_value_t = client::eval::DEFAULT_MAX_GRID)]
     pub max_grid: u32,
     /// Frames timed per configuration (median reported; one warm-up frame before).
-    #[arg(long, default_value_t = client::evaluate::DEFAULT_FRAMES)]
+    #[arg(long, default_value_t = client::eval::DEFAULT_FRAMES)]
     pub frames: u32,
     /// Print only the summary (no per-camera progress).
     #[arg(long)]
@@ -49,7 +49,7 @@ pub struct EvalArgs {
 }
 
 pub fn run(a: &EvalArgs) -> Result<()> {
-    use client::evaluate::{self, EvalOptions};
+    use client::eval::{self as evaluate, EvalOptions};
     let opts = EvalOptions {
         width: a.width,
         height: a.height,

@@ -1,34 +1,24 @@
-//! The reference client's pure parts: the in-memory tile tree built from a tileset's index
-//! ([`tree`]), camera flights ([`flight`]), view-dependent tile and level selection with fades and
-//! crack-hiding skirts ([`select`]), and the request scheduler with its decoded-tile cache
-//! ([`fetch`]).
+//! The reference client, in the order a frame runs: [`tree`] (the in-memory tile tree built
+//! from a tileset's index), [`camera`] (the perspective camera and its frustum), [`select`]
+//! (view-dependent tile and level selection with fades and crack-hiding skirts), [`stream`]
+//! (the request scheduler with its decoded-tile cache, HTTP, camera flights and the streaming
+//! session with flight replay) and, with the `gpu` feature, [`render`] (headless wgpu
+//! rendering of what is drawn, PNG frames). [`eval`] is the first paper's evaluation: pure
+//! cameras, coverage metrics, report and charts, and with the `gpu` feature its runner and the
+//! N×N instance experiment.
 //!
-//! The live parts build on them: [`http`] (a minimal blocking HTTP/1.1 GET) and [`live`] (a
-//! streaming session against `terrastream serve`, flight replay and its statistics), and with
-//! the `gpu` feature [`render`] (headless wgpu rendering of what is drawn, PNG frames).
-//!
-//! The first paper's evaluation: [`eval`] (pure: cameras, coverage metrics, report and charts)
-//! and, with the `gpu` feature, [`evaluate`] (`terrastream eval`: renders full detail against
-//! the LOD selection from the tileset directory) and [`instances`] (the N×N instance
-//! experiment).
-//!
-//! Nothing in the pure parts opens a socket, spawns a task or touches a GPU: time is passed in as seconds, the
-//! network sits behind [`fetch::Transport`] and residency behind [`select::Residency`], so every
-//! rule is unit-testable and the selection can be benchmarked alone (`examples/select_bench.rs`).
-//! Rendering, the HTTP transport and flight replay build on these types.
+//! Nothing in the pure parts opens a socket, spawns a task or touches a GPU: time is passed in
+//! as seconds, the network sits behind [`stream::fetch::Transport`] and residency behind
+//! [`select::Residency`], so every rule is unit-testable and the selection can be benchmarked
+//! alone (`examples/select_bench.rs`). Rendering, the HTTP transport and flight replay build
+//! on these types.
 
+pub mod camera;
 pub mod eval;
-#[cfg(feature = "gpu")]
-pub mod evaluate;
-pub mod fetch;
-pub mod flight;
-pub mod http;
-#[cfg(feature = "gpu")]
-pub mod instances;
-pub mod live;
 #[cfg(feature = "gpu")]
 pub mod render;
 pub mod select;
+pub mod stream;
 pub mod tree;
 
 use std::path::PathBuf;

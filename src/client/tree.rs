@@ -8,7 +8,7 @@
 
 use std::collections::HashMap;
 
-use super::ClientError;
+use crate::client::ClientError;
 use crate::geom::{Bounds, Errors};
 use crate::store::{self, IndexChunk, Manifest, NodeEntry, NodeLevel, Store};
 use crate::tiling::{Pyramid, TileKey};

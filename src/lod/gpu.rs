@@ -8,7 +8,7 @@
 //! rasterized once, with no depth test and no culling, and every fragment is binned into its
 //! slice by its own depth: the same sampling as one pass per slice, with one pass per axis
 //! (and ±axis views coincide without depth test, see `lod::cpu`). The rasterization runs in a
-//! compute shader (`shaders/raster.wgsl`, one invocation per triangle and axis) rather than in
+//! compute shader (`../../shaders/bake/rasterize.wgsl`, one invocation per triangle and axis) rather than in
 //! the hardware rasterizer, because:
 //! - the CPU reference's coverage rule (canonical edge functions, the top-left tie rule at
 //!   pixel centres) is evaluated on the job's own grid coordinates, with no sub-pixel snapping
@@ -53,7 +53,7 @@
 //! an estimate but results never depend on them. A job that alone exceeds the budget, or whose
 //! cell box does not fit the 32-bit keys (an extent over 2^16 − 1 cells, or over 2^32 − 2 cells
 //! in all), or in which one cell gets over 1023 fragments of one view (the per-axis count
-//! fields of the table, see `shaders/common.wgsl`), is baked by the CPU reference instead and
+//! fields of the table, see `../../shaders/bake/common.wgsl`), is baked by the CPU reference instead and
 //! counted in [`BatchReport::cpu_jobs`].
 //! While the GPU runs one batch the host prepares and submits the next and decodes the
 //! previous, so at most two batches are in flight: the device memory peak is at most twice the
@@ -80,26 +80,32 @@ pub const SHADERS: [(&str, &str); 4] = [
     (
         "raster",
         concat!(
-            include_str!("../../shaders/common.wgsl"),
-            include_str!("../../shaders/insert.wgsl"),
-            include_str!("../../shaders/raster.wgsl")
+            include_str!("../../shaders/bake/common.wgsl"),
+            include_str!("../../shaders/bake/insert.wgsl"),
+            include_str!("../../shaders/bake/rasterize.wgsl")
         ),
     ),
     (
         "columns",
-        concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/columns.wgsl")),
+        concat!(
+            include_str!("../../shaders/bake/common.wgsl"),
+            include_str!("../../shaders/bake/columns.wgsl")
+        ),
     ),
     (
         "fill",
         concat!(
-            include_str!("../../shaders/common.wgsl"),
-            include_str!("../../shaders/insert.wgsl"),
-            include_str!("../../shaders/fill.wgsl")
+            include_str!("../../shaders/bake/common.wgsl"),
+            include_str!("../../shaders/bake/insert.wgsl"),
+            include_str!("../../shaders/bake/fill_holes.wgsl")
         ),
     ),
     (
         "compact",
-        concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/compact.wgsl")),
+        concat!(
+            include_str!("../../shaders/bake/common.wgsl"),
+            include_str!("../../shaders/bake/compact.wgsl")
+        ),
     ),
 ];
 
@@ -112,7 +118,7 @@ enum Access {
 }
 
 /// The bindings of each pipeline of [`SHADERS`], in order: only what its WGSL declares, read-only
-/// where it only reads (plain loads rather than atomics; see `shaders/common.wgsl`).
+/// where it only reads (plain loads rather than atomics; see `../../shaders/bake/common.wgsl`).
 const BINDINGS: [&[(u32, Access)]; 4] = {
     use Access::{Read as R, ReadWrite as W, Uniform as U};
     [
@@ -131,7 +137,7 @@ const SLOT_BYTES: u64 = 32;
 const POINT_BYTES: u64 = 32;
 const COLUMN_BYTES: u64 = 8;
 const COUNTER_WORDS: usize = 8;
-/// Count word of a slot (`shaders/common.wgsl`): per-view-axis counts of `COUNT_BITS` each,
+/// Count word of a slot (`../../shaders/bake/common.wgsl`): per-view-axis counts of `COUNT_BITS` each,
 /// `FILL_BIT` on a filled cell.
 const COUNT_BITS: u32 = 10;
 const COUNT_FIELD: u32 = (1 << COUNT_BITS) - 1;
@@ -237,7 +243,7 @@ impl BatchReport {
     }
 }
 
-/// Job descriptor shared with the shaders (`Job` in `shaders/common.wgsl`).
+/// Job descriptor shared with the shaders (`Job` in `../../shaders/bake/common.wgsl`).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
 pub struct GpuJob {
@@ -257,7 +263,7 @@ pub struct GpuJob {
     pub pad: [u32; 3],
 }
 
-/// Pass sizes shared with the shaders (`Params` in `shaders/common.wgsl`).
+/// Pass sizes shared with the shaders (`Params` in `../../shaders/bake/common.wgsl`).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
 pub struct GpuParams {
@@ -885,7 +891,7 @@ fn decode(p: &Prepared, job: &LevelJob<'_>, counters: &[u32], points: &[u32]) ->
             let key = r[0];
             let local = [key % nx, (key / nx) % ny, key / nx / ny];
             let index = [0, 1, 2].map(|d| (p.base[d] + i64::from(local[d])) as i32);
-            // Per-axis counts and depth sums → the three position sums (`shaders/common.wgsl`).
+            // Per-axis counts and depth sums → the three position sums (`../../shaders/bake/common.wgsl`).
             let counts = [0, 1, 2].map(|d: u32| u64::from((r[1] >> (d * COUNT_BITS)) & COUNT_FIELD));
             let count = counts.iter().sum::<u64>();
             let denom = count.max(1) as f64 * POS_ONE;

@@ -22,7 +22,7 @@ use serde::Deserialize;
 use tokio::io::AsyncWriteExt;
 use tokio::sync::{Notify, Semaphore};
 
-use super::http::check_bearer;
+use super::auth::check_bearer;
 use super::problem::Problem;
 use super::{App, valid_name};
 use crate::bake::{BakeOptions, Progress};

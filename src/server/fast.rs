@@ -24,7 +24,8 @@ use axum::response::{IntoResponse, Response};
 use tower::Service;
 
 use super::App;
-use super::http::{self, BLOB_ROUTE, Conditional};
+use super::conditional::{self, Conditional};
+use super::http::{self, BLOB_ROUTE};
 use super::problem::Problem;
 
 /// The router behind the in-memory blob fast path.
@@ -111,7 +112,7 @@ fn cached_blob(app: &App, req: &Request) -> Option<Response> {
     let entry = app.cache.get(&(ts.generation, key, level))?;
     app.metrics.cache_hits.fetch_add(1, Ordering::Relaxed);
     let cond = Conditional::from_headers(req.headers());
-    let mut resp = http::send(
+    let mut resp = conditional::send(
         req.method(),
         &cond,
         &entry,

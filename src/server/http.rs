@@ -3,24 +3,24 @@
 //! strong ETags, `If-None-Match` → 304, single `Range` → 206/416, `Cache-Control` immutable
 //! only for URLs naming the current content version.
 
-use std::collections::HashMap;
 use std::fmt::Write as _;
-use std::net::IpAddr;
+use std::sync::Arc;
 use std::sync::atomic::Ordering;
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use axum::Router;
 use axum::body::Body;
 use axum::extract::{ConnectInfo, MatchedPath, Path, RawQuery, Request, State};
-use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, header};
+use axum::http::{HeaderValue, Method, StatusCode, header};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use bytes::Bytes;
 use tower_http::cors::{AllowOrigin, CorsLayer};
 
+use super::auth::check_bearer;
 use super::cache::Entry;
+use super::conditional::{Conditional, etag_value, send};
 use super::problem::{self, PROBLEM_JSON, Problem};
 use super::registry::Tileset;
 use super::{App, admin, valid_name};
@@ -83,78 +83,6 @@ pub fn router(app: Arc<App>) -> Router {
 
 async fn fallback() -> Problem {
     Problem::not_found("no such resource; see /openapi.json for the API")
-}
-
-/// Per-client token buckets (requests per second, bursts of twice that).
-pub struct RateLimiter {
-    rate: f64,
-    buckets: Mutex<HashMap<IpAddr, (f64, Instant)>>,
-}
-
-impl RateLimiter {
-    pub fn new(rate: u32) -> Self {
-        Self { rate: f64::from(rate), buckets: Mutex::new(HashMap::new()) }
-    }
-
-    /// Is there a limit at all?
-    pub fn enabled(&self) -> bool {
-        self.rate > 0.0
-    }
-
-    /// `None` when the request may go ahead, else seconds to wait.
-    fn check(&self, ip: IpAddr) -> Option<u32> {
-        if self.rate <= 0.0 {
-            return None;
-        }
-        let now = Instant::now();
-        let burst = self.rate * 2.0;
-        let mut b = self.buckets.lock().ok()?;
-        if b.len() > 100_000 {
-            // Forget clients idle long enough to have refilled: bounded memory under many IPs.
-            let horizon = Duration::from_secs_f64(burst / self.rate + 1.0);
-            b.retain(|_, (_, t)| now.duration_since(*t) < horizon);
-        }
-        let (tokens, last) = b.entry(ip).or_insert((burst, now));
-        *tokens = (*tokens + now.duration_since(*last).as_secs_f64() * self.rate).min(burst);
-        *last = now;
-        if *tokens >= 1.0 {
-            *tokens -= 1.0;
-            None
-        } else {
-            Some(((1.0 - *tokens) / self.rate).ceil().max(1.0) as u32)
-        }
-    }
-}
-
-/// Constant-time comparison (no early exit on the first differing byte).
-fn ct_eq(a: &[u8], b: &[u8]) -> bool {
-    let mut diff = a.len() ^ b.len();
-    for i in 0..a.len().max(b.len()) {
-        diff |= usize::from(a.get(i).copied().unwrap_or(0) ^ b.get(i).copied().unwrap_or(0));
-    }
-    diff == 0
-}
-
-/// `401` without a bearer token, `403` with a wrong one.
-pub fn check_bearer(headers: &HeaderMap, expected: &str, what: &str) -> Result<(), Problem> {
-    // The scheme is case-insensitive (RFC 9110 §11.1): `Bearer`, `bearer`, `BEARER`, …
-    let given = headers
-        .get(header::AUTHORIZATION)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.trim_start().split_once(' '))
-        .and_then(|(scheme, token)| scheme.eq_ignore_ascii_case("bearer").then_some(token));
-    match given {
-        None => Err(Problem {
-            challenge: true,
-            ..Problem::new(
-                StatusCode::UNAUTHORIZED,
-                "unauthorized",
-                format!("{what} needs an `Authorization: Bearer <token>` header"),
-            )
-        }),
-        Some(t) if ct_eq(t.trim().as_bytes(), expected.as_bytes()) => Ok(()),
-        Some(_) => Err(Problem::new(StatusCode::FORBIDDEN, "forbidden", format!("wrong token for {what}"))),
-    }
 }
 
 struct InFlight<'a>(&'a App);
@@ -300,35 +228,6 @@ fn json_response(v: &serde_json::Value, cache: &'static str) -> Response {
     r
 }
 
-/// The request headers the read handlers look at. Extracting these three values (shared bytes)
-/// instead of a `HeaderMap` saves copying every request's header map on the serving path.
-pub(super) struct Conditional {
-    if_none_match: Option<HeaderValue>,
-    range: Option<HeaderValue>,
-    if_range: Option<HeaderValue>,
-}
-
-impl Conditional {
-    pub(super) fn from_headers(h: &HeaderMap) -> Self {
-        Self {
-            if_none_match: h.get(header::IF_NONE_MATCH).cloned(),
-            range: h.get(header::RANGE).cloned(),
-            if_range: h.get(header::IF_RANGE).cloned(),
-        }
-    }
-}
-
-impl<S: Send + Sync> axum::extract::FromRequestParts<S> for Conditional {
-    type Rejection = std::convert::Infallible;
-
-    async fn from_request_parts(
-        parts: &mut axum::http::request::Parts,
-        _: &S,
-    ) -> Result<Self, Self::Rejection> {
-        Ok(Self::from_headers(&parts.headers))
-    }
-}
-
 async fn list(State(app): State<Arc<App>>, headers: Conditional, method: Method) -> Response {
     let all: Vec<serde_json::Value> = app.registry.all().iter().map(|t| t.summary.clone()).collect();
     let body = serde_json::to_vec_pretty(&serde_json::json!({ "tilesets": all })).unwrap_or_default();
@@ -365,10 +264,6 @@ async fn manifest(
     let ts = tileset(&app, &name)?;
     let entry = Entry { bytes: ts.manifest_json.clone(), etag: etag_value(&ts.manifest_etag) };
     Ok(send(&method, &headers, &entry, "application/json", SHORT))
-}
-
-fn etag_value(s: &str) -> HeaderValue {
-    HeaderValue::from_str(s).unwrap_or_else(|_| HeaderValue::from_static("\"0\""))
 }
 
 /// A decimal path component: digits only (no sign, no spaces), at most `u32`.
@@ -646,178 +541,5 @@ async fn load_blob(app: &App, ts: &Arc<Tileset>, key: TileKey, level: u8) -> Res
             return Err(Problem::internal("bake", format!("baking tile {key} failed: {e}")));
         }
         baked = true;
-    }
-}
-
-/// Does `If-None-Match` match `etag`? (weak comparison, as RFC 9110 specifies for it)
-fn none_match(if_none_match: Option<&HeaderValue>, etag: &HeaderValue) -> bool {
-    let Some(inm) = if_none_match.and_then(|v| v.to_str().ok()) else { return false };
-    let want = etag.as_bytes();
-    inm.split(',').map(str::trim).any(|t| t == "*" || t.trim_start_matches("W/").as_bytes() == want)
-}
-
-enum RangeReq {
-    Full,
-    Part(u64, u64),
-    Unsatisfiable,
-}
-
-/// One `bytes=` range; several ranges or a malformed header are ignored (the full body is sent,
-/// as RFC 9110 allows).
-fn parse_range(h: &str, len: u64) -> RangeReq {
-    let Some(spec) = h.trim().strip_prefix("bytes=") else { return RangeReq::Full };
-    if spec.contains(',') {
-        return RangeReq::Full;
-    }
-    let Some((a, b)) = spec.trim().split_once('-') else { return RangeReq::Full };
-    let num = |s: &str| -> Option<u64> {
-        (!s.is_empty() && s.len() <= 19 && s.bytes().all(|c| c.is_ascii_digit()))
-            .then(|| s.parse().ok())
-            .flatten()
-    };
-    match (num(a), num(b), b.is_empty()) {
-        (Some(start), None, true) => {
-            if start >= len {
-                RangeReq::Unsatisfiable
-            } else {
-                RangeReq::Part(start, len - 1)
-            }
-        }
-        (Some(start), Some(end), _) if start <= end => {
-            if start >= len {
-                RangeReq::Unsatisfiable
-            } else {
-                RangeReq::Part(start, end.min(len - 1))
-            }
-        }
-        (None, Some(n), _) if a.is_empty() => {
-            if n == 0 || len == 0 {
-                RangeReq::Unsatisfiable
-            } else {
-                RangeReq::Part(len.saturating_sub(n), len - 1)
-            }
-        }
-        _ => RangeReq::Full,
-    }
-}
-
-/// The response for a verified body: 304 when `If-None-Match` matches, 206/416 for a range
-/// (honoured only when `If-Range`, if any, names this ETag), else 200. HEAD gets the same
-/// headers (axum drops the body).
-pub(super) fn send(
-    method: &Method,
-    headers: &Conditional,
-    e: &Entry,
-    content_type: &'static str,
-    cache: &'static str,
-) -> Response {
-    // Sized once for what it will hold (ours, CORS's two, `Vary`) instead of growing per insert.
-    let mut h = HeaderMap::with_capacity(12);
-    h.insert(header::ETAG, e.etag.clone());
-    h.insert(header::CACHE_CONTROL, HeaderValue::from_static(cache));
-    h.insert(header::ACCEPT_RANGES, HeaderValue::from_static("bytes"));
-    let respond = |status: StatusCode, headers: HeaderMap, body: Body| {
-        let mut r = Response::new(body);
-        *r.status_mut() = status;
-        *r.headers_mut() = headers;
-        r
-    };
-    if none_match(headers.if_none_match.as_ref(), &e.etag) {
-        return respond(StatusCode::NOT_MODIFIED, h, Body::empty());
-    }
-    h.insert(header::CONTENT_TYPE, HeaderValue::from_static(content_type));
-    let len = e.bytes.len() as u64;
-    let range_ok = headers.if_range.as_ref().is_none_or(|v| v.as_bytes() == e.etag.as_bytes());
-    let range = match headers.range.as_ref().and_then(|v| v.to_str().ok()) {
-        Some(r) if range_ok && (method == Method::GET || method == Method::HEAD) => parse_range(r, len),
-        _ => RangeReq::Full,
-    };
-    match range {
-        RangeReq::Full => {
-            h.insert(header::CONTENT_LENGTH, HeaderValue::from(len));
-            respond(StatusCode::OK, h, Body::from(e.bytes.clone()))
-        }
-        RangeReq::Part(start, end) => {
-            let body = e.bytes.slice(start as usize..=end as usize);
-            if let Ok(v) = HeaderValue::from_str(&format!("bytes {start}-{end}/{len}")) {
-                h.insert(header::CONTENT_RANGE, v);
-            }
-            h.insert(header::CONTENT_LENGTH, HeaderValue::from(body.len()));
-            respond(StatusCode::PARTIAL_CONTENT, h, Body::from(body))
-        }
-        RangeReq::Unsatisfiable => {
-            let mut r = Problem::new(
-                StatusCode::RANGE_NOT_SATISFIABLE,
-                "range-not-satisfiable",
-                format!("the range lies outside the {len} bytes of this resource"),
-            )
-            .into_response();
-            if let Ok(v) = HeaderValue::from_str(&format!("bytes */{len}")) {
-                r.headers_mut().insert(header::CONTENT_RANGE, v);
-            }
-            r
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn ranges() {
-        let p = |h: &str| match parse_range(h, 100) {
-            RangeReq::Full => "full".to_owned(),
-            RangeReq::Part(a, b) => format!("{a}-{b}"),
-            RangeReq::Unsatisfiable => "416".to_owned(),
-        };
-        assert_eq!(p("bytes=0-9"), "0-9");
-        assert_eq!(p("bytes=90-"), "90-99");
-        assert_eq!(p("bytes=-10"), "90-99");
-        assert_eq!(p("bytes=-1000"), "0-99");
-        assert_eq!(p("bytes=50-1000"), "50-99");
-        assert_eq!(p("bytes=100-"), "416");
-        assert_eq!(p("bytes=100-200"), "416");
-        assert_eq!(p("bytes=-0"), "416");
-        assert_eq!(p("bytes=9-1"), "full");
-        assert_eq!(p("bytes=0-1,5-6"), "full");
-        assert_eq!(p("items=0-1"), "full");
-        assert_eq!(p("bytes=a-b"), "full");
-        assert_eq!(p("bytes=-"), "full");
-    }
-
-    #[test]
-    fn bearer_scheme_is_case_insensitive() {
-        let h = |v: &str| {
-            let mut m = HeaderMap::new();
-            m.insert(header::AUTHORIZATION, HeaderValue::from_str(v).unwrap());
-            m
-        };
-        for v in
-            ["Bearer secret-token", "bearer secret-token", "BEARER secret-token", "bEaReR  secret-token "]
-        {
-            assert!(check_bearer(&h(v), "secret-token", "x").is_ok(), "{v}");
-        }
-        assert_eq!(check_bearer(&h("Basic secret-token"), "secret-token", "x").unwrap_err().status, 401);
-        assert_eq!(check_bearer(&h("Bearersecret-token"), "secret-token", "x").unwrap_err().status, 401);
-        assert_eq!(check_bearer(&h("BEARER wrong-token"), "secret-token", "x").unwrap_err().status, 403);
-        assert_eq!(check_bearer(&HeaderMap::new(), "secret-token", "x").unwrap_err().status, 401);
-    }
-
-    #[test]
-    fn constant_time_eq() {
-        assert!(ct_eq(b"secret-token", b"secret-token"));
-        assert!(!ct_eq(b"secret-token", b"secret-tokeN"));
-        assert!(!ct_eq(b"secret-token", b"secret-token-longer"));
-        assert!(!ct_eq(b"", b"x"));
-    }
-
-    #[test]
-    fn rate_limiter_bursts_then_refuses() {
-        let r = RateLimiter::new(2);
-        let ip: IpAddr = "10.0.0.1".parse().unwrap();
-        assert!((0..4).all(|_| r.check(ip).is_none()));
-        assert!(r.check(ip).is_some());
-        assert!(RateLimiter::new(0).check(ip).is_none());
     }
 }

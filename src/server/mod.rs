@@ -9,8 +9,10 @@
 //! path or header makes a handler panic (the router is property-tested with random paths).
 
 mod admin;
+mod auth;
 mod bakery;
 mod cache;
+mod conditional;
 mod config;
 pub mod demo;
 mod fast;
@@ -19,6 +21,7 @@ mod listener;
 mod metrics;
 mod openapi;
 mod problem;
+mod rate_limit;
 mod registry;
 
 use std::collections::HashMap;
@@ -74,7 +77,7 @@ pub struct App {
     bakery: bakery::Bakery,
     jobs: admin::Jobs,
     in_flight: AtomicUsize,
-    rate: http::RateLimiter,
+    rate: rate_limit::RateLimiter,
     ready: AtomicBool,
     /// Computes point levels for on-demand and admin bakes (opened once at startup).
     baker: Arc<PointBaker>,
@@ -238,7 +241,7 @@ impl Server {
             baker,
             jobs: admin::Jobs::new(),
             in_flight: AtomicUsize::new(0),
-            rate: http::RateLimiter::new(config.rate_limit),
+            rate: rate_limit::RateLimiter::new(config.rate_limit),
             ready: AtomicBool::new(false),
             metrics,
             config,

@@ -4,7 +4,7 @@
 //! `terrastream serve`, which a TLS-terminating proxy fronts in production.
 //!
 //! Kept dependency-free on purpose: the client's request logic lives in the pure scheduler
-//! ([`super::fetch`]); this only moves bytes, so it needs no async runtime.
+//! ([`crate::client::stream::fetch`]); this only moves bytes, so it needs no async runtime.
 
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream, ToSocketAddrs};

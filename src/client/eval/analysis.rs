@@ -3,7 +3,7 @@
 //! depth differences, aggregation by distance and level, the instance grid of the rendering
 //! experiment, the Markdown report and its PNG charts (drawn with `image`, no fonts).
 //!
-//! No GPU and no file system here: [`super::evaluate`] renders and writes, this module only
+//! No GPU and no file system here: [`crate::client::eval`] renders and writes, this module only
 //! computes on values, so every rule is unit-tested.
 //!
 //! Camera placement: the tileset's bounding sphere (centre `c`, radius `r` = half the box
@@ -16,8 +16,8 @@
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
-use super::select::Camera;
-use super::v3;
+use crate::client::select::Camera;
+use crate::client::v3;
 use crate::geom::Bounds;
 
 /// Distance factors (multiples of the fit distance) at which cameras are placed.

@@ -21,7 +21,7 @@
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::time::{Duration, SystemTime};
 
-use super::select::{Residency, Want};
+use crate::client::select::{Residency, Want};
 use crate::tiling::TileKey;
 
 /// Requests running at once.

@@ -1,7 +1,7 @@
 //! `terrastream eval`: renders a tileset's full-detail geometry and the client's LOD selection
-//! (blobs read from the tileset directory, no server) from the cameras of [`super::eval`],
+//! (blobs read from the tileset directory, no server) from the cameras of [`crate::client::eval::analysis`],
 //! compares them pixel by pixel, runs the instance experiment on model tilesets
-//! ([`super::instances`]) and writes the report (Markdown, PNG charts, sample frames).
+//! ([`crate::client::eval::instances`]) and writes the report (Markdown, PNG charts, sample frames).
 //!
 //! - Full detail, terrain: every leaf tile's level 0 (the full-resolution TIN; leaves share
 //!   their border vertices, so no skirts). Model: its level 0 (the quantized mesh).
@@ -14,15 +14,15 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use super::ClientError;
-use super::eval::{
+use crate::bake::model as bake_model;
+use crate::client::ClientError;
+use crate::client::eval::analysis::{
     self, CameraPlan, CameraResult, Confusion, DepthDiff, InstanceRow, Report, Subject, linear_depth,
 };
-use super::instances::InstanceBench;
-use super::render::{Renderer, covered};
-use super::select::{AllResident, DrawItem, SelectParams, Selector, skirt_depth};
-use super::tree::TileTree;
-use crate::bake::model as bake_model;
+use crate::client::eval::instances::InstanceBench;
+use crate::client::render::{Renderer, covered};
+use crate::client::select::{AllResident, DrawItem, SelectParams, Selector, skirt_depth};
+use crate::client::tree::TileTree;
 use crate::codec::{self, Blob, Geometry};
 use crate::geom::Bounds;
 use crate::store::{KIND_MODEL, KIND_TERRAIN, Store};
@@ -40,7 +40,7 @@ pub struct EvalOptions {
     pub height: u32,
     pub fov_deg: f64,
     pub threshold_px: f64,
-    /// Distance factors; empty: [`eval::DEFAULT_DISTANCES`].
+    /// Distance factors; empty: [`analysis::DEFAULT_DISTANCES`].
     pub distances: Vec<f64>,
     pub azimuths: u32,
     /// Elevations in degrees; empty: the subject's defaults.
@@ -55,14 +55,14 @@ pub struct EvalOptions {
 impl Default for EvalOptions {
     fn default() -> Self {
         Self {
-            width: eval::DEFAULT_EVAL_WIDTH,
-            height: eval::DEFAULT_EVAL_HEIGHT,
-            fov_deg: super::select::DEFAULT_FOV_DEG,
-            threshold_px: super::select::DEFAULT_THRESHOLD_PX,
+            width: analysis::DEFAULT_EVAL_WIDTH,
+            height: analysis::DEFAULT_EVAL_HEIGHT,
+            fov_deg: crate::client::select::DEFAULT_FOV_DEG,
+            threshold_px: crate::client::select::DEFAULT_THRESHOLD_PX,
             distances: Vec::new(),
-            azimuths: eval::DEFAULT_AZIMUTHS,
+            azimuths: analysis::DEFAULT_AZIMUTHS,
             elevations: Vec::new(),
-            grid_sides: eval::DEFAULT_GRID_SIDES.to_vec(),
+            grid_sides: analysis::DEFAULT_GRID_SIDES.to_vec(),
             max_grid: DEFAULT_MAX_GRID,
             frames: DEFAULT_FRAMES,
         }
@@ -128,7 +128,7 @@ impl Tileset {
                         "{} points ({} points, worst error {})",
                         l.level,
                         t.count,
-                        eval::fmt_opt(Some(t.worst.geometric()))
+                        analysis::fmt_opt(Some(t.worst.geometric()))
                     )
                 }
             })
@@ -205,7 +205,7 @@ struct Frame {
     depth: Vec<f64>,
 }
 
-fn frame(r: &Renderer, c: &eval::EvalCamera, draws: &[DrawItem]) -> crate::Result<Frame> {
+fn frame(r: &Renderer, c: &analysis::EvalCamera, draws: &[DrawItem]) -> crate::Result<Frame> {
     let (near, far) = (c.near, c.far);
     let (image, raw) = r.render_with_depth(&c.camera, draws, near, far)?;
     let mask = covered(&image);
@@ -233,7 +233,7 @@ pub fn run(
         height: opts.height,
         fov_deg: opts.fov_deg,
         distances: if opts.distances.is_empty() {
-            eval::DEFAULT_DISTANCES.to_vec()
+            analysis::DEFAULT_DISTANCES.to_vec()
         } else {
             opts.distances.clone()
         },
@@ -244,7 +244,7 @@ pub fn run(
             opts.elevations.clone()
         },
     };
-    let cams = eval::cameras(&ts.bounds, ts.subject, &plan).map_err(err)?;
+    let cams = analysis::cameras(&ts.bounds, ts.subject, &plan).map_err(err)?;
     let gpu = crate::lod::gpu::open()?;
     let adapter = gpu.adapter.clone();
     log(&format!("adapter: {adapter}; {} cameras", cams.len()));
@@ -272,7 +272,7 @@ pub fn run(
         let blob = ts.blob(d.key, 0)?;
         reference.upload(blob, 0.0, outer.as_ref(), spacing);
     }
-    let level_count = tree.nodes().iter().map(super::tree::TreeNode::level_count).max().unwrap_or(1);
+    let level_count = tree.nodes().iter().map(crate::client::tree::TreeNode::level_count).max().unwrap_or(1);
     let mut selector = Selector::new(SelectParams {
         threshold_px: opts.threshold_px,
         fade_seconds: 0.0,
@@ -394,9 +394,9 @@ fn instances(
         levels.push((ts.blob(key, l as u8)?.clone(), spacing));
     }
     let errors = tree.level_errors(root).to_vec();
-    let (c, r) = eval::bounding_sphere(&ts.bounds);
+    let (c, r) = analysis::bounding_sphere(&ts.bounds);
     let size = ts.bounds.size();
-    let spacing = eval::GRID_SPACING * size[0].max(size[1]).max(size[2]);
+    let spacing = analysis::GRID_SPACING * size[0].max(size[1]).max(size[2]);
     let bench = InstanceBench::new(gpu.device, gpu.queue, opts.width, opts.height, ts.bounds.min, &levels)?;
     let frames = opts.frames.max(1);
     for &n in &opts.grid_sides {
@@ -404,15 +404,15 @@ fn instances(
             report.grid_skipped.push(n);
             continue;
         }
-        let offsets = eval::grid_offsets(n, spacing, ts.subject);
-        let cam = eval::grid_camera(c, r, n, spacing, ts.subject, opts.width, opts.height, opts.fov_deg);
+        let offsets = analysis::grid_offsets(n, spacing, ts.subject);
+        let cam = analysis::grid_camera(c, r, n, spacing, ts.subject, opts.width, opts.height, opts.fov_deg);
         let view = cam.camera.view()?;
         let chosen: Vec<usize> = offsets
             .iter()
             .map(|o| {
                 let centre = [c[0] + o[0], c[1] + o[1], c[2] + o[2]];
-                let d = super::v3::len(super::v3::sub(centre, view.eye));
-                eval::level_for(&errors, view.k, d, opts.threshold_px)
+                let d = crate::client::v3::len(crate::client::v3::sub(centre, view.eye));
+                analysis::level_for(&errors, view.k, d, opts.threshold_px)
             })
             .collect();
         let full = vec![0usize; offsets.len()];
@@ -420,8 +420,8 @@ fn instances(
         let (t_lod, c_lod) = bench.time_frames(&cam.camera, cam.far, &offsets, &chosen, frames)?;
         let row = InstanceRow {
             n,
-            ms_full: eval::median(&t_full),
-            ms_lod: eval::median(&t_lod),
+            ms_full: analysis::median(&t_full),
+            ms_lod: analysis::median(&t_lod),
             per_level: c_lod.per_level,
             triangles_full: c_full.triangles,
             triangles_lod: c_lod.triangles,
@@ -509,8 +509,8 @@ pub fn write_report(
         Renderer::save_png(img, p)?;
         Ok(())
     };
-    save(&eval::fmeasure_chart(report).draw(), &out.join("fmeasure.png"))?;
-    let ft = match eval::frametime_chart(&report.instances) {
+    save(&analysis::fmeasure_chart(report).draw(), &out.join("fmeasure.png"))?;
+    let ft = match analysis::frametime_chart(&report.instances) {
         Some(ch) => {
             save(&ch.draw(), &out.join("frametime.png"))?;
             Some("frametime.png")

@@ -23,7 +23,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::{ClientError, v3};
+use crate::client::{ClientError, v3};
 use crate::geom::Bounds;
 
 /// The up direction when a key gives none.

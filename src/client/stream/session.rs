@@ -17,14 +17,14 @@ use std::time::{Duration, Instant, SystemTime};
 
 use serde::Serialize;
 
-use super::ClientError;
-use super::fetch::{
+use crate::client::ClientError;
+use crate::client::select::{Camera, DrawItem, SelectParams, Selector};
+use crate::client::stream::fetch::{
     self, FetchParams, Outcome, RequestId, Resource, Scheduler, TileCache, Transport, parse_retry_after,
 };
-use super::flight::{Flight, Pose};
-use super::http::{self, BaseUrl};
-use super::select::{Camera, DrawItem, SelectParams, Selector};
-use super::tree::TileTree;
+use crate::client::stream::flight::{Flight, Pose};
+use crate::client::stream::http::{self, BaseUrl};
+use crate::client::tree::TileTree;
 use crate::codec::{self, Blob};
 use crate::store::{IndexChunk, Manifest};
 use crate::tiling::TileKey;
@@ -54,7 +54,7 @@ impl Default for SessionOptions {
         Self {
             width: DEFAULT_WIDTH,
             height: DEFAULT_HEIGHT,
-            fov_deg: super::select::DEFAULT_FOV_DEG,
+            fov_deg: crate::client::select::DEFAULT_FOV_DEG,
             select: SelectParams::default(),
             fetch: FetchParams::default(),
             cache_bytes: fetch::DEFAULT_CACHE_BYTES,
@@ -576,7 +576,7 @@ fn open_view(
     mode: RenderMode,
     session: &Session,
     opts: &SessionOptions,
-) -> Result<(Option<super::render::SessionView>, String), ClientError> {
+) -> Result<(Option<crate::client::stream::view::SessionView>, String), ClientError> {
     if mode == RenderMode::Off {
         return Ok((None, "off (--render off)".into()));
     }
@@ -584,8 +584,8 @@ fn open_view(
     match crate::lod::gpu::open() {
         Ok(ctx) => {
             let adapter = ctx.adapter.clone();
-            let view =
-                super::render::SessionView::new(ctx, session, opts.width, opts.height).map_err(render_err)?;
+            let view = crate::client::stream::view::SessionView::new(ctx, session, opts.width, opts.height)
+                .map_err(render_err)?;
             Ok((Some(view), adapter))
         }
         Err(e) if mode == RenderMode::On => Err(render_err(e)),
@@ -632,7 +632,7 @@ pub fn run_client(run: &ClientRun, mut on_frame: impl FnMut(&FrameStats)) -> Res
             if let Some(img) = img {
                 let start = Instant::now();
                 let path = frames_dir.join(format!("{:05}.png", f.frame));
-                super::render::Renderer::save_png(&img, &path)
+                crate::client::render::Renderer::save_png(&img, &path)
                     .map_err(|e| ClientError::Render(e.to_string()))?;
                 f.write_ms = start.elapsed().as_secs_f64() * 1e3;
             }
@@ -646,7 +646,7 @@ pub fn run_client(run: &ClientRun, mut on_frame: impl FnMut(&FrameStats)) -> Res
     if let (Some(v), true) = (view.as_mut(), run.frames_every > 0)
         && let Some(img) = v.draw(&session, true).map_err(|e| ClientError::Render(e.to_string()))?
     {
-        super::render::Renderer::save_png(&img, &frames_dir.join(FINAL_FRAME))
+        crate::client::render::Renderer::save_png(&img, &frames_dir.join(FINAL_FRAME))
             .map_err(|e| ClientError::Render(e.to_string()))?;
     }
     let report = Report {

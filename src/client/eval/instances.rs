@@ -13,14 +13,16 @@ use std::time::Instant;
 
 use bytemuck::{Pod, Zeroable};
 
-use super::render::{clip_planes, view_proj};
-use super::select::Camera;
+use crate::client::render::{clip_planes, view_proj};
+use crate::client::select::Camera;
 use crate::codec::{Blob, Geometry};
 use crate::lod::gpu::GpuError;
 
 /// The pipeline's WGSL, for validation without an adapter.
-pub const SHADER: &str =
-    concat!(include_str!("../../shaders/splat.wgsl"), include_str!("../../shaders/eval_instances.wgsl"));
+pub const SHADER: &str = concat!(
+    include_str!("../../../shaders/render/splat.wgsl"),
+    include_str!("../../../shaders/render/instances.wgsl")
+);
 
 const COLOR: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 const DEPTH: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
