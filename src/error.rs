@@ -20,7 +20,7 @@ pub enum Error {
     Bake(#[from] BakeError),
     #[cfg(feature = "gpu")]
     #[error(transparent)]
-    Gpu(#[from] crate::lod::gpu::GpuError),
+    Gpu(#[from] crate::gpu::GpuError),
     #[error(transparent)]
     Mesh(#[from] MeshError),
     #[error(transparent)]

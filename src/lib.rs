@@ -10,6 +10,8 @@ pub mod client;
 pub mod codec;
 mod error;
 pub mod geom;
+#[cfg(feature = "gpu")]
+pub mod gpu;
 pub mod lod;
 pub mod model;
 pub mod raster;

@@ -384,7 +384,7 @@ fn settled_view_covers_the_full_resolution_terrain() {
     use terrastream::client::stream::view::SessionView;
     use terrastream::client::tree::TileTree;
 
-    let ctx = match terrastream::lod::gpu::open() {
+    let ctx = match terrastream::gpu::open() {
         Ok(c) => c,
         Err(e) if require_gpu() => panic!("TERRASTREAM_REQUIRE_GPU=1 but {e}"),
         Err(e) => {

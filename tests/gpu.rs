@@ -270,7 +270,7 @@ fn bakes_are_deterministic_and_independent_of_batching() {
     same(&a, &b);
     assert_eq!(ra.batches, 1, "{ra:?}");
 
-    let ctx = gpu::open().unwrap();
+    let ctx = terrastream::gpu::open().unwrap();
     let budget = 2 << 20;
     let small = GpuBaker::new(ctx.device, ctx.queue, ctx.adapter, budget).unwrap();
     let (c, rc) = small.bake_jobs(&jobs, &opts).unwrap();
@@ -490,4 +490,28 @@ fn gpu_bakes_keep_positions_inside_the_bounds() {
         run(&["--tile-size", "32", "--levels", "4"], &out, &tif);
         check(&out);
     }
+}
+
+/// `--gpu auto` bakes on a hardware adapter and leaves a software one (Mesa lavapipe, several
+/// times slower than the CPU reference for baking) to `--gpu on`; `on` takes either.
+#[test]
+fn gpu_auto_takes_hardware_adapters_only() {
+    let ctx = match terrastream::gpu::open() {
+        Ok(ctx) => ctx,
+        Err(e) if require_gpu() => panic!("TERRASTREAM_REQUIRE_GPU=1 but no adapter: {e}"),
+        Err(e) => {
+            eprintln!("skipping GPU test: {e} (set TERRASTREAM_REQUIRE_GPU=1 to fail instead)");
+            return;
+        }
+    };
+    let (auto, notice) = lod::PointBaker::open(lod::GpuMode::Auto, 64 << 20).unwrap();
+    if ctx.software {
+        assert_eq!(auto.describe(), "cpu", "auto took the software adapter {}", ctx.adapter);
+        let notice = notice.expect("auto on a software adapter says why it bakes on the CPU");
+        assert!(notice.contains("software adapter") && notice.contains("--gpu on"), "{notice}");
+    } else {
+        assert!(auto.describe().starts_with("gpu: "), "auto left the hardware adapter {}", ctx.adapter);
+    }
+    let (on, _) = lod::PointBaker::open(lod::GpuMode::On, 64 << 20).unwrap();
+    assert!(on.describe().starts_with("gpu: "), "{}", on.describe());
 }

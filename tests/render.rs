@@ -19,7 +19,7 @@ use terrastream::store::Store;
 
 /// Poses (flight time) and thresholds coarse enough that point levels (splats) are drawn:
 /// levels 1 and 2 of this bake. (Level 3, at 24 px, leaves 0.8 % of the terrain pixels empty
-/// at t = 0, see README *Reference client*: a splat at a level that coarse can sit a whole
+/// at t = 0, see docs/client.md, *Rendering*: a splat at a level that coarse can sit a whole
 /// error above its neighbour's, and the gap between them shows through.)
 const POINT_CASES: [(f64, f64); 3] = [(0.0, 8.0), (0.0, 12.0), (8.0, 16.0)];
 
@@ -41,7 +41,7 @@ fn bake(out: &Path) {
 
 #[test]
 fn lod_frames_cover_the_full_resolution_terrain() {
-    let ctx = match terrastream::lod::gpu::open() {
+    let ctx = match terrastream::gpu::open() {
         Ok(c) => c,
         Err(e) if require_gpu() => panic!("TERRASTREAM_REQUIRE_GPU=1 but {e}"),
         Err(e) => {

@@ -29,7 +29,7 @@
 //! 3,191 / 800) stand almost exactly as 4² : 3² : 2² : 1² (15.8 : 8.9 : 4.0 : 1), so its
 //! resolutions stood as 4 : 3 : 2 : 1. T = 80 is the finest resolution whose bunny count
 //! matches the paper's finest level (12,832 points against 12,654); the others then land
-//! within 3 % of the paper's without further tuning (see the README, *Models*). `--resolutions` sets
+//! within 3 % of the paper's without further tuning (see `docs/lod.md`, *Models*). `--resolutions` sets
 //! any strictly decreasing list instead.
 //!
 //! # Errors (measured, world units)

@@ -56,8 +56,9 @@ pub struct BakeArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
-    /// Where point levels are baked: auto (any GPU adapter, software ones included, else the
-    /// CPU with a notice), on (a GPU adapter or an error), off (CPU).
+    /// Where point levels are baked: auto (a hardware GPU adapter, else the CPU with a notice;
+    /// a software adapter such as lavapipe is slower than the CPU), on (any GPU adapter,
+    /// software ones included, or an error), off (CPU).
     #[arg(long, value_enum, default_value_t = lod::GpuMode::Auto)]
     pub gpu: lod::GpuMode,
     /// GPU memory budget of one batch of point levels, in MiB.

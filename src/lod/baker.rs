@@ -19,7 +19,8 @@ pub const DEFAULT_GPU_BUDGET_MIB: u64 = 256;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum GpuMode {
-    /// Any adapter, software ones (Mesa lavapipe) included; the CPU with a notice when none.
+    /// A hardware adapter if there is one, else the CPU with a notice: a software adapter
+    /// (Mesa lavapipe) bakes several times slower than the CPU reference, so only `on` uses it.
     #[default]
     Auto,
     /// An adapter or a clear error.
@@ -46,11 +47,22 @@ impl PointBaker {
         }
         #[cfg(feature = "gpu")]
         {
-            match gpu::GpuBaker::open_default(gpu_budget_bytes) {
+            let on_cpu = |why: String| Ok((Self::Cpu, Some(format!("{why}; baking point levels on the CPU"))));
+            let ctx = match crate::gpu::open() {
+                Ok(ctx) => ctx,
+                Err(e) if mode == GpuMode::Auto => return on_cpu(e.to_string()),
+                Err(e) => return Err(e.into()),
+            };
+            if mode == GpuMode::Auto && ctx.software {
+                return on_cpu(format!(
+                    "gpu: only the software adapter {} was found (several times slower than the CPU for \
+                     baking; --gpu on uses it)",
+                    ctx.adapter
+                ));
+            }
+            match gpu::GpuBaker::new(ctx.device, ctx.queue, ctx.adapter, gpu_budget_bytes) {
                 Ok(g) => Ok((Self::Gpu(Box::new(g)), None)),
-                Err(e) if mode == GpuMode::Auto => {
-                    Ok((Self::Cpu, Some(format!("{e}; baking point levels on the CPU"))))
-                }
+                Err(e) if mode == GpuMode::Auto => on_cpu(e.to_string()),
                 Err(e) => Err(e.into()),
             }
         }
@@ -132,7 +144,7 @@ pub enum BakerError {
     NoGpuSupport,
     #[cfg(feature = "gpu")]
     #[error(transparent)]
-    Gpu(#[from] gpu::GpuError),
+    Gpu(#[from] crate::gpu::GpuError),
 }
 
 /// The GPU's baked cells as a point cloud.

@@ -69,6 +69,7 @@ use wgpu::util::DeviceExt;
 
 use super::cpu::{BakeOptions, BakeStats, BakedCell, MAX_GRID_COORD, NORMAL_FRACTION_BITS};
 use crate::geom::{Mesh, triangle_normal};
+use crate::gpu::{GpuError, open};
 
 /// Default GPU memory budget of one batch, in MiB.
 pub const DEFAULT_BATCH_BUDGET_MIB: u64 = 256;
@@ -149,58 +150,6 @@ const MAX_EXTENT: i64 = 65_535;
 /// Room multiplier for a job re-run after its table or output overflowed.
 const RETRY_GROWTH: u64 = 4;
 const POS_ONE: f64 = (1u64 << super::cpu::POSITION_FRACTION_BITS) as f64;
-
-/// A GPU stage failure.
-#[derive(Debug, thiserror::Error)]
-pub enum GpuError {
-    #[error(
-        "gpu: no adapter found (no Vulkan, Metal or DX12 device, not even a software one such as Mesa lavapipe)"
-    )]
-    NoAdapter,
-    #[error("gpu: cannot open a device on adapter {adapter}: {message}")]
-    Device { adapter: String, message: String },
-    #[error("gpu: {0}")]
-    Failed(String),
-}
-
-/// A device and queue with the name of their adapter.
-pub struct GpuContext {
-    pub device: wgpu::Device,
-    pub queue: wgpu::Queue,
-    pub adapter: String,
-}
-
-/// Opens the first adapter wgpu offers (hardware preferred, any software one such as Mesa's
-/// lavapipe accepted) with its full limits.
-pub fn open() -> Result<GpuContext, GpuError> {
-    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
-    let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-        power_preference: wgpu::PowerPreference::HighPerformance,
-        ..Default::default()
-    }))
-    .or_else(|_| {
-        pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-            force_fallback_adapter: true,
-            ..Default::default()
-        }))
-    })
-    .map_err(|_| GpuError::NoAdapter)?;
-    let info = adapter.get_info();
-    let name = describe(&info);
-    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-        label: Some("terrastream lod::gpu"),
-        required_limits: adapter.limits(),
-        ..Default::default()
-    }))
-    .map_err(|e| GpuError::Device { adapter: name.clone(), message: e.to_string() })?;
-    Ok(GpuContext { device, queue, adapter: name })
-}
-
-/// "name (backend, device type)", e.g. "llvmpipe (LLVM 19.1.7, 256 bits) (Vulkan, Cpu)".
-#[must_use]
-pub fn describe(info: &wgpu::AdapterInfo) -> String {
-    format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type)
-}
 
 /// One point level to bake: `mesh` on the cubic grid of edge `cell` anchored at `origin`
 /// (the arguments of [`super::cpu::bake_cells`]).
@@ -433,10 +382,7 @@ impl GpuBaker {
                 bind_group_layouts: &[Some(layout)],
                 immediate_size: 0,
             });
-            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(name),
-                source: wgpu::ShaderSource::Wgsl(source.into()),
-            });
+            let module = crate::gpu::shader_module(&device, name, source);
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(name),
                 layout: Some(&pipeline_layout),

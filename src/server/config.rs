@@ -200,7 +200,7 @@ pub struct PartialConfig {
             long,
             env = "TERRASTREAM_GPU",
             value_enum,
-            help = "Where on-demand and admin bakes compute point levels: auto (any adapter, else the CPU), on, off [default: auto]"
+            help = "Where on-demand and admin bakes compute point levels: auto (a hardware adapter, else the CPU), on (any adapter), off [default: auto]"
         )
     )]
     pub gpu: Option<GpuMode>,

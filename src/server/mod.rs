@@ -3,7 +3,7 @@
 //! immutable caching, CORS — bakes missing tiles on demand from `--source` rasters, sheds load
 //! with `429`/`503` + `Retry-After`, exposes health, readiness, Prometheus metrics and an
 //! OpenAPI document, and an admin API (bearer token) to upload rasters, follow bake jobs and
-//! delete tilesets. See the README (*HTTP API*) for the API and its caching semantics.
+//! delete tilesets. See `docs/http-api.md` for the API and its caching semantics.
 //!
 //! Every error is `application/problem+json`; a client mistake is a 4xx, never a 500, and no
 //! path or header makes a handler panic (the router is property-tested with random paths).

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Golden outputs for refactors that must not change behaviour (issue 12's redesign): the sha256
-# of every file of three bakes (the README's fuji bake, `bake-model` of the bunny, the demo
+# of every file of three bakes (the fuji bake of docs/cli.md, `bake-model` of the bunny, the demo
 # tileset), of their summaries on stdout (timings and peak memory masked), and of status line,
 # headers (Date dropped) and body of a fixed list of HTTP requests to `serve` over those three.
 #

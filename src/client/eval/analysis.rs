@@ -553,7 +553,7 @@ impl Report {
         for row in &self.instances {
             let _ = writeln!(
                 s,
-                "instances {:>5} ({}×{}): without LOD {:.2} ms, with LOD {:.2} ms, ratio {:.2} (paper: not available, see README *Evaluation*)",
+                "instances {:>5} ({}×{}): without LOD {:.2} ms, with LOD {:.2} ms, ratio {:.2} (paper: not available, see docs/evaluation.md)",
                 row.n * row.n,
                 row.n,
                 row.n,
@@ -709,7 +709,7 @@ impl Report {
             let _ = writeln!(
                 s,
                 "\nThe paper's Tables 4–7 ratios are not reproduced here: they are not listed in \
-                 the project's design notes or the issue (see the README, *Evaluation*).\n"
+                 the project's design notes or the issue (see docs/evaluation.md in the repository).\n"
             );
         }
         if !self.grid_skipped.is_empty() {

@@ -16,7 +16,7 @@ use bytemuck::{Pod, Zeroable};
 use crate::client::render::{clip_planes, view_proj};
 use crate::client::select::Camera;
 use crate::codec::{Blob, Geometry};
-use crate::lod::gpu::GpuError;
+use crate::gpu::GpuError;
 
 /// The pipeline's WGSL, for validation without an adapter.
 pub const SHADER: &str = concat!(
@@ -125,10 +125,7 @@ impl InstanceBench {
             entries: &[entry(0, storage), entry(1, uniform)],
         });
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("eval_instances"),
-            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
-        });
+        let module = crate::gpu::shader_module(&device, "eval_instances", SHADER);
         let attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3];
         let make = |entry: &str, layouts: &[Option<&wgpu::BindGroupLayout>], mesh: bool| {
             let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {

@@ -245,7 +245,7 @@ pub fn run(
         },
     };
     let cams = analysis::cameras(&ts.bounds, ts.subject, &plan).map_err(err)?;
-    let gpu = crate::lod::gpu::open()?;
+    let gpu = crate::gpu::open()?;
     let adapter = gpu.adapter.clone();
     log(&format!("adapter: {adapter}; {} cameras", cams.len()));
     let origin = ts.bounds.min;
@@ -379,7 +379,7 @@ pub fn run(
 fn instances(
     ts: &mut Tileset,
     tree: &TileTree,
-    gpu: crate::lod::gpu::GpuContext,
+    gpu: crate::gpu::GpuContext,
     opts: &EvalOptions,
     report: &mut Report,
     log: &mut impl FnMut(&str),

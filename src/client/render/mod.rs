@@ -18,7 +18,7 @@ use crate::client::tree::TileTree;
 use crate::client::v3;
 use crate::codec::{Blob, Geometry};
 use crate::geom::{Bounds, Mesh};
-use crate::lod::gpu::GpuError;
+use crate::gpu::GpuError;
 use crate::store::Manifest;
 use crate::tiling::TileKey;
 
@@ -157,10 +157,7 @@ impl Renderer {
         let attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3];
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let make = |(name, src): (&str, &str), step: wgpu::VertexStepMode| {
-            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(name),
-                source: wgpu::ShaderSource::Wgsl(src.into()),
-            });
+            let module = crate::gpu::shader_module(&device, name, src);
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(name),
                 layout: Some(&layout),

@@ -580,8 +580,8 @@ fn open_view(
     if mode == RenderMode::Off {
         return Ok((None, "off (--render off)".into()));
     }
-    let render_err = |e: crate::lod::gpu::GpuError| ClientError::Render(e.to_string());
-    match crate::lod::gpu::open() {
+    let render_err = |e: crate::gpu::GpuError| ClientError::Render(e.to_string());
+    match crate::gpu::open() {
         Ok(ctx) => {
             let adapter = ctx.adapter.clone();
             let view = crate::client::stream::view::SessionView::new(ctx, session, opts.width, opts.height)

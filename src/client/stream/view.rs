@@ -8,7 +8,7 @@ use crate::client::select::skirt_depth;
 use crate::client::stream::session::Session;
 use crate::codec::Geometry;
 use crate::geom::Bounds;
-use crate::lod::gpu::{GpuContext, GpuError};
+use crate::gpu::{GpuContext, GpuError};
 use crate::tiling::TileKey;
 
 /// Draws a live [`Session`]'s frames: each (tile, level) the selection draws is uploaded from

@@ -1,0 +1,68 @@
+//! The GPU, shared by the point-level bake ([`crate::lod::gpu`]) and the client's rendering
+//! ([`crate::client::render`]): opening an adapter and device, the error type, and WGSL shader
+//! modules.
+
+/// A GPU stage failure.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    #[error(
+        "gpu: no adapter found (no Vulkan, Metal or DX12 device, not even a software one such as Mesa lavapipe)"
+    )]
+    NoAdapter,
+    #[error("gpu: cannot open a device on adapter {adapter}: {message}")]
+    Device { adapter: String, message: String },
+    #[error("gpu: {0}")]
+    Failed(String),
+}
+
+/// A device and queue with the name of their adapter.
+pub struct GpuContext {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub adapter: String,
+    /// The adapter runs on the CPU (Mesa lavapipe, WARP, SwiftShader): fine for rendering,
+    /// several times slower than the CPU reference for baking.
+    pub software: bool,
+}
+
+/// Opens the first adapter wgpu offers (hardware preferred, any software one such as Mesa's
+/// lavapipe accepted) with its full limits.
+pub fn open() -> Result<GpuContext, GpuError> {
+    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+    let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+        power_preference: wgpu::PowerPreference::HighPerformance,
+        ..Default::default()
+    }))
+    .or_else(|_| {
+        pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            force_fallback_adapter: true,
+            ..Default::default()
+        }))
+    })
+    .map_err(|_| GpuError::NoAdapter)?;
+    let info = adapter.get_info();
+    let name = describe(&info);
+    let software = info.device_type == wgpu::DeviceType::Cpu;
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("terrastream"),
+        required_limits: adapter.limits(),
+        ..Default::default()
+    }))
+    .map_err(|e| GpuError::Device { adapter: name.clone(), message: e.to_string() })?;
+    Ok(GpuContext { device, queue, adapter: name, software })
+}
+
+/// "name (backend, device type)", e.g. "llvmpipe (LLVM 19.1.7, 256 bits) (Vulkan, Cpu)".
+#[must_use]
+pub fn describe(info: &wgpu::AdapterInfo) -> String {
+    format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type)
+}
+
+/// A WGSL shader module (the WGSL sources live in `shaders/bake/` and `shaders/render/`).
+#[must_use]
+pub fn shader_module(device: &wgpu::Device, label: &str, source: &str) -> wgpu::ShaderModule {
+    device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(label),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    })
+}
