@@ -1,6 +1,7 @@
 //! Plain geometry values shared by every stage: bounds, triangle meshes, point clouds and the
 //! measured errors that travel with them. No I/O, no behaviour beyond small helpers.
 
+use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 /// Axis-aligned box in world units.
@@ -94,9 +95,33 @@ impl Errors {
 /// Unit normal of triangle (a, b, c) by the right-hand rule; zero for a degenerate triangle.
 #[must_use]
 pub fn triangle_normal(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> [f64; 3] {
-    let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-    let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-    let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
-    let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-    if len > 0.0 { [n[0] / len, n[1] / len, n[2] / len] } else { [0.0; 3] }
+    let a = DVec3::from_array(a);
+    let n = (DVec3::from_array(b) - a).cross(DVec3::from_array(c) - a);
+    let len = n.length();
+    // `/ len`, not `normalize()` (a multiply by 1/len): the point levels' normals are these
+    // bytes, and the division is what they have always been.
+    if len > 0.0 { (n / len).to_array() } else { [0.0; 3] }
+}
+
+/// Area-weighted vertex normals, unnormalized: per vertex the sum, in triangle order, of the
+/// cross products of its triangles (each twice the triangle's area along its normal). The one
+/// implementation behind model normals, rendered meshes and the instance experiment.
+#[must_use]
+pub fn vertex_normal_sums(positions: &[[f64; 3]], triangles: &[[u32; 3]]) -> Vec<DVec3> {
+    let mut acc = vec![DVec3::ZERO; positions.len()];
+    for t in triangles {
+        let p = |i: u32| DVec3::from_array(positions[i as usize]);
+        let c = (p(t[1]) - p(t[0])).cross(p(t[2]) - p(t[0]));
+        for &i in t {
+            acc[i as usize] += c;
+        }
+    }
+    acc
+}
+
+/// `v / |v|` as f32, or `None` for a zero or non-finite vector.
+#[must_use]
+pub fn unit_f32(v: DVec3) -> Option<[f32; 3]> {
+    let len = v.length();
+    (len > 0.0 && len.is_finite()).then(|| (v / len).as_vec3().to_array())
 }

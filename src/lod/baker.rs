@@ -47,7 +47,8 @@ impl PointBaker {
         }
         #[cfg(feature = "gpu")]
         {
-            let on_cpu = |why: String| Ok((Self::Cpu, Some(format!("{why}; baking point levels on the CPU"))));
+            let on_cpu =
+                |why: String| Ok((Self::Cpu, Some(format!("{why}; baking point levels on the CPU"))));
             let ctx = match crate::gpu::open() {
                 Ok(ctx) => ctx,
                 Err(e) if mode == GpuMode::Auto => return on_cpu(e.to_string()),

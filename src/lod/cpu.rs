@@ -1062,8 +1062,8 @@ mod tests {
         mesh.triangles
             .iter()
             .map(|t| {
-                let tri = t.map(|i| mesh.positions[i as usize]);
-                point_triangle_dist2(p, &tri)
+                let tri = t.map(|i| glam::DVec3::from_array(mesh.positions[i as usize]));
+                point_triangle_dist2(glam::DVec3::from_array(p), &tri)
             })
             .fold(f64::INFINITY, f64::min)
             .sqrt()

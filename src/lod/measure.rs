@@ -3,6 +3,8 @@
 //! points make the nearest-item queries local: each query visits rings of grid cells around
 //! itself, nearest first, and stops as soon as nothing outside the visited box can be closer.
 
+use glam::DVec3;
+
 use super::fasthash::FastMap;
 use crate::geom::{Bounds, Errors, Mesh, PointCloud};
 
@@ -16,40 +18,14 @@ const GRID_BUDGET_MIN: f64 = (1u64 << 20) as f64;
 /// linear scan instead of ring search, so index arithmetic never overflows.
 const MAX_QUERY_INDEX: f64 = (1u64 << 40) as f64;
 
-type V3 = [f64; 3];
-
-#[inline]
-fn sub(a: V3, b: V3) -> V3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-#[inline]
-fn dot(a: V3, b: V3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-#[inline]
-fn cross(a: V3, b: V3) -> V3 {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-
-#[inline]
-fn axpy(a: V3, t: f64, d: V3) -> V3 {
-    [a[0] + t * d[0], a[1] + t * d[1], a[2] + t * d[2]]
-}
-
-#[inline]
-fn dist2(a: V3, b: V3) -> f64 {
-    let d = sub(a, b);
-    dot(d, d)
-}
+type V3 = DVec3;
 
 /// Squared distance from `p` to segment `ab` (a point when a == b).
 fn segment_dist2(p: V3, a: V3, b: V3) -> f64 {
-    let ab = sub(b, a);
-    let len2 = dot(ab, ab);
-    let t = if len2 > 0.0 { (dot(sub(p, a), ab) / len2).clamp(0.0, 1.0) } else { 0.0 };
-    dist2(p, axpy(a, t, ab))
+    let ab = b - a;
+    let len2 = ab.dot(ab);
+    let t = if len2 > 0.0 { ((p - a).dot(ab) / len2).clamp(0.0, 1.0) } else { 0.0 };
+    p.distance_squared(a + ab * t)
 }
 
 /// Squared distance from `p` to the closed triangle `t` (Ericson, Real-Time Collision
@@ -57,46 +33,46 @@ fn segment_dist2(p: V3, a: V3, b: V3) -> f64 {
 /// that method, so they are measured as their three edges instead.
 pub(crate) fn point_triangle_dist2(p: V3, t: &[V3; 3]) -> f64 {
     let [a, b, c] = *t;
-    let ab = sub(b, a);
-    let ac = sub(c, a);
-    let n = cross(ab, ac);
-    let n2 = dot(n, n);
-    if n2 <= 1e-24 * dot(ab, ab) * dot(ac, ac) || !n2.is_finite() {
+    let ab = b - a;
+    let ac = c - a;
+    let n = ab.cross(ac);
+    let n2 = n.dot(n);
+    if n2 <= 1e-24 * ab.dot(ab) * ac.dot(ac) || !n2.is_finite() {
         return segment_dist2(p, a, b).min(segment_dist2(p, b, c)).min(segment_dist2(p, c, a));
     }
-    let ap = sub(p, a);
-    let d1 = dot(ab, ap);
-    let d2 = dot(ac, ap);
+    let ap = p - a;
+    let d1 = ab.dot(ap);
+    let d2 = ac.dot(ap);
     if d1 <= 0.0 && d2 <= 0.0 {
-        return dist2(p, a);
+        return p.distance_squared(a);
     }
-    let bp = sub(p, b);
-    let d3 = dot(ab, bp);
-    let d4 = dot(ac, bp);
+    let bp = p - b;
+    let d3 = ab.dot(bp);
+    let d4 = ac.dot(bp);
     if d3 >= 0.0 && d4 <= d3 {
-        return dist2(p, b);
+        return p.distance_squared(b);
     }
     let vc = d1 * d4 - d3 * d2;
     if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        return dist2(p, axpy(a, d1 / (d1 - d3), ab));
+        return p.distance_squared(a + ab * (d1 / (d1 - d3)));
     }
-    let cp = sub(p, c);
-    let d5 = dot(ab, cp);
-    let d6 = dot(ac, cp);
+    let cp = p - c;
+    let d5 = ab.dot(cp);
+    let d6 = ac.dot(cp);
     if d6 >= 0.0 && d5 <= d6 {
-        return dist2(p, c);
+        return p.distance_squared(c);
     }
     let vb = d5 * d2 - d1 * d6;
     if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        return dist2(p, axpy(a, d2 / (d2 - d6), ac));
+        return p.distance_squared(a + ac * (d2 / (d2 - d6)));
     }
     let va = d3 * d6 - d5 * d4;
     if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        return dist2(p, axpy(b, (d4 - d3) / ((d4 - d3) + (d5 - d6)), sub(c, b)));
+        return p.distance_squared(b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))));
     }
     let denom = 1.0 / (va + vb + vc);
-    let q = axpy(axpy(a, vb * denom, ab), vc * denom, ac);
-    dist2(p, q)
+    let q = (a + ab * (vb * denom)) + ac * (vc * denom);
+    p.distance_squared(q)
 }
 
 /// `⌊x⌋`, by a truncating cast where that is exact: `f64::floor` is a libm call on baseline
@@ -222,7 +198,7 @@ impl HashGrid {
         self.items.is_empty()
     }
 
-    /// Smallest `dist2(q, item)` over all items, found by ring search, and the item. Returns
+    /// Smallest `q.distance_squared(item)` over all items, found by ring search, and the item. Returns
     /// early, with some value ≤ `stop2`, as soon as an item within `sqrt(stop2)` is found (pass
     /// 0 for the exact nearest). `dist2` measures one item; `all` is the item count, for the
     /// linear fallback. The item is `u32::MAX` when there are none.
@@ -332,11 +308,11 @@ fn valid_triangles(mesh: &Mesh) -> Vec<([V3; 3], [bool; 3])> {
         .iter()
         .filter_map(|t| {
             let v = [
-                *mesh.positions.get(t[0] as usize)?,
-                *mesh.positions.get(t[1] as usize)?,
-                *mesh.positions.get(t[2] as usize)?,
+                DVec3::from_array(*mesh.positions.get(t[0] as usize)?),
+                DVec3::from_array(*mesh.positions.get(t[1] as usize)?),
+                DVec3::from_array(*mesh.positions.get(t[2] as usize)?),
             ];
-            v.iter().flatten().all(|c| c.is_finite()).then_some((*t, v))
+            v.iter().all(|c| c.is_finite()).then_some((*t, v))
         })
         .collect();
     let edge = |a: u32, b: u32| (u64::from(a) << 32) | u64::from(b);
@@ -373,13 +349,13 @@ fn sample_triangle(t: &[V3; 3], owned: [bool; 3], s: f64, mut f: impl FnMut(V3))
     let mut edge_len = [0.0; 3];
     for e in 0..3 {
         let a = t[e];
-        let d = sub(t[(e + 1) % 3], a);
-        edge_len[e] = dot(d, d).sqrt();
+        let d = t[(e + 1) % 3] - a;
+        edge_len[e] = d.dot(d).sqrt();
         if owned[e] {
             // Endpoints are mesh vertices, which the caller samples once each.
             let n = segments(edge_len[e]);
             for i in 1..n {
-                f(axpy(a, i as f64 / n as f64, d));
+                f(a + d * (i as f64 / n as f64));
             }
         }
     }
@@ -390,18 +366,18 @@ fn sample_triangle(t: &[V3; 3], owned: [bool; 3], s: f64, mut f: impl FnMut(V3))
     if len <= 0.0 {
         return;
     }
-    let height = cross(sub(p1, p0), sub(apex, p0));
-    let height = dot(height, height).sqrt() / len;
+    let height = (p1 - p0).cross(apex - p0);
+    let height = height.dot(height).sqrt() / len;
     let rows = segments(height);
     // Row 0 is the longest edge, sampled above; the last row degenerates to the apex.
     for j in 1..rows {
         let w = j as f64 / rows as f64;
-        let a = axpy(p0, w, sub(apex, p0));
-        let b = axpy(p1, w, sub(apex, p1));
-        let d = sub(b, a);
+        let a = p0 + (apex - p0) * w;
+        let b = p1 + (apex - p1) * w;
+        let d = b - a;
         let n = segments((1.0 - w) * len);
         for i in 0..=n {
-            f(axpy(a, i as f64 / n as f64, d));
+            f(a + d * (i as f64 / n as f64));
         }
     }
 }
@@ -415,12 +391,13 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
     let mut bounds = Bounds::empty();
     for (t, _) in &tris {
         for &v in t {
-            bounds.extend(v);
+            bounds.extend(v.to_array());
         }
     }
     let size = bounds.size();
-    let diag = dot(size, size).sqrt();
-    let pts: Vec<V3> = points.positions.iter().copied().filter(|p| p.iter().all(|c| c.is_finite())).collect();
+    let diag = DVec3::from_array(size).length();
+    let pts: Vec<V3> =
+        points.positions.iter().map(|&p| DVec3::from_array(p)).filter(|p| p.is_finite()).collect();
     if pts.is_empty() {
         return Errors { max: 0.0, rms: 0.0, gap: diag };
     }
@@ -433,11 +410,11 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
         1.0
     };
     let mut h = base;
-    let origin = bounds.min;
+    let origin = DVec3::from_array(bounds.min);
     let tri_box = |t: &[V3; 3], h: f64| {
-        let b = Bounds::of_points(t);
-        let a = HashGrid::coord(origin, h, b.min);
-        let c = HashGrid::coord(origin, h, b.max);
+        let b = Bounds::of_points(&t.map(|v| v.to_array()));
+        let a = HashGrid::coord(origin, h, DVec3::from_array(b.min));
+        let c = HashGrid::coord(origin, h, DVec3::from_array(b.max));
         ([a[0] as i64, a[1] as i64, a[2] as i64], [c[0] as i64, c[1] as i64, c[2] as i64])
     };
     let budget = (GRID_BUDGET_PER_ITEM * (tris.len() + pts.len()) as f64).max(GRID_BUDGET_MIN);
@@ -502,15 +479,15 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
     // the result is the same (a sample with a point within the gap cannot raise it).
     let mut last = u32::MAX;
     let mut gap_sample = |q: V3| {
-        if pts.get(last as usize).is_some_and(|&p| dist2(q, p) <= gap2) {
+        if pts.get(last as usize).is_some_and(|&p| q.distance_squared(p) <= gap2) {
             return;
         }
-        let (d2, item) = pt_grid.nearest2(q, gap2, pts.len() as u32, |i| dist2(q, pts[i as usize]));
+        let (d2, item) = pt_grid.nearest2(q, gap2, pts.len() as u32, |i| q.distance_squared(pts[i as usize]));
         gap2 = gap2.max(d2);
         last = item;
     };
     for (q, _) in mesh.positions.iter().zip(&used).filter(|(p, u)| **u && p.iter().all(|c| c.is_finite())) {
-        gap_sample(*q);
+        gap_sample(DVec3::from_array(*q));
     }
     for (t, owned) in &tris {
         sample_triangle(t, *owned, s, &mut gap_sample);
@@ -530,8 +507,8 @@ mod tests {
         for i in 0..=n {
             for j in 0..=(n - i) {
                 let (u, v) = (f64::from(i) / f64::from(n), f64::from(j) / f64::from(n));
-                let q = axpy(axpy(t[0], u, sub(t[1], t[0])), v, sub(t[2], t[0]));
-                best = best.min(dist2(p, q));
+                let q = (t[0] + (t[1] - t[0]) * u) + (t[2] - t[0]) * v;
+                best = best.min(p.distance_squared(q));
             }
         }
         best.sqrt()
@@ -539,7 +516,7 @@ mod tests {
 
     #[test]
     fn point_triangle_matches_dense_sampling() {
-        let t = [[0.0, 0.0, 0.0], [4.0, 0.5, 1.0], [1.0, 3.0, -0.5]];
+        let t = [[0.0, 0.0, 0.0], [4.0, 0.5, 1.0], [1.0, 3.0, -0.5]].map(DVec3::from_array);
         let probes = [
             [1.0, 1.0, 2.0],
             [-2.0, -1.0, 0.0],
@@ -549,7 +526,7 @@ mod tests {
             [2.0, -2.0, 0.0],
             [1.5, 1.0, 0.3],
         ];
-        for p in probes {
+        for p in probes.map(DVec3::from_array) {
             let exact = point_triangle_dist2(p, &t).sqrt();
             let approx = brute_segment_tri(p, &t);
             assert!(exact <= approx + 1e-12 && approx - exact < 0.02, "{p:?}: {exact} vs {approx}");
@@ -558,15 +535,15 @@ mod tests {
 
     #[test]
     fn degenerate_triangles_measure_as_segments() {
-        let line = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]];
-        assert!((point_triangle_dist2([1.0, 1.0, 0.0], &line) - 1.0).abs() < 1e-12);
-        let dot3 = [[1.0, 1.0, 1.0]; 3];
-        assert!((point_triangle_dist2([1.0, 1.0, 3.0], &dot3) - 4.0).abs() < 1e-12);
+        let line = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]].map(DVec3::from_array);
+        assert!((point_triangle_dist2(DVec3::new(1.0, 1.0, 0.0), &line) - 1.0).abs() < 1e-12);
+        let dot3 = [DVec3::ONE; 3];
+        assert!((point_triangle_dist2(DVec3::new(1.0, 1.0, 3.0), &dot3) - 4.0).abs() < 1e-12);
     }
 
     #[test]
     fn samples_cover_a_sliver_within_spacing() {
-        let t = [[0.0, 0.0, 0.0], [100.0, 0.0, 0.0], [50.0, 0.3, 0.0]];
+        let t = [[0.0, 0.0, 0.0], [100.0, 0.0, 0.0], [50.0, 0.3, 0.0]].map(DVec3::from_array);
         let s = 0.25;
         let mut samples = Vec::new();
         sample_triangle(&t, [true; 3], s, |q| samples.push(q));
@@ -576,8 +553,8 @@ mod tests {
             let x = f64::from(i) * 0.1;
             let top = if x <= 50.0 { 0.3 * x / 50.0 } else { 0.3 * (100.0 - x) / 50.0 };
             for y in [0.0, top * 0.5, top] {
-                let q = [x, y, 0.0];
-                let d = samples.iter().map(|&p| dist2(p, q)).fold(f64::INFINITY, f64::min).sqrt();
+                let q = DVec3::new(x, y, 0.0);
+                let d = samples.iter().map(|&p| p.distance_squared(q)).fold(f64::INFINITY, f64::min).sqrt();
                 assert!(d <= s, "{q:?}: {d}");
             }
         }

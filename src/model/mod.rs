@@ -24,9 +24,10 @@ pub mod stl;
 
 use std::path::{Path, PathBuf};
 
+use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-use crate::geom::Mesh;
+use crate::geom::{Mesh, unit_f32};
 
 /// Most vertices or triangles a model may have after cleanup: what one blob can hold
 /// ([`crate::codec::MAX_ELEMENTS`]), since the model is stored whole as level 0.
@@ -286,10 +287,8 @@ impl Builder {
             .filter(|t| {
                 let [a, b, c] = *t;
                 a != b && b != c && a != c && {
-                    let p = |i: u32| positions[i as usize];
-                    let u = sub(p(b), p(a));
-                    let v = sub(p(c), p(a));
-                    cross(u, v).iter().any(|&c| c != 0.0)
+                    let p = |i: u32| DVec3::from_array(positions[i as usize]);
+                    (p(b) - p(a)).cross(p(c) - p(a)) != DVec3::ZERO
                 }
             })
             .collect();
@@ -332,28 +331,18 @@ impl Builder {
             kept.iter().map(|t| [remap[t[0] as usize], remap[t[1] as usize], remap[t[2] as usize]]).collect();
 
         // Area-weighted vertex normals: the cross product's length is twice the area.
-        let mut computed = vec![[0.0f64; 3]; new_positions.len()];
-        for t in &triangles {
-            let p = |i: u32| new_positions[i as usize];
-            let c = cross(sub(p(t[1]), p(t[0])), sub(p(t[2]), p(t[0])));
-            for &i in t {
-                let s = &mut computed[i as usize];
-                for a in 0..3 {
-                    s[a] += c[a];
-                }
-            }
-        }
+        let computed = crate::geom::vertex_normal_sums(&new_positions, &triangles);
         let mut normals_from_file = 0;
         let normals = new_file_normals
             .iter()
             .zip(&computed)
             .map(|(f, c)| {
-                if let Some(n) = unit(*f) {
+                if let Some(n) = unit_f32(DVec3::from_array(*f)) {
                     normals_from_file += 1;
                     n
                 } else {
                     // Opposite faces meeting at a vertex can cancel; +Z stands in then.
-                    unit(*c).unwrap_or([0.0, 0.0, 1.0])
+                    unit_f32(*c).unwrap_or([0.0, 0.0, 1.0])
                 }
             })
             .collect();
@@ -372,20 +361,6 @@ impl Builder {
             },
         })
     }
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn cross(u: [f64; 3], v: [f64; 3]) -> [f64; 3] {
-    [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
-}
-
-/// `v / |v|` as f32, or None for a zero or non-finite vector.
-fn unit(v: [f64; 3]) -> Option<[f32; 3]> {
-    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    (len > 0.0 && len.is_finite()).then(|| [(v[0] / len) as f32, (v[1] / len) as f32, (v[2] / len) as f32])
 }
 
 /// Splits text into (1-based line number, line without its end) pairs, `\n` or `\r\n`.

@@ -403,31 +403,9 @@ impl InstanceBench {
 
 /// Area-weighted vertex normals (unit, +Z for isolated vertices).
 fn vertex_normals(positions: &[[f64; 3]], triangles: &[[u32; 3]]) -> Vec<[f32; 3]> {
-    let mut acc = vec![[0.0f64; 3]; positions.len()];
-    for t in triangles {
-        let [a, b, c] = t.map(|i| positions[i as usize]);
-        let n = crate::geom::triangle_normal(a, b, c);
-        let area2 = {
-            let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-            let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-            let x = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
-            (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt()
-        };
-        for &i in t {
-            for k in 0..3 {
-                acc[i as usize][k] += n[k] * area2;
-            }
-        }
-    }
-    acc.iter()
-        .map(|n| {
-            let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            if l > 1e-300 {
-                [(n[0] / l) as f32, (n[1] / l) as f32, (n[2] / l) as f32]
-            } else {
-                [0.0, 0.0, 1.0]
-            }
-        })
+    crate::geom::vertex_normal_sums(positions, triangles)
+        .into_iter()
+        .map(|n| crate::geom::unit_f32(n).unwrap_or([0.0, 0.0, 1.0]))
         .collect()
 }
 

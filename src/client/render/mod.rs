@@ -605,14 +605,8 @@ pub fn covered(img: &image::RgbaImage) -> Vec<bool> {
 /// Area-weighted vertex normals of the surface triangles; a skirt vertex takes the normal of
 /// the border vertex above it (same x, y) so the wall reads as the surface.
 fn skirted_normals(m: &Mesh, first_skirt_vertex: usize, first_skirt_triangle: usize) -> Vec<[f32; 3]> {
-    let mut acc = vec![[0.0f64; 3]; m.positions.len()];
-    for t in &m.triangles[..first_skirt_triangle.min(m.triangles.len())] {
-        let [a, b, c] = t.map(|i| m.positions[i as usize]);
-        let n = v3::cross(v3::sub(b, a), v3::sub(c, a));
-        for &i in t {
-            acc[i as usize] = v3::add(acc[i as usize], n);
-        }
-    }
+    let surface = &m.triangles[..first_skirt_triangle.min(m.triangles.len())];
+    let mut acc = crate::geom::vertex_normal_sums(&m.positions, surface);
     let key = |p: [f64; 3]| (p[0].to_bits(), p[1].to_bits());
     let above: HashMap<(u64, u64), usize> =
         m.positions[..first_skirt_vertex].iter().enumerate().map(|(i, p)| (key(*p), i)).collect();
@@ -621,9 +615,7 @@ fn skirted_normals(m: &Mesh, first_skirt_vertex: usize, first_skirt_triangle: us
             acc[i] = acc[j];
         }
     }
-    acc.iter()
-        .map(|n| v3::normalize(*n).map_or([0.0, 0.0, 1.0], |n| [n[0] as f32, n[1] as f32, n[2] as f32]))
-        .collect()
+    acc.into_iter().map(|n| crate::geom::unit_f32(n).unwrap_or([0.0, 0.0, 1.0])).collect()
 }
 
 /// Near and far plane distances the renderers use for a far distance `far`.
