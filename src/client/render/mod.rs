@@ -12,10 +12,11 @@ use std::path::Path;
 use std::sync::mpsc;
 
 use bytemuck::{Pod, Zeroable};
+use glam::DVec3;
+use glam::dcamera::rh;
 
 use crate::client::select::{Camera, DrawItem, add_skirts};
 use crate::client::tree::TileTree;
-use crate::client::v3;
 use crate::codec::{Blob, Geometry};
 use crate::geom::{Bounds, Mesh};
 use crate::gpu::GpuError;
@@ -625,8 +626,9 @@ pub fn clip_planes(far: f64) -> (f64, f64) {
     ((far * 1e-5).max(1e-3).min(far * 0.5), far)
 }
 
-/// Column-major view-projection (wgpu depth 0..1, right-handed) for positions relative to
-/// `origin`.
+/// Column-major view-projection (wgpu: depth 0..1 and y up in NDC, as Direct3D's) for
+/// positions relative to `origin`: glam's right-handed look-to and perspective, the vertical field of view derived from the
+/// camera's horizontal one and `aspect` (width / height).
 pub(crate) fn view_proj(
     v: &crate::client::select::View,
     origin: [f64; 3],
@@ -634,30 +636,10 @@ pub(crate) fn view_proj(
     far: f64,
     aspect: f64,
 ) -> [[f32; 4]; 4] {
-    let eye = v3::sub(v.eye, origin);
-    let (s, u, f) = (v.right, v.up, v.forward);
-    // Rows of the view matrix.
-    let view = [
-        [s[0], s[1], s[2], -v3::dot(s, eye)],
-        [u[0], u[1], u[2], -v3::dot(u, eye)],
-        [-f[0], -f[1], -f[2], v3::dot(f, eye)],
-        [0.0, 0.0, 0.0, 1.0],
-    ];
-    let sx = 1.0 / v.tan_h;
-    let sy = sx * aspect;
-    let proj = [
-        [sx, 0.0, 0.0, 0.0],
-        [0.0, sy, 0.0, 0.0],
-        [0.0, 0.0, far / (near - far), near * far / (near - far)],
-        [0.0, 0.0, -1.0, 0.0],
-    ];
-    let mut out = [[0.0f32; 4]; 4];
-    for (c, col) in out.iter_mut().enumerate() {
-        for (r, cell) in col.iter_mut().enumerate() {
-            *cell = (0..4).map(|k| proj[r][k] * view[k][c]).sum::<f64>() as f32;
-        }
-    }
-    out
+    let eye = DVec3::from_array(v.eye) - DVec3::from_array(origin);
+    let view = rh::view::look_to_mat4(eye, DVec3::from_array(v.forward), DVec3::from_array(v.up));
+    let fov_y = 2.0 * (v.tan_h / aspect).atan();
+    (rh::proj::directx::perspective(fov_y, aspect, near, far) * view).as_mat4().to_cols_array_2d()
 }
 
 #[cfg(test)]
