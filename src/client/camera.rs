@@ -4,8 +4,8 @@
 
 use crate::client::ClientError;
 use crate::client::stream::flight::Pose;
-use crate::client::v3;
 use crate::geom::Bounds;
+use glam::DVec3;
 
 /// Smallest eye distance used in `e_scr`, so an eye at a sphere's centre gives a huge, finite error.
 pub(crate) const MIN_DISTANCE: f64 = 1e-6;
@@ -14,9 +14,9 @@ pub(crate) const MIN_DISTANCE: f64 = 1e-6;
 /// field of view.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Camera {
-    pub eye: [f64; 3],
-    pub target: [f64; 3],
-    pub up: [f64; 3],
+    pub eye: DVec3,
+    pub target: DVec3,
+    pub up: DVec3,
     pub width: u32,
     pub height: u32,
     pub fov_deg: f64,
@@ -37,36 +37,35 @@ impl Camera {
         if !(self.fov_deg > 0.0 && self.fov_deg < 180.0) {
             return bad(format!("fov {} is not between 0 and 180 degrees", self.fov_deg));
         }
-        if !v3::finite(self.eye) || !v3::finite(self.target) || !v3::finite(self.up) {
+        if !self.eye.is_finite() || !self.target.is_finite() || !self.up.is_finite() {
             return bad(format!(
                 "eye {:?}, target {:?} or up {:?} is not finite",
                 self.eye, self.target, self.up
             ));
         }
-        let Some(forward) = v3::normalize(v3::sub(self.target, self.eye)) else {
+        let Some(forward) = (self.target - self.eye).try_normalize() else {
             return bad(format!("eye and target are the same point {:?}", self.eye));
         };
-        let Some(right) = v3::normalize(v3::cross(forward, self.up)).filter(|_| v3::len(self.up) > 0.0)
-        else {
+        let Some(right) = (forward.cross(self.up)).try_normalize().filter(|_| self.up.length() > 0.0) else {
             return bad(format!("up {:?} is zero or parallel to the view direction", self.up));
         };
-        if v3::len(v3::cross(forward, v3::normalize(self.up).unwrap_or([0.0; 3]))) < 1e-9 {
+        if (forward.cross(self.up.try_normalize().unwrap_or(DVec3::ZERO))).length() < 1e-9 {
             return bad(format!("up {:?} is parallel to the view direction", self.up));
         }
-        let up = v3::cross(right, forward);
+        let up = right.cross(forward);
         let tan_h = (self.fov_deg.to_radians() * 0.5).tan();
         let tan_v = tan_h * f64::from(self.height) / f64::from(self.width);
         let eye = self.eye;
         // Inward normals of the four side planes through the eye, and the plane at the eye
         // facing forward (no far plane: terrain is culled by distance through its error).
         let normals = [
-            v3::sub(v3::scale(forward, tan_h), right),
-            v3::add(v3::scale(forward, tan_h), right),
-            v3::sub(v3::scale(forward, tan_v), up),
-            v3::add(v3::scale(forward, tan_v), up),
+            ((forward * tan_h) - right),
+            ((forward * tan_h) + right),
+            ((forward * tan_v) - up),
+            ((forward * tan_v) + up),
             forward,
         ];
-        let planes = normals.map(|n| (n, -v3::dot(n, eye)));
+        let planes = normals.map(|n| (n, -n.dot(eye)));
         Ok(View { eye, forward, right, up, k: f64::from(self.width) / (2.0 * tan_h), tan_h, tan_v, planes })
     }
 }
@@ -74,15 +73,15 @@ impl Camera {
 /// A validated camera: frustum planes and the screen-space error factor `k`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct View {
-    pub eye: [f64; 3],
-    pub forward: [f64; 3],
-    pub right: [f64; 3],
-    pub up: [f64; 3],
+    pub eye: DVec3,
+    pub forward: DVec3,
+    pub right: DVec3,
+    pub up: DVec3,
     /// `w / (2·tan(φ/2))`: pixels per world unit at unit distance.
     pub k: f64,
     pub tan_h: f64,
     pub tan_v: f64,
-    planes: [([f64; 3], f64); 5],
+    planes: [(DVec3, f64); 5],
 }
 
 impl View {
@@ -90,12 +89,12 @@ impl View {
     #[must_use]
     pub fn intersects(&self, b: &Bounds) -> bool {
         self.planes.iter().all(|(n, d)| {
-            let p = [
-                if n[0] >= 0.0 { b.max[0] } else { b.min[0] },
-                if n[1] >= 0.0 { b.max[1] } else { b.min[1] },
-                if n[2] >= 0.0 { b.max[2] } else { b.min[2] },
-            ];
-            v3::dot(*n, p) + d >= 0.0
+            let p = DVec3::new(
+                if n.x >= 0.0 { b.max[0] } else { b.min[0] },
+                if n.y >= 0.0 { b.max[1] } else { b.min[1] },
+                if n.z >= 0.0 { b.max[2] } else { b.min[2] },
+            );
+            (*n).dot(p) + d >= 0.0
         })
     }
 

@@ -17,8 +17,8 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
 use crate::client::select::Camera;
-use crate::client::v3;
 use crate::geom::Bounds;
+use glam::DVec3;
 
 /// Distance factors (multiples of the fit distance) at which cameras are placed.
 pub const DEFAULT_DISTANCES: [f64; 5] = [0.5, 1.0, 2.0, 4.0, 8.0];
@@ -52,10 +52,10 @@ pub enum Subject {
 impl Subject {
     /// Unit polar axis and two unit axes spanning the plane perpendicular to it (right-handed).
     #[must_use]
-    pub fn axes(self) -> ([f64; 3], [f64; 3], [f64; 3]) {
+    pub fn axes(self) -> (DVec3, DVec3, DVec3) {
         match self {
-            Self::Terrain => ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
-            Self::Model => ([0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]),
+            Self::Terrain => (DVec3::Z, DVec3::X, DVec3::Y),
+            Self::Model => (DVec3::Y, DVec3::Z, DVec3::X),
         }
     }
 
@@ -105,8 +105,8 @@ pub struct EvalCamera {
 
 /// Centre and radius (half the box diagonal, at least 1e-9) of the bounds' sphere.
 #[must_use]
-pub fn bounding_sphere(b: &Bounds) -> ([f64; 3], f64) {
-    (b.center(), (0.5 * v3::len(b.size())).max(1e-9))
+pub fn bounding_sphere(b: &Bounds) -> (DVec3, f64) {
+    (DVec3::from_array(b.center()), (0.5 * DVec3::from_array(b.size()).length()).max(1e-9))
 }
 
 /// The distance at which a sphere of radius `r` just fills the narrower field of view.
@@ -150,9 +150,8 @@ pub fn cameras(bounds: &Bounds, subject: Subject, plan: &CameraPlan) -> Result<V
                 let az = 360.0 * f64::from(i) / f64::from(plan.azimuths);
                 let (sa, ca) = az.to_radians().sin_cos();
                 let (se, ce) = el.to_radians().sin_cos();
-                let dir =
-                    v3::add(v3::add(v3::scale(u1, ce * ca), v3::scale(u2, ce * sa)), v3::scale(pole, se));
-                let eye = v3::add(c, v3::scale(dir, d));
+                let dir = ((u1 * (ce * ca)) + (u2 * (ce * sa))) + (pole * se);
+                let eye = c + (dir * d);
                 out.push(EvalCamera {
                     camera: Camera {
                         eye,
@@ -392,7 +391,7 @@ pub fn grid_offsets(n: u32, spacing: f64, subject: Subject) -> Vec<[f64; 3]> {
         for i in 0..n {
             let a = (f64::from(i) - half) * spacing;
             let b = (f64::from(j) - half) * spacing;
-            out.push(v3::add(v3::scale(u1, a), v3::scale(u2, b)));
+            out.push((u1 * a + u2 * b).to_array());
         }
     }
     out
@@ -404,7 +403,7 @@ pub fn grid_offsets(n: u32, spacing: f64, subject: Subject) -> Vec<[f64; 3]> {
 // The camera needs the grid (n, spacing, subject), the object's sphere and the viewport.
 #[allow(clippy::too_many_arguments)]
 pub fn grid_camera(
-    c: [f64; 3],
+    c: DVec3,
     r: f64,
     n: u32,
     spacing: f64,
@@ -418,7 +417,7 @@ pub fn grid_camera(
     let d = fit_distance(grid_r, w, h, fov);
     let (pole, u1, _) = subject.axes();
     let (se, ce) = GRID_ELEVATION_DEG.to_radians().sin_cos();
-    let eye = v3::add(c, v3::add(v3::scale(u1, -ce * d), v3::scale(pole, se * d)));
+    let eye = c + ((u1 * (-ce * d)) + (pole * (se * d)));
     EvalCamera {
         camera: Camera { eye, target: c, up: pole, width: w, height: h, fov_deg: fov },
         distance_factor: 1.0,
@@ -1025,7 +1024,7 @@ mod tests {
         let (c, r) = bounding_sphere(&b);
         let fit = fit_distance(r, p.width, p.height, p.fov_deg);
         for e in &cams {
-            let d = v3::len(v3::sub(e.camera.eye, c));
+            let d = (e.camera.eye - c).length();
             assert!((d - e.distance_factor * fit).abs() < 1e-9 * fit);
             assert!((d - e.distance).abs() < 1e-9);
             assert_eq!(e.camera.target, c);
@@ -1042,11 +1041,11 @@ mod tests {
                         if i & 2 == 0 { b.min[1] } else { b.max[1] },
                         if i & 4 == 0 { b.min[2] } else { b.max[2] },
                     ];
-                    let q = v3::sub(corner, view.eye);
-                    let z = v3::dot(q, view.forward);
+                    let q = DVec3::from_array(corner) - view.eye;
+                    let z = q.dot(view.forward);
                     assert!(z > 0.0);
-                    assert!(v3::dot(q, view.right).abs() <= z * view.tan_h + 1e-9);
-                    assert!(v3::dot(q, view.up).abs() <= z * view.tan_v + 1e-9);
+                    assert!(q.dot(view.right).abs() <= z * view.tan_h + 1e-9);
+                    assert!(q.dot(view.up).abs() <= z * view.tan_v + 1e-9);
                 }
             }
         }
@@ -1065,7 +1064,7 @@ mod tests {
             let d = e.distance;
             let el = ((e.camera.eye[1] - c[1]) / d).asin().to_degrees();
             assert!((el - e.elevation_deg).abs() < 1e-9);
-            assert_eq!(e.camera.up, [0.0, 1.0, 0.0]);
+            assert_eq!(e.camera.up, DVec3::Y);
         }
     }
 
@@ -1141,11 +1140,12 @@ mod tests {
         assert_eq!(o.len(), 9);
         assert_eq!(o[4], [0.0, 0.0, 0.0]);
         assert!(o.iter().all(|p| p[1] == 0.0));
-        let c = [0.0, 0.5, 0.0];
+        let c = DVec3::new(0.0, 0.5, 0.0);
         let cam = grid_camera(c, 0.7, 3, 2.0, Subject::Model, 400, 300, 60.0);
         let view = cam.camera.view().unwrap();
         for p in &o {
-            assert!(view.intersects(&Bounds { min: v3::add(*p, [-0.7; 3]), max: v3::add(*p, [0.7; 3]) }));
+            let p = DVec3::from_array(*p);
+            assert!(view.intersects(&Bounds { min: (p - 0.7).to_array(), max: (p + 0.7).to_array() }));
         }
         assert!((median(&[3.0, 1.0, 2.0]) - 2.0).abs() < 1e-12);
         assert!((median(&[4.0, 1.0, 2.0, 3.0]) - 2.5).abs() < 1e-12);

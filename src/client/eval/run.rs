@@ -10,6 +10,7 @@
 //!   crack bound of [`skirt_depth`]), none on the dataset's outer border; models get none.
 //! - Per level: level `l` forced on the nodes the selection draws.
 
+use glam::DVec3;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -410,8 +411,8 @@ fn instances(
         let chosen: Vec<usize> = offsets
             .iter()
             .map(|o| {
-                let centre = [c[0] + o[0], c[1] + o[1], c[2] + o[2]];
-                let d = crate::client::v3::len(crate::client::v3::sub(centre, view.eye));
+                let centre = c + DVec3::from_array(*o);
+                let d = (centre - view.eye).length();
                 analysis::level_for(&errors, view.k, d, opts.threshold_px)
             })
             .collect();

@@ -636,8 +636,8 @@ pub(crate) fn view_proj(
     far: f64,
     aspect: f64,
 ) -> [[f32; 4]; 4] {
-    let eye = DVec3::from_array(v.eye) - DVec3::from_array(origin);
-    let view = rh::view::look_to_mat4(eye, DVec3::from_array(v.forward), DVec3::from_array(v.up));
+    let eye = v.eye - DVec3::from_array(origin);
+    let view = rh::view::look_to_mat4(eye, v.forward, v.up);
     let fov_y = 2.0 * (v.tan_h / aspect).atan();
     (rh::proj::directx::perspective(fov_y, aspect, near, far) * view).as_mat4().to_cols_array_2d()
 }
@@ -663,9 +663,9 @@ mod tests {
     #[test]
     fn projection_maps_target_to_centre() {
         let cam = Camera {
-            eye: [100.0, 0.0, 50.0],
-            target: [100.0, 100.0, 0.0],
-            up: [0.0, 0.0, 1.0],
+            eye: DVec3::new(100.0, 0.0, 50.0),
+            target: DVec3::new(100.0, 100.0, 0.0),
+            up: DVec3::Z,
             width: 200,
             height: 100,
             fov_deg: 60.0,

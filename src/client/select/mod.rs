@@ -27,10 +27,11 @@
 use std::collections::HashMap;
 
 use crate::client::ClientError;
+use glam::DVec3;
+
 use crate::client::camera::MIN_DISTANCE;
 pub use crate::client::camera::{Camera, View};
 use crate::client::tree::{NO_NODE, NodeId, TileTree};
-use crate::client::v3;
 use crate::geom::{Bounds, Mesh};
 use crate::store;
 use crate::tiling::TileKey;
@@ -357,11 +358,11 @@ impl Selector {
 
     fn distance(&self, view: &View, center: [f64; 3], b: &Bounds) -> f64 {
         match self.params.distance {
-            DistanceRule::Centre => v3::len(v3::sub(center, view.eye)),
+            DistanceRule::Centre => (DVec3::from_array(center) - view.eye).length(),
             DistanceRule::Nearest => {
                 let e = view.eye;
                 let d = [0, 1, 2].map(|a| (b.min[a] - e[a]).max(e[a] - b.max[a]).max(0.0));
-                v3::len(d)
+                DVec3::from_array(d).length()
             }
         }
     }
@@ -752,9 +753,10 @@ pub fn add_skirts(mesh: &Mesh, depth: f64, outer: Option<&Bounds>) -> Skirted {
         };
         let (sa, sb) = (skirt(a, pa), skirt(b, pb));
         // Wall (b, a, a') faces away from the triangle's third vertex.
-        let wall = v3::cross(v3::sub(pa, pb), [0.0, 0.0, -1.0]);
-        let mid = v3::scale(v3::add(pa, pb), 0.5);
-        if v3::dot(wall, v3::sub(pc, mid)) <= 0.0 {
+        let (pa, pb, pc) = (DVec3::from_array(pa), DVec3::from_array(pb), DVec3::from_array(pc));
+        let wall = (pa - pb).cross(DVec3::NEG_Z);
+        let mid = (pa + pb) * 0.5;
+        if wall.dot(pc - mid) <= 0.0 {
             out.triangles.push([b, a, sa]);
             out.triangles.push([b, sa, sb]);
         } else {

@@ -22,7 +22,8 @@ fn small_tree() -> TileTree {
 }
 
 fn cam(eye: [f64; 3], target: [f64; 3]) -> Camera {
-    Camera { eye, target, up: [0.0, 0.0, 1.0], width: 1280, height: 800, fov_deg: 60.0 }
+    let (eye, target) = (DVec3::from_array(eye), DVec3::from_array(target));
+    Camera { eye, target, up: DVec3::Z, width: 1280, height: 800, fov_deg: 60.0 }
 }
 
 fn params(distance: DistanceRule, fade: f64) -> SelectParams {
@@ -67,9 +68,9 @@ fn camera_errors_name_the_field() {
     assert!(e(Camera { width: 0, ..c }).contains("viewport 0×800"));
     assert!(e(Camera { fov_deg: 180.0, ..c }).contains("fov 180"));
     assert!(e(Camera { target: c.eye, ..c }).contains("same point"));
-    assert!(e(Camera { up: [0.0; 3], ..c }).contains("up"));
-    assert!(e(Camera { eye: [f64::NAN, 0.0, 0.0], ..c }).contains("not finite"));
-    let straight_down = Camera { target: [0.0, 0.0, 0.0], ..c };
+    assert!(e(Camera { up: DVec3::ZERO, ..c }).contains("up"));
+    assert!(e(Camera { eye: DVec3::new(f64::NAN, 0.0, 0.0), ..c }).contains("not finite"));
+    let straight_down = Camera { target: DVec3::ZERO, ..c };
     assert!(e(straight_down).contains("parallel"));
     assert!(Selector::new(SelectParams { threshold_px: 0.0, ..SelectParams::default() }).is_err());
     assert!(Selector::new(SelectParams { fade_seconds: -1.0, ..SelectParams::default() }).is_err());
@@ -109,7 +110,7 @@ fn all_resident_meets_threshold_and_covers_once() {
     for d in &sel.draws {
         let errs = tree.level_errors(d.node);
         let node = tree.node(d.node);
-        let dist = v3::len(v3::sub(node.center, c.eye));
+        let dist = (DVec3::from_array(node.center) - c.eye).length();
         for &e in &errs[usize::from(d.level) + 1..] {
             assert!(view.screen_error(e, dist) > 2.0);
         }
@@ -409,12 +410,12 @@ fn skirts_face_outward_and_skip_the_outer_border() {
     assert_eq!(s.first_skirt_vertex, 4);
     assert_eq!(s.mesh.positions.len(), 8);
     assert_eq!(s.mesh.triangles.len(), 2 + 8);
-    let centre = [0.5, 0.5, 5.0];
+    let centre = DVec3::new(0.5, 0.5, 5.0);
     for t in &s.mesh.triangles[s.first_skirt_triangle..] {
         let [a, b, c] = t.map(|i| s.mesh.positions[i as usize]);
-        let n = crate::geom::triangle_normal(a, b, c);
-        let mid = v3::scale(v3::add(v3::add(a, b), c), 1.0 / 3.0);
-        assert!(v3::dot(n, v3::sub(mid, centre)) > 0.0, "skirt triangle {t:?} faces inward");
+        let n = DVec3::from_array(crate::geom::triangle_normal(a, b, c));
+        let mid = (DVec3::from_array(a) + DVec3::from_array(b) + DVec3::from_array(c)) * (1.0 / 3.0);
+        assert!(n.dot(mid - centre) > 0.0, "skirt triangle {t:?} faces inward");
         assert!(n[2].abs() < 1e-12, "walls are vertical");
     }
     for p in &s.mesh.positions[4..] {
@@ -425,9 +426,9 @@ fn skirts_face_outward_and_skip_the_outer_border() {
     let s2 = add_skirts(&cw, 2.0, None);
     for t in &s2.mesh.triangles[s2.first_skirt_triangle..] {
         let [a, b, c] = t.map(|i| s2.mesh.positions[i as usize]);
-        let n = crate::geom::triangle_normal(a, b, c);
-        let mid = v3::scale(v3::add(v3::add(a, b), c), 1.0 / 3.0);
-        assert!(v3::dot(n, v3::sub(mid, centre)) > 0.0);
+        let n = DVec3::from_array(crate::geom::triangle_normal(a, b, c));
+        let mid = (DVec3::from_array(a) + DVec3::from_array(b) + DVec3::from_array(c)) * (1.0 / 3.0);
+        assert!(n.dot(mid - centre) > 0.0);
     }
     // On the dataset's left and bottom border: only the two inner edges get walls.
     let outer = Bounds { min: [0.0, 0.0, 0.0], max: [10.0, 10.0, 10.0] };

@@ -21,9 +21,10 @@
 
 use std::path::Path;
 
+use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-use crate::client::{ClientError, v3};
+use crate::client::ClientError;
 use crate::geom::Bounds;
 
 /// The up direction when a key gives none.
@@ -57,9 +58,9 @@ fn default_up() -> [f64; 3] {
 /// A camera pose: where the eye is, what it looks at, which way is up (world units).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pose {
-    pub eye: [f64; 3],
-    pub target: [f64; 3],
-    pub up: [f64; 3],
+    pub eye: DVec3,
+    pub target: DVec3,
+    pub up: DVec3,
 }
 
 /// A validated flight.
@@ -109,17 +110,18 @@ impl Flight {
                 ));
             }
             for (name, v) in [("eye", k.eye), ("target", k.target), ("up", k.up)] {
-                if !v3::finite(v) {
+                if !DVec3::from_array(v).is_finite() {
                     return Err(format!("keys[{i}].{name}: {v:?} is not finite"));
                 }
             }
-            let Some(dir) = v3::normalize(v3::sub(k.target, k.eye)) else {
+            let (eye, target) = (DVec3::from_array(k.eye), DVec3::from_array(k.target));
+            let Some(dir) = (target - eye).try_normalize() else {
                 return Err(format!("keys[{i}]: eye and target are the same point {:?}", k.eye));
             };
-            let Some(up) = v3::normalize(k.up) else {
+            let Some(up) = DVec3::from_array(k.up).try_normalize() else {
                 return Err(format!("keys[{i}].up: {:?} is not a direction", k.up));
             };
-            if v3::len(v3::cross(dir, up)) < 1e-6 {
+            if (dir.cross(up)).length() < 1e-6 {
                 return Err(format!("keys[{i}].up: {:?} is parallel to the view direction", k.up));
             }
         }
@@ -181,7 +183,7 @@ impl Flight {
     pub fn pose_at(&self, t: f64) -> Pose {
         let keys = &self.keys;
         let Some(first) = keys.first() else {
-            return Pose { eye: [0.0, 0.0, 1.0], target: [0.0; 3], up: [0.0, 1.0, 0.0] };
+            return Pose { eye: DVec3::Z, target: DVec3::ZERO, up: DVec3::Y };
         };
         // Index of the first key after t.
         let i = keys.partition_point(|k| k.t <= t);
@@ -193,13 +195,16 @@ impl Flight {
         }
         let (a, b) = (&keys[i - 1], &keys[i]);
         let s = ((t - a.t) / (b.t - a.t)).clamp(0.0, 1.0);
-        let eye = v3::lerp(a.eye, b.eye, s);
-        let target = v3::lerp(a.target, b.target, s);
-        let dir = v3::sub(target, eye);
+        let v = DVec3::from_array;
+        let eye = v(a.eye).lerp(v(b.eye), s);
+        let target = v(a.target).lerp(v(b.target), s);
+        let dir = target - eye;
         // Up must stay a direction off the view axis; fall back to the nearer key's.
-        let up = v3::normalize(v3::lerp(a.up, b.up, s))
-            .filter(|u| v3::len(v3::cross(*u, dir)) > 1e-9 * v3::len(dir))
-            .unwrap_or(if s < 0.5 { a.up } else { b.up });
+        let up = v(a.up)
+            .lerp(v(b.up), s)
+            .try_normalize()
+            .filter(|u| u.cross(dir).length() > 1e-9 * dir.length())
+            .unwrap_or(v(if s < 0.5 { a.up } else { b.up }));
         Pose { eye, target, up }
     }
 
@@ -210,7 +215,7 @@ impl Flight {
 }
 
 fn pose(k: &Key) -> Pose {
-    Pose { eye: k.eye, target: k.target, up: k.up }
+    Pose { eye: DVec3::from_array(k.eye), target: DVec3::from_array(k.target), up: DVec3::from_array(k.up) }
 }
 
 #[cfg(test)]
@@ -228,12 +233,12 @@ mod tests {
         .unwrap();
         assert_eq!(f.keys[0].up, DEFAULT_UP);
         let p = f.pose_at(1.0);
-        assert_eq!(p.eye, [10.0, 0.0, 10.0]);
-        assert_eq!(p.target, [10.0, 5.0, 0.0]);
-        assert!((v3::len(p.up) - 1.0).abs() < 1e-12);
-        assert_eq!(f.pose_at(-5.0).eye, [0.0, 0.0, 10.0]);
-        assert_eq!(f.pose_at(99.0).eye, [20.0, 0.0, 10.0]);
-        assert_eq!(f.pose_at(2.0).eye, [20.0, 0.0, 10.0]);
+        assert_eq!(p.eye, DVec3::from_array([10.0, 0.0, 10.0]));
+        assert_eq!(p.target, DVec3::from_array([10.0, 5.0, 0.0]));
+        assert!((p.up.length() - 1.0).abs() < 1e-12);
+        assert_eq!(f.pose_at(-5.0).eye, DVec3::from_array([0.0, 0.0, 10.0]));
+        assert_eq!(f.pose_at(99.0).eye, DVec3::from_array([20.0, 0.0, 10.0]));
+        assert_eq!(f.pose_at(2.0).eye, DVec3::from_array([20.0, 0.0, 10.0]));
         assert!((f.duration() - 2.0).abs() < 1e-12);
         // Round trip.
         assert_eq!(Flight::from_json(&f.to_json().unwrap()).unwrap(), f);
@@ -287,7 +292,7 @@ mod tests {
         let w = f.to_world(&b).unwrap();
         for i in 0..=100 {
             let p = w.pose_at(w.start() + w.duration() * f64::from(i) / 100.0);
-            assert!(v3::finite(p.eye) && p.eye[2] > 0.0);
+            assert!(p.eye.is_finite() && p.eye[2] > 0.0);
         }
     }
 }
