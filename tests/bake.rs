@@ -5,7 +5,7 @@
 #![allow(clippy::unwrap_used, clippy::float_cmp)]
 
 mod common;
-use common::tree;
+use common::{bin, data, tree};
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -14,14 +14,6 @@ use std::process::Command;
 use terrastream::codec::{self, Geometry};
 use terrastream::store::Store;
 use terrastream::tiling::{Pyramid, TileKey};
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_terrastream"))
-}
-
-fn fuji() -> PathBuf {
-    terrastream::raster::test_data_dir().join("fuji.png")
-}
 
 fn run_ok(cmd: &mut Command) -> String {
     let out = cmd.output().unwrap();
@@ -42,7 +34,7 @@ fn bake_fuji(out: &Path) -> String {
             .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "128"])
             .args(["--max-error", "2", "--levels", "3", "--out"])
             .arg(out)
-            .arg(fuji()),
+            .arg(data("fuji.png")),
     )
 }
 
@@ -135,7 +127,7 @@ fn fuji_bake_errors_borders_determinism_resume() {
             .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30"])
             .arg("--out")
             .arg(&b)
-            .arg(fuji()),
+            .arg(data("fuji.png")),
     );
     assert!(err.contains("different options"), "{err}");
     assert!(tree(&b) == ta);
@@ -194,7 +186,7 @@ fn bad_inputs_fail_cleanly_and_write_nothing() {
     let err = run_err(
         bin()
             .arg("bake")
-            .arg(fuji())
+            .arg(data("fuji.png"))
             .args(["--encoding", "terrain-rgb", "--max-side", "100", "--out"])
             .arg(&out),
     );
@@ -204,7 +196,7 @@ fn bad_inputs_fail_cleanly_and_write_nothing() {
     let err = run_err(
         bin()
             .arg("bake")
-            .arg(fuji())
+            .arg(data("fuji.png"))
             .args(["--encoding", "terrain-rgb", "--max-error=-1", "--out"])
             .arg(&out),
     );

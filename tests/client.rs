@@ -12,6 +12,9 @@
 #![cfg(all(feature = "client", feature = "server"))]
 #![allow(clippy::unwrap_used, clippy::float_cmp)]
 
+mod common;
+use common::require_gpu;
+
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
@@ -366,10 +369,6 @@ fn client_command_writes_stats_json() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("missing.json"));
     server.stop();
-}
-
-fn require_gpu() -> bool {
-    std::env::var("TERRASTREAM_REQUIRE_GPU").is_ok_and(|v| v == "1")
 }
 
 /// (b) The client renders every frame of the shipped flight; once the view has settled, its

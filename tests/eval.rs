@@ -7,16 +7,11 @@
 #![cfg(all(feature = "client", feature = "gpu", feature = "cli"))]
 #![allow(clippy::unwrap_used, clippy::panic)]
 
+mod common;
+use common::{bin, require_gpu};
+
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn require_gpu() -> bool {
-    std::env::var("TERRASTREAM_REQUIRE_GPU").is_ok_and(|v| v == "1")
-}
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_terrastream"))
-}
+use std::process::Output;
 
 fn ok(o: &Output, what: &str) {
     assert!(o.status.success(), "{what} failed: {}", String::from_utf8_lossy(&o.stderr));

@@ -9,9 +9,11 @@
 // Test helpers outside `#[test]` functions unwrap and panic as the tests themselves may.
 #![allow(clippy::unwrap_used, clippy::panic)]
 
+mod common;
+use common::{bin, data, require_gpu, tree};
+
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
 use std::sync::OnceLock;
 
 use terrastream::bake::{self, BakeOptions, NodeMesh};
@@ -36,10 +38,6 @@ fn shaders_validate_with_naga() {
             "shader {name} has no compute entry point `main`"
         );
     }
-}
-
-fn require_gpu() -> bool {
-    std::env::var("TERRASTREAM_REQUIRE_GPU").is_ok_and(|v| v == "1")
 }
 
 /// The shared baker, or `None` (test skipped) when no adapter is found and none is required.
@@ -169,10 +167,6 @@ fn level_jobs(meshes: &[NodeMesh], levels: u8) -> Vec<LevelJob<'_>> {
         .collect()
 }
 
-fn fuji() -> PathBuf {
-    raster::test_data_dir().join("fuji.png")
-}
-
 #[test]
 fn agrees_with_cpu_on_fuji_tiles() {
     let Some(gpu) = baker() else { return };
@@ -181,7 +175,7 @@ fn agrees_with_cpu_on_fuji_tiles() {
         overrides: Overrides { cell_size: Some(30.0), ..Overrides::default() },
         ..LoadOptions::default()
     };
-    let r = raster::load(&fuji(), &opts).unwrap();
+    let r = raster::load(&data("fuji.png"), &opts).unwrap();
     let meshes = node_meshes(&r.heights, &r.georef, 128, 2.0);
     check_jobs("fuji", gpu, &level_jobs(&meshes, 3));
 }
@@ -195,39 +189,10 @@ fn agrees_with_cpu_on_generated_terrain() {
     check_jobs("synth", gpu, &level_jobs(&meshes, 3));
 }
 
-/// Vertices (`v`) and faces (`f`, fan-triangulated, 1-based or negative indices) of an OBJ.
-fn read_obj(path: &Path) -> Mesh {
-    let text = std::fs::read_to_string(path).unwrap();
-    let mut m = Mesh::default();
-    for line in text.lines() {
-        let mut it = line.split_whitespace();
-        match it.next() {
-            Some("v") => {
-                let v: Vec<f64> = it.take(3).map(|t| t.parse().unwrap()).collect();
-                m.positions.push([v[0], v[1], v[2]]);
-            }
-            Some("f") => {
-                let n = m.positions.len() as i64;
-                let ids: Vec<u32> = it
-                    .map(|t| {
-                        let i: i64 = t.split('/').next().unwrap().parse().unwrap();
-                        (if i < 0 { n + i } else { i - 1 }) as u32
-                    })
-                    .collect();
-                for k in 1..ids.len() - 1 {
-                    m.triangles.push([ids[0], ids[k], ids[k + 1]]);
-                }
-            }
-            _ => {}
-        }
-    }
-    m
-}
-
 #[test]
 fn agrees_with_cpu_on_the_bunny() {
     let Some(gpu) = baker() else { return };
-    let mesh = read_obj(&raster::test_data_dir().join("stanford-bunny.obj"));
+    let mesh = terrastream::model::load(&data("stanford-bunny.obj")).unwrap().mesh;
     assert!(mesh.triangles.len() > 10_000);
     let b = terrastream::geom::Bounds::of_points(&mesh.positions);
     let size = b.size().into_iter().fold(0.0, f64::max);
@@ -302,37 +267,16 @@ fn degenerate_input_matches_the_reference() {
     assert!(gpu.bake_cells(&m, [0.0; 3], 1.0, &opts).unwrap().0.is_empty());
 }
 
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_terrastream"))
-}
-
 fn bake_fuji(out: &Path, gpu: &str) -> String {
     let o = bin()
         .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "128"])
         .args(["--max-error", "2", "--levels", "3", "--gpu", gpu, "--out"])
         .arg(out)
-        .arg(fuji())
+        .arg(data("fuji.png"))
         .output()
         .unwrap();
     assert!(o.status.success(), "bake --gpu {gpu} failed: {}", String::from_utf8_lossy(&o.stderr));
     String::from_utf8(o.stdout).unwrap()
-}
-
-fn tree(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.push((p.strip_prefix(dir).unwrap().to_path_buf(), std::fs::read(&p).unwrap()));
-            }
-        }
-    }
-    out.sort();
-    out
 }
 
 /// `bake --gpu on` twice gives byte-identical tilesets naming the adapter; `--gpu off` names
@@ -424,7 +368,7 @@ fn gpu_bakes_keep_positions_inside_the_bounds() {
     let check = |dir: &Path| {
         let mut n = 0;
         for (name, bytes) in tree(dir) {
-            if name.extension().is_none_or(|e| e != "tsb") {
+            if std::path::Path::new(&name).extension().is_none_or(|e| e != "tsb") {
                 continue;
             }
             let blob = terrastream::codec::decode(&bytes).unwrap();
@@ -464,7 +408,7 @@ fn gpu_bakes_keep_positions_inside_the_bounds() {
     run(
         &["--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "64", "--max-error", "2"],
         &out,
-        &fuji(),
+        &data("fuji.png"),
     );
     check(&out);
     for (i, plateau) in [false, true].into_iter().enumerate() {

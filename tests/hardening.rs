@@ -16,51 +16,14 @@
 )]
 
 mod common;
-use common::tree;
+use common::{bin, data, fails, ok, run_within, tree};
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::path::Path;
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use terrastream::codec::{self, Geometry};
 use terrastream::store::Store;
-
-fn bin() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_terrastream"));
-    c.stdin(Stdio::null());
-    c
-}
-
-fn fuji() -> PathBuf {
-    terrastream::raster::test_data_dir().join("fuji.png")
-}
-
-/// Runs `cmd`, killing it after `limit` (a hang is a failure, not a stuck test run).
-fn run_within(cmd: &mut Command, limit: Duration) -> Output {
-    let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
-    let t0 = Instant::now();
-    while child.try_wait().unwrap().is_none() {
-        if t0.elapsed() > limit {
-            child.kill().unwrap();
-            let out = child.wait_with_output().unwrap();
-            panic!("{cmd:?} still running after {limit:?}\n{}", String::from_utf8_lossy(&out.stderr));
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    child.wait_with_output().unwrap()
-}
-
-fn ok(cmd: &mut Command) -> String {
-    let out = run_within(cmd, Duration::from_secs(300));
-    assert!(out.status.success(), "{cmd:?} failed\n{}", String::from_utf8_lossy(&out.stderr));
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn fails(cmd: &mut Command) -> String {
-    let out = run_within(cmd, Duration::from_secs(60));
-    assert!(!out.status.success(), "{cmd:?} should fail");
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
 
 /// Decodes every blob of a tileset and checks that each position lies inside the bounds its
 /// header states; returns how many blobs were checked.
@@ -105,7 +68,7 @@ fn d1_fuji_small_tiles_bake_with_points_inside_the_bounds() {
         .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "64"])
         .args(["--max-error", "2", "--gpu", "off", "--out"])
         .arg(&out)
-        .arg(fuji()));
+        .arg(data("fuji.png")));
     assert!(assert_positions_inside_bounds(&out) > 300);
 }
 
@@ -174,7 +137,7 @@ fn d2_d7_absurd_values_are_refused_up_front() {
                 .args(flags)
                 .arg("--out")
                 .arg(&out)
-                .arg(fuji()),
+                .arg(data("fuji.png")),
         );
         assert!(e.contains("fuji.png") && e.contains(what), "{flags:?}: {e}");
         assert!(!out.exists(), "{flags:?} wrote {out:?}");
@@ -227,7 +190,7 @@ fn d4_resume_rebakes_damaged_blobs() {
                 .args(["bake", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "128"])
                 .args(["--levels", "3", "--gpu", "off", "--out"])
                 .arg(out)
-                .arg(fuji()),
+                .arg(data("fuji.png")),
             Duration::from_secs(300),
         );
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -334,7 +297,7 @@ fn d8_messages_name_the_cause_once() {
         bin()
             .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--gpu", "off", "--out"])
             .arg(file.join("sub"))
-            .arg(fuji()),
+            .arg(data("fuji.png")),
     );
     assert!(e.contains("not a directory"), "{e}");
     for line in e.lines() {
@@ -355,7 +318,7 @@ fn d8_messages_name_the_cause_once() {
         bin()
             .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--gpu", "off", "--out"])
             .arg(&link)
-            .arg(fuji()),
+            .arg(data("fuji.png")),
     );
     assert!(e.contains("symbolic link") && !e.contains("File exists"), "{e}");
 }
@@ -371,7 +334,7 @@ fn closed_stdout_is_not_a_panic() {
         .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "256"])
         .args(["--levels", "1", "--gpu", "off", "--out"])
         .arg(&out)
-        .arg(fuji()));
+        .arg(data("fuji.png")));
     let (reader, writer) = std::io::pipe().unwrap();
     drop(reader);
     let o = bin().arg("inspect").arg(&out).stdout(writer).stderr(Stdio::piped()).output().unwrap();
@@ -393,7 +356,7 @@ fn time_limit_stops_a_bake_and_it_resumes() {
         if let Some(l) = limit {
             c.args(["--time-limit", l]);
         }
-        c.arg("--out").arg(&out).arg(fuji());
+        c.arg("--out").arg(&out).arg(data("fuji.png"));
         c
     };
     let e = fails(&mut base(Some("0.000001")));

@@ -5,7 +5,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::float_cmp)]
 
 mod common;
-use common::tree;
+use common::{bin, tree};
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -15,10 +15,6 @@ use terrastream::bake::model::{self as bake_model, MODEL_TILE};
 use terrastream::codec::{self, Geometry};
 use terrastream::model::{self, Encoding};
 use terrastream::store::{KIND_MODEL, Store};
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_terrastream"))
-}
 
 fn run_ok(cmd: &mut Command) -> String {
     let out = cmd.output().unwrap();

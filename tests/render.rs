@@ -7,6 +7,9 @@
 #![cfg(all(feature = "client", feature = "gpu"))]
 #![allow(clippy::unwrap_used, clippy::panic)]
 
+mod common;
+use common::require_gpu;
+
 use std::path::Path;
 use std::process::Command;
 
@@ -22,10 +25,6 @@ use terrastream::store::Store;
 /// at t = 0, see docs/client.md, *Rendering*: a splat at a level that coarse can sit a whole
 /// error above its neighbour's, and the gap between them shows through.)
 const POINT_CASES: [(f64, f64); 3] = [(0.0, 8.0), (0.0, 12.0), (8.0, 16.0)];
-
-fn require_gpu() -> bool {
-    std::env::var("TERRASTREAM_REQUIRE_GPU").is_ok_and(|v| v == "1")
-}
 
 fn bake(out: &Path) {
     let fuji = terrastream::raster::test_data_dir().join("fuji.png");

@@ -198,7 +198,7 @@ impl TileTree {
             expected |= 1 << child_slot(c);
         }
         let center = bounds.center();
-        let radius = 0.5 * v3_len(bounds.size());
+        let radius = 0.5 * glam::DVec3::from_array(bounds.size()).length();
         let level_start =
             u32::try_from(self.errors.len()).map_err(|_| tree_err("more than 2^32 level entries"))?;
         self.errors.extend_from_slice(errors);
@@ -382,10 +382,6 @@ impl Synthetic {
 #[must_use]
 pub fn child_slot(key: TileKey) -> usize {
     ((key.y & 1) * 2 + (key.x & 1)) as usize
-}
-
-fn v3_len(a: [f64; 3]) -> f64 {
-    (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
 }
 
 /// A node entry for tests and tools that build trees by hand: level errors given as geometric

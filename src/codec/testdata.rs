@@ -55,12 +55,9 @@ pub fn synthetic(w: usize, h: usize, cell: f64) -> Heights {
     Heights { w, h, cell, z }
 }
 
-/// `../shared/data` beside the checkout, or `TERRASTREAM_DATA`.
+/// `../shared/data` beside the checkout, or `TERRASTREAM_DATA` (the raster tests' helper).
 pub fn data_dir() -> std::path::PathBuf {
-    std::env::var_os("TERRASTREAM_DATA").map_or_else(
-        || std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"),
-        std::path::PathBuf::from,
-    )
+    crate::raster::test_data_dir()
 }
 
 /// The Mt. Fuji terrain-RGB tile at 30 m cells, if present.

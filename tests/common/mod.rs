@@ -1,10 +1,61 @@
-//! Helpers shared by the integration tests that compare tileset directories.
+//! Helpers shared by the integration tests: the binary runner (with a time limit, so a hang is
+//! a failure rather than a stuck run), the GPU-or-skip rule, the shared test data and tileset
+//! tree comparison.
 
-// Each test binary uses what it needs of this module.
-#![allow(dead_code, clippy::unwrap_used)]
+// Each test binary uses what it needs of this module; a failed unwrap is the test failing.
+#![allow(dead_code, clippy::unwrap_used, clippy::panic)]
 
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+/// The `terrastream` binary of this build, with stdin closed.
+pub fn bin() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_terrastream"));
+    c.stdin(Stdio::null());
+    c
+}
+
+/// Runs `cmd`, killing it after `limit` (a hang is a failure, not a stuck test run).
+pub fn run_within(cmd: &mut Command, limit: Duration) -> Output {
+    let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+    let t0 = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if t0.elapsed() > limit {
+            child.kill().unwrap();
+            let out = child.wait_with_output().unwrap();
+            panic!("{cmd:?} still running after {limit:?}\n{}", String::from_utf8_lossy(&out.stderr));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.wait_with_output().unwrap()
+}
+
+/// Runs `cmd` (at most 5 minutes), asserts it succeeded and returns its stdout.
+pub fn ok(cmd: &mut Command) -> String {
+    let out = run_within(cmd, Duration::from_mins(5));
+    assert!(out.status.success(), "{cmd:?} failed\n{}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// Runs `cmd` (at most a minute), asserts it failed and returns its stderr.
+pub fn fails(cmd: &mut Command) -> String {
+    let out = run_within(cmd, Duration::from_mins(1));
+    assert!(!out.status.success(), "{cmd:?} should fail");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// GPU tests skip with a printed reason when no adapter is found, unless
+/// `TERRASTREAM_REQUIRE_GPU=1` (CI sets it, with Mesa's lavapipe installed): then they fail.
+pub fn require_gpu() -> bool {
+    std::env::var("TERRASTREAM_REQUIRE_GPU").is_ok_and(|v| v == "1")
+}
+
+/// A file of the shared test data (`$TERRASTREAM_DATA`, default `../shared/data`).
+pub fn data(name: &str) -> PathBuf {
+    terrastream::raster::test_data_dir().join(name)
+}
 
 /// Every file under `dir` (hidden ones included) with its bytes, by relative path.
 pub fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
