@@ -20,6 +20,7 @@ GOLDEN=$ROOT/tests/golden/golden.sha256
 mode=${1:-}
 case $mode in record|check) ;; *) echo "usage: $0 record|check" >&2; exit 2 ;; esac
 [ -x "$BIN" ] || (cd "$ROOT" && cargo build --release --quiet)
+BIN=$(cd "$(dirname "$BIN")" && pwd)/$(basename "$BIN")
 
 WORK=$(mktemp -d)
 SERVER=
