@@ -68,7 +68,7 @@ fn main() -> anyhow::Result<()> {
             })
         })
         .collect();
-    let lod = cpu::BakeOptions::default();
+    let lod = cpu::SliceOptions::default();
 
     let t = Instant::now();
     let c = process_cpu_s();

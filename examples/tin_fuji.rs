@@ -7,14 +7,14 @@
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use terrastream::raster::{self, Encoding, LoadOptions};
+use terrastream::raster::{self, HeightEncoding, LoadOptions};
 use terrastream::tiling::{NodeGrid, Span};
 use terrastream::tin;
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let path = args.first().context("usage: tin_fuji PNG [E…] | PNG --measure MESH.bin")?;
-    let opts = LoadOptions { encoding: Some(Encoding::TerrainRgb), ..LoadOptions::default() };
+    let opts = LoadOptions { encoding: Some(HeightEncoding::TerrainRgb), ..LoadOptions::default() };
     let r = raster::load(path.as_ref(), &opts)?;
     let (w, h) = (r.heights.width, r.heights.height);
     let hs = &r.heights.data;

@@ -21,7 +21,7 @@ use terrastream::geom::{Mesh, PointCloud};
 use terrastream::lod;
 use terrastream::lod::cpu::{self, BakedCell};
 use terrastream::lod::gpu::{self, GpuBaker, LevelJob};
-use terrastream::raster::{self, Encoding, Georef, Heightfield, LoadOptions, Overrides};
+use terrastream::raster::{self, Georef, HeightEncoding, Heightfield, LoadOptions, Overrides};
 use terrastream::tiling::Pyramid;
 
 /// Every pipeline's WGSL parses and validates with naga: runs without any adapter.
@@ -115,7 +115,7 @@ fn close(a: f64, b: f64) -> bool {
 /// ≥ 99.5 % of occupied cells agree, agreeing points within 1/1000 cell, measured errors within
 /// 1 %, and the same statistics where they are exact.
 fn check_jobs(name: &str, gpu: &GpuBaker, jobs: &[LevelJob<'_>]) -> Agreement {
-    let opts = cpu::BakeOptions::default();
+    let opts = cpu::SliceOptions::default();
     let (gpu_out, report) = gpu.bake_jobs(jobs, &opts).unwrap();
     assert_eq!(report.cpu_jobs, 0, "{name}: every job should fit the GPU: {report:?}");
     let mut total = Agreement::default();
@@ -171,7 +171,7 @@ fn level_jobs(meshes: &[NodeMesh], levels: u8) -> Vec<LevelJob<'_>> {
 fn agrees_with_cpu_on_fuji_tiles() {
     let Some(gpu) = baker() else { return };
     let opts = LoadOptions {
-        encoding: Some(Encoding::TerrainRgb),
+        encoding: Some(HeightEncoding::TerrainRgb),
         overrides: Overrides { cell_size: Some(30.0), ..Overrides::default() },
         ..LoadOptions::default()
     };
@@ -213,7 +213,7 @@ fn bakes_are_deterministic_and_independent_of_batching() {
     let georef = Georef { dx: 10.0, dy: 10.0, ..Georef::default() };
     let meshes = node_meshes(&hf, &georef, 64, 1.0);
     let jobs = level_jobs(&meshes, 3);
-    let opts = cpu::BakeOptions::default();
+    let opts = cpu::SliceOptions::default();
     let bits = |r: &[(Vec<BakedCell>, cpu::BakeStats)]| -> Vec<(Vec<u64>, Vec<u32>, cpu::BakeStats)> {
         r.iter()
             .map(|(cells, s)| {
@@ -256,7 +256,7 @@ fn degenerate_input_matches_the_reference() {
         positions: vec![[0.0, 0.0, 0.0], [4.0, 0.0, 1.0], [0.0, 4.0, 2.0], [f64::NAN, 0.0, 0.0]],
         triangles: vec![[0, 1, 2], [0, 1, 3], [0, 1, 9], [0, 0, 1]],
     };
-    let opts = cpu::BakeOptions::default();
+    let opts = cpu::SliceOptions::default();
     for cell in [0.5, 0.0, f64::NAN] {
         let (g, gs) = gpu.bake_cells(&m, [0.0; 3], cell, &opts).unwrap();
         let (c, cs) = cpu::bake_cells(&m, [0.0; 3], cell, &opts);

@@ -13,7 +13,7 @@ use std::process::Command;
 
 use terrastream::bake::model::{self as bake_model, MODEL_TILE};
 use terrastream::codec::{self, Geometry};
-use terrastream::model::{self, Encoding};
+use terrastream::model::{self, ModelEncoding};
 use terrastream::store::{KIND_MODEL, Store};
 
 fn run_ok(cmd: &mut Command) -> String {
@@ -163,15 +163,15 @@ fn every_encoding_reads_the_same_cube() {
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path();
     let files = [
-        (write(d, "neg.obj", obj_negative()), Encoding::Obj),
+        (write(d, "neg.obj", obj_negative()), ModelEncoding::Obj),
         (
             write(d, "cube.stl", stl_binary(b"solid but really binary", &cube_triangles())),
-            Encoding::StlBinary,
+            ModelEncoding::StlBinary,
         ),
-        (write(d, "ascii.stl", stl_ascii(&cube_triangles())), Encoding::StlAscii),
-        (write(d, "cube.ply", ply_ascii()), Encoding::PlyAscii),
-        (write(d, "le.ply", ply_binary(false)), Encoding::PlyBinaryLe),
-        (write(d, "be.ply", ply_binary(true)), Encoding::PlyBinaryBe),
+        (write(d, "ascii.stl", stl_ascii(&cube_triangles())), ModelEncoding::StlAscii),
+        (write(d, "cube.ply", ply_ascii()), ModelEncoding::PlyAscii),
+        (write(d, "le.ply", ply_binary(false)), ModelEncoding::PlyBinaryLe),
+        (write(d, "be.ply", ply_binary(true)), ModelEncoding::PlyBinaryBe),
     ];
     let reference = model::load(&files[0].0).unwrap();
     // OBJ polygons are fan-triangulated; the normals were missing, so they are computed: at a

@@ -9,7 +9,7 @@ use std::path::Path;
 use terrastream::codec::{self, Blob, BlobHeader, Geometry};
 use terrastream::geom::{Mesh, PointCloud};
 use terrastream::model::{self, FileType};
-use terrastream::raster::{self, Encoding, Limits, LoadOptions};
+use terrastream::raster::{self, HeightEncoding, Limits, LoadOptions};
 
 /// Small limits so a hostile header can never make a decoder allocate near the 512 MB RSS limit
 /// the campaign runs under.
@@ -24,7 +24,7 @@ pub fn show(what: impl FnOnce() -> String) {
 }
 
 /// Decodes `data` as a raster file called `name` and checks the result.
-pub fn check_raster(name: &str, data: &[u8], encoding: Option<Encoding>, channel: Option<&str>) {
+pub fn check_raster(name: &str, data: &[u8], encoding: Option<HeightEncoding>, channel: Option<&str>) {
     let opts = LoadOptions {
         encoding,
         channel: channel.map(str::to_owned),

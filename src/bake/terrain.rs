@@ -115,11 +115,11 @@ impl BakeSummary {
 }
 
 /// The world frame of a node sample grid.
-struct Frame<'a> {
+struct GridFrame<'a> {
     g: &'a Georef,
 }
 
-impl Frame<'_> {
+impl GridFrame<'_> {
     fn world(&self, col: f64, row: f64, z: f64) -> [f64; 3] {
         [self.g.x0 + col * self.g.dx, self.g.y0 + row * self.g.dy, z]
     }
@@ -365,7 +365,7 @@ fn bake_nodes_gpu(
             })
             .collect();
         let (results, rep) =
-            gpu.bake_jobs(&jobs, &lod::cpu::BakeOptions::default()).map_err(lod::BakerError::from)?;
+            gpu.bake_jobs(&jobs, &lod::cpu::SliceOptions::default()).map_err(lod::BakerError::from)?;
         let clouds = results.into_iter().map(|(cells, _)| lod::cells_to_cloud(&cells)).collect();
         Ok((clouds, rep))
     };
@@ -608,7 +608,7 @@ pub fn bake_node_mesh(
     key: TileKey,
     opts: &BakeOptions,
 ) -> Result<NodeMesh, BakeError> {
-    let frame = Frame { g: georef };
+    let frame = GridFrame { g: georef };
     let step = pyramid.step(key.z);
     let grid = pyramid.grid(key);
     let mut heights = Vec::new();

@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use terrastream::bake::{self, BakeOptions, BakeSummary};
-use terrastream::raster::{self, Encoding, Limits, LoadOptions, Overrides};
+use terrastream::raster::{self, HeightEncoding, Limits, LoadOptions, Overrides};
 use terrastream::store::{LevelTable, Store};
 use terrastream::{lod, tiling};
 
@@ -31,7 +31,7 @@ pub struct BakeArgs {
     pub levels: u8,
     /// How a PNG encodes heights.
     #[arg(long, value_enum)]
-    pub encoding: Option<Encoding>,
+    pub encoding: Option<HeightEncoding>,
     /// OpenEXR channel to read (default: the first float channel).
     #[arg(long)]
     pub channel: Option<String>,

@@ -11,7 +11,7 @@
 use std::collections::VecDeque;
 
 use super::stream::{BucketReader, BucketWriter, Packed, Reader, Writer, pack, unpack};
-use super::{CodecError, Frame};
+use super::{CodecError, QuantGrid};
 use crate::geom::Mesh;
 
 const MODE_SWEEP_FORWARD: u8 = 0;
@@ -38,7 +38,7 @@ const CODE_NO_EDGE: u8 = 48;
 
 /// Encodes `mesh` into a payload: the sweep coder when the mesh fits it, else the general one.
 /// Errors: non-finite or out-of-bounds positions, out-of-range indices.
-pub(super) fn encode(frame: &Frame, mesh: &Mesh) -> Result<Packed, CodecError> {
+pub(super) fn encode(frame: &QuantGrid, mesh: &Mesh) -> Result<Packed, CodecError> {
     let n = mesh.positions.len();
     let q = mesh
         .positions
@@ -59,7 +59,7 @@ pub(super) fn encode(frame: &Frame, mesh: &Mesh) -> Result<Packed, CodecError> {
 
 /// Decodes a payload made by [`encode`]; `raw_len` is the header's decompressed size.
 pub(super) fn decode(
-    frame: &Frame,
+    frame: &QuantGrid,
     v: usize,
     t: usize,
     payload: &[u8],
@@ -78,7 +78,7 @@ pub(super) fn decode(
 // ---------------------------------------------------------------------------------------------
 
 /// Tries the sweep coder; `None` when the mesh is not a sweepable planar triangulation.
-fn sweep_encode(frame: &Frame, q: &[[i64; 3]], tris: &[[u32; 3]]) -> Result<Option<Packed>, CodecError> {
+fn sweep_encode(frame: &QuantGrid, q: &[[i64; 3]], tris: &[[u32; 3]]) -> Result<Option<Packed>, CodecError> {
     let n = q.len();
     let mut order: Vec<u32> = (0..n as u32).collect();
     order.sort_unstable_by_key(|&i| (q[i as usize][1], q[i as usize][0]));
@@ -598,7 +598,7 @@ pub(super) fn predict_z(v: usize, xy: &[[i64; 2]], z: &[i64], fan: &[[u32; 3]], 
 }
 
 fn sweep_decode(
-    frame: &Frame,
+    frame: &QuantGrid,
     n: usize,
     t: usize,
     payload: &[u8],
@@ -756,7 +756,7 @@ fn locality_order(tris: &[[u32; 3]]) -> Vec<u32> {
     order
 }
 
-fn general_encode(frame: &Frame, q: &[[i64; 3]], tris: &[[u32; 3]]) -> Result<Packed, CodecError> {
+fn general_encode(frame: &QuantGrid, q: &[[i64; 3]], tris: &[[u32; 3]]) -> Result<Packed, CodecError> {
     let n = q.len();
     let mut ids = vec![u32::MAX; n];
     let mut st = General::new(frame.qmax, n);
@@ -832,7 +832,7 @@ fn general_encode(frame: &Frame, q: &[[i64; 3]], tris: &[[u32; 3]]) -> Result<Pa
 }
 
 fn general_decode(
-    frame: &Frame,
+    frame: &QuantGrid,
     n: usize,
     t: usize,
     payload: &[u8],

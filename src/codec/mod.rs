@@ -292,7 +292,7 @@ pub fn snap_positions(
     bounds: &Bounds,
     q: Quantization,
 ) -> Result<Vec<[f64; 3]>, CodecError> {
-    let frame = Frame::new(bounds, q)?;
+    let frame = QuantGrid::new(bounds, q)?;
     Ok(positions
         .iter()
         .map(|p| {
@@ -316,7 +316,7 @@ pub fn snap_positions(
 /// encoder to reject. Returns `bounds` unchanged when they or `q` are unusable.
 #[must_use]
 pub fn quantized_bounds(bounds: &Bounds, positions: &[[f64; 3]], q: Quantization) -> Bounds {
-    let Ok(frame) = Frame::new(bounds, q) else { return *bounds };
+    let Ok(frame) = QuantGrid::new(bounds, q) else { return *bounds };
     let mut top = [0i64; 3];
     for p in positions {
         if let Ok(qp) = frame.quantize_within(*p, frame.qmax) {
@@ -335,7 +335,7 @@ pub fn quantized_bounds(bounds: &Bounds, positions: &[[f64; 3]], q: Quantization
 
 /// The integer grid positions live on: origin, steps and the largest index per axis.
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Frame {
+pub(crate) struct QuantGrid {
     min: [f64; 3],
     step: [f64; 3],
     /// `round((max − min) / step)`: what decoders accept, and part of the sweep code.
@@ -344,7 +344,7 @@ pub(crate) struct Frame {
     qtop: [i64; 3],
 }
 
-impl Frame {
+impl QuantGrid {
     fn new(bounds: &Bounds, q: Quantization) -> Result<Self, CodecError> {
         if !bounds.is_valid() {
             return Err(CodecError::InvalidBounds { min: bounds.min, max: bounds.max });
@@ -497,9 +497,9 @@ pub fn encode_mesh(
     mesh: &Mesh,
     errors: Errors,
 ) -> Result<Vec<u8>, CodecError> {
-    Frame::new(bounds, q)?;
+    QuantGrid::new(bounds, q)?;
     let bounds = &quantized_bounds(bounds, &mesh.positions, q);
-    let frame = Frame::new(bounds, q)?;
+    let frame = QuantGrid::new(bounds, q)?;
     check_errors(errors)?;
     let v = check_count("vertices", mesh.positions.len())?;
     let t = check_count("triangles", mesh.triangles.len())?;
@@ -517,9 +517,9 @@ pub fn encode_points(
     points: &PointCloud,
     errors: Errors,
 ) -> Result<Vec<u8>, CodecError> {
-    Frame::new(bounds, q)?;
+    QuantGrid::new(bounds, q)?;
     let bounds = &quantized_bounds(bounds, &points.positions, q);
-    let frame = Frame::new(bounds, q)?;
+    let frame = QuantGrid::new(bounds, q)?;
     check_errors(errors)?;
     let n = check_count("points", points.positions.len())?;
     let packed = points::encode(&frame, points)?;
@@ -564,7 +564,7 @@ pub fn decode_header(bytes: &[u8]) -> Result<BlobHeader, CodecError> {
     if used != HEADER_LEN {
         return Err(CodecError::InvalidHeader("header length"));
     }
-    Frame::new(&header.bounds(), header.quant)?;
+    QuantGrid::new(&header.bounds(), header.quant)?;
     check_errors(header.errors)?;
     if header.vertex_count > MAX_ELEMENTS || header.triangle_count > MAX_ELEMENTS {
         return Err(CodecError::InvalidHeader("element count above the limit"));
@@ -601,7 +601,7 @@ pub fn verify(bytes: &[u8]) -> Result<BlobHeader, CodecError> {
 pub fn decode(bytes: &[u8]) -> Result<Blob, CodecError> {
     let header = verify(bytes)?;
     let payload = &bytes[PREFIX_LEN..];
-    let frame = Frame::new(&header.bounds(), header.quant)?;
+    let frame = QuantGrid::new(&header.bounds(), header.quant)?;
     let (v, t, raw_len) =
         (header.vertex_count as usize, header.triangle_count as usize, header.raw_len as usize);
     let geometry = match header.kind {

@@ -7,7 +7,7 @@
 //! above-left (LOCO-I's median edge detector), leaving zstd small residuals.
 
 use super::stream::{BucketReader, BucketWriter, Packed, Writer, pack, unpack};
-use super::{CodecError, Frame, MAX_QUANT};
+use super::{CodecError, MAX_QUANT, QuantGrid};
 use crate::geom::PointCloud;
 
 const MODE_GRID: u8 = 0;
@@ -94,7 +94,7 @@ struct Key {
     oct: [u8; 2],
 }
 
-pub(super) fn encode(frame: &Frame, pc: &PointCloud) -> Result<Packed, CodecError> {
+pub(super) fn encode(frame: &QuantGrid, pc: &PointCloud) -> Result<Packed, CodecError> {
     let n = pc.positions.len();
     if pc.normals.len() != n {
         return Err(CodecError::NormalCountMismatch { points: n, normals: pc.normals.len() });
@@ -294,7 +294,7 @@ fn med(a: i64, b: i64, c: i64) -> i64 {
 }
 
 pub(super) fn decode(
-    frame: &Frame,
+    frame: &QuantGrid,
     n: usize,
     payload: &[u8],
     raw_len: usize,

@@ -96,7 +96,7 @@ impl PointBaker {
             Self::Gpu(gpu) => {
                 let jobs: Vec<gpu::LevelJob<'_>> =
                     grids.iter().map(|&(origin, cell)| gpu::LevelJob { mesh, origin, cell }).collect();
-                let (results, rep) = gpu.bake_jobs(&jobs, &cpu::BakeOptions::default())?;
+                let (results, rep) = gpu.bake_jobs(&jobs, &cpu::SliceOptions::default())?;
                 let clouds = results.into_iter().map(|(cells, _)| cells_to_cloud(&cells)).collect();
                 Ok((clouds, Some([rep.batches, rep.peak_batch_bytes, rep.budget_bytes, rep.cpu_jobs])))
             }
@@ -120,7 +120,7 @@ impl PointBaker {
             Self::Gpu(gpu) => {
                 let jobs: Vec<gpu::LevelJob<'_>> =
                     grids.iter().map(|&(origin, cell)| gpu::LevelJob { mesh, origin, cell }).collect();
-                let (results, _) = gpu.bake_jobs(&jobs, &cpu::BakeOptions::default())?;
+                let (results, _) = gpu.bake_jobs(&jobs, &cpu::SliceOptions::default())?;
                 Ok(results.into_iter().map(|(cells, stats)| (cells_to_cloud(&cells), stats)).collect())
             }
         }

@@ -135,12 +135,12 @@ const NORMAL_LIMIT: i64 = (1 << NORMAL_FRACTION_BITS) - 1;
 
 /// Options of one bake.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct BakeOptions {
+pub struct SliceOptions {
     /// Run the hole-filling median filter (on by default; off shows the raw slicing).
     pub fill_holes: bool,
 }
 
-impl Default for BakeOptions {
+impl Default for SliceOptions {
     fn default() -> Self {
         Self { fill_holes: true }
     }
@@ -186,7 +186,7 @@ pub fn bake_points(mesh: &Mesh, grid_origin: [f64; 3], cell: f64) -> PointCloud 
 /// [`bake_points`] with default options, also returning what the bake did.
 #[must_use]
 pub fn bake_points_with_stats(mesh: &Mesh, grid_origin: [f64; 3], cell: f64) -> (PointCloud, BakeStats) {
-    let (cells, stats) = bake_cells(mesh, grid_origin, cell, &BakeOptions::default());
+    let (cells, stats) = bake_cells(mesh, grid_origin, cell, &SliceOptions::default());
     let cloud = PointCloud {
         positions: cells.iter().map(|c| c.position).collect(),
         normals: cells.iter().map(|c| c.normal).collect(),
@@ -201,7 +201,7 @@ pub fn bake_cells(
     mesh: &Mesh,
     grid_origin: [f64; 3],
     cell: f64,
-    options: &BakeOptions,
+    options: &SliceOptions,
 ) -> (Vec<BakedCell>, BakeStats) {
     let mut stats = BakeStats::default();
     if !(cell.is_finite() && cell > 0.0) || grid_origin.iter().any(|c| !c.is_finite()) {
@@ -1098,7 +1098,7 @@ mod tests {
     #[test]
     fn flat_square_gives_one_point_per_column_on_the_plane() {
         let m = grid_mesh(1, 1, 0.0, 0.0, 10.0, |_, _| 3.25, |_, _| false);
-        let (cells, stats) = bake_cells(&m, [0.0; 3], 1.0, &BakeOptions::default());
+        let (cells, stats) = bake_cells(&m, [0.0; 3], 1.0, &SliceOptions::default());
         assert_eq!(cells.len(), 100);
         assert_eq!(stats.fragments, [0, 0, 100], "edge-on views have zero area");
         assert_eq!(stats.filled, 0);
@@ -1129,7 +1129,7 @@ mod tests {
     fn pixel_centres_on_shared_edges_and_vertices_are_produced_once() {
         // Vertices and diagonals on pixel centres: every centre is a tie for several triangles.
         let m = grid_mesh(8, 8, 0.5, 0.5, 1.0, |_, _| 0.5, |_, _| false);
-        let (cells, stats) = bake_cells(&m, [0.0; 3], 1.0, &BakeOptions { fill_holes: false });
+        let (cells, stats) = bake_cells(&m, [0.0; 3], 1.0, &SliceOptions { fill_holes: false });
         // Centres 0.5 ..= 8.5 on each axis lie on the closed square; those on its far
         // boundary edges fall on non-tie edges and are left to the (absent) neighbour tile.
         assert_eq!(stats.fragments[2], cells.len() as u64);
@@ -1139,7 +1139,7 @@ mod tests {
         for t in &mut m2.triangles {
             t.swap(1, 2);
         }
-        let (cells2, stats2) = bake_cells(&m2, [0.0; 3], 1.0, &BakeOptions { fill_holes: false });
+        let (cells2, stats2) = bake_cells(&m2, [0.0; 3], 1.0, &SliceOptions { fill_holes: false });
         assert_eq!(stats2.fragments[2], 64);
         let idx: Vec<_> = cells.iter().map(|c| c.index).collect();
         let idx2: Vec<_> = cells2.iter().map(|c| c.index).collect();
@@ -1179,7 +1179,7 @@ mod tests {
         let (c, r) = ([10.3, -4.2, 7.7], 6.0);
         let m = icosphere(c, r, 3);
         let cell = 0.8;
-        let (cells, stats) = bake_cells(&m, [0.0; 3], cell, &BakeOptions::default());
+        let (cells, stats) = bake_cells(&m, [0.0; 3], cell, &SliceOptions::default());
         assert!(stats.skipped_triangles == 0 && cells.len() > 300, "{stats:?}");
         let mut extremes = [f64::INFINITY, f64::NEG_INFINITY].repeat(3);
         for cell_pt in &cells {
@@ -1226,7 +1226,7 @@ mod tests {
                 [3, 7, 5],
             ],
         };
-        let (cells, stats) = bake_cells(&m, [0.0; 3], 1.0, &BakeOptions::default());
+        let (cells, stats) = bake_cells(&m, [0.0; 3], 1.0, &SliceOptions::default());
         // Each face's 4×4 pixel centres, from its axis's view only.
         assert_eq!(stats.fragments, [32, 32, 32]);
         assert_eq!(stats.filled, 0);
@@ -1261,8 +1261,8 @@ mod tests {
         let m = terrain(24, 3.0, 7);
         let cell = 2.0;
         let origin = [0.0, 0.0, -40.0];
-        let a = bake_cells(&m, origin, cell, &BakeOptions::default());
-        let b = bake_cells(&m, origin, cell, &BakeOptions::default());
+        let a = bake_cells(&m, origin, cell, &SliceOptions::default());
+        let b = bake_cells(&m, origin, cell, &SliceOptions::default());
         assert_eq!(a, b);
         let mut shuffled = m.clone();
         let mut rng = Rng(99);
@@ -1273,7 +1273,7 @@ mod tests {
         for (n, t) in shuffled.triangles.iter_mut().enumerate() {
             t.rotate_left(n % 3);
         }
-        let c = bake_cells(&shuffled, origin, cell, &BakeOptions::default());
+        let c = bake_cells(&shuffled, origin, cell, &SliceOptions::default());
         assert_eq!(a, c);
         let keys: Vec<_> = a.0.iter().map(|c| (c.index[2], c.index[1], c.index[0])).collect();
         assert!(keys.windows(2).all(|w| w[0] < w[1]), "sorted by (k, j, i), unique");
@@ -1284,23 +1284,23 @@ mod tests {
         // Quads are pixels here: quad (qx, qy) holds pixel centre (qx + ½, qy + ½).
         let f = |_: f64, _: f64| 2.4;
         let one = grid_mesh(9, 9, 0.0, 0.0, 1.0, f, |x, y| x == 4 && y == 5);
-        let (cells, stats) = bake_cells(&one, [0.0; 3], 1.0, &BakeOptions::default());
+        let (cells, stats) = bake_cells(&one, [0.0; 3], 1.0, &SliceOptions::default());
         assert_eq!(stats.filled, 1, "{stats:?}");
         let filled: Vec<_> = cells.iter().filter(|c| c.filled).collect();
         assert_eq!(filled[0].index, [4, 5, 2]);
         // z carries the neighbours' fixed-point rounding.
         assert_eq!(filled[0].position, [4.5, 5.5, 2.0 + (0.4 * POS_ONE + 0.5).floor() / POS_ONE]);
         assert_eq!(filled[0].normal, [0.0, 0.0, 1.0]);
-        let without = bake_cells(&one, [0.0; 3], 1.0, &BakeOptions { fill_holes: false });
+        let without = bake_cells(&one, [0.0; 3], 1.0, &SliceOptions { fill_holes: false });
         assert_eq!(without.0.len() + 1, cells.len());
 
         // A 6×6 hole stays open, corners included (they lack two edge neighbours).
         let big = grid_mesh(12, 12, 0.0, 0.0, 1.0, f, |x, y| (3..9).contains(&x) && (3..9).contains(&y));
-        let (_, stats) = bake_cells(&big, [0.0; 3], 1.0, &BakeOptions::default());
+        let (_, stats) = bake_cells(&big, [0.0; 3], 1.0, &SliceOptions::default());
         assert_eq!(stats.filled, 0, "{stats:?}");
         // So does a concave corner of the outline (an L-shaped region).
         let ell = grid_mesh(8, 8, 0.0, 0.0, 1.0, f, |x, y| x >= 4 && y >= 4);
-        let (_, stats) = bake_cells(&ell, [0.0; 3], 1.0, &BakeOptions::default());
+        let (_, stats) = bake_cells(&ell, [0.0; 3], 1.0, &SliceOptions::default());
         assert_eq!(stats.filled, 0, "{stats:?}");
     }
 
@@ -1322,7 +1322,7 @@ mod tests {
                 m.triangles.push([base, base + 2, base + 3]);
             }
         }
-        let (cells, stats) = bake_cells(&m, [0.0; 3], 1.0, &BakeOptions::default());
+        let (cells, stats) = bake_cells(&m, [0.0; 3], 1.0, &SliceOptions::default());
         assert_eq!(stats.filled, 1, "{stats:?}");
         let fill: Vec<_> = cells.iter().filter(|c| c.filled).collect();
         assert_eq!(fill[0].index[..2], [1, 1]);
@@ -1424,8 +1424,8 @@ mod tests {
         far.positions.extend([[off, off, off], [off + 1.0, off, off], [off, off + 1.0, off + 0.5]]);
         far.triangles.push([base, base + 1, base + 2]);
         assert!(PackedCodec::new([-1, -1, -1], [67_108_866; 3]).is_none());
-        let (a, sa) = bake_cells(&near, [0.0; 3], 0.5, &BakeOptions::default());
-        let (b, sb) = bake_cells(&far, [0.0; 3], 0.5, &BakeOptions::default());
+        let (a, sa) = bake_cells(&near, [0.0; 3], 0.5, &SliceOptions::default());
+        let (b, sb) = bake_cells(&far, [0.0; 3], 0.5, &SliceOptions::default());
         assert_eq!(sb.skipped_triangles, 0);
         assert!(sb.occupied > sa.occupied);
         assert_eq!(a[..], b[..a.len()]);
@@ -1505,7 +1505,7 @@ mod tests {
                 m.triangles.push([pick(&mut rng), pick(&mut rng), pick(&mut rng)]);
             }
             let origin = [ox, oy, oz];
-            let (cells, _) = bake_cells(&m, origin, cell, &BakeOptions::default());
+            let (cells, _) = bake_cells(&m, origin, cell, &SliceOptions::default());
             let eps = 1e-9 * (1.0 + cell);
             for c in &cells {
                 for d in 0..3 {

@@ -67,7 +67,7 @@ use bytemuck::{Pod, Zeroable};
 use rayon::prelude::*;
 use wgpu::util::DeviceExt;
 
-use super::cpu::{BakeOptions, BakeStats, BakedCell, MAX_GRID_COORD, NORMAL_FRACTION_BITS};
+use super::cpu::{BakeStats, BakedCell, MAX_GRID_COORD, NORMAL_FRACTION_BITS, SliceOptions};
 use crate::geom::{Mesh, triangle_normal};
 use crate::gpu::{GpuError, open};
 
@@ -432,7 +432,7 @@ impl GpuBaker {
         mesh: &Mesh,
         origin: [f64; 3],
         cell: f64,
-        options: &BakeOptions,
+        options: &SliceOptions,
     ) -> Result<(Vec<BakedCell>, BakeStats), GpuError> {
         let (mut out, _) = self.bake_jobs(&[LevelJob { mesh, origin, cell }], options)?;
         out.pop().ok_or_else(|| GpuError::Failed("no result for the job".into()))
@@ -443,7 +443,7 @@ impl GpuBaker {
     pub fn bake_jobs(
         &self,
         jobs: &[LevelJob<'_>],
-        options: &BakeOptions,
+        options: &SliceOptions,
     ) -> Result<(Vec<JobResult>, BatchReport), GpuError> {
         let fill = options.fill_holes;
         let mut report = BatchReport { budget_bytes: self.budget, ..BatchReport::default() };

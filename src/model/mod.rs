@@ -45,7 +45,7 @@ pub enum FileType {
 
 /// The exact encoding a model was read from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-pub enum Encoding {
+pub enum ModelEncoding {
     #[serde(rename = "obj")]
     Obj,
     #[serde(rename = "stl-ascii")]
@@ -60,7 +60,7 @@ pub enum Encoding {
     PlyBinaryBe,
 }
 
-impl Encoding {
+impl ModelEncoding {
     /// The name written to manifests and summaries.
     #[must_use]
     pub fn name(self) -> &'static str {
@@ -95,7 +95,7 @@ pub struct ModelStats {
 /// A decoded model: the cleaned mesh, one unit normal per vertex, and what was cleaned.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Model {
-    pub encoding: Encoding,
+    pub encoding: ModelEncoding,
     pub mesh: Mesh,
     pub normals: Vec<[f32; 3]>,
     pub stats: ModelStats,
@@ -259,7 +259,7 @@ impl Builder {
         }
     }
 
-    pub(crate) fn finish(self, ctx: Ctx<'_>, encoding: Encoding) -> Result<Model, MeshError> {
+    pub(crate) fn finish(self, ctx: Ctx<'_>, encoding: ModelEncoding) -> Result<Model, MeshError> {
         let Self { positions, triangles, mut file_normals, faces, max_index, index_base } = self;
         let n = positions.len();
         if let Some((m, at)) = max_index

@@ -4,7 +4,7 @@
 //! `g`, `o`, `s`, `usemtl`, `mtllib`, `l`, `p`, free-form geometry) is ignored: only surfaces
 //! are baked.
 
-use super::{Builder, Ctx, Encoding, MeshError, Model, float, int, lines, show, tokens};
+use super::{Builder, Ctx, MeshError, Model, ModelEncoding, float, int, lines, show, tokens};
 
 /// Decodes an OBJ file's bytes; `name` is used in errors.
 pub fn parse(bytes: &[u8], name: &str) -> Result<Model, MeshError> {
@@ -79,7 +79,7 @@ pub fn parse(bytes: &[u8], name: &str) -> Result<Model, MeshError> {
             }
         }
     }
-    b.finish(ctx, Encoding::Obj)
+    b.finish(ctx, ModelEncoding::Obj)
 }
 
 /// A 1-based or negative (relative) OBJ index → 0-based. Positive indices are range-checked

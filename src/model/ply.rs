@@ -8,7 +8,7 @@
 //! its fixed-size properties' bytes (binary) or one byte per property (ASCII), and each list
 //! its length times its item size.
 
-use super::{Builder, Ctx, Encoding, MeshError, Model, float, int, lines, show, tokens};
+use super::{Builder, Ctx, MeshError, Model, ModelEncoding, float, int, lines, show, tokens};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Scalar {
@@ -160,7 +160,7 @@ pub fn parse(bytes: &[u8], name: &str) -> Result<Model, MeshError> {
             .props
             .iter()
             .map(|p| match (&p.kind, encoding) {
-                (_, Encoding::PlyAscii) => 1,
+                (_, ModelEncoding::PlyAscii) => 1,
                 (PropKind::Scalar(s), _) => s.size() as u64,
                 (PropKind::List { count, .. }, _) => count.size() as u64,
             })
@@ -178,7 +178,7 @@ pub fn parse(bytes: &[u8], name: &str) -> Result<Model, MeshError> {
     }
 
     let mut reader: Box<dyn Body> = match encoding {
-        Encoding::PlyAscii => Box::new(Ascii {
+        ModelEncoding::PlyAscii => Box::new(Ascii {
             lines: Box::new(lines(body)),
             current: Vec::new().into_iter(),
             line: header_lines,
@@ -186,7 +186,9 @@ pub fn parse(bytes: &[u8], name: &str) -> Result<Model, MeshError> {
             remaining: body.len(),
             ctx,
         }),
-        _ => Box::new(Binary { bytes: body, pos: 0, big_endian: encoding == Encoding::PlyBinaryBe, ctx }),
+        _ => {
+            Box::new(Binary { bytes: body, pos: 0, big_endian: encoding == ModelEncoding::PlyBinaryBe, ctx })
+        }
     };
 
     let mut b = Builder::default();
@@ -236,7 +238,7 @@ pub fn parse(bytes: &[u8], name: &str) -> Result<Model, MeshError> {
                         if !(n >= 0.0 && n.fract() == 0.0) {
                             return Err(ctx.syntax(at(), format!("list length {n} is not a count")));
                         }
-                        let min_item = if encoding == Encoding::PlyAscii { 1 } else { item.size() };
+                        let min_item = if encoding == ModelEncoding::PlyAscii { 1 } else { item.size() };
                         let (need, left) = (n * min_item as f64, reader.remaining() as f64);
                         if need > left {
                             // More than half the list present reads as a cut-off file; a
@@ -341,7 +343,7 @@ fn face_slot(e: &Element, ctx: Ctx<'_>) -> Result<usize, MeshError> {
 }
 
 /// Parses the header: encoding, elements, where the body starts, and the header's line count.
-fn header(bytes: &[u8], ctx: Ctx<'_>) -> Result<(Encoding, Vec<Element>, usize, usize), MeshError> {
+fn header(bytes: &[u8], ctx: Ctx<'_>) -> Result<(ModelEncoding, Vec<Element>, usize, usize), MeshError> {
     let mut encoding = None;
     let mut elements: Vec<Element> = Vec::new();
     let mut offset = 0usize;
@@ -365,9 +367,9 @@ fn header(bytes: &[u8], ctx: Ctx<'_>) -> Result<(Encoding, Vec<Element>, usize, 
             [] | [b"comment" | b"obj_info", ..] => {}
             [b"format", f, _version] => {
                 encoding = Some(match *f {
-                    b"ascii" => Encoding::PlyAscii,
-                    b"binary_little_endian" => Encoding::PlyBinaryLe,
-                    b"binary_big_endian" => Encoding::PlyBinaryBe,
+                    b"ascii" => ModelEncoding::PlyAscii,
+                    b"binary_little_endian" => ModelEncoding::PlyBinaryLe,
+                    b"binary_big_endian" => ModelEncoding::PlyBinaryBe,
                     _ => return Err(ctx.syntax(at(), format!("unknown format {}", show(f)))),
                 });
             }
@@ -462,7 +464,7 @@ mod tests {
     #[test]
     fn ascii_skips_extra_properties_and_elements() {
         let m = parse(ascii_tet("").as_bytes(), "t.ply").unwrap();
-        assert_eq!(m.encoding, Encoding::PlyAscii);
+        assert_eq!(m.encoding, ModelEncoding::PlyAscii);
         assert_eq!(m.mesh.positions.len(), 4);
         assert_eq!(m.mesh.triangles, vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [0, 2, 1]]);
         assert_eq!(m.stats.faces, 3);
@@ -473,7 +475,7 @@ mod tests {
         let a = parse(ascii_tet("").as_bytes(), "t.ply").unwrap();
         for big in [false, true] {
             let m = parse(&binary_tet(big), "t.ply").unwrap();
-            assert_eq!(m.encoding, if big { Encoding::PlyBinaryBe } else { Encoding::PlyBinaryLe });
+            assert_eq!(m.encoding, if big { ModelEncoding::PlyBinaryBe } else { ModelEncoding::PlyBinaryLe });
             assert_eq!(m.mesh, a.mesh, "big endian {big}");
         }
     }

@@ -14,7 +14,7 @@
 
 use std::collections::HashMap;
 
-use super::{Builder, Ctx, Encoding, MeshError, Model, float, lines, show, tokens};
+use super::{Builder, Ctx, MeshError, Model, ModelEncoding, float, lines, show, tokens};
 
 const HEADER: usize = 80;
 const FACET: usize = 50;
@@ -110,7 +110,7 @@ fn parse_binary(bytes: &[u8], ctx: Ctx<'_>) -> Result<Model, MeshError> {
         }
         w.b.polygon(&tri);
     }
-    w.b.finish(ctx, Encoding::StlBinary)
+    w.b.finish(ctx, ModelEncoding::StlBinary)
 }
 
 fn parse_ascii(bytes: &[u8], ctx: Ctx<'_>) -> Result<Model, MeshError> {
@@ -189,7 +189,7 @@ fn parse_ascii(bytes: &[u8], ctx: Ctx<'_>) -> Result<Model, MeshError> {
     if state != State::Outside || solids == 0 {
         return Err(ctx.truncated(format!("line {last}"), "the file ends before `endsolid`"));
     }
-    w.b.finish(ctx, Encoding::StlAscii)
+    w.b.finish(ctx, ModelEncoding::StlAscii)
 }
 
 #[cfg(test)]
@@ -240,7 +240,7 @@ mod tests {
     fn binary_welds_corners_even_with_a_solid_header() {
         for header in [b"binary".as_slice(), b"solid exported by a CAD tool".as_slice()] {
             let m = parse(&binary(header, &TET), "t.stl").unwrap();
-            assert_eq!(m.encoding, Encoding::StlBinary);
+            assert_eq!(m.encoding, ModelEncoding::StlBinary);
             assert_eq!(m.mesh.positions.len(), 4);
             assert_eq!(m.mesh.triangles.len(), 4);
             assert_eq!(m.stats.faces, 4);
@@ -251,7 +251,7 @@ mod tests {
     fn ascii_matches_binary() {
         let a = parse(ascii(&TET).as_bytes(), "t.stl").unwrap();
         let b = parse(&binary(b"", &TET), "t.stl").unwrap();
-        assert_eq!(a.encoding, Encoding::StlAscii);
+        assert_eq!(a.encoding, ModelEncoding::StlAscii);
         assert_eq!(a.mesh, b.mesh);
         assert_eq!(a.normals, b.normals);
     }

@@ -60,11 +60,11 @@ fn sniffing_without_an_extension() {
     let e = parse(b"\x00\x01 hello", "x.dat", None).unwrap_err().to_string();
     assert!(e.contains("x.dat") && e.contains("\"dat\""), "{e}");
     for (bytes, enc) in [
-        (OBJ.as_bytes().to_vec(), Encoding::Obj),
-        (PLY.as_bytes().to_vec(), Encoding::PlyAscii),
-        (STL.as_bytes().to_vec(), Encoding::StlAscii),
-        (binary_stl(), Encoding::StlBinary),
-        (binary_ply(), Encoding::PlyBinaryLe),
+        (OBJ.as_bytes().to_vec(), ModelEncoding::Obj),
+        (PLY.as_bytes().to_vec(), ModelEncoding::PlyAscii),
+        (STL.as_bytes().to_vec(), ModelEncoding::StlAscii),
+        (binary_stl(), ModelEncoding::StlBinary),
+        (binary_ply(), ModelEncoding::PlyBinaryLe),
     ] {
         assert_eq!(parse(&bytes, "model", None).unwrap().encoding, enc);
     }

@@ -46,7 +46,7 @@ mod tests {
     use std::path::Path;
 
     use super::super::test_util::write;
-    use super::super::{Encoding, LoadOptions, RasterError, load};
+    use super::super::{HeightEncoding, LoadOptions, RasterError, load};
     use super::load_bytes;
 
     /// Whatever the format, bytes and file give the same raster or the same error.
@@ -69,7 +69,7 @@ mod tests {
             ("x.hgt", hgt),
             ("short.hgt", vec![0; 10]),
         ];
-        let opts = LoadOptions { encoding: Some(Encoding::Gray16), ..LoadOptions::default() };
+        let opts = LoadOptions { encoding: Some(HeightEncoding::Gray16), ..LoadOptions::default() };
         for (name, bytes) in cases {
             let path = write(dir.path(), name, &bytes);
             match (load(&path, &opts), load_bytes(&path, &bytes, &opts)) {

@@ -7,10 +7,10 @@
 //! frame, and applies the user's [`Overrides`]. Every failure is a [`RasterError`] whose message
 //! starts with the file path.
 
-mod fill;
 mod from_bytes;
 pub mod geotiff;
 mod hgt;
+mod nodata;
 mod openexr;
 mod png;
 pub mod synth;
@@ -128,7 +128,7 @@ impl Default for Georef {
 /// How a PNG's channels encode height.
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub enum Encoding {
+pub enum HeightEncoding {
     /// 16-bit grayscale, value = sample.
     Gray16,
     /// Mapbox terrain-RGB: −10000 + (R·65536 + G·256 + B)·0.1.
@@ -186,7 +186,7 @@ pub struct Overrides {
 #[derive(Debug, Clone, Default)]
 pub struct LoadOptions {
     /// PNG encoding; `None` = gray16 for 16-bit gray PNGs, error for RGB PNGs without it.
-    pub encoding: Option<Encoding>,
+    pub encoding: Option<HeightEncoding>,
     /// `OpenEXR` channel name; `None` = first float channel.
     pub channel: Option<String>,
     pub limits: Limits,
@@ -243,7 +243,7 @@ pub enum RasterError {
     MissingEncoding { path: PathBuf, color: String },
     /// The requested encoding does not fit the PNG's colour type.
     #[error("{}: encoding {encoding:?} does not apply to a {color} PNG", path.display())]
-    EncodingMismatch { path: PathBuf, encoding: Encoding, color: String },
+    EncodingMismatch { path: PathBuf, encoding: HeightEncoding, color: String },
     /// The requested `OpenEXR` channel does not exist.
     #[error("{}: no channel named \"{name}\"; available channels: {available}", path.display())]
     ChannelNotFound { path: PathBuf, name: String, available: String },
@@ -409,7 +409,7 @@ fn finish(path: &Path, decoded: Decoded, overrides: &Overrides) -> Result<Loaded
             format!("decoded {} samples for a {width}×{height} raster", values.len()),
         ));
     }
-    let nodata_filled = fill::fill_nodata(width as usize, height as usize, &mut values)
+    let nodata_filled = nodata::fill_nodata(width as usize, height as usize, &mut values)
         .ok_or_else(|| RasterError::AllNoData { path: path.to_owned(), samples: values.len() as u64 })?;
 
     let mut frame = base_georef(path, georef, height)?;
@@ -692,7 +692,7 @@ mod tests {
     #[test]
     fn fuji_terrain_rgb() {
         let path = test_data_dir().join("fuji.png");
-        let opts = LoadOptions { encoding: Some(Encoding::TerrainRgb), ..LoadOptions::default() };
+        let opts = LoadOptions { encoding: Some(HeightEncoding::TerrainRgb), ..LoadOptions::default() };
         let r = load(&path, &opts).unwrap();
         assert_eq!((r.heights.width, r.heights.height), (512, 512));
         assert_eq!(r.format, "png-terrain-rgb");
@@ -835,7 +835,7 @@ mod tests {
             bytes.extend_from_slice(&body);
             let p = write(dir.path(), "fuzz.bin", &bytes);
             let limits = Limits { max_side: 4096, max_bytes: 16 << 20 };
-            if let Ok(r) = load(&p, &LoadOptions { limits, encoding: Some(Encoding::Terrarium), ..LoadOptions::default() }) {
+            if let Ok(r) = load(&p, &LoadOptions { limits, encoding: Some(HeightEncoding::Terrarium), ..LoadOptions::default() }) {
                 proptest::prop_assert!(r.heights.data.iter().all(|v| v.is_finite()));
             }
         }
@@ -859,7 +859,7 @@ mod tests {
             let dir = tempfile::tempdir().unwrap();
             let p = write(dir.path(), "fuzz.bin", &bytes);
             let limits = Limits { max_side: 4096, max_bytes: 16 << 20 };
-            let opts = LoadOptions { limits, encoding: Some(Encoding::Gray16), ..LoadOptions::default() };
+            let opts = LoadOptions { limits, encoding: Some(HeightEncoding::Gray16), ..LoadOptions::default() };
             if let Ok(r) = load(&p, &opts) {
                 proptest::prop_assert!(r.heights.data.iter().all(|v| v.is_finite()));
             }
@@ -872,7 +872,7 @@ mod tests {
             let orig: Vec<f32> = (0..w * h).map(|i| if seed[i] % 3 == 0 { f32::NAN } else { f32::from(seed[i]) }).collect();
             let holes = orig.iter().filter(|v| v.is_nan()).count() as u64;
             let mut d = orig.clone();
-            match fill::fill_nodata(w, h, &mut d) {
+            match nodata::fill_nodata(w, h, &mut d) {
                 None => proptest::prop_assert_eq!(holes, (w * h) as u64),
                 Some(n) => {
                     proptest::prop_assert_eq!(n, holes);

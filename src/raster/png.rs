@@ -8,7 +8,7 @@ use std::path::Path;
 use image::codecs::png::PngDecoder;
 use image::{DynamicImage, ImageDecoder, ImageError};
 
-use super::{Decoded, Encoding, FileGeoref, LoadOptions, RasterError, check_size};
+use super::{Decoded, FileGeoref, HeightEncoding, LoadOptions, RasterError, check_size};
 
 const FORMAT: &str = "PNG";
 
@@ -53,7 +53,7 @@ pub(super) fn decode(
         | DynamicImage::ImageLumaA16(_)
         | DynamicImage::ImageLuma8(_)
         | DynamicImage::ImageLumaA8(_) => {
-            if let Some(e @ (Encoding::TerrainRgb | Encoding::Terrarium)) = opts.encoding {
+            if let Some(e @ (HeightEncoding::TerrainRgb | HeightEncoding::Terrarium)) = opts.encoding {
                 return Err(mismatch(e));
             }
             // Alpha, if any, is ignored: heights have no transparency. 8-bit samples are taken as
@@ -66,15 +66,18 @@ pub(super) fn decode(
         }
         DynamicImage::ImageRgb8(_) | DynamicImage::ImageRgba8(_) => {
             let decode_rgb: fn([u8; 3]) -> f32 = match opts.encoding {
-                Some(Encoding::TerrainRgb) => terrain_rgb,
-                Some(Encoding::Terrarium) => terrarium,
-                Some(e @ Encoding::Gray16) => return Err(mismatch(e)),
+                Some(HeightEncoding::TerrainRgb) => terrain_rgb,
+                Some(HeightEncoding::Terrarium) => terrarium,
+                Some(e @ HeightEncoding::Gray16) => return Err(mismatch(e)),
                 None => {
                     return Err(RasterError::MissingEncoding { path: path.to_owned(), color: color_name });
                 }
             };
-            let format =
-                if opts.encoding == Some(Encoding::TerrainRgb) { "png-terrain-rgb" } else { "png-terrarium" };
+            let format = if opts.encoding == Some(HeightEncoding::TerrainRgb) {
+                "png-terrain-rgb"
+            } else {
+                "png-terrarium"
+            };
             let values = match &image {
                 DynamicImage::ImageRgba8(img) => {
                     img.as_raw().chunks_exact(4).map(|p| decode_rgb([p[0], p[1], p[2]])).collect()
@@ -119,9 +122,12 @@ mod tests {
     use image::{ImageBuffer, Luma, Rgb, Rgba};
 
     use super::super::test_util::{assert_names_path, load, write};
-    use super::super::{Encoding, LoadOptions, RasterError, load as load_with};
+    use super::super::{HeightEncoding, LoadOptions, RasterError, load as load_with};
 
-    fn with_encoding(path: &Path, encoding: Encoding) -> Result<super::super::LoadedRaster, RasterError> {
+    fn with_encoding(
+        path: &Path,
+        encoding: HeightEncoding,
+    ) -> Result<super::super::LoadedRaster, RasterError> {
         load_with(path, &LoadOptions { encoding: Some(encoding), ..LoadOptions::default() })
     }
 
@@ -168,9 +174,9 @@ mod tests {
         assert_eq!(r.heights.get(3, 2), 55_000.0);
         assert_eq!(r.nodata_filled, 0);
         // Explicit Gray16 gives the same.
-        assert_eq!(with_encoding(&p, Encoding::Gray16).unwrap().heights.data, r.heights.data);
+        assert_eq!(with_encoding(&p, HeightEncoding::Gray16).unwrap().heights.data, r.heights.data);
         // A gray PNG is not terrain-RGB.
-        let e = with_encoding(&p, Encoding::TerrainRgb).unwrap_err();
+        let e = with_encoding(&p, HeightEncoding::TerrainRgb).unwrap_err();
         assert!(matches!(e, RasterError::EncodingMismatch { .. }), "{e}");
         assert_names_path(&e, &p);
     }
@@ -190,19 +196,19 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         // terrain-RGB: (1, 134, 160) = 100000 → 0 m; (1, 134, 170) → 1 m.
         let p = save_rgb(dir.path(), &[[1, 134, 160], [1, 134, 170], [128, 100, 128]]);
-        let r = with_encoding(&p, Encoding::TerrainRgb).unwrap();
+        let r = with_encoding(&p, HeightEncoding::TerrainRgb).unwrap();
         assert_eq!(r.format, "png-terrain-rgb");
         assert!(
             r.heights.data[0].abs() < 1e-3 && (r.heights.data[1] - 1.0).abs() < 1e-3,
             "{:?}",
             r.heights.data
         );
-        let r = with_encoding(&p, Encoding::Terrarium).unwrap();
+        let r = with_encoding(&p, HeightEncoding::Terrarium).unwrap();
         assert_eq!(r.format, "png-terrarium");
         assert_eq!(r.heights.data[2], 100.5);
         let e = load(&p).unwrap_err();
         assert!(matches!(e, RasterError::MissingEncoding { .. }), "{e}");
-        let e = with_encoding(&p, Encoding::Gray16).unwrap_err();
+        let e = with_encoding(&p, HeightEncoding::Gray16).unwrap_err();
         assert!(matches!(e, RasterError::EncodingMismatch { .. }), "{e}");
     }
 
@@ -211,7 +217,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("rgba.png");
         ImageBuffer::<Rgba<u8>, _>::from_raw(1, 1, vec![128, 1, 0, 0]).unwrap().save(&p).unwrap();
-        assert_eq!(with_encoding(&p, Encoding::Terrarium).unwrap().heights.data, [1.0]);
+        assert_eq!(with_encoding(&p, HeightEncoding::Terrarium).unwrap().heights.data, [1.0]);
     }
 
     #[test]
@@ -219,7 +225,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("rgb16.png");
         ImageBuffer::<Rgb<u16>, _>::from_raw(1, 1, vec![1, 2, 3]).unwrap().save(&p).unwrap();
-        let e = with_encoding(&p, Encoding::TerrainRgb).unwrap_err();
+        let e = with_encoding(&p, HeightEncoding::TerrainRgb).unwrap_err();
         assert!(matches!(e, RasterError::Unsupported { .. }), "{e}");
         assert_names_path(&e, &p);
     }

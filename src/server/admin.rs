@@ -27,7 +27,7 @@ use super::problem::Problem;
 use super::{App, valid_name};
 use crate::bake::{BakeOptions, Progress};
 use crate::lod::PointBaker;
-use crate::raster::{Encoding, LoadOptions, Overrides};
+use crate::raster::{HeightEncoding, LoadOptions, Overrides};
 use crate::store::Store;
 
 /// Seconds a running job gets to stop at its next node once cancelled or past `--job-timeout`;
@@ -210,9 +210,9 @@ pub async fn upload(
         Query::<UploadParams>::try_from_uri(&uri).map_err(|e| Problem::bad_request(e.body_text()))?;
     let encoding = match params.encoding.as_deref() {
         None => None,
-        Some("gray16") => Some(Encoding::Gray16),
-        Some("terrain-rgb") => Some(Encoding::TerrainRgb),
-        Some("terrarium") => Some(Encoding::Terrarium),
+        Some("gray16") => Some(HeightEncoding::Gray16),
+        Some("terrain-rgb") => Some(HeightEncoding::TerrainRgb),
+        Some("terrarium") => Some(HeightEncoding::Terrarium),
         Some(o) => {
             return Err(Problem::bad_request(format!(
                 "encoding {o:?} is not gray16, terrain-rgb or terrarium"
@@ -292,7 +292,7 @@ struct Work {
     root: PathBuf,
     upload: PathBuf,
     name: String,
-    encoding: Option<Encoding>,
+    encoding: Option<HeightEncoding>,
     cell_size: Option<f64>,
     opts: BakeOptions,
 }

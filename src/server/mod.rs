@@ -42,7 +42,7 @@ pub use metrics::Metrics;
 
 use crate::bake::BakeOptions;
 use crate::lod::PointBaker;
-use crate::raster::{Encoding, LoadOptions, Overrides};
+use crate::raster::{HeightEncoding, LoadOptions, Overrides};
 use crate::store::Store;
 use crate::tiling::Pyramid;
 
@@ -114,9 +114,9 @@ fn open_source(root: &std::path::Path, spec: &SourceSpec) -> Result<registry::On
     let err = |e: crate::Error| ServerError::Source { name: spec.name.clone(), source: Box::new(e) };
     let encoding = match spec.encoding.as_deref() {
         None => None,
-        Some("gray16") => Some(Encoding::Gray16),
-        Some("terrain-rgb") => Some(Encoding::TerrainRgb),
-        Some("terrarium") => Some(Encoding::Terrarium),
+        Some("gray16") => Some(HeightEncoding::Gray16),
+        Some("terrain-rgb") => Some(HeightEncoding::TerrainRgb),
+        Some("terrarium") => Some(HeightEncoding::Terrarium),
         Some(other) => {
             return Err(ServerError::Config(format!(
                 "--source {}: encoding {other:?} is not gray16, terrain-rgb or terrarium",

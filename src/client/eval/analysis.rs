@@ -466,7 +466,7 @@ pub fn median(v: &[f64]) -> f64 {
 
 /// Everything the report shows.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Report {
+pub struct EvalReport {
     pub tileset: String,
     pub subject: Subject,
     pub adapter: String,
@@ -484,7 +484,7 @@ pub struct Report {
     pub grid_skipped: Vec<u32>,
 }
 
-impl Report {
+impl EvalReport {
     #[must_use]
     pub fn overall(&self) -> Summary {
         summarize(&self.results)
@@ -868,7 +868,7 @@ fn dot(img: &mut image::RgbaImage, x: f64, y: f64, c: [u8; 4]) {
 
 /// The F-measure-by-distance chart of a report.
 #[must_use]
-pub fn fmeasure_chart(report: &Report) -> Chart {
+pub fn fmeasure_chart(report: &EvalReport) -> Chart {
     let groups = by_distance(&report.results);
     let xs: Vec<f64> = groups.iter().map(|g| g.0).collect();
     let lo = xs.first().copied().unwrap_or(1.0);
@@ -1154,7 +1154,7 @@ mod tests {
 
     #[test]
     fn report_ends_with_the_f_measure_line() {
-        let rep = Report {
+        let rep = EvalReport {
             tileset: "t".into(),
             subject: Subject::Model,
             adapter: "a".into(),

@@ -18,7 +18,7 @@ use std::time::Instant;
 use crate::bake::model as bake_model;
 use crate::client::ClientError;
 use crate::client::eval::analysis::{
-    self, CameraPlan, CameraResult, Confusion, DepthDiff, InstanceRow, Report, Subject, linear_depth,
+    self, CameraPlan, CameraResult, Confusion, DepthDiff, EvalReport, InstanceRow, Subject, linear_depth,
 };
 use crate::client::eval::instances::InstanceBench;
 use crate::client::render::{Renderer, covered};
@@ -200,13 +200,13 @@ fn item(tree: &TileTree, node: u32, level: u8) -> DrawItem {
 }
 
 /// A rendered frame: coverage and linear depth (NaN where empty).
-struct Frame {
+struct RenderedFrame {
     image: image::RgbaImage,
     mask: Vec<bool>,
     depth: Vec<f64>,
 }
 
-fn frame(r: &Renderer, c: &analysis::EvalCamera, draws: &[DrawItem]) -> crate::Result<Frame> {
+fn frame(r: &Renderer, c: &analysis::EvalCamera, draws: &[DrawItem]) -> crate::Result<RenderedFrame> {
     let (near, far) = (c.near, c.far);
     let (image, raw) = r.render_with_depth(&c.camera, draws, near, far)?;
     let mask = covered(&image);
@@ -215,7 +215,7 @@ fn frame(r: &Renderer, c: &analysis::EvalCamera, draws: &[DrawItem]) -> crate::R
         .zip(&mask)
         .map(|(&z, &c)| if c { linear_depth(z, near, far).unwrap_or(f64::NAN) } else { f64::NAN })
         .collect();
-    Ok(Frame { image, mask, depth })
+    Ok(RenderedFrame { image, mask, depth })
 }
 
 /// Runs the evaluation of the tileset in `dir`; `log` receives progress lines. Frames of the
@@ -224,7 +224,7 @@ pub fn run(
     dir: &Path,
     opts: &EvalOptions,
     mut log: impl FnMut(&str),
-) -> crate::Result<(Report, Vec<(String, image::RgbaImage)>)> {
+) -> crate::Result<(EvalReport, Vec<(String, image::RgbaImage)>)> {
     if !(opts.threshold_px.is_finite() && opts.threshold_px > 0.0) {
         return Err(err(format!("threshold {} px must be positive", opts.threshold_px)));
     }
@@ -353,7 +353,7 @@ pub fn run(
     }
     log(&format!("coverage: {} cameras in {:.1} s", cams.len(), t0.elapsed().as_secs_f64()));
     drop((reference, lod));
-    let mut report = Report {
+    let mut report = EvalReport {
         tileset: dir.display().to_string(),
         subject: ts.subject,
         adapter,
@@ -382,7 +382,7 @@ fn instances(
     tree: &TileTree,
     gpu: crate::gpu::GpuContext,
     opts: &EvalOptions,
-    report: &mut Report,
+    report: &mut EvalReport,
     log: &mut impl FnMut(&str),
 ) -> crate::Result<()> {
     let root = tree.root().ok_or_else(|| err("model tileset without a root node"))?;
@@ -449,7 +449,7 @@ fn instances(
 
 /// The per-camera and per-grid figures as JSON (for scripts; the Markdown is for people).
 #[must_use]
-pub fn results_json(report: &Report) -> serde_json::Value {
+pub fn results_json(report: &EvalReport) -> serde_json::Value {
     let conf = |c: &Confusion| {
         serde_json::json!({
             "tp": c.tp, "fp": c.fp, "fn": c.fn_,
@@ -497,7 +497,7 @@ pub fn results_json(report: &Report) -> serde_json::Value {
 /// the instance experiment ran) and the sample frames under `out/frames/`; returns the report's
 /// path.
 pub fn write_report(
-    report: &Report,
+    report: &EvalReport,
     samples: &[(String, image::RgbaImage)],
     out: &Path,
 ) -> crate::Result<PathBuf> {

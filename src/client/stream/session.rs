@@ -430,7 +430,7 @@ pub struct Totals {
 
 /// `stats.json`.
 #[derive(Debug, Clone, Serialize)]
-pub struct Report {
+pub struct ReplayReport {
     pub tileset: String,
     pub url: String,
     pub flight: Option<String>,
@@ -599,7 +599,10 @@ fn open_view(
 /// Connects, replays the flight (rendering each frame unless `--render off` or no adapter under
 /// `auto`), writes PNG frames and `OUT/stats.json`; `on_frame` sees every frame's figures
 /// (progress output). Returns the report that was written.
-pub fn run_client(run: &ClientRun, mut on_frame: impl FnMut(&FrameStats)) -> Result<Report, ClientError> {
+pub fn run_client(
+    run: &ClientRun,
+    mut on_frame: impl FnMut(&FrameStats),
+) -> Result<ReplayReport, ClientError> {
     let flight = Flight::load(&run.flight)?;
     let mut session = Session::connect(&run.url, &run.tileset, run.session)?;
     let io = |path: &std::path::Path| {
@@ -649,7 +652,7 @@ pub fn run_client(run: &ClientRun, mut on_frame: impl FnMut(&FrameStats)) -> Res
         crate::client::render::Renderer::save_png(&img, &frames_dir.join(FINAL_FRAME))
             .map_err(|e| ClientError::Render(e.to_string()))?;
     }
-    let report = Report {
+    let report = ReplayReport {
         tileset: run.tileset.clone(),
         url: run.url.clone(),
         flight: flight.name.clone(),

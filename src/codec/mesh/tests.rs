@@ -10,7 +10,7 @@ use crate::codec::testdata::{Rng, canonical_positions, canonical_triangles, gree
 use crate::codec::{Quantization, quantize_positions};
 use crate::geom::Bounds;
 
-fn frame_for(m: &Mesh, xy_step: f64, z_step: f64) -> (Frame, Bounds, Quantization) {
+fn frame_for(m: &Mesh, xy_step: f64, z_step: f64) -> (QuantGrid, Bounds, Quantization) {
     let mut b = Bounds::of_points(&m.positions);
     if !b.is_valid() {
         b = Bounds { min: [0.0; 3], max: [1.0; 3] };
@@ -18,7 +18,7 @@ fn frame_for(m: &Mesh, xy_step: f64, z_step: f64) -> (Frame, Bounds, Quantizatio
     let q = Quantization { xy_step, z_step };
     // The bounds the header would state (grown to the rounded-up positions).
     let b = crate::codec::quantized_bounds(&b, &m.positions, q);
-    (Frame::new(&b, q).unwrap(), b, q)
+    (QuantGrid::new(&b, q).unwrap(), b, q)
 }
 
 /// Encodes and decodes; checks the decoded mesh has the quantized input's triangles and
@@ -191,7 +191,7 @@ proptest! {
 
     #[test]
     fn random_payloads_never_panic(raw in proptest::collection::vec(any::<u8>(), 0..200), v in 0usize..50, t in 0usize..50, len in 0usize..300) {
-        let frame = Frame::new(&Bounds { min: [0.0; 3], max: [100.0; 3] }, Quantization { xy_step: 1.0, z_step: 1.0 }).unwrap();
+        let frame = QuantGrid::new(&Bounds { min: [0.0; 3], max: [100.0; 3] }, Quantization { xy_step: 1.0, z_step: 1.0 }).unwrap();
         let _ = decode(&frame, v, t, &raw, len);
     }
 

@@ -10,7 +10,7 @@ use crate::codec::testdata::{Rng, synthetic, voxel_points};
 use crate::codec::{Quantization, quantize_positions};
 use crate::geom::Bounds;
 
-fn setup(pc: &PointCloud, step: f64) -> (Frame, Bounds, Quantization) {
+fn setup(pc: &PointCloud, step: f64) -> (QuantGrid, Bounds, Quantization) {
     let mut b = Bounds::of_points(&pc.positions);
     if !b.is_valid() {
         b = Bounds { min: [0.0; 3], max: [1.0; 3] };
@@ -18,7 +18,7 @@ fn setup(pc: &PointCloud, step: f64) -> (Frame, Bounds, Quantization) {
     let q = Quantization { xy_step: step, z_step: step };
     // The bounds the header would state (grown to the rounded-up positions).
     let b = crate::codec::quantized_bounds(&b, &pc.positions, q);
-    (Frame::new(&b, q).unwrap(), b, q)
+    (QuantGrid::new(&b, q).unwrap(), b, q)
 }
 
 /// Sorted (position bits, normal bits) pairs.
@@ -117,7 +117,7 @@ fn input_order_does_not_matter() {
 #[test]
 fn bad_inputs_are_named() {
     let frame =
-        Frame::new(&Bounds { min: [0.0; 3], max: [10.0; 3] }, Quantization { xy_step: 1.0, z_step: 1.0 })
+        QuantGrid::new(&Bounds { min: [0.0; 3], max: [10.0; 3] }, Quantization { xy_step: 1.0, z_step: 1.0 })
             .unwrap();
     let pc = PointCloud { positions: vec![[1.0; 3]], normals: vec![] };
     assert!(matches!(encode(&frame, &pc), Err(CodecError::NormalCountMismatch { points: 1, normals: 0 })));
@@ -154,7 +154,7 @@ proptest! {
 
     #[test]
     fn random_payloads_never_panic(raw in proptest::collection::vec(any::<u8>(), 0..200), n in 0usize..50, len in 0usize..300) {
-        let frame = Frame::new(&Bounds { min: [0.0; 3], max: [100.0; 3] }, Quantization { xy_step: 1.0, z_step: 1.0 }).unwrap();
+        let frame = QuantGrid::new(&Bounds { min: [0.0; 3], max: [100.0; 3] }, Quantization { xy_step: 1.0, z_step: 1.0 }).unwrap();
         let _ = decode(&frame, n, &raw, len);
     }
 
