@@ -14,7 +14,7 @@ use std::process::Command;
 use terrastream::bake::model::{self as bake_model, MODEL_TILE};
 use terrastream::codec::{self, Geometry};
 use terrastream::model::{self, ModelEncoding};
-use terrastream::store::{KIND_MODEL, Store};
+use terrastream::store::{Store, TilesetKind};
 
 fn run_ok(cmd: &mut Command) -> String {
     let out = cmd.output().unwrap();
@@ -374,7 +374,7 @@ fn stanford_bunny_next_to_the_papers_table_3() {
     let out = tmp.path().join("bunny");
     let stdout = bake(&bunny, &out, &[]);
     let store = Store::new(&out);
-    assert_eq!(store.manifest_kind().unwrap(), KIND_MODEL);
+    assert_eq!(store.manifest_kind().unwrap(), TilesetKind::Model);
     let m = bake_model::read_manifest(&store).unwrap();
     let levels = &m.model.levels;
     println!("{stdout}");

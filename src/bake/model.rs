@@ -56,8 +56,8 @@ use crate::lod::PointBaker;
 use crate::model::{self, FileType, MeshError, Model, ModelStats};
 use crate::raster::Georef;
 use crate::store::{
-    IndexChunk, KIND_MODEL, LevelSpec, LevelTotals, MANIFEST_FORMAT, MANIFEST_VERSION, Manifest, NodeEntry,
-    NodeLevel, SUBTREE_LEVELS, SourceInfo, Store, StoreError,
+    IndexChunk, LevelSpec, LevelTotals, MANIFEST_FORMAT, MANIFEST_VERSION, Manifest, NodeEntry, NodeLevel,
+    SUBTREE_LEVELS, SourceInfo, Store, StoreError, TilesetKind,
 };
 use crate::tiling::TileKey;
 
@@ -148,8 +148,7 @@ pub fn check_options(opts: &ModelBakeOptions) -> Result<(), ModelBakeError> {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ModelLevel {
     pub level: u8,
-    /// "mesh" or "points".
-    pub kind: String,
+    pub kind: crate::codec::Kind,
     /// Points: the resolution T (cells across the longest side).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub resolution: Option<u32>,
@@ -222,10 +221,10 @@ pub struct ModelInfo {
 }
 
 /// A model tileset's manifest: every field of a terrain [`Manifest`] (so generic readers work)
-/// plus `kind` = [`KIND_MODEL`] and `model`.
+/// plus `kind` = [`TilesetKind::Model`] and `model`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ModelManifest {
-    pub kind: String,
+    pub kind: TilesetKind,
     #[serde(flatten)]
     pub tileset: Manifest,
     pub model: ModelInfo,
@@ -386,7 +385,7 @@ pub fn bake_model(
         checksum: codec::decode_header(&blob0).map_err(codec_err(0))?.checksum,
         info: ModelLevel {
             level: 0,
-            kind: "mesh".into(),
+            kind: crate::codec::Kind::Mesh,
             resolution: None,
             cell: None,
             quant_step: step,
@@ -427,7 +426,7 @@ pub fn bake_model(
                 checksum: codec::decode_header(&blob).map_err(codec_err(level))?.checksum,
                 info: ModelLevel {
                     level,
-                    kind: "points".into(),
+                    kind: crate::codec::Kind::Points,
                     resolution: Some(t),
                     cell: Some(cell),
                     quant_step: step,
@@ -446,7 +445,7 @@ pub fn bake_model(
 
     let levels: Vec<BakedLevel> = std::iter::once(level0).chain(points).collect();
     let options_json = serde_json::json!({
-        "kind": KIND_MODEL,
+        "kind": TilesetKind::Model,
         "resolutions": opts.resolutions,
         "source": { "file": source.name, "bytes": source.bytes, "crc32": source.crc32 },
         "format_version": codec::FORMAT_VERSION,
@@ -482,7 +481,7 @@ pub fn bake_model(
         .iter()
         .map(|l| LevelSpec {
             level: l.info.level,
-            kind: l.info.kind.clone(),
+            kind: l.info.kind,
             max_error: None,
             cell_leaf_cells: None,
             texture_size: l.info.resolution,
@@ -492,7 +491,7 @@ pub fn bake_model(
     let infos: Vec<ModelLevel> = levels.into_iter().map(|l| l.info).collect();
     let s = model.stats;
     let manifest = ModelManifest {
-        kind: KIND_MODEL.into(),
+        kind: TilesetKind::Model,
         tileset: Manifest {
             format: MANIFEST_FORMAT.into(),
             version: MANIFEST_VERSION,
@@ -549,7 +548,7 @@ pub fn bake_model(
 /// Reads a model tileset's manifest; errors when the directory holds no model tileset.
 pub fn read_manifest(store: &Store) -> Result<ModelManifest, ModelBakeError> {
     let kind = store.manifest_kind()?;
-    if kind != KIND_MODEL {
+    if kind != TilesetKind::Model {
         return Err(ModelBakeError::Options(format!(
             "{}: holds a {kind} tileset, not a model tileset",
             store.dir().display()
@@ -617,7 +616,7 @@ mod tests {
             assert!(l.errors.max > 0.0 && l.errors.max <= cell * 0.9, "{l:?}");
             assert!(l.errors.gap > 0.0 && l.errors.gap <= cell * 2.0, "{l:?}");
         }
-        assert_eq!(store.manifest_kind().unwrap(), KIND_MODEL);
+        assert_eq!(store.manifest_kind().unwrap(), TilesetKind::Model);
         let m = read_manifest(&store).unwrap();
         assert_eq!(m.model.levels, s.levels);
         assert_eq!(m.tileset.depth, 0);

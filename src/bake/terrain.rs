@@ -156,7 +156,7 @@ pub fn check_options(opts: &BakeOptions) -> Result<(), BakeError> {
 pub fn level_specs(opts: &BakeOptions) -> Vec<LevelSpec> {
     let mut out = vec![LevelSpec {
         level: 0,
-        kind: "mesh".into(),
+        kind: codec::Kind::Mesh,
         max_error: Some(opts.max_error),
         cell_leaf_cells: None,
         texture_size: None,
@@ -166,7 +166,7 @@ pub fn level_specs(opts: &BakeOptions) -> Vec<LevelSpec> {
         let cells = 1u32 << l;
         out.push(LevelSpec {
             level: l,
-            kind: "points".into(),
+            kind: codec::Kind::Points,
             max_error: None,
             cell_leaf_cells: Some(cells),
             texture_size: Some(opts.tile_size.div_ceil(cells)),

@@ -25,7 +25,7 @@ pub fn run(a: &InspectArgs) -> Result<()> {
     let (dir, json, tile) = (a.dir.as_path(), a.json, a.tile);
     let store = Store::new(dir);
     let manifest = store.manifest()?;
-    if tile.is_none() && store.manifest_kind()? == terrastream::store::KIND_MODEL {
+    if tile.is_none() && store.manifest_kind()? == terrastream::store::TilesetKind::Model {
         let m = model::read_manifest(&store)?;
         if json {
             outln!("{}", serde_json::to_string_pretty(&m)?);

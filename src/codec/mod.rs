@@ -150,11 +150,31 @@ pub const ZSTD_LEVEL: i32 = 7;
 /// Largest zstd window accepted when decoding (levels up to 19 never use more than 2^23).
 pub(crate) const ZSTD_WINDOW_LOG_MAX: u32 = 24;
 
-/// What a blob holds.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, bincode::Encode, bincode::Decode)]
+/// What a blob holds, and so what its level is (`"mesh"` or `"points"` in manifests).
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, bincode::Encode, bincode::Decode, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
 pub enum Kind {
     Mesh,
     Points,
+}
+
+impl Kind {
+    /// `"mesh"` or `"points"`, as manifests and tables write it.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Mesh => "mesh",
+            Self::Points => "points",
+        }
+    }
+}
+
+impl std::fmt::Display for Kind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.pad(self.as_str())
+    }
 }
 
 /// Quantization steps in world units.

@@ -31,10 +31,33 @@ pub const MANIFEST_VERSION: u32 = 1;
 /// index file grows with the dataset.
 pub const SUBTREE_LEVELS: u8 = 4;
 pub const MANIFEST_FILE: &str = "tileset.json";
-/// The manifest's `kind` of a heightfield tileset (also what a manifest without `kind` is).
-pub const KIND_TERRAIN: &str = "terrain";
-/// The manifest's `kind` of a standalone model tileset (`bake-model`): one node, 0/0/0.
-pub const KIND_MODEL: &str = "model";
+/// What a tileset holds: the manifest's `kind` (`"terrain"`, also what a manifest without
+/// `kind` is, or `"model"`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TilesetKind {
+    /// A heightfield tileset (`bake`).
+    Terrain,
+    /// A standalone model tileset (`bake-model`): one node, 0/0/0.
+    Model,
+}
+
+impl TilesetKind {
+    /// `"terrain"` or `"model"`, as the manifest writes it.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Terrain => "terrain",
+            Self::Model => "model",
+        }
+    }
+}
+
+impl std::fmt::Display for TilesetKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.pad(self.as_str())
+    }
+}
 const STATE_FILE: &str = "bake-options.json";
 
 #[derive(Debug, thiserror::Error)]
@@ -63,8 +86,7 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LevelSpec {
     pub level: u8,
-    /// "mesh" or "points".
-    pub kind: String,
+    pub kind: crate::codec::Kind,
     /// Mesh: the TIN's error bound for leaf tiles (parents scale it by their sample step).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_error: Option<f64>,
@@ -335,17 +357,16 @@ impl Store {
         read_json(&self.manifest_path())
     }
 
-    /// What the tileset holds: the manifest's `kind` field, [`KIND_TERRAIN`] when it has none
-    /// (terrain manifests predate the field), [`KIND_MODEL`] for `bake-model` output.
-    pub fn manifest_kind(&self) -> Result<String, StoreError> {
+    /// What the tileset holds: the manifest's `kind` field, terrain when it has none (terrain
+    /// manifests predate the field).
+    pub fn manifest_kind(&self) -> Result<TilesetKind, StoreError> {
         let path = self.manifest_path();
         let v: serde_json::Value = read_json(&path)?;
         match v.get("kind") {
-            None => Ok(KIND_TERRAIN.to_owned()),
-            Some(serde_json::Value::String(k)) => Ok(k.clone()),
-            Some(other) => Err(StoreError::Invalid {
+            None => Ok(TilesetKind::Terrain),
+            Some(k) => TilesetKind::deserialize(k).map_err(|_| StoreError::Invalid {
                 path,
-                message: format!("manifest field `kind` is {other}, not a string"),
+                message: format!("manifest field `kind` is {k}, not \"terrain\" or \"model\""),
             }),
         }
     }

@@ -26,7 +26,7 @@ use crate::client::select::{AllResident, DrawItem, SelectParams, Selector, skirt
 use crate::client::tree::TileTree;
 use crate::codec::{self, Blob, Geometry};
 use crate::geom::Bounds;
-use crate::store::{KIND_MODEL, KIND_TERRAIN, Store};
+use crate::store::{Store, TilesetKind};
 use crate::tiling::TileKey;
 
 /// Frames timed per configuration of the instance experiment (after one warm-up frame).
@@ -91,7 +91,7 @@ impl Tileset {
         let store = Store::new(dir);
         let kind = store.manifest_kind()?;
         let manifest = store.manifest()?;
-        let tree = if kind == KIND_MODEL {
+        let tree = if kind == TilesetKind::Model {
             // A model tileset has one node and no raster (its manifest's raster size is 0): a
             // one-node quadtree holds it.
             let pyramid = crate::tiling::Pyramid::new(2, 2, 1).map_err(|e| err(e.to_string()))?;
@@ -101,8 +101,8 @@ impl Tileset {
         } else {
             TileTree::load(&store)?
         };
-        let (subject, spacing) = match kind.as_str() {
-            KIND_TERRAIN => {
+        let (subject, spacing) = match kind {
+            TilesetKind::Terrain => {
                 let cell = manifest.frame.dx.abs().max(manifest.frame.dy.abs());
                 let s = manifest
                     .levels
@@ -111,18 +111,17 @@ impl Tileset {
                     .collect::<Vec<_>>();
                 (Subject::Terrain, s)
             }
-            KIND_MODEL => {
+            TilesetKind::Model => {
                 let m = bake_model::read_manifest(&store)?;
                 (Subject::Model, m.model.levels.iter().map(|l| l.cell.unwrap_or(0.0)).collect())
             }
-            other => return Err(err(format!("{}: unknown tileset kind {other:?}", dir.display()))),
         };
         let levels = manifest
             .levels
             .iter()
             .zip(&manifest.totals)
             .map(|(l, t)| {
-                if l.kind == "mesh" {
+                if l.kind == crate::codec::Kind::Mesh {
                     format!("{} mesh ({} vertices, {} triangles)", l.level, t.count, t.triangles)
                 } else {
                     format!(

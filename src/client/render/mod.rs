@@ -581,7 +581,7 @@ impl Renderer {
 #[must_use]
 pub fn point_spacing(manifest: &Manifest, tree: &TileTree, key: TileKey, level: u8) -> f64 {
     let Some(spec) = manifest.levels.get(usize::from(level)) else { return 0.0 };
-    if spec.kind != "points" {
+    if spec.kind != crate::codec::Kind::Points {
         return 0.0;
     }
     let cell = manifest.frame.dx.abs().max(manifest.frame.dy.abs());
