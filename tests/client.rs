@@ -26,7 +26,9 @@ use std::time::Duration;
 use terrastream::client::select::{Camera, SelectParams};
 use terrastream::client::stream::fetch::FetchParams;
 use terrastream::client::stream::flight::{Flight, Pose};
-use terrastream::client::stream::session::{self as live, ReplayOptions, Session, SessionOptions};
+use terrastream::client::stream::session::{
+    self as live, ReplayOptions, ReplayPhase, Session, SessionOptions,
+};
 use terrastream::server::{Config, Server};
 use terrastream::store::Store;
 
@@ -237,7 +239,7 @@ fn outages_keep_the_last_view_drawn_and_recover() {
     let settle = |session: &mut Session, pose: &Pose, limit: f64| {
         let until = session.now() + limit;
         loop {
-            let f = session.frame(pose, 0.0, "settle").unwrap();
+            let f = session.frame(pose, 0.0, ReplayPhase::Settle).unwrap();
             if (f.complete && f.retiring == 0) || session.now() > until {
                 return f;
             }
@@ -255,7 +257,7 @@ fn outages_keep_the_last_view_drawn_and_recover() {
     let started = session.scheduler().stats().started;
     let until = session.now() + 2.0;
     while session.now() < until {
-        let f = session.frame(&near, 0.0, "flight").unwrap();
+        let f = session.frame(&near, 0.0, ReplayPhase::Flight).unwrap();
         assert!(!session.draws().is_empty() && f.holes == 0, "{f:?}");
         assert!(!f.complete);
         std::thread::sleep(Duration::from_millis(20));
@@ -278,7 +280,7 @@ fn outages_keep_the_last_view_drawn_and_recover() {
     let mid = world.pose_at(0.5 * (world.start() + world.end()));
     let until = session.now() + 1.5;
     while session.now() < until {
-        let f = session.frame(&mid, 0.0, "flight").unwrap();
+        let f = session.frame(&mid, 0.0, ReplayPhase::Flight).unwrap();
         assert!(!session.draws().is_empty() && f.holes == 0, "{f:?}");
         std::thread::sleep(Duration::from_millis(20));
     }

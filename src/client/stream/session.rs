@@ -125,6 +125,26 @@ impl Drop for HttpTransport {
     }
 }
 
+/// Which part of a replay a frame belongs to (`"flight"` or `"settle"` in `stats.json`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ReplayPhase {
+    /// Following the flight's poses.
+    #[default]
+    Flight,
+    /// Holding the last pose until the view is complete.
+    Settle,
+}
+
+impl std::fmt::Display for ReplayPhase {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.pad(match self {
+            Self::Flight => "flight",
+            Self::Settle => "settle",
+        })
+    }
+}
+
 /// Figures of one frame (one line of `stats.json`'s `frames`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct FrameStats {
@@ -133,8 +153,7 @@ pub struct FrameStats {
     pub t: f64,
     /// Session (wall-clock) time at the start of the frame (s).
     pub wall_s: f64,
-    /// `flight` or `settle` (holding the last pose until the view is complete).
-    pub phase: &'static str,
+    pub phase: ReplayPhase,
     /// Nodes whose visibility and error were evaluated.
     pub visited: u32,
     /// Nodes in the active set and those of them in view.
@@ -289,7 +308,7 @@ impl Session {
     }
 
     /// One frame at `pose` (world units): takes in what arrived, selects, schedules requests.
-    pub fn frame(&mut self, pose: &Pose, t: f64, phase: &'static str) -> Result<FrameStats, ClientError> {
+    pub fn frame(&mut self, pose: &Pose, t: f64, phase: ReplayPhase) -> Result<FrameStats, ClientError> {
         let start = Instant::now();
         let now = self.now();
         let before = self.bytes_total;
@@ -480,8 +499,8 @@ pub fn replay(
     let mut i: u32 = 0;
     loop {
         let t = world.start() + f64::from(i) * opts.speed / opts.fps;
-        let phase = if t <= world.end() { "flight" } else { "settle" };
-        if phase == "settle" {
+        let phase = if t <= world.end() { ReplayPhase::Flight } else { ReplayPhase::Settle };
+        if phase == ReplayPhase::Settle {
             let since = *settle_start.get_or_insert(session.now());
             let last_complete = frames.last().is_some_and(|f: &FrameStats| f.complete && f.retiring == 0);
             if last_complete || session.now() - since > opts.settle_s {
@@ -507,7 +526,7 @@ fn totals(session: &Session, frames: &[FrameStats]) -> Totals {
     let n = frames.len().max(1) as f64;
     Totals {
         frames: frames.len() as u32,
-        flight_frames: frames.iter().filter(|f| f.phase == "flight").count() as u32,
+        flight_frames: frames.iter().filter(|f| f.phase == ReplayPhase::Flight).count() as u32,
         bytes: session.bytes_total,
         requests: st.started,
         succeeded: st.succeeded,
