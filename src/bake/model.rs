@@ -43,6 +43,8 @@
 //! Nothing is written until the model has been read, baked and encoded in memory, so a bad
 //! model leaves `--out` untouched.
 
+pub use crate::store::model::{ModelInfo, ModelLevel, ModelLevelTable, ModelManifest};
+
 use std::path::Path;
 use std::time::Instant;
 
@@ -142,92 +144,6 @@ pub fn check_options(opts: &ModelBakeOptions) -> Result<(), ModelBakeError> {
         )));
     }
     Ok(())
-}
-
-/// One level of a model bake, as reported and stored in the manifest.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ModelLevel {
-    pub level: u8,
-    pub kind: crate::codec::Kind,
-    /// Points: the resolution T (cells across the longest side).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub resolution: Option<u32>,
-    /// Points: the cell edge, world units.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub cell: Option<f64>,
-    /// Quantization step of the stored positions, world units.
-    pub quant_step: f64,
-    /// Vertices (mesh) or points.
-    pub count: u32,
-    /// Triangles (mesh), 0 for points.
-    pub triangles: u32,
-    /// Points: cells hit by fragments, and cells added by hole filling (count = their sum).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub occupied: Option<u64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub filled: Option<u64>,
-    pub errors: Errors,
-    pub bytes: u64,
-}
-
-/// The per-level table `bake-model` and `inspect` print for a model tileset: one header line
-/// and one line per level, without a trailing newline.
-pub struct ModelLevelTable<'a>(pub &'a [ModelLevel]);
-
-impl std::fmt::Display for ModelLevelTable<'_> {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "{:>5}  {:>6}  {:>5}  {:>10}  {:>9}  {:>9}  {:>9}  {:>10}  {:>10}  {:>10}",
-            "level", "kind", "T", "cell", "count", "triangles", "bytes", "max err", "rms", "gap"
-        )?;
-        for l in self.0 {
-            write!(
-                f,
-                "\n{:>5}  {:>6}  {:>5}  {:>10}  {:>9}  {:>9}  {:>9}  {:>10.3e}  {:>10.3e}  {:>10.3e}",
-                l.level,
-                l.kind,
-                l.resolution.map_or_else(|| "-".to_owned(), |t| t.to_string()),
-                l.cell.map_or_else(|| "-".to_owned(), |c| format!("{c:.3e}")),
-                l.count,
-                l.triangles,
-                l.bytes,
-                l.errors.max,
-                l.errors.rms,
-                l.errors.gap
-            )?;
-        }
-        Ok(())
-    }
-}
-
-/// The `model` object of a model tileset's manifest.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ModelInfo {
-    pub file: String,
-    pub encoding: String,
-    /// Size and CRC-32 of the model file.
-    pub file_bytes: u64,
-    pub file_crc32: String,
-    pub vertices: u32,
-    pub triangles: u32,
-    pub faces_read: u64,
-    pub triangles_read: u64,
-    pub degenerate_skipped: u64,
-    pub vertices_read: u64,
-    pub unreferenced_dropped: u64,
-    pub normals_from_file: u64,
-    pub levels: Vec<ModelLevel>,
-}
-
-/// A model tileset's manifest: every field of a terrain [`Manifest`] (so generic readers work)
-/// plus `kind` = [`TilesetKind::Model`] and `model`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ModelManifest {
-    pub kind: TilesetKind,
-    #[serde(flatten)]
-    pub tileset: Manifest,
-    pub model: ModelInfo,
 }
 
 /// What a model bake did.
@@ -547,15 +463,7 @@ pub fn bake_model(
 
 /// Reads a model tileset's manifest; errors when the directory holds no model tileset.
 pub fn read_manifest(store: &Store) -> Result<ModelManifest, ModelBakeError> {
-    let kind = store.manifest_kind()?;
-    if kind != TilesetKind::Model {
-        return Err(ModelBakeError::Options(format!(
-            "{}: holds a {kind} tileset, not a model tileset",
-            store.dir().display()
-        )));
-    }
-    store.manifest()?;
-    Ok(store.manifest_as()?)
+    Ok(store.model_manifest()?)
 }
 
 /// Max and RMS distance between corresponding positions; gap 0.

@@ -13,6 +13,7 @@
 //! reader (or a resumed bake) sees either the old file or the complete new one, never a torn one.
 
 pub mod export;
+pub mod model;
 
 use std::fs;
 use std::io::Write;
