@@ -3,12 +3,12 @@
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use terrastream::bake::{self, BakeOptions, BakeSummary};
 use terrastream::raster::{self, HeightEncoding, Limits, LoadOptions, Overrides};
 use terrastream::store::{LevelTable, Store};
-use terrastream::{lod, tiling};
+use terrastream::tiling;
 
 use super::parse_pair;
 use super::progress::{Bar, peak_rss_mib};
@@ -53,17 +53,8 @@ pub struct BakeArgs {
     /// Refuse rasters whose decoded heights exceed this many bytes.
     #[arg(long, default_value_t = raster::DEFAULT_MAX_BYTES)]
     pub max_bytes: u64,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
-    /// Where point levels are baked: auto (a hardware GPU adapter, else the CPU with a notice;
-    /// a software adapter such as lavapipe is slower than the CPU), on (any GPU adapter,
-    /// software ones included, or an error), off (CPU).
-    #[arg(long, value_enum, default_value_t = lod::GpuMode::Auto)]
-    pub gpu: lod::GpuMode,
-    /// GPU memory budget of one batch of point levels, in MiB.
-    #[arg(long, default_value_t = lod::DEFAULT_GPU_BUDGET_MIB)]
-    pub gpu_budget_mib: u64,
+    #[command(flatten)]
+    pub baker: super::BakerArgs,
     /// Stop the bake after this many seconds (between tiles; what is baked is kept and a re-run
     /// resumes it). Default: no limit.
     #[arg(long, value_name = "SECONDS", value_parser = parse_time_limit)]
@@ -83,9 +74,7 @@ fn parse_time_limit(s: &str) -> Result<f64, String> {
 }
 
 pub fn run(a: &BakeArgs) -> Result<()> {
-    if let Some(n) = a.threads {
-        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
-    }
+    a.baker.set_threads()?;
     let opts = BakeOptions { tile_size: a.tile_size, max_error: a.max_error, levels: a.levels };
     bake::check_options(&opts)?;
     let load = LoadOptions {
@@ -120,10 +109,7 @@ pub fn run(a: &BakeArgs) -> Result<()> {
     );
     bar.enable_steady_tick(Duration::from_millis(200));
     let progress = Bar(bar, a.time_limit.map(|s| (Instant::now(), Duration::from_secs_f64(s))));
-    let (baker, notice) = lod::PointBaker::open(a.gpu, a.gpu_budget_mib.saturating_mul(1 << 20))?;
-    if let Some(n) = notice {
-        eprintln!("{n}");
-    }
+    let baker = a.baker.open()?;
     let summary = bake::bake_with(&raster, &name, &opts, &baker, &Store::new(&a.out), &progress);
     let summary = summary.inspect_err(|_| progress.0.finish_and_clear())?;
     progress.0.finish_and_clear();

@@ -2,9 +2,8 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use terrastream::bake::model::{self as bake_model, ModelBakeOptions, ModelLevelTable};
-use terrastream::lod;
 use terrastream::model::FileType;
 use terrastream::store::Store;
 
@@ -28,23 +27,12 @@ pub struct BakeModelArgs {
     /// Read the file as this format instead of going by its extension or content.
     #[arg(long = "format", value_enum)]
     pub file_type: Option<FileType>,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
-    /// Where point levels are baked: auto (a hardware GPU adapter, else the CPU with a notice;
-    /// a software adapter such as lavapipe is slower than the CPU), on (any GPU adapter,
-    /// software ones included, or an error), off (CPU).
-    #[arg(long, value_enum, default_value_t = lod::GpuMode::Auto)]
-    pub gpu: lod::GpuMode,
-    /// GPU memory budget of one batch of point levels, in MiB.
-    #[arg(long, default_value_t = lod::DEFAULT_GPU_BUDGET_MIB)]
-    pub gpu_budget_mib: u64,
+    #[command(flatten)]
+    pub baker: super::BakerArgs,
 }
 
 pub fn run(a: &BakeModelArgs) -> Result<()> {
-    if let Some(n) = a.threads {
-        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
-    }
+    a.baker.set_threads()?;
     let resolutions = match &a.resolutions {
         Some(r) => r.clone(),
         None => bake_model::ladder(a.resolution, a.levels)?,
@@ -54,10 +42,7 @@ pub fn run(a: &BakeModelArgs) -> Result<()> {
     // quickly and with nothing but its own error on stderr.
     bake_model::check_options(&opts)?;
     let file = bake_model::read_model_file(&a.model, opts.file_type)?;
-    let (baker, notice) = lod::PointBaker::open(a.gpu, a.gpu_budget_mib.saturating_mul(1 << 20))?;
-    if let Some(n) = notice {
-        eprintln!("{n}");
-    }
+    let baker = a.baker.open()?;
     let s = bake_model::bake_read_model(&file, &opts, &baker, &Store::new(&a.out))?;
     let st = &s.stats;
     outln!(

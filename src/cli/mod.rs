@@ -16,8 +16,9 @@ mod progress;
 pub mod serve;
 pub mod synth;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
+use terrastream::lod;
 use terrastream::tiling::TileKey;
 
 #[derive(Parser)]
@@ -60,6 +61,41 @@ pub enum Command {
     Eval(Box<eval::EvalArgs>),
     /// Decode one (tile, level) to PLY or OBJ in world coordinates.
     Export(export::ExportArgs),
+}
+
+/// The worker and point-baker flags `bake` and `bake-model` share.
+#[derive(clap::Args)]
+pub struct BakerArgs {
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Where point levels are baked: auto (a hardware GPU adapter, else the CPU with a notice;
+    /// a software adapter such as lavapipe is slower than the CPU), on (any GPU adapter,
+    /// software ones included, or an error), off (CPU).
+    #[arg(long, value_enum, default_value_t = lod::GpuMode::Auto)]
+    pub gpu: lod::GpuMode,
+    /// GPU memory budget of one batch of point levels, in MiB.
+    #[arg(long, default_value_t = lod::DEFAULT_GPU_BUDGET_MIB)]
+    pub gpu_budget_mib: u64,
+}
+
+impl BakerArgs {
+    /// Sizes the global worker pool (`--threads`); call before any parallel work.
+    pub fn set_threads(&self) -> Result<()> {
+        if let Some(n) = self.threads {
+            rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
+        }
+        Ok(())
+    }
+
+    /// Opens the point baker `--gpu` asks for, printing its notice (if any) on stderr.
+    pub fn open(&self) -> Result<lod::PointBaker> {
+        let (baker, notice) = lod::PointBaker::open(self.gpu, self.gpu_budget_mib.saturating_mul(1 << 20))?;
+        if let Some(n) = notice {
+            eprintln!("{n}");
+        }
+        Ok(baker)
+    }
 }
 
 /// Runs the parsed command.
