@@ -29,7 +29,7 @@ BIN=target/$TRIPLE/release
 max_len() {
     case $1 in
         raster_hgt|flight_json|config_toml|http_router) echo 4096 ;;
-        codec_roundtrip) echo 8192 ;;
+        codec_roundtrip) echo 2048 ;;
         *) echo 16384 ;;
     esac
 }

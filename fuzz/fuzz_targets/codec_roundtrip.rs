@@ -35,8 +35,11 @@ fn step((m, e): (u8, i8)) -> f64 {
     (1.0 + f64::from(m) / 256.0) * 2f64.powi(i32::from(e % 24))
 }
 
+// Caps keep one execution well under a millisecond (at 2,000 vertices the grown corpus ran at
+// 433 exec/s); larger clouds exercise no other code path: the codec's per-vertex loops are the
+// same, and the tests in `src/codec` cover full tiles.
 fuzz_target!(|inp: Input| {
-    if inp.verts.len() > 2000 || inp.tris.len() > 4000 {
+    if inp.verts.len() > 256 || inp.tris.len() > 512 {
         return;
     }
     let q = Quantization { xy_step: step(inp.xy_step), z_step: step(inp.z_step) };
