@@ -51,7 +51,7 @@ fn main() -> anyhow::Result<()> {
     let meshes: Vec<NodeMesh> = pyramid
         .nodes()
         .into_par_iter()
-        .map(|k| bake::bake_node_mesh(&pyramid, &r.heights, &r.georef, k, &opts))
+        .map(|k| bake::node_mesh(&pyramid, &r.heights, &r.georef, k, &opts))
         .collect::<Result<_, _>>()?;
     let triangles: usize = meshes.iter().map(|m| m.mesh.triangles.len()).sum();
     eprintln!(

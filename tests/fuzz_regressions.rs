@@ -95,7 +95,15 @@ fn tile_key_at_z_64_is_a_client_error() {
     };
     let opts = BakeOptions { tile_size: 16, max_error: 1.0, levels: 1 };
     let store = dir.path().join("deep");
-    terrastream::bake::bake(&raster, "s", &opts, &Store::new(&store), &NoProgress).unwrap();
+    terrastream::bake::bake_terrain(
+        &raster,
+        "s",
+        &opts,
+        &terrastream::lod::PointBaker::Cpu,
+        &Store::new(&store),
+        &NoProgress,
+    )
+    .unwrap();
     let manifest = store.join("tileset.json");
     let mut m: serde_json::Value = serde_json::from_slice(&std::fs::read(&manifest).unwrap()).unwrap();
     m["depth"] = 64.into();

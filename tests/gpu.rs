@@ -148,11 +148,7 @@ fn check_jobs(name: &str, gpu: &GpuBaker, jobs: &[LevelJob<'_>]) -> Agreement {
 fn node_meshes(hf: &Heightfield, georef: &Georef, tile: u32, max_error: f64) -> Vec<NodeMesh> {
     let opts = BakeOptions { tile_size: tile, max_error, levels: 3 };
     let pyramid = Pyramid::new(hf.width, hf.height, tile).unwrap();
-    pyramid
-        .nodes()
-        .into_iter()
-        .map(|k| bake::bake_node_mesh(&pyramid, hf, georef, k, &opts).unwrap())
-        .collect()
+    pyramid.nodes().into_iter().map(|k| bake::node_mesh(&pyramid, hf, georef, k, &opts).unwrap()).collect()
 }
 
 fn level_jobs(meshes: &[NodeMesh], levels: u8) -> Vec<LevelJob<'_>> {

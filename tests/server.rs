@@ -142,7 +142,15 @@ fn write_raster(path: &Path, (w, h): (u32, u32), seed: u64) {
 /// Bakes the test raster into `store/name`.
 fn bake_into(store: &Path, name: &str, raster_path: &Path) {
     let r = raster::load(raster_path, &LoadOptions::default()).unwrap();
-    terrastream::bake::bake(&r, "t.tif", &OPTS, &Store::new(&store.join(name)), &NoProgress).unwrap();
+    terrastream::bake::bake_terrain(
+        &r,
+        "t.tif",
+        &OPTS,
+        &terrastream::lod::PointBaker::Cpu,
+        &Store::new(&store.join(name)),
+        &NoProgress,
+    )
+    .unwrap();
 }
 
 struct Running {

@@ -1,9 +1,15 @@
-//! Baking: the entry points that turn an input into a tileset directory. [`terrain`] bakes a
-//! loaded raster (every node of its pyramid, in parallel, resumable); [`model`] bakes one OBJ,
-//! STL or PLY model into a single-tile model tileset.
+//! Baking: the three entry points that turn an input into tiles.
+//!
+//! - [`bake_terrain`] bakes a loaded raster into a terrain tileset: every node of its pyramid,
+//!   in parallel, resumable, the manifest last (`terrain`);
+//! - [`bake_node`] bakes one node of a raster into an existing tileset directory, the same
+//!   bytes [`bake_terrain`] writes for it: the server's on-demand tiles (`node`);
+//! - [`model::bake_model`] bakes one OBJ, STL or PLY model into a single-tile model tileset.
 
+mod node;
 mod terrain;
 
 pub mod model;
 
+pub use node::{NodeBake, NodeMesh, bake_node, node_from_blobs, node_mesh};
 pub use terrain::*;

@@ -56,11 +56,7 @@ use crate::geom::{Bounds, Errors, Mesh};
 use crate::lod;
 use crate::lod::PointBaker;
 use crate::model::{self, FileType, MeshError, Model, ModelStats};
-use crate::raster::Georef;
-use crate::store::{
-    IndexChunk, LevelSpec, LevelTotals, MANIFEST_FORMAT, MANIFEST_VERSION, Manifest, NodeEntry, NodeLevel,
-    SUBTREE_LEVELS, SourceInfo, Store, StoreError, TilesetKind,
-};
+use crate::store::{IndexChunk, NodeEntry, NodeLevel, Store, StoreError, TilesetKind};
 use crate::tiling::TileKey;
 
 /// Default number of point levels below the mesh.
@@ -78,8 +74,34 @@ pub const MODEL_TILE: TileKey = TileKey::new(0, 0, 0);
 
 #[derive(Debug, thiserror::Error)]
 pub enum ModelBakeError {
-    #[error("bake-model: {0}")]
-    Options(String),
+    #[error(
+        "bake-model: --resolution {first} is too small for {levels} distinct levels (--levels); raise \
+         --resolution to at least {levels} or lower --levels"
+    )]
+    Ladder { first: u32, levels: u8 },
+    #[error("bake-model: at most {max} point levels, got {got}", max = crate::bake::MAX_LEVELS)]
+    TooManyLevels { got: usize },
+    #[error("bake-model: resolution {0} is outside 1..={MAX_RESOLUTION}")]
+    Resolution(u32),
+    #[error(
+        "bake-model: resolutions must decrease level by level (each level coarser than the one before), got \
+         {0:?}"
+    )]
+    NotDecreasing(Vec<u32>),
+    #[error("bake-model: {file}: the model has no valid bounds")]
+    NoBounds { file: String },
+    #[error(
+        "bake-model: {file}: coordinates reach {reach:e} (box {min:?}..{max:?}), beyond the supported \
+         ±{MAX_MODEL_COORDINATE:e}"
+    )]
+    TooLarge { file: String, reach: f64, min: [f64; 3], max: [f64; 3] },
+    #[error("bake-model: {file}: the model has zero extent")]
+    ZeroExtent { file: String },
+    #[error(
+        "bake-model: {file}: the model is {longest:e} wide but lies {reach:e} from the origin (more than 1e9 \
+         times its size); move it nearer the origin"
+    )]
+    FarFromOrigin { file: String, longest: f64, reach: f64 },
     #[error(transparent)]
     Mesh(#[from] MeshError),
     #[error("bake-model: {file}: level {level}: {source}")]
@@ -117,10 +139,7 @@ pub fn ladder(first: u32, levels: u8) -> Result<Vec<u32>, ModelBakeError> {
     let out: Vec<u32> =
         (1..=k).map(|l| ((u64::from(first) * (k + 1 - l) + k / 2) / k.max(1)) as u32).collect();
     if out.windows(2).any(|w| w[1] >= w[0]) || out.contains(&0) {
-        return Err(ModelBakeError::Options(format!(
-            "--resolution {first} is too small for {levels} distinct levels (--levels); raise --resolution \
-             to at least {levels} or lower --levels"
-        )));
+        return Err(ModelBakeError::Ladder { first, levels });
     }
     Ok(out)
 }
@@ -129,19 +148,13 @@ pub fn ladder(first: u32, levels: u8) -> Result<Vec<u32>, ModelBakeError> {
 pub fn check_options(opts: &ModelBakeOptions) -> Result<(), ModelBakeError> {
     let r = &opts.resolutions;
     if r.len() > usize::from(crate::bake::MAX_LEVELS) {
-        return Err(ModelBakeError::Options(format!(
-            "at most {} point levels, got {}",
-            crate::bake::MAX_LEVELS,
-            r.len()
-        )));
+        return Err(ModelBakeError::TooManyLevels { got: r.len() });
     }
     if let Some(t) = r.iter().find(|&&t| t == 0 || t > MAX_RESOLUTION) {
-        return Err(ModelBakeError::Options(format!("resolution {t} is outside 1..={MAX_RESOLUTION}")));
+        return Err(ModelBakeError::Resolution(*t));
     }
     if r.windows(2).any(|w| w[1] >= w[0]) {
-        return Err(ModelBakeError::Options(format!(
-            "resolutions must decrease level by level (each level coarser than the one before), got {r:?}"
-        )));
+        return Err(ModelBakeError::NotDecreasing(r.clone()));
     }
     Ok(())
 }
@@ -165,6 +178,48 @@ pub struct ModelBakeSummary {
     pub point_baker: String,
 }
 
+/// What `bake-model` prints when it is done: what was read and cleaned, what was baked where,
+/// the point baker and the level table; no trailing newline.
+pub struct ModelBakeReport<'a> {
+    pub summary: &'a ModelBakeSummary,
+    /// The tileset directory baked into.
+    pub out: &'a Path,
+}
+
+impl std::fmt::Display for ModelBakeReport<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let s = self.summary;
+        let st = &s.stats;
+        writeln!(
+            f,
+            "{} ({}): {} faces → {} triangles read, {} degenerate skipped; {} vertices read, {} unreferenced \
+             dropped, {} normals from the file",
+            s.file,
+            s.encoding,
+            st.faces,
+            st.triangles_read,
+            st.degenerate,
+            st.vertices_read,
+            st.unreferenced,
+            st.normals_from_file
+        )?;
+        writeln!(
+            f,
+            "baked {} levels into {}{} in {:.3} s (read {:.3} s, bake {:.3} s); bounds {:?} – {:?}",
+            s.levels.len(),
+            self.out.display(),
+            if s.resumed { " (same options: rewritten)" } else { "" },
+            s.seconds,
+            s.read_seconds,
+            s.bake_seconds,
+            s.bounds.min,
+            s.bounds.max
+        )?;
+        writeln!(f, "point levels baked by {}", s.point_baker)?;
+        write!(f, "{}", ModelLevelTable(&s.levels))
+    }
+}
+
 /// A baked level in memory, encoded.
 struct BakedLevel {
     info: ModelLevel,
@@ -172,7 +227,7 @@ struct BakedLevel {
     checksum: u32,
 }
 
-/// A model file read and cleaned, ready for [`bake_read_model`].
+/// A model file read and cleaned, ready for [`bake_model`].
 #[derive(Debug, Clone)]
 pub struct ModelFile {
     pub model: Model,
@@ -202,32 +257,6 @@ pub fn read_model_file(path: &Path, file_type: Option<FileType>) -> Result<Model
     Ok(ModelFile { model, source, read_seconds: t0.elapsed().as_secs_f64() })
 }
 
-/// Bakes a model read by [`read_model_file`] into `store`; the summary's times include the read.
-pub fn bake_read_model(
-    file: &ModelFile,
-    opts: &ModelBakeOptions,
-    baker: &PointBaker,
-    store: &Store,
-) -> Result<ModelBakeSummary, ModelBakeError> {
-    let mut summary = bake_model(&file.model, &file.source, opts, baker, store)?;
-    summary.read_seconds = file.read_seconds;
-    summary.seconds += file.read_seconds;
-    Ok(summary)
-}
-
-/// Reads `path` and bakes it into `store` (see the module doc). Nothing is written when the
-/// model cannot be read or baked.
-pub fn bake_model_file(
-    path: &Path,
-    opts: &ModelBakeOptions,
-    baker: &PointBaker,
-    store: &Store,
-) -> Result<ModelBakeSummary, ModelBakeError> {
-    check_options(opts)?;
-    let file = read_model_file(path, opts.file_type)?;
-    bake_read_model(&file, opts, baker, store)
-}
-
 /// The model file as the manifest and the resume check name it.
 #[derive(Debug, Clone)]
 pub struct SourceFile {
@@ -239,42 +268,43 @@ pub struct SourceFile {
 /// Largest |coordinate| of a model accepted by [`bake_model`] (model units).
 pub const MAX_MODEL_COORDINATE: f64 = 1e12;
 
-/// Bakes a decoded model into `store`: every level in memory first, then blobs, index and
-/// manifest (last). An earlier bake of the same file with the same options is overwritten with
-/// identical bytes; one with other options, or a foreign directory, is refused.
+/// Bakes a model read by [`read_model_file`] into `store`: every level in memory first, then
+/// blobs, index and manifest (last), so a model that cannot be baked leaves `store` untouched.
+/// An earlier bake of the same file with the same options is overwritten with identical bytes;
+/// one with other options, or a foreign directory, is refused. The summary's times include the
+/// read.
+#[expect(clippy::too_many_lines, reason = "one bake, step by step; the manifest is built in `store`")]
 pub fn bake_model(
-    model: &Model,
-    source: &SourceFile,
+    file: &ModelFile,
     opts: &ModelBakeOptions,
     baker: &PointBaker,
     store: &Store,
 ) -> Result<ModelBakeSummary, ModelBakeError> {
     check_options(opts)?;
     let t0 = Instant::now();
+    let (model, source) = (&file.model, &file.source);
     let mesh = &model.mesh;
     let raw = Bounds::of_points(&mesh.positions);
     if !raw.is_valid() {
-        return Err(ModelBakeError::Options(format!("{}: the model has no valid bounds", source.name)));
+        return Err(ModelBakeError::NoBounds { file: source.name.clone() });
     }
     let reach = raw.min.iter().chain(&raw.max).fold(0.0f64, |m, v| m.max(v.abs()));
     if reach.is_nan() || reach > MAX_MODEL_COORDINATE {
-        return Err(ModelBakeError::Options(format!(
-            "{}: coordinates reach {reach:e} (box {:?}..{:?}), beyond the supported ±{MAX_MODEL_COORDINATE:e}",
-            source.name, raw.min, raw.max
-        )));
+        return Err(ModelBakeError::TooLarge {
+            file: source.name.clone(),
+            reach,
+            min: raw.min,
+            max: raw.max,
+        });
     }
     let longest = raw.size().into_iter().fold(0.0f64, f64::max);
     if !(longest > 0.0 && longest.is_finite()) {
-        return Err(ModelBakeError::Options(format!("{}: the model has zero extent", source.name)));
+        return Err(ModelBakeError::ZeroExtent { file: source.name.clone() });
     }
     // Relative to its own size a model may sit far from the origin, but not so far that the
     // quantization grid (2^-MESH_QUANT_BITS of the extent) loses its steps in f64.
     if reach / longest > 1e9 {
-        return Err(ModelBakeError::Options(format!(
-            "{}: the model is {longest:e} wide but lies {reach:e} from the origin (more than 1e9 times its \
-             size); move it nearer the origin",
-            source.name
-        )));
+        return Err(ModelBakeError::FarFromOrigin { file: source.name.clone(), longest, reach });
     }
     let codec_err = |level: u8| {
         let file = source.name.clone();
@@ -385,67 +415,25 @@ pub fn bake_model(
         root: MODEL_TILE,
         nodes: vec![NodeEntry { key: MODEL_TILE, bounds, levels: node_levels.clone() }],
     })?;
-    let mut hasher = crc32fast::Hasher::new();
-    let mut totals = Vec::with_capacity(levels.len());
-    for l in &node_levels {
-        hasher.update(&l.checksum.to_le_bytes());
-        let mut t = LevelTotals::default();
-        t.add(l);
-        totals.push(t);
-    }
-    let specs = levels
-        .iter()
-        .map(|l| LevelSpec {
-            level: l.info.level,
-            kind: l.info.kind,
-            max_error: None,
-            cell_leaf_cells: None,
-            texture_size: l.info.resolution,
-            precision_per_cell: l.info.resolution.map(|_| POINT_STEPS_PER_CELL),
-        })
-        .collect();
     let infos: Vec<ModelLevel> = levels.into_iter().map(|l| l.info).collect();
     let s = model.stats;
-    let manifest = ModelManifest {
-        kind: TilesetKind::Model,
-        tileset: Manifest {
-            format: MANIFEST_FORMAT.into(),
-            version: MANIFEST_VERSION,
-            content_version: format!("{:08x}", hasher.finalize()),
-            source: SourceInfo {
-                file: source.name.clone(),
-                format: model.encoding.name().into(),
-                width: 0,
-                height: 0,
-                nodata_filled: 0,
-            },
-            // Model coordinates are world coordinates.
-            frame: Georef::default(),
-            tile_size: 0,
-            depth: 0,
-            subtree_levels: SUBTREE_LEVELS,
-            bounds,
-            levels: specs,
-            totals,
-            options: options_json,
-            point_baker: baker.describe(),
-        },
-        model: ModelInfo {
-            file: source.name.clone(),
-            encoding: model.encoding.name().into(),
-            file_bytes: source.bytes,
-            file_crc32: source.crc32.clone(),
-            vertices: mesh.positions.len() as u32,
-            triangles: mesh.triangles.len() as u32,
-            faces_read: s.faces as u64,
-            triangles_read: s.triangles_read as u64,
-            degenerate_skipped: s.degenerate as u64,
-            vertices_read: s.vertices_read as u64,
-            unreferenced_dropped: s.unreferenced as u64,
-            normals_from_file: s.normals_from_file as u64,
-            levels: infos.clone(),
-        },
+    let info = ModelInfo {
+        file: source.name.clone(),
+        encoding: model.encoding.name().into(),
+        file_bytes: source.bytes,
+        file_crc32: source.crc32.clone(),
+        vertices: mesh.positions.len() as u32,
+        triangles: mesh.triangles.len() as u32,
+        faces_read: s.faces as u64,
+        triangles_read: s.triangles_read as u64,
+        degenerate_skipped: s.degenerate as u64,
+        vertices_read: s.vertices_read as u64,
+        unreferenced_dropped: s.unreferenced as u64,
+        normals_from_file: s.normals_from_file as u64,
+        levels: infos.clone(),
     };
+    let manifest =
+        ModelManifest::new(info, bounds, &node_levels, POINT_STEPS_PER_CELL, options_json, baker.describe());
     store.finish_bake_as(&manifest)?;
     Ok(ModelBakeSummary {
         file: source.name.clone(),
@@ -453,9 +441,9 @@ pub fn bake_model(
         stats: s,
         bounds,
         levels: infos,
-        read_seconds: 0.0,
+        read_seconds: file.read_seconds,
         bake_seconds,
-        seconds: t0.elapsed().as_secs_f64(),
+        seconds: t0.elapsed().as_secs_f64() + file.read_seconds,
         resumed,
         point_baker: baker.describe(),
     })
@@ -508,9 +496,10 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let store = Store::new(&dir.path().join("ts"));
         let model = model::parse(TET.as_bytes(), "tet.obj", None).unwrap();
-        let src = SourceFile { name: "tet.obj".into(), bytes: TET.len() as u64, crc32: "0".into() };
+        let source = SourceFile { name: "tet.obj".into(), bytes: TET.len() as u64, crc32: "0".into() };
+        let file = ModelFile { model, source, read_seconds: 0.0 };
         let opts = ModelBakeOptions { resolutions: vec![32, 16, 8], file_type: None };
-        let s = bake_model(&model, &src, &opts, &PointBaker::Cpu, &store).unwrap();
+        let s = bake_model(&file, &opts, &PointBaker::Cpu, &store).unwrap();
         assert_eq!(s.levels.len(), 4);
         assert_eq!((s.levels[0].count, s.levels[0].triangles), (4, 4));
         // Unit coordinates sit on the quantization grid exactly.
@@ -545,10 +534,9 @@ mod tests {
         let model = model::parse(text.as_bytes(), "tri.obj", None).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let store = Store::new(dir.path());
-        let src = SourceFile { name: "tri.obj".into(), bytes: 0, crc32: "0".into() };
+        let source = SourceFile { name: "tri.obj".into(), bytes: 0, crc32: "0".into() };
         let s = bake_model(
-            &model,
-            &src,
+            &ModelFile { model, source, read_seconds: 0.0 },
             &ModelBakeOptions { resolutions: vec![8], file_type: None },
             &PointBaker::Cpu,
             &store,

@@ -1,27 +1,35 @@
-//! The bake pipeline: a loaded raster → per node a TIN (level 0) and point levels (1..=K) →
-//! blobs and index chunks in a tileset directory, in parallel over nodes, resumable.
+//! The terrain bake ([`bake_terrain`]): a loaded raster → per node a TIN (level 0) and point
+//! levels (1..=K) → blobs and index chunks in a tileset directory, in parallel over nodes,
+//! resumable; the manifest last.
 //!
-//! Per node: read its sample grid through the `WindowReader`, build the TIN with the node's
-//! error bound, convert to world coordinates and quantize exactly as the blob stores it, then
-//! measure everything on the quantized geometry (the errors a client sees are the errors of the
-//! bytes it receives). Point levels are baked from the quantized mesh.
+//! Per node (see `node`): read its sample grid through the `WindowReader`, build the TIN with
+//! the node's error bound, convert to world coordinates and quantize exactly as the blob stores
+//! it, then measure everything on the quantized geometry (the errors a client sees are the
+//! errors of the bytes it receives). Point levels are baked from the quantized mesh.
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::codec::{self, Quantization};
-use crate::geom::{Bounds, Errors, Mesh, PointCloud};
+use crate::codec;
+use crate::geom::Bounds;
+#[cfg(feature = "gpu")]
+use crate::geom::PointCloud;
 use crate::lod::{self, PointBaker};
-use crate::raster::{Georef, LoadedRaster, WindowReader};
+use crate::raster::LoadedRaster;
 use crate::store::{
-    IndexChunk, LevelSpec, LevelTotals, MANIFEST_FORMAT, MANIFEST_VERSION, Manifest, NodeEntry, NodeLevel,
-    SUBTREE_LEVELS, SourceInfo, Store, chunk_root,
+    IndexChunk, LevelSpec, LevelTable, LevelTotals, MANIFEST_FORMAT, MANIFEST_VERSION, Manifest, NodeEntry,
+    SUBTREE_LEVELS, SourceInfo, Store, chunk_root, content_version,
 };
 use crate::tiling::{Pyramid, TileKey};
 use crate::tin;
+
+#[cfg(feature = "gpu")]
+use super::node::{NodeMesh, finish_node, node_mesh, write_node};
+use super::node::{bake_node_in, node_from_blobs};
 
 /// Default TIN error bound for leaf tiles, in metres.
 pub const DEFAULT_MAX_ERROR: f64 = 1.0;
@@ -53,8 +61,17 @@ impl Default for BakeOptions {
 
 #[derive(Debug, thiserror::Error)]
 pub enum BakeError {
-    #[error("bake: {0}")]
-    Options(String),
+    #[error("bake: --max-error must be a finite number ≥ 0, got {0}")]
+    MaxError(f64),
+    #[error("bake: --levels must be at most {MAX_LEVELS}, got {0}")]
+    Levels(u8),
+    #[error("bake: --tile-size must be 2 to 65536 cells, got {0}")]
+    TileSize(u32),
+    #[error("bake: tile {0} is outside the raster's quadtree")]
+    OutsidePyramid(TileKey),
+    /// The GPU path's worker thread ended before it returned every round (it panicked).
+    #[error("bake: the gpu worker stopped")]
+    GpuWorkerStopped,
     #[error("bake: {0}")]
     Tiling(#[from] crate::tiling::TilingError),
     #[error("bake: tile {key}: {source}")]
@@ -114,39 +131,56 @@ impl BakeSummary {
     }
 }
 
-/// The world frame of a node sample grid.
-struct GridFrame<'a> {
-    g: &'a Georef,
+/// What `bake` prints when it is done: the summary line, the process's peak memory when known,
+/// the point baker, the GPU batches (GPU path only) and the level table; no trailing newline.
+pub struct BakeReport<'a> {
+    pub summary: &'a BakeSummary,
+    /// The tileset directory baked into.
+    pub out: &'a std::path::Path,
+    pub peak_rss_mib: Option<f64>,
 }
 
-impl GridFrame<'_> {
-    fn world(&self, col: f64, row: f64, z: f64) -> [f64; 3] {
-        [self.g.x0 + col * self.g.dx, self.g.y0 + row * self.g.dy, z]
-    }
-    fn cell(&self) -> f64 {
-        self.g.dx.abs().max(self.g.dy.abs())
+impl std::fmt::Display for BakeReport<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let s = self.summary;
+        writeln!(
+            f,
+            "baked {} tiles ({} resumed) into {} in {:.2} s: {:.2} M samples/s, {} no-data samples filled",
+            s.nodes,
+            s.nodes_resumed,
+            self.out.display(),
+            s.seconds,
+            s.samples_per_second() / 1e6,
+            s.nodata_filled
+        )?;
+        if let Some(mib) = self.peak_rss_mib {
+            writeln!(f, "peak memory (RSS): {mib:.0} MiB")?;
+        }
+        writeln!(f, "point levels baked by {}", s.point_baker)?;
+        if s.gpu_batches > 0 {
+            writeln!(
+                f,
+                "gpu: {} batches, peak {:.1} MiB per batch (budget {:.0} MiB), {} levels left to the cpu",
+                s.gpu_batches,
+                s.gpu_peak_batch_bytes as f64 / f64::from(1 << 20),
+                s.gpu_budget_bytes as f64 / f64::from(1 << 20),
+                s.gpu_cpu_fallback_levels
+            )?;
+        }
+        write!(f, "{}", LevelTable(&s.totals))
     }
 }
 
 /// Validates options before anything is written.
 pub fn check_options(opts: &BakeOptions) -> Result<(), BakeError> {
     if !opts.max_error.is_finite() || opts.max_error < 0.0 {
-        return Err(BakeError::Options(format!(
-            "--max-error must be a finite number ≥ 0, got {}",
-            opts.max_error
-        )));
+        return Err(BakeError::MaxError(opts.max_error));
     }
     if opts.levels > MAX_LEVELS {
-        return Err(BakeError::Options(format!(
-            "--levels must be at most {MAX_LEVELS}, got {}",
-            opts.levels
-        )));
+        return Err(BakeError::Levels(opts.levels));
     }
     if opts.tile_size < 2 || opts.tile_size > 65_536 {
-        return Err(BakeError::Options(format!(
-            "--tile-size must be 2 to 65536 cells, got {}",
-            opts.tile_size
-        )));
+        return Err(BakeError::TileSize(opts.tile_size));
     }
     Ok(())
 }
@@ -176,20 +210,9 @@ pub fn level_specs(opts: &BakeOptions) -> Vec<LevelSpec> {
     out
 }
 
-/// Bakes `raster` into `store` with the CPU point baker (see [`bake_with`]).
-pub fn bake(
-    raster: &LoadedRaster,
-    source_name: &str,
-    opts: &BakeOptions,
-    store: &Store,
-    progress: &dyn Progress,
-) -> Result<BakeSummary, BakeError> {
-    bake_with(raster, source_name, opts, &PointBaker::Cpu, store, progress)
-}
-
 /// Bakes `raster` into `store`, point levels by `baker`. Resumes a bake with the same options,
 /// keeping complete nodes.
-pub fn bake_with(
+pub fn bake_terrain(
     raster: &LoadedRaster,
     source_name: &str,
     opts: &BakeOptions,
@@ -201,21 +224,14 @@ pub fn bake_with(
     let t0 = Instant::now();
     let hf = &raster.heights;
     let pyramid = Pyramid::new(hf.width, hf.height, opts.tile_size)?;
-    let options_json = serde_json::json!({
-        "tile_size": opts.tile_size,
-        "max_error": opts.max_error,
-        "levels": opts.levels,
-        "frame": raster.georef,
-        "source": { "file": source_name, "width": hf.width, "height": hf.height, "crc32": heights_crc(&hf.data) },
-        "format_version": codec::FORMAT_VERSION,
-    });
+    let options_json = options_record(raster, source_name, opts);
     store.begin_bake(&options_json)?;
 
     // Larger nodes first: parents measure against more full-resolution samples, so starting them
     // early keeps both cores busy until the end.
     let nodes = pyramid.nodes();
     let resumed: Vec<Option<NodeEntry>> =
-        nodes.par_iter().map(|&k| existing_node(store, k, opts.levels)).collect();
+        nodes.par_iter().map(|&k| node_from_blobs(store, k, opts.levels)).collect();
     let resumed_count = resumed.iter().filter(|r| r.is_some()).count() as u64;
     progress.start(nodes.len() as u64, resumed_count);
     // [batches, peak batch bytes, budget bytes, levels left to the CPU] of the GPU path.
@@ -237,12 +253,9 @@ pub fn bake_with(
     let mut chunks: std::collections::BTreeMap<TileKey, Vec<NodeEntry>> = std::collections::BTreeMap::new();
     let mut totals = vec![LevelTotals::default(); usize::from(opts.levels) + 1];
     let mut bounds = Bounds::empty();
-    let mut hasher = crc32fast::Hasher::new();
     for e in &entries {
         for (t, l) in totals.iter_mut().zip(&e.levels) {
             t.add(l);
-            // Every blob's checksum, in node order, names this exact content.
-            hasher.update(&l.checksum.to_le_bytes());
         }
         bounds.extend(e.bounds.min);
         bounds.extend(e.bounds.max);
@@ -254,7 +267,7 @@ pub fn bake_with(
     let manifest = Manifest {
         format: MANIFEST_FORMAT.into(),
         version: MANIFEST_VERSION,
-        content_version: format!("{:08x}", hasher.finalize()),
+        content_version: content_version(entries.iter().flat_map(|e| &e.levels)),
         source: SourceInfo {
             file: source_name.into(),
             format: raster.format.clone(),
@@ -299,30 +312,39 @@ fn bake_nodes_cpu(
     progress: &dyn Progress,
 ) -> Result<Vec<NodeEntry>, BakeError> {
     let hf = &raster.heights;
-    let failures = AtomicU64::new(0);
-    nodes
+    // The first failure stops the others (nodes already in flight finish) and is what the bake
+    // reports.
+    let first_error: Mutex<Option<BakeError>> = Mutex::new(None);
+    let failed = AtomicBool::new(false);
+    let fail = |e: BakeError| {
+        failed.store(true, Ordering::Relaxed);
+        first_error.lock().unwrap_or_else(std::sync::PoisonError::into_inner).get_or_insert(e);
+    };
+    let entries: Option<Vec<NodeEntry>> = nodes
         .par_iter()
         .zip(resumed.into_par_iter())
         .map(|(&key, prev)| {
             if let Some(entry) = prev {
-                return Ok(entry);
+                return Some(entry);
             }
-            if failures.load(Ordering::Relaxed) > 0 {
-                return Err(None);
+            if failed.load(Ordering::Relaxed) {
+                return None;
             }
             if let Some(why) = progress.cancelled() {
-                failures.fetch_add(1, Ordering::Relaxed);
-                return Err(Some(BakeError::Cancelled(why)));
+                fail(BakeError::Cancelled(why));
+                return None;
             }
-            let r = bake_node(pyramid, hf, &raster.georef, key, opts, store);
+            let r = bake_node_in(pyramid, hf, &raster.georef, key, opts, &PointBaker::Cpu, store);
             progress.node_done();
-            r.map_err(|e| {
-                failures.fetch_add(1, Ordering::Relaxed);
-                Some(e)
-            })
+            r.map_err(fail).ok()
         })
-        .collect::<Result<_, Option<BakeError>>>()
-        .map_err(|e| e.unwrap_or_else(|| BakeError::Options("bake stopped after an earlier failure".into())))
+        .collect();
+    match (entries, first_error.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner)) {
+        (Some(entries), None) => Ok(entries),
+        (_, Some(e)) => Err(e),
+        // A `None` is only ever returned after `fail`.
+        (None, None) => unreachable!("a node failed without an error"),
+    }
 }
 
 /// Nodes per GPU round: their TINs are built (in parallel) while the GPU bakes the round
@@ -412,23 +434,22 @@ fn bake_nodes_gpu(
             }
             let meshes: Vec<NodeMesh> = round
                 .par_iter()
-                .map(|&i| bake_node_mesh(pyramid, hf, &raster.georef, nodes[i], opts))
+                .map(|&i| node_mesh(pyramid, hf, &raster.georef, nodes[i], opts))
                 .collect::<Result<_, _>>()?;
             if to_gpu.send((round.to_vec(), meshes)).is_err() {
-                break;
+                return Err(BakeError::GpuWorkerStopped);
             }
             sent += 1;
             // Keep one round queued behind the one the GPU is baking.
             if sent - received > 1 {
-                let baked =
-                    from_gpu.recv().map_err(|_| BakeError::Options("gpu worker stopped".into()))??;
+                let baked = from_gpu.recv().map_err(|_| BakeError::GpuWorkerStopped)??;
                 received += 1;
                 report.merge(&finish(&mut entries, baked)?);
             }
         }
         drop(to_gpu);
         while received < sent {
-            let baked = from_gpu.recv().map_err(|_| BakeError::Options("gpu worker stopped".into()))??;
+            let baked = from_gpu.recv().map_err(|_| BakeError::GpuWorkerStopped)??;
             received += 1;
             report.merge(&finish(&mut entries, baked)?);
         }
@@ -436,7 +457,8 @@ fn bake_nodes_gpu(
     })?;
     let entries = entries
         .into_iter()
-        .map(|e| e.ok_or_else(|| BakeError::Options("a node was left unbaked".into())))
+        // Every round was sent and received above, so every node has its entry.
+        .map(|e| e.ok_or(BakeError::GpuWorkerStopped))
         .collect::<Result<_, _>>()?;
     Ok((entries, report))
 }
@@ -448,298 +470,6 @@ fn heights_crc(data: &[f32]) -> String {
         h.update(&bytes);
     }
     format!("{:08x}", h.finalize())
-}
-
-/// A node whose every level blob is present, whole and valid (it decodes completely: exact
-/// length, payload checksum, geometry inside its bounds — see [`codec::decode`]) and names that
-/// node and level is complete: its index entry is rebuilt from the blob headers. Anything else —
-/// missing, truncated, extended, flipped, or written by a version whose blobs this one refuses —
-/// is baked again (and its blobs replaced).
-fn existing_node(store: &Store, key: TileKey, levels: u8) -> Option<NodeEntry> {
-    let mut out = Vec::new();
-    let mut bounds = None;
-    for level in 0..=levels {
-        let bytes = store.read_blob(key, level).ok()??;
-        let h = match codec::decode(&bytes) {
-            Ok(b) => b.header,
-            Err(e) => {
-                tracing::warn!(tile = %key, level, "re-baking a damaged blob: {e}");
-                return None;
-            }
-        };
-        if h.key != key || h.level != level {
-            return None;
-        }
-        bounds.get_or_insert(Bounds { min: h.bounds[0], max: h.bounds[1] });
-        out.push(NodeLevel {
-            errors: h.errors,
-            count: h.vertex_count,
-            triangles: h.triangle_count,
-            bytes: bytes.len() as u64,
-            checksum: h.checksum,
-        });
-    }
-    Some(NodeEntry { key, bounds: bounds?, levels: out })
-}
-
-/// The largest power of two ≤ `v` (v > 0 and finite).
-fn pow2_at_most(v: f64) -> f64 {
-    2f64.powi(v.log2().floor() as i32)
-}
-
-/// Everything one node's bake produces, before it is written.
-pub struct NodeBake {
-    pub key: TileKey,
-    pub bounds: Bounds,
-    pub mesh: Mesh,
-    pub mesh_errors: Errors,
-    pub points: Vec<(PointCloud, Errors)>,
-}
-
-/// A node's level 0: its quantized TIN with measured errors, what its point levels are baked
-/// from.
-pub struct NodeMesh {
-    pub key: TileKey,
-    pub bounds: Bounds,
-    pub mesh: Mesh,
-    pub mesh_errors: Errors,
-    pub quantization: Quantization,
-    /// Edge of the node's level-1 cell (doubling per level).
-    pub level1_cell: f64,
-}
-
-impl NodeMesh {
-    /// The cubic grid of point level `level` (≥ 1): (origin, cell edge).
-    #[must_use]
-    pub fn level_grid(&self, level: u8) -> ([f64; 3], f64) {
-        let cell = self.level1_cell * f64::from(1u32 << (level - 1));
-        let origin = [self.bounds.min[0], self.bounds.min[1], (self.bounds.min[2] / cell).floor() * cell];
-        (origin, cell)
-    }
-
-    /// Quantizes a baked cloud of `level` as its blob stores it and measures its errors.
-    #[must_use]
-    pub fn finish_level(&self, level: u8, mut pc: PointCloud) -> (PointCloud, Errors, Quantization) {
-        let (_, cell) = self.level_grid(level);
-        let q = Quantization {
-            xy_step: cell / f64::from(POINT_STEPS_PER_CELL),
-            z_step: cell / f64::from(POINT_STEPS_PER_CELL),
-        };
-        // Into the node's box as well as onto the grid: a slice's centre can lie above the
-        // surface's top, and the blob header promises its bounds hold every point. If the
-        // bounds are unusable the encoder reports it.
-        pc.positions = codec::snap_positions(&pc.positions, &self.bounds, q)
-            .unwrap_or_else(|_| codec::quantize_positions(&pc.positions, &self.bounds, q));
-        let errors = lod::cpu::measure_points(&self.mesh, &pc, cell);
-        (pc, errors, q)
-    }
-}
-
-/// Bakes one node in memory: TIN, quantization, measured errors, point levels (CPU
-/// reference). Pure apart from reading the raster window.
-pub fn bake_node_geometry(
-    pyramid: &Pyramid,
-    reader: &dyn WindowReader,
-    georef: &Georef,
-    key: TileKey,
-    opts: &BakeOptions,
-) -> Result<(NodeBake, Vec<Quantization>), BakeError> {
-    let nm = bake_node_mesh(pyramid, reader, georef, key, opts)?;
-    let clouds = (1..=opts.levels)
-        .map(|level| {
-            let (origin, cell) = nm.level_grid(level);
-            lod::cpu::bake_points(&nm.mesh, origin, cell)
-        })
-        .collect();
-    Ok(finish_node(nm, clouds))
-}
-
-/// [`bake_node_geometry`] with the point levels baked by `baker`: on the GPU all the node's
-/// levels go in one submission. What a single-node (on-demand) bake calls; the result is the
-/// same as in a whole-raster bake with the same baker.
-pub fn bake_node_geometry_with(
-    pyramid: &Pyramid,
-    reader: &dyn WindowReader,
-    georef: &Georef,
-    key: TileKey,
-    opts: &BakeOptions,
-    baker: &PointBaker,
-) -> Result<(NodeBake, Vec<Quantization>), BakeError> {
-    let nm = bake_node_mesh(pyramid, reader, georef, key, opts)?;
-    let grids: Vec<([f64; 3], f64)> = (1..=opts.levels).map(|l| nm.level_grid(l)).collect();
-    let clouds = baker.bake_levels(&nm.mesh, &grids)?.0;
-    Ok(finish_node(nm, clouds))
-}
-
-/// [`bake_node_geometry_with`], then encodes the node's blobs and writes them to `store`;
-/// returns its index entry (the index and manifest are the caller's).
-pub fn bake_node_with(
-    pyramid: &Pyramid,
-    reader: &dyn WindowReader,
-    georef: &Georef,
-    key: TileKey,
-    opts: &BakeOptions,
-    baker: &PointBaker,
-    store: &Store,
-) -> Result<NodeEntry, BakeError> {
-    let (nb, quants) = bake_node_geometry_with(pyramid, reader, georef, key, opts, baker)?;
-    write_node(&nb, &quants, store)
-}
-
-/// Quantizes and measures a node's baked clouds (levels 1, 2, …).
-fn finish_node(nm: NodeMesh, clouds: Vec<PointCloud>) -> (NodeBake, Vec<Quantization>) {
-    let mut quants = vec![nm.quantization];
-    let mut points = Vec::with_capacity(clouds.len());
-    for (k, pc) in clouds.into_iter().enumerate() {
-        let (pc, errors, q) = nm.finish_level(k as u8 + 1, pc);
-        quants.push(q);
-        points.push((pc, errors));
-    }
-    let nb = NodeBake { key: nm.key, bounds: nm.bounds, mesh: nm.mesh, mesh_errors: nm.mesh_errors, points };
-    (nb, quants)
-}
-
-/// A node's TIN, quantized as the blob stores it, with its errors measured against every
-/// full-resolution sample it covers. Pure apart from reading the raster window.
-pub fn bake_node_mesh(
-    pyramid: &Pyramid,
-    reader: &dyn WindowReader,
-    georef: &Georef,
-    key: TileKey,
-    opts: &BakeOptions,
-) -> Result<NodeMesh, BakeError> {
-    let frame = GridFrame { g: georef };
-    let step = pyramid.step(key.z);
-    let grid = pyramid.grid(key);
-    let mut heights = Vec::new();
-    reader.read_window(&grid.cols, &grid.rows, &mut heights);
-    let node_error = opts.max_error * f64::from(step);
-    let t = tin::build(&grid, &heights, node_error).map_err(|source| BakeError::Tin { key, source })?;
-
-    // World mesh, counter-clockwise seen from +z whatever the signs of dx and dy.
-    let nc = grid.cols.len();
-    let mut mesh = Mesh {
-        positions: t
-            .vertices
-            .iter()
-            .map(|&[i, j]| {
-                let z = f64::from(heights[j as usize * nc + i as usize]);
-                frame.world(f64::from(grid.cols[i as usize]), f64::from(grid.rows[j as usize]), z)
-            })
-            .collect(),
-        triangles: t.triangles,
-    };
-    if georef.dx * georef.dy < 0.0 {
-        for tri in &mut mesh.triangles {
-            tri.swap(1, 2);
-        }
-    }
-    let span = pyramid.span(key);
-    let mut bounds = Bounds::of_points(&mesh.positions);
-    for (c, r) in [(span.col0, span.row0), (span.col1, span.row1)] {
-        let p = frame.world(f64::from(c), f64::from(r), bounds.min[2]);
-        bounds.extend(p);
-    }
-    // Heights are quantized on one global grid per depth — a power-of-two step, with the origin
-    // a multiple of it — so a border vertex decodes to bit-identical heights in both neighbours.
-    let z_step = pow2_at_most(
-        (node_error / MESH_Z_STEPS_PER_ERROR).max(f64::from(f32::EPSILON) * bounds.max[2].abs().max(1.0)),
-    );
-    bounds.min[2] = (bounds.min[2] / z_step).floor() * z_step;
-    let (adx, ady) = (georef.dx.abs(), georef.dy.abs());
-    let xy_step = if (adx - ady).abs() <= 1e-12 * adx {
-        // Square cells: vertices sit on the raster grid, which starts at this node's corner,
-        // so every x and y is an exact multiple of the cell from `bounds.min`.
-        adx
-    } else {
-        // Rectangular cells (degree rasters): one power-of-two step on a global grid, fine
-        // enough (≤ 1/1024 cell) to be negligible, and again identical in both neighbours.
-        let step = pow2_at_most(adx.min(ady) / 1024.0);
-        for a in 0..2 {
-            bounds.min[a] = (bounds.min[a] / step).floor() * step;
-        }
-        step
-    };
-    let mesh_q = Quantization { xy_step, z_step };
-    mesh.positions = codec::quantize_positions(&mesh.positions, &bounds, mesh_q);
-    // A vertex rounded up past the box (the top height rarely lies on the grid) stays where it
-    // is — its neighbour stores the same border vertex — and the box grows to hold it.
-    let bounds = codec::quantized_bounds(&bounds, &mesh.positions, mesh_q);
-
-    // Measured against every full-resolution sample the node covers, in sample coordinates.
-    let cols: Vec<u32> = (span.col0..=span.col1).collect();
-    let rows: Vec<u32> = (span.row0..=span.row1).collect();
-    let mut full = Vec::new();
-    reader.read_window(&cols, &rows, &mut full);
-    let sample_space: Vec<[f64; 3]> = mesh
-        .positions
-        .iter()
-        .map(|p| [(p[0] - georef.x0) / georef.dx, (p[1] - georef.y0) / georef.dy, p[2]])
-        .map(|p| [p[0].round(), p[1].round(), p[2]])
-        .collect();
-    let mesh_errors = tin::measure_vertical(&sample_space, &mesh.triangles, span, &full)
-        .map_err(|source| BakeError::Tin { key, source })?;
-    drop(full);
-
-    Ok(NodeMesh {
-        key,
-        bounds,
-        mesh,
-        mesh_errors,
-        quantization: mesh_q,
-        level1_cell: frame.cell() * f64::from(step) * 2.0,
-    })
-}
-
-fn bake_node(
-    pyramid: &Pyramid,
-    reader: &dyn WindowReader,
-    georef: &Georef,
-    key: TileKey,
-    opts: &BakeOptions,
-    store: &Store,
-) -> Result<NodeEntry, BakeError> {
-    let (nb, quants) = bake_node_geometry(pyramid, reader, georef, key, opts)?;
-    write_node(&nb, &quants, store)
-}
-
-/// Encodes and writes one baked node's blobs; returns its index entry.
-fn write_node(nb: &NodeBake, quants: &[Quantization], store: &Store) -> Result<NodeEntry, BakeError> {
-    let key = nb.key;
-    let codec_err = |level: u8| move |source| BakeError::Codec { key, level, source };
-    let mut levels = Vec::with_capacity(nb.points.len() + 1);
-    let mesh_blob =
-        codec::encode_mesh(key, 0, &nb.bounds, quants[0], &nb.mesh, nb.mesh_errors).map_err(codec_err(0))?;
-    let mut blobs = vec![mesh_blob];
-    levels.push(NodeLevel {
-        errors: nb.mesh_errors,
-        count: nb.mesh.positions.len() as u32,
-        triangles: nb.mesh.triangles.len() as u32,
-        bytes: 0,
-        checksum: 0,
-    });
-    for (k, (pc, errors)) in nb.points.iter().enumerate() {
-        let level = k as u8 + 1;
-        blobs.push(
-            codec::encode_points(key, level, &nb.bounds, quants[k + 1], pc, *errors)
-                .map_err(codec_err(level))?,
-        );
-        levels.push(NodeLevel {
-            errors: *errors,
-            count: pc.positions.len() as u32,
-            triangles: 0,
-            bytes: 0,
-            checksum: 0,
-        });
-    }
-    // Mesh last: a node counts as complete on resume only when all its levels exist, and the
-    // order makes an interrupted node's missing blob the cheap one to notice.
-    for (level, bytes) in blobs.iter().enumerate().rev() {
-        store.write_blob(key, level as u8, bytes)?;
-        levels[level].bytes = bytes.len() as u64;
-        levels[level].checksum = codec::decode_header(bytes).map_err(codec_err(level as u8))?.checksum;
-    }
-    Ok(NodeEntry { key, bounds: nb.bounds, levels })
 }
 
 /// The options record `bake` writes to `bake-options.json` (and into the manifest) for this
@@ -758,72 +488,6 @@ pub fn options_record(raster: &LoadedRaster, source_name: &str, opts: &BakeOptio
     })
 }
 
-/// Bakes one node (every level) of `raster` and writes its blobs into `store`, exactly as
-/// [`bake`] would (same bytes); used by the server to bake tiles on first request. The caller
-/// has prepared the store with [`Store::begin_bake`] and [`options_record`].
-pub fn bake_one_node(
-    raster: &LoadedRaster,
-    key: TileKey,
-    opts: &BakeOptions,
-    baker: &PointBaker,
-    store: &Store,
-) -> Result<NodeEntry, BakeError> {
-    check_options(opts)?;
-    let hf = &raster.heights;
-    let pyramid = Pyramid::new(hf.width, hf.height, opts.tile_size)?;
-    if !pyramid.contains(key) {
-        return Err(BakeError::Options(format!("tile {key} is outside the raster's quadtree")));
-    }
-    bake_node_with(&pyramid, hf, &raster.georef, key, opts, baker, store)
-}
-
-/// The index entry of a node whose every level is on disk (rebuilt from the blob headers), or
-/// `None` when a level is missing or does not decode as that node and level.
-#[must_use]
-pub fn node_from_blobs(store: &Store, key: TileKey, levels: u8) -> Option<NodeEntry> {
-    existing_node(store, key, levels)
-}
-
-#[cfg(test)]
-mod one_node_tests {
-    use super::*;
-
-    /// `bake_one_node` writes the very bytes `bake` writes, and `options_record` is the record
-    /// `bake` stores, so on-demand tiles and batch bakes resume each other.
-    #[test]
-    fn one_node_matches_full_bake() {
-        let (w, h) = (65, 49);
-        let raster = LoadedRaster {
-            heights: crate::raster::Heightfield {
-                width: w,
-                height: h,
-                data: crate::raster::synth::terrain(w, h, 3),
-            },
-            georef: Georef { dx: 10.0, dy: -10.0, ..Georef::default() },
-            nodata_filled: 0,
-            format: "test".into(),
-        };
-        let opts = BakeOptions { tile_size: 32, max_error: 2.0, levels: 2 };
-        let full = tempfile::tempdir().unwrap();
-        let full_store = Store::new(full.path());
-        bake(&raster, "t.tif", &opts, &full_store, &NoProgress).unwrap();
-        let manifest = full_store.manifest().unwrap();
-        assert_eq!(manifest.options, options_record(&raster, "t.tif", &opts));
-
-        let one = tempfile::tempdir().unwrap();
-        let one_store = Store::new(&one.path().join("ts"));
-        one_store.begin_bake(&options_record(&raster, "t.tif", &opts)).unwrap();
-        let key = TileKey::new(1, 1, 0);
-        let entry = bake_one_node(&raster, key, &opts, &PointBaker::Cpu, &one_store).unwrap();
-        assert_eq!(Some(&entry), full_store.node(key).unwrap().as_ref());
-        for level in 0..=opts.levels {
-            assert_eq!(one_store.read_blob(key, level).unwrap(), full_store.read_blob(key, level).unwrap());
-        }
-        assert_eq!(node_from_blobs(&one_store, key, opts.levels), Some(entry));
-        assert!(bake_one_node(&raster, TileKey::new(1, 2, 0), &opts, &PointBaker::Cpu, &one_store).is_err());
-    }
-}
-
 /// D1: every blob's positions lie inside the bounds its header states, for random tiles, flat
 /// tiles at random heights, plateaus with lakes, every level ladder and several cell sizes
 /// (the GPU baker is held to the same in tests/gpu.rs).
@@ -832,6 +496,7 @@ mod bounds_tests {
     use proptest::prelude::*;
 
     use super::*;
+    use crate::raster::Georef;
 
     fn check_inside(store: &Store) -> Result<usize, TestCaseError> {
         let mut n = 0;
@@ -893,7 +558,7 @@ mod bounds_tests {
             let dir = tempfile::tempdir().unwrap();
             let store = Store::new(dir.path());
             let opts = BakeOptions { tile_size, max_error, levels };
-            bake(&raster, "t.tif", &opts, &store, &NoProgress).map_err(|e| TestCaseError::fail(e.to_string()))?;
+            bake_terrain(&raster, "t.tif", &opts, &PointBaker::Cpu, &store, &NoProgress).map_err(|e| TestCaseError::fail(e.to_string()))?;
             prop_assert!(check_inside(&store)? > 0);
         }
     }

@@ -7,7 +7,7 @@ use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use terrastream::bake::{self, BakeOptions, BakeSummary};
 use terrastream::raster::{self, HeightEncoding, Limits, LoadOptions, Overrides};
-use terrastream::store::{LevelTable, Store};
+use terrastream::store::Store;
 use terrastream::tiling;
 
 use super::parse_pair;
@@ -110,7 +110,7 @@ pub fn run(a: &BakeArgs) -> Result<()> {
     bar.enable_steady_tick(Duration::from_millis(200));
     let progress = Bar(bar, a.time_limit.map(|s| (Instant::now(), Duration::from_secs_f64(s))));
     let baker = a.baker.open()?;
-    let summary = bake::bake_with(&raster, &name, &opts, &baker, &Store::new(&a.out), &progress);
+    let summary = bake::bake_terrain(&raster, &name, &opts, &baker, &Store::new(&a.out), &progress);
     let summary = summary.inspect_err(|_| progress.0.finish_and_clear())?;
     progress.0.finish_and_clear();
     print_summary(&summary, &a.out);
@@ -118,27 +118,5 @@ pub fn run(a: &BakeArgs) -> Result<()> {
 }
 
 fn print_summary(s: &BakeSummary, out: &std::path::Path) {
-    outln!(
-        "baked {} tiles ({} resumed) into {} in {:.2} s: {:.2} M samples/s, {} no-data samples filled",
-        s.nodes,
-        s.nodes_resumed,
-        out.display(),
-        s.seconds,
-        s.samples_per_second() / 1e6,
-        s.nodata_filled
-    );
-    if let Some(mib) = peak_rss_mib() {
-        outln!("peak memory (RSS): {mib:.0} MiB");
-    }
-    outln!("point levels baked by {}", s.point_baker);
-    if s.gpu_batches > 0 {
-        outln!(
-            "gpu: {} batches, peak {:.1} MiB per batch (budget {:.0} MiB), {} levels left to the cpu",
-            s.gpu_batches,
-            s.gpu_peak_batch_bytes as f64 / f64::from(1 << 20),
-            s.gpu_budget_bytes as f64 / f64::from(1 << 20),
-            s.gpu_cpu_fallback_levels
-        );
-    }
-    outln!("{}", LevelTable(&s.totals));
+    outln!("{}", bake::BakeReport { summary: s, out, peak_rss_mib: peak_rss_mib() });
 }

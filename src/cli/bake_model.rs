@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use terrastream::bake::model::{self as bake_model, ModelBakeOptions, ModelLevelTable};
+use terrastream::bake::model::{self as bake_model, ModelBakeOptions};
 use terrastream::model::FileType;
 use terrastream::store::Store;
 
@@ -43,32 +43,7 @@ pub fn run(a: &BakeModelArgs) -> Result<()> {
     bake_model::check_options(&opts)?;
     let file = bake_model::read_model_file(&a.model, opts.file_type)?;
     let baker = a.baker.open()?;
-    let s = bake_model::bake_read_model(&file, &opts, &baker, &Store::new(&a.out))?;
-    let st = &s.stats;
-    outln!(
-        "{} ({}): {} faces → {} triangles read, {} degenerate skipped; {} vertices read, {} unreferenced \
-         dropped, {} normals from the file",
-        s.file,
-        s.encoding,
-        st.faces,
-        st.triangles_read,
-        st.degenerate,
-        st.vertices_read,
-        st.unreferenced,
-        st.normals_from_file
-    );
-    outln!(
-        "baked {} levels into {}{} in {:.3} s (read {:.3} s, bake {:.3} s); bounds {:?} – {:?}",
-        s.levels.len(),
-        a.out.display(),
-        if s.resumed { " (same options: rewritten)" } else { "" },
-        s.seconds,
-        s.read_seconds,
-        s.bake_seconds,
-        s.bounds.min,
-        s.bounds.max
-    );
-    outln!("point levels baked by {}", s.point_baker);
-    outln!("{}", ModelLevelTable(&s.levels));
+    let s = bake_model::bake_model(&file, &opts, &baker, &Store::new(&a.out))?;
+    outln!("{}", bake_model::ModelBakeReport { summary: &s, out: &a.out });
     Ok(())
 }

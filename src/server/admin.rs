@@ -456,7 +456,7 @@ fn bake_to_staging(work: &Work, id: &str, baker: &PointBaker, job: &Job) -> Resu
     }
     let raster = crate::raster::load(&work.upload, &load).map_err(|e| e.to_string())?;
     let staging: PathBuf = work.root.join(format!(".job-{id}"));
-    let r = crate::bake::bake_with(&raster, &work.name, &work.opts, baker, &Store::new(&staging), job)
+    let r = crate::bake::bake_terrain(&raster, &work.name, &work.opts, baker, &Store::new(&staging), job)
         .map(|_| ())
         .map_err(|e| e.to_string());
     if let Err(e) = r {

@@ -177,7 +177,7 @@ fn worker(
         let Job { ts, key, done } = job;
         let result = match &ts.source {
             Some(src) => std::panic::catch_unwind(AssertUnwindSafe(|| {
-                crate::bake::bake_one_node(&src.raster, key, &src.opts, baker, &ts.store)
+                crate::bake::bake_node(&src.raster, key, &src.opts, baker, &ts.store)
             }))
             .map_err(|_| "the bake panicked".to_owned())
             .and_then(|r| r.map(|_| ()).map_err(|e| e.to_string())),

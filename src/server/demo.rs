@@ -49,6 +49,6 @@ pub fn prepare(
     })?;
     crate::store::write_atomic(&tif, &bytes)?;
     let raster = crate::raster::load(&tif, &crate::raster::LoadOptions::default())?;
-    crate::bake::bake_with(&raster, "demo-terrain.tif", &DEMO_OPTIONS, baker, &store, progress)?;
+    crate::bake::bake_terrain(&raster, "demo-terrain.tif", &DEMO_OPTIONS, baker, &store, progress)?;
     Ok((store_dir, true))
 }

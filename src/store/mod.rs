@@ -224,6 +224,17 @@ pub struct Manifest {
     pub point_baker: String,
 }
 
+/// A tileset's content version: the CRC-32 of every blob's checksum, in node order and level
+/// order within a node, as 8 hex digits. It changes whenever any blob's content does.
+#[must_use]
+pub fn content_version<'a>(levels: impl IntoIterator<Item = &'a NodeLevel>) -> String {
+    let mut hasher = crc32fast::Hasher::new();
+    for l in levels {
+        hasher.update(&l.checksum.to_le_bytes());
+    }
+    format!("{:08x}", hasher.finalize())
+}
+
 /// The index chunk root holding `key`.
 #[must_use]
 pub fn chunk_root(key: TileKey) -> TileKey {

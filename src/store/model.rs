@@ -4,8 +4,12 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{Manifest, Store, StoreError, TilesetKind};
-use crate::geom::Errors;
+use super::{
+    LevelSpec, LevelTotals, MANIFEST_FORMAT, MANIFEST_VERSION, Manifest, NodeLevel, SUBTREE_LEVELS,
+    SourceInfo, Store, StoreError, TilesetKind, content_version,
+};
+use crate::geom::{Bounds, Errors};
+use crate::raster::Georef;
 
 /// One level of a model bake, as reported and stored in the manifest.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -91,6 +95,69 @@ pub struct ModelManifest {
     #[serde(flatten)]
     pub tileset: Manifest,
     pub model: ModelInfo,
+}
+
+impl ModelManifest {
+    /// The manifest of a model tileset with one node whose levels are `node_levels` (as its
+    /// index entry holds them, level 0 first) and `model.levels`: totals, level table and
+    /// content version follow from them; the frame is the identity (model coordinates are world
+    /// coordinates) and the raster fields are 0. Point levels are quantized to
+    /// `1 / precision_per_cell` of their cell.
+    #[must_use]
+    pub fn new(
+        model: ModelInfo,
+        bounds: Bounds,
+        node_levels: &[NodeLevel],
+        precision_per_cell: u32,
+        options: serde_json::Value,
+        point_baker: String,
+    ) -> Self {
+        let totals = node_levels
+            .iter()
+            .map(|l| {
+                let mut t = LevelTotals::default();
+                t.add(l);
+                t
+            })
+            .collect();
+        let levels = model
+            .levels
+            .iter()
+            .map(|l| LevelSpec {
+                level: l.level,
+                kind: l.kind,
+                max_error: None,
+                cell_leaf_cells: None,
+                texture_size: l.resolution,
+                precision_per_cell: l.resolution.map(|_| precision_per_cell),
+            })
+            .collect();
+        Self {
+            kind: TilesetKind::Model,
+            tileset: Manifest {
+                format: MANIFEST_FORMAT.into(),
+                version: MANIFEST_VERSION,
+                content_version: content_version(node_levels),
+                source: SourceInfo {
+                    file: model.file.clone(),
+                    format: model.encoding.clone(),
+                    width: 0,
+                    height: 0,
+                    nodata_filled: 0,
+                },
+                frame: Georef::default(),
+                tile_size: 0,
+                depth: 0,
+                subtree_levels: SUBTREE_LEVELS,
+                bounds,
+                levels,
+                totals,
+                options,
+                point_baker,
+            },
+            model,
+        }
+    }
 }
 
 impl Store {

@@ -1,0 +1,349 @@
+//! One node of a terrain pyramid: its TIN (level 0), quantized exactly as its blob stores it and
+//! measured against every full-resolution sample it covers, its point levels (1..=K) baked by a
+//! [`PointBaker`], and their blobs. [`bake_node`] is the entry point for a single node (what the
+//! server's on-demand baker calls); the whole-raster bake in `terrain` runs the same steps per
+//! node, so both write the same bytes.
+
+use crate::codec::{self, Quantization};
+use crate::geom::{Bounds, Errors, Mesh, PointCloud};
+use crate::lod::{self, PointBaker};
+use crate::raster::{Georef, LoadedRaster, WindowReader};
+use crate::store::{NodeEntry, NodeLevel, Store};
+use crate::tiling::{Pyramid, TileKey};
+use crate::tin;
+
+use super::{BakeError, BakeOptions, MESH_Z_STEPS_PER_ERROR, POINT_STEPS_PER_CELL, check_options};
+
+/// Bakes one node (every level) of `raster` and writes its blobs into `store`, exactly as
+/// [`super::bake_terrain`] would (same bytes); returns its index entry (the index and manifest
+/// are the caller's). Used by the server to bake tiles on first request: the caller has prepared
+/// the store with [`Store::begin_bake`] and [`super::options_record`].
+pub fn bake_node(
+    raster: &LoadedRaster,
+    key: TileKey,
+    opts: &BakeOptions,
+    baker: &PointBaker,
+    store: &Store,
+) -> Result<NodeEntry, BakeError> {
+    check_options(opts)?;
+    let hf = &raster.heights;
+    let pyramid = Pyramid::new(hf.width, hf.height, opts.tile_size)?;
+    if !pyramid.contains(key) {
+        return Err(BakeError::OutsidePyramid(key));
+    }
+    bake_node_in(&pyramid, hf, &raster.georef, key, opts, baker, store)
+}
+
+/// [`bake_node`] inside a pyramid already checked: TIN, point levels by `baker` (on the GPU all
+/// the node's levels in one submission), blobs written.
+pub(super) fn bake_node_in(
+    pyramid: &Pyramid,
+    reader: &dyn WindowReader,
+    georef: &Georef,
+    key: TileKey,
+    opts: &BakeOptions,
+    baker: &PointBaker,
+    store: &Store,
+) -> Result<NodeEntry, BakeError> {
+    let nm = node_mesh(pyramid, reader, georef, key, opts)?;
+    let grids: Vec<([f64; 3], f64)> = (1..=opts.levels).map(|l| nm.level_grid(l)).collect();
+    let clouds = baker.bake_levels(&nm.mesh, &grids)?.0;
+    let (nb, quants) = finish_node(nm, clouds);
+    write_node(&nb, &quants, store)
+}
+
+/// The world frame of a node sample grid.
+struct GridFrame<'a> {
+    g: &'a Georef,
+}
+
+impl GridFrame<'_> {
+    fn world(&self, col: f64, row: f64, z: f64) -> [f64; 3] {
+        [self.g.x0 + col * self.g.dx, self.g.y0 + row * self.g.dy, z]
+    }
+    fn cell(&self) -> f64 {
+        self.g.dx.abs().max(self.g.dy.abs())
+    }
+}
+
+/// Everything one node's bake produces, before it is written.
+pub struct NodeBake {
+    pub key: TileKey,
+    pub bounds: Bounds,
+    pub mesh: Mesh,
+    pub mesh_errors: Errors,
+    pub points: Vec<(PointCloud, Errors)>,
+}
+
+/// A node's level 0: its quantized TIN with measured errors, what its point levels are baked
+/// from.
+pub struct NodeMesh {
+    pub key: TileKey,
+    pub bounds: Bounds,
+    pub mesh: Mesh,
+    pub mesh_errors: Errors,
+    pub quantization: Quantization,
+    /// Edge of the node's level-1 cell (doubling per level).
+    pub level1_cell: f64,
+}
+
+impl NodeMesh {
+    /// The cubic grid of point level `level` (≥ 1): (origin, cell edge).
+    #[must_use]
+    pub fn level_grid(&self, level: u8) -> ([f64; 3], f64) {
+        let cell = self.level1_cell * f64::from(1u32 << (level - 1));
+        let origin = [self.bounds.min[0], self.bounds.min[1], (self.bounds.min[2] / cell).floor() * cell];
+        (origin, cell)
+    }
+
+    /// Quantizes a baked cloud of `level` as its blob stores it and measures its errors.
+    #[must_use]
+    pub fn finish_level(&self, level: u8, mut pc: PointCloud) -> (PointCloud, Errors, Quantization) {
+        let (_, cell) = self.level_grid(level);
+        let q = Quantization {
+            xy_step: cell / f64::from(POINT_STEPS_PER_CELL),
+            z_step: cell / f64::from(POINT_STEPS_PER_CELL),
+        };
+        // Into the node's box as well as onto the grid: a slice's centre can lie above the
+        // surface's top, and the blob header promises its bounds hold every point. If the
+        // bounds are unusable the encoder reports it.
+        pc.positions = codec::snap_positions(&pc.positions, &self.bounds, q)
+            .unwrap_or_else(|_| codec::quantize_positions(&pc.positions, &self.bounds, q));
+        let errors = lod::cpu::measure_points(&self.mesh, &pc, cell);
+        (pc, errors, q)
+    }
+}
+
+/// A node's TIN, quantized as the blob stores it, with its errors measured against every
+/// full-resolution sample it covers. Pure apart from reading the raster window.
+pub fn node_mesh(
+    pyramid: &Pyramid,
+    reader: &dyn WindowReader,
+    georef: &Georef,
+    key: TileKey,
+    opts: &BakeOptions,
+) -> Result<NodeMesh, BakeError> {
+    let frame = GridFrame { g: georef };
+    let step = pyramid.step(key.z);
+    let grid = pyramid.grid(key);
+    let mut heights = Vec::new();
+    reader.read_window(&grid.cols, &grid.rows, &mut heights);
+    let node_error = opts.max_error * f64::from(step);
+    let t = tin::build(&grid, &heights, node_error).map_err(|source| BakeError::Tin { key, source })?;
+
+    // World mesh, counter-clockwise seen from +z whatever the signs of dx and dy.
+    let nc = grid.cols.len();
+    let mut mesh = Mesh {
+        positions: t
+            .vertices
+            .iter()
+            .map(|&[i, j]| {
+                let z = f64::from(heights[j as usize * nc + i as usize]);
+                frame.world(f64::from(grid.cols[i as usize]), f64::from(grid.rows[j as usize]), z)
+            })
+            .collect(),
+        triangles: t.triangles,
+    };
+    if georef.dx * georef.dy < 0.0 {
+        for tri in &mut mesh.triangles {
+            tri.swap(1, 2);
+        }
+    }
+    let span = pyramid.span(key);
+    let mut bounds = Bounds::of_points(&mesh.positions);
+    for (c, r) in [(span.col0, span.row0), (span.col1, span.row1)] {
+        let p = frame.world(f64::from(c), f64::from(r), bounds.min[2]);
+        bounds.extend(p);
+    }
+    // Heights are quantized on one global grid per depth — a power-of-two step, with the origin
+    // a multiple of it — so a border vertex decodes to bit-identical heights in both neighbours.
+    let z_step = pow2_at_most(
+        (node_error / MESH_Z_STEPS_PER_ERROR).max(f64::from(f32::EPSILON) * bounds.max[2].abs().max(1.0)),
+    );
+    bounds.min[2] = (bounds.min[2] / z_step).floor() * z_step;
+    let (adx, ady) = (georef.dx.abs(), georef.dy.abs());
+    let xy_step = if (adx - ady).abs() <= 1e-12 * adx {
+        // Square cells: vertices sit on the raster grid, which starts at this node's corner,
+        // so every x and y is an exact multiple of the cell from `bounds.min`.
+        adx
+    } else {
+        // Rectangular cells (degree rasters): one power-of-two step on a global grid, fine
+        // enough (≤ 1/1024 cell) to be negligible, and again identical in both neighbours.
+        let step = pow2_at_most(adx.min(ady) / 1024.0);
+        for a in 0..2 {
+            bounds.min[a] = (bounds.min[a] / step).floor() * step;
+        }
+        step
+    };
+    let mesh_q = Quantization { xy_step, z_step };
+    mesh.positions = codec::quantize_positions(&mesh.positions, &bounds, mesh_q);
+    // A vertex rounded up past the box (the top height rarely lies on the grid) stays where it
+    // is — its neighbour stores the same border vertex — and the box grows to hold it.
+    let bounds = codec::quantized_bounds(&bounds, &mesh.positions, mesh_q);
+
+    // Measured against every full-resolution sample the node covers, in sample coordinates.
+    let cols: Vec<u32> = (span.col0..=span.col1).collect();
+    let rows: Vec<u32> = (span.row0..=span.row1).collect();
+    let mut full = Vec::new();
+    reader.read_window(&cols, &rows, &mut full);
+    let sample_space: Vec<[f64; 3]> = mesh
+        .positions
+        .iter()
+        .map(|p| [(p[0] - georef.x0) / georef.dx, (p[1] - georef.y0) / georef.dy, p[2]])
+        .map(|p| [p[0].round(), p[1].round(), p[2]])
+        .collect();
+    let mesh_errors = tin::measure_vertical(&sample_space, &mesh.triangles, span, &full)
+        .map_err(|source| BakeError::Tin { key, source })?;
+    drop(full);
+
+    Ok(NodeMesh {
+        key,
+        bounds,
+        mesh,
+        mesh_errors,
+        quantization: mesh_q,
+        level1_cell: frame.cell() * f64::from(step) * 2.0,
+    })
+}
+
+/// Quantizes and measures a node's baked clouds (levels 1, 2, …).
+pub(super) fn finish_node(nm: NodeMesh, clouds: Vec<PointCloud>) -> (NodeBake, Vec<Quantization>) {
+    let mut quants = vec![nm.quantization];
+    let mut points = Vec::with_capacity(clouds.len());
+    for (k, pc) in clouds.into_iter().enumerate() {
+        let (pc, errors, q) = nm.finish_level(k as u8 + 1, pc);
+        quants.push(q);
+        points.push((pc, errors));
+    }
+    let nb = NodeBake { key: nm.key, bounds: nm.bounds, mesh: nm.mesh, mesh_errors: nm.mesh_errors, points };
+    (nb, quants)
+}
+
+/// Encodes and writes one baked node's blobs; returns its index entry.
+pub(super) fn write_node(
+    nb: &NodeBake,
+    quants: &[Quantization],
+    store: &Store,
+) -> Result<NodeEntry, BakeError> {
+    let key = nb.key;
+    let codec_err = |level: u8| move |source| BakeError::Codec { key, level, source };
+    let mut levels = Vec::with_capacity(nb.points.len() + 1);
+    let mesh_blob =
+        codec::encode_mesh(key, 0, &nb.bounds, quants[0], &nb.mesh, nb.mesh_errors).map_err(codec_err(0))?;
+    let mut blobs = vec![mesh_blob];
+    levels.push(NodeLevel {
+        errors: nb.mesh_errors,
+        count: nb.mesh.positions.len() as u32,
+        triangles: nb.mesh.triangles.len() as u32,
+        bytes: 0,
+        checksum: 0,
+    });
+    for (k, (pc, errors)) in nb.points.iter().enumerate() {
+        let level = k as u8 + 1;
+        blobs.push(
+            codec::encode_points(key, level, &nb.bounds, quants[k + 1], pc, *errors)
+                .map_err(codec_err(level))?,
+        );
+        levels.push(NodeLevel {
+            errors: *errors,
+            count: pc.positions.len() as u32,
+            triangles: 0,
+            bytes: 0,
+            checksum: 0,
+        });
+    }
+    // Mesh last: a node counts as complete on resume only when all its levels exist, and the
+    // order makes an interrupted node's missing blob the cheap one to notice.
+    for (level, bytes) in blobs.iter().enumerate().rev() {
+        store.write_blob(key, level as u8, bytes)?;
+        levels[level].bytes = bytes.len() as u64;
+        levels[level].checksum = codec::decode_header(bytes).map_err(codec_err(level as u8))?.checksum;
+    }
+    Ok(NodeEntry { key, bounds: nb.bounds, levels })
+}
+
+/// The index entry of a node whose every level blob is present, whole and valid (it decodes completely: exact
+/// length, payload checksum, geometry inside its bounds — see [`codec::decode`]) and names that
+/// node and level, rebuilt from the blob headers; `None` for anything else — missing,
+/// truncated, extended, flipped, or written by a version whose blobs this one refuses — which a
+/// resumed bake bakes again (replacing its blobs).
+#[must_use]
+pub fn node_from_blobs(store: &Store, key: TileKey, levels: u8) -> Option<NodeEntry> {
+    let mut out = Vec::new();
+    let mut bounds = None;
+    for level in 0..=levels {
+        let bytes = store.read_blob(key, level).ok()??;
+        let h = match codec::decode(&bytes) {
+            Ok(b) => b.header,
+            Err(e) => {
+                tracing::warn!(tile = %key, level, "re-baking a damaged blob: {e}");
+                return None;
+            }
+        };
+        if h.key != key || h.level != level {
+            return None;
+        }
+        bounds.get_or_insert(Bounds { min: h.bounds[0], max: h.bounds[1] });
+        out.push(NodeLevel {
+            errors: h.errors,
+            count: h.vertex_count,
+            triangles: h.triangle_count,
+            bytes: bytes.len() as u64,
+            checksum: h.checksum,
+        });
+    }
+    Some(NodeEntry { key, bounds: bounds?, levels: out })
+}
+
+/// The largest power of two ≤ `v` (v > 0 and finite).
+fn pow2_at_most(v: f64) -> f64 {
+    2f64.powi(v.log2().floor() as i32)
+}
+
+#[cfg(test)]
+mod one_node_tests {
+    use super::*;
+
+    /// `bake_node` writes the very bytes `bake_terrain` writes, and `options_record` is the record
+    /// `bake` stores, so on-demand tiles and batch bakes resume each other.
+    #[test]
+    fn one_node_matches_full_bake() {
+        let (w, h) = (65, 49);
+        let raster = LoadedRaster {
+            heights: crate::raster::Heightfield {
+                width: w,
+                height: h,
+                data: crate::raster::synth::terrain(w, h, 3),
+            },
+            georef: Georef { dx: 10.0, dy: -10.0, ..Georef::default() },
+            nodata_filled: 0,
+            format: "test".into(),
+        };
+        let opts = BakeOptions { tile_size: 32, max_error: 2.0, levels: 2 };
+        let full = tempfile::tempdir().unwrap();
+        let full_store = Store::new(full.path());
+        super::super::bake_terrain(
+            &raster,
+            "t.tif",
+            &opts,
+            &PointBaker::Cpu,
+            &full_store,
+            &super::super::NoProgress,
+        )
+        .unwrap();
+        let manifest = full_store.manifest().unwrap();
+        assert_eq!(manifest.options, super::super::options_record(&raster, "t.tif", &opts));
+
+        let one = tempfile::tempdir().unwrap();
+        let one_store = Store::new(&one.path().join("ts"));
+        one_store.begin_bake(&super::super::options_record(&raster, "t.tif", &opts)).unwrap();
+        let key = TileKey::new(1, 1, 0);
+        let entry = bake_node(&raster, key, &opts, &PointBaker::Cpu, &one_store).unwrap();
+        assert_eq!(Some(&entry), full_store.node(key).unwrap().as_ref());
+        for level in 0..=opts.levels {
+            assert_eq!(one_store.read_blob(key, level).unwrap(), full_store.read_blob(key, level).unwrap());
+        }
+        assert_eq!(node_from_blobs(&one_store, key, opts.levels), Some(entry));
+        assert!(bake_node(&raster, TileKey::new(1, 2, 0), &opts, &PointBaker::Cpu, &one_store).is_err());
+    }
+}
