@@ -31,6 +31,9 @@ pub enum Error {
     #[cfg(feature = "client")]
     #[error(transparent)]
     Client(#[from] crate::client::ClientError),
+    #[cfg(feature = "client")]
+    #[error(transparent)]
+    Eval(#[from] crate::client::eval::EvalError),
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -34,10 +34,13 @@ pub enum ClientError {
     Tree(String),
     #[error("client: {0}")]
     Network(String),
-    #[error("eval: {0}")]
-    Eval(String),
+    #[cfg(feature = "gpu")]
     #[error("client: render: {0}")]
-    Render(String),
+    Render(#[from] crate::gpu::GpuError),
+    #[error("client: render: this build has no `gpu` feature: cannot render")]
+    NoGpuFeature,
+    #[error("client: render: {}: {source}", path.display())]
+    Png { path: PathBuf, source: image::ImageError },
     #[error("{path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
     #[error(transparent)]

@@ -26,7 +26,7 @@ pub fn prepare(
     work: &Path,
     baker: &PointBaker,
     progress: &dyn Progress,
-) -> Result<(PathBuf, bool), crate::Error> {
+) -> Result<(PathBuf, bool), super::SourceError> {
     let store_dir = work.join("demo-store");
     let store = Store::new(&store_dir.join(DEMO_TILESET));
     if store.manifest().is_ok() {

@@ -57,7 +57,18 @@ pub enum ServerError {
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),
     #[error("serve: --source {name}: {source}")]
-    Source { name: String, source: Box<crate::Error> },
+    Source { name: String, source: SourceError },
+}
+
+/// Why an on-demand source or the demo tileset could not be prepared: the stage that failed.
+#[derive(Debug, thiserror::Error)]
+pub enum SourceError {
+    #[error(transparent)]
+    Raster(#[from] crate::raster::RasterError),
+    #[error(transparent)]
+    Bake(#[from] crate::bake::BakeError),
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
 }
 
 /// Tileset names: `[a-z0-9_-]{1,64}`. Nothing else can name a directory in the store, so no
@@ -111,7 +122,7 @@ impl App {
 /// Loads an on-demand source and prepares its directory (as `bake` would, so either resumes the
 /// other's work).
 fn open_source(root: &std::path::Path, spec: &SourceSpec) -> Result<registry::OnDemand, ServerError> {
-    let err = |e: crate::Error| ServerError::Source { name: spec.name.clone(), source: Box::new(e) };
+    let err = |e: SourceError| ServerError::Source { name: spec.name.clone(), source: e };
     let encoding = match spec.encoding.as_deref() {
         None => None,
         Some("gray16") => Some(HeightEncoding::Gray16),

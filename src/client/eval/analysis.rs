@@ -118,26 +118,43 @@ pub fn fit_distance(r: f64, width: u32, height: u32, fov_deg: f64) -> f64 {
     r / half.sin()
 }
 
+/// A camera plan [`cameras`] refuses, naming the setting.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PlanError {
+    #[error("bounds {min:?}..{max:?} are empty or not finite")]
+    Bounds { min: [f64; 3], max: [f64; 3] },
+    #[error("viewport {width}×{height} is empty")]
+    Viewport { width: u32, height: u32 },
+    #[error("fov {0} is not between 0 and 180 degrees")]
+    Fov(f64),
+    #[error("distances {0:?} must be positive multiples of the fit distance")]
+    Distances(Vec<f64>),
+    #[error("azimuths must be 1 or more")]
+    Azimuths,
+    #[error("elevations {0:?} must lie strictly between -89 and 89 degrees")]
+    Elevations(Vec<f64>),
+}
+
 /// Cameras for every (distance, elevation, azimuth), all looking at the sphere's centre with the
 /// polar axis up. Errors name the bad setting.
-pub fn cameras(bounds: &Bounds, subject: Subject, plan: &CameraPlan) -> Result<Vec<EvalCamera>, String> {
+pub fn cameras(bounds: &Bounds, subject: Subject, plan: &CameraPlan) -> Result<Vec<EvalCamera>, PlanError> {
     if !bounds.is_valid() {
-        return Err(format!("bounds {:?}..{:?} are empty or not finite", bounds.min, bounds.max));
+        return Err(PlanError::Bounds { min: bounds.min, max: bounds.max });
     }
     if plan.width == 0 || plan.height == 0 {
-        return Err(format!("viewport {}×{} is empty", plan.width, plan.height));
+        return Err(PlanError::Viewport { width: plan.width, height: plan.height });
     }
     if !(plan.fov_deg > 0.0 && plan.fov_deg < 180.0) {
-        return Err(format!("fov {} is not between 0 and 180 degrees", plan.fov_deg));
+        return Err(PlanError::Fov(plan.fov_deg));
     }
     if plan.distances.is_empty() || plan.distances.iter().any(|d| !(d.is_finite() && *d > 0.0)) {
-        return Err(format!("distances {:?} must be positive multiples of the fit distance", plan.distances));
+        return Err(PlanError::Distances(plan.distances.clone()));
     }
     if plan.azimuths == 0 {
-        return Err("azimuths must be 1 or more".into());
+        return Err(PlanError::Azimuths);
     }
     if plan.elevations.is_empty() || plan.elevations.iter().any(|e| e.is_nan() || e.abs() >= 89.0) {
-        return Err(format!("elevations {:?} must lie strictly between -89 and 89 degrees", plan.elevations));
+        return Err(PlanError::Elevations(plan.elevations.clone()));
     }
     let (c, r) = bounding_sphere(bounds);
     let fit = fit_distance(r, plan.width, plan.height, plan.fov_deg);
@@ -1073,14 +1090,16 @@ mod tests {
         let b = cube();
         let mut p = plan();
         p.elevations = vec![90.0];
-        assert!(cameras(&b, Subject::Terrain, &p).unwrap_err().contains("elevations"));
+        assert!(cameras(&b, Subject::Terrain, &p).unwrap_err().to_string().contains("elevations"));
         let mut p = plan();
         p.distances = vec![0.0];
-        assert!(cameras(&b, Subject::Terrain, &p).unwrap_err().contains("distances"));
+        assert!(cameras(&b, Subject::Terrain, &p).unwrap_err().to_string().contains("distances"));
         let mut p = plan();
         p.azimuths = 0;
-        assert!(cameras(&b, Subject::Terrain, &p).unwrap_err().contains("azimuths"));
-        assert!(cameras(&Bounds::empty(), Subject::Terrain, &plan()).unwrap_err().contains("bounds"));
+        assert!(cameras(&b, Subject::Terrain, &p).unwrap_err().to_string().contains("azimuths"));
+        assert!(
+            cameras(&Bounds::empty(), Subject::Terrain, &plan()).unwrap_err().to_string().contains("bounds")
+        );
     }
 
     fn result(f: f64, lod: Confusion) -> CameraResult {

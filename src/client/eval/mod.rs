@@ -3,6 +3,8 @@
 //! (`terrastream eval`: renders full detail against the LOD selection from the tileset
 //! directory, re-exported here) and [`instances`] (the N×N instance experiment).
 
+use std::path::PathBuf;
+
 pub mod analysis;
 #[cfg(feature = "gpu")]
 pub mod instances;
@@ -11,3 +13,31 @@ mod run;
 
 #[cfg(feature = "gpu")]
 pub use run::*;
+
+/// Why an evaluation failed; each names the file, setting or stage.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error("eval: threshold {0} px must be positive")]
+    Threshold(f64),
+    #[error("eval: {0}")]
+    Plan(#[from] analysis::PlanError),
+    #[error("eval: {0}: the tileset's index holds no node")]
+    EmptyIndex(PathBuf),
+    #[error("eval: model tileset without a root node")]
+    NoRoot,
+    #[error("eval: {0}: blob missing")]
+    BlobMissing(PathBuf),
+    #[error("eval: {path}: {source}")]
+    Blob { path: PathBuf, source: crate::codec::CodecError },
+    #[error("eval: results.json: {0}")]
+    Json(#[from] serde_json::Error),
+    #[error(transparent)]
+    Tiling(#[from] crate::tiling::TilingError),
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
+    #[error(transparent)]
+    Client(#[from] super::ClientError),
+    #[cfg(feature = "gpu")]
+    #[error(transparent)]
+    Gpu(#[from] crate::gpu::GpuError),
+}

@@ -17,6 +17,7 @@ use std::time::Instant;
 
 use crate::bake::model as bake_model;
 use crate::client::ClientError;
+use crate::client::eval::EvalError;
 use crate::client::eval::analysis::{
     self, CameraPlan, CameraResult, Confusion, DepthDiff, EvalReport, InstanceRow, Subject, linear_depth,
 };
@@ -70,10 +71,6 @@ impl Default for EvalOptions {
     }
 }
 
-fn err(m: impl Into<String>) -> crate::Error {
-    ClientError::Eval(m.into()).into()
-}
-
 /// The tileset as the evaluation reads it.
 struct Tileset {
     store: Store,
@@ -87,14 +84,14 @@ struct Tileset {
 }
 
 impl Tileset {
-    fn open(dir: &Path) -> crate::Result<Self> {
+    fn open(dir: &Path) -> Result<Self, EvalError> {
         let store = Store::new(dir);
         let kind = store.manifest_kind()?;
         let manifest = store.manifest()?;
         let tree = if kind == TilesetKind::Model {
             // A model tileset has one node and no raster (its manifest's raster size is 0): a
             // one-node quadtree holds it.
-            let pyramid = crate::tiling::Pyramid::new(2, 2, 1).map_err(|e| err(e.to_string()))?;
+            let pyramid = crate::tiling::Pyramid::new(2, 2, 1)?;
             let mut tree = TileTree::new(pyramid);
             tree.insert_chunk(&store.chunk(bake_model::MODEL_TILE)?)?;
             tree
@@ -112,7 +109,7 @@ impl Tileset {
                 (Subject::Terrain, s)
             }
             TilesetKind::Model => {
-                let m = bake_model::read_manifest(&store)?;
+                let m = store.model_manifest()?;
                 (Subject::Model, m.model.levels.iter().map(|l| l.cell.unwrap_or(0.0)).collect())
             }
         };
@@ -134,21 +131,19 @@ impl Tileset {
             })
             .collect();
         if tree.is_empty() {
-            return Err(err(format!("{}: the tileset's index holds no node", dir.display())));
+            return Err(EvalError::EmptyIndex(dir.to_owned()));
         }
         Ok(Self { store, subject, tree, bounds: manifest.bounds, spacing, levels, blobs: HashMap::new() })
     }
 
-    fn blob(&mut self, key: TileKey, level: u8) -> crate::Result<&Blob> {
+    fn blob(&mut self, key: TileKey, level: u8) -> Result<&Blob, EvalError> {
         if !self.blobs.contains_key(&(key, level)) {
-            let bytes = self.store.read_blob(key, level)?.ok_or_else(|| {
-                err(format!("{}: blob missing", self.store.blob_path(key, level).display()))
-            })?;
-            let blob = codec::decode(&bytes)
-                .map_err(|e| err(format!("{}: {e}", self.store.blob_path(key, level).display())))?;
+            let path = || self.store.blob_path(key, level);
+            let bytes = self.store.read_blob(key, level)?.ok_or_else(|| EvalError::BlobMissing(path()))?;
+            let blob = codec::decode(&bytes).map_err(|source| EvalError::Blob { path: path(), source })?;
             self.blobs.insert((key, level), blob);
         }
-        self.blobs.get(&(key, level)).ok_or_else(|| err("blob cache"))
+        Ok(&self.blobs[&(key, level)])
     }
 
     fn point_spacing(&self, key: TileKey, level: u8) -> f64 {
@@ -164,7 +159,7 @@ impl Tileset {
     }
 
     /// Uploads the draws (skirts as deep as the crack bound of this set of draws).
-    fn upload(&mut self, r: &mut Renderer, draws: &[DrawItem]) -> crate::Result<(u64, u64)> {
+    fn upload(&mut self, r: &mut Renderer, draws: &[DrawItem]) -> Result<(u64, u64), EvalError> {
         let max_e = draws.iter().map(|d| d.error_world).fold(0.0, f64::max);
         let outer = self.outer();
         let (mut points, mut triangles) = (0, 0);
@@ -205,7 +200,7 @@ struct RenderedFrame {
     depth: Vec<f64>,
 }
 
-fn frame(r: &Renderer, c: &analysis::EvalCamera, draws: &[DrawItem]) -> crate::Result<RenderedFrame> {
+fn frame(r: &Renderer, c: &analysis::EvalCamera, draws: &[DrawItem]) -> Result<RenderedFrame, EvalError> {
     let (near, far) = (c.near, c.far);
     let (image, raw) = r.render_with_depth(&c.camera, draws, near, far)?;
     let mask = covered(&image);
@@ -223,9 +218,9 @@ pub fn run(
     dir: &Path,
     opts: &EvalOptions,
     mut log: impl FnMut(&str),
-) -> crate::Result<(EvalReport, Vec<(String, image::RgbaImage)>)> {
+) -> Result<(EvalReport, Vec<(String, image::RgbaImage)>), EvalError> {
     if !(opts.threshold_px.is_finite() && opts.threshold_px > 0.0) {
-        return Err(err(format!("threshold {} px must be positive", opts.threshold_px)));
+        return Err(EvalError::Threshold(opts.threshold_px));
     }
     let mut ts = Tileset::open(dir)?;
     let plan = CameraPlan {
@@ -244,7 +239,7 @@ pub fn run(
             opts.elevations.clone()
         },
     };
-    let cams = analysis::cameras(&ts.bounds, ts.subject, &plan).map_err(err)?;
+    let cams = analysis::cameras(&ts.bounds, ts.subject, &plan)?;
     let gpu = crate::gpu::open()?;
     let adapter = gpu.adapter.clone();
     log(&format!("adapter: {adapter}; {} cameras", cams.len()));
@@ -383,8 +378,8 @@ fn instances(
     opts: &EvalOptions,
     report: &mut EvalReport,
     log: &mut impl FnMut(&str),
-) -> crate::Result<()> {
-    let root = tree.root().ok_or_else(|| err("model tileset without a root node"))?;
+) -> Result<(), EvalError> {
+    let root = tree.root().ok_or(EvalError::NoRoot)?;
     let node = tree.node(root);
     let key = node.key;
     let n_levels = node.level_count();
@@ -499,13 +494,13 @@ pub fn write_report(
     report: &EvalReport,
     samples: &[(String, image::RgbaImage)],
     out: &Path,
-) -> crate::Result<PathBuf> {
+) -> Result<PathBuf, EvalError> {
     let io = |p: &Path| {
         let p = p.to_owned();
-        move |e: std::io::Error| crate::Error::from(ClientError::Io { path: p, source: e })
+        move |e: std::io::Error| EvalError::from(ClientError::Io { path: p, source: e })
     };
     std::fs::create_dir_all(out.join("frames")).map_err(io(out))?;
-    let save = |img: &image::RgbaImage, p: &Path| -> crate::Result<()> {
+    let save = |img: &image::RgbaImage, p: &Path| -> Result<(), EvalError> {
         Renderer::save_png(img, p)?;
         Ok(())
     };
@@ -529,8 +524,7 @@ pub fn write_report(
             md.push_str("\n\n");
         }
     }
-    let json =
-        serde_json::to_vec_pretty(&results_json(report)).map_err(|e| err(format!("results.json: {e}")))?;
+    let json = serde_json::to_vec_pretty(&results_json(report))?;
     crate::store::write_atomic(&out.join("results.json"), &json)?;
     md.push_str("Per-camera figures: [results.json](results.json).\n\n");
     let md = report.markdown("fmeasure.png", ft, &md);

@@ -568,9 +568,9 @@ impl Renderer {
     }
 
     /// Writes a frame as PNG.
-    pub fn save_png(img: &image::RgbaImage, path: &Path) -> Result<(), GpuError> {
+    pub fn save_png(img: &image::RgbaImage, path: &Path) -> Result<(), crate::client::ClientError> {
         img.save_with_format(path, image::ImageFormat::Png)
-            .map_err(|e| fail(format!("{}: {e}", path.display())))
+            .map_err(|source| crate::client::ClientError::Png { path: path.to_owned(), source })
     }
 }
 

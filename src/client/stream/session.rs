@@ -599,15 +599,13 @@ fn open_view(
     if mode == RenderMode::Off {
         return Ok((None, "off (--render off)".into()));
     }
-    let render_err = |e: crate::gpu::GpuError| ClientError::Render(e.to_string());
     match crate::gpu::open() {
         Ok(ctx) => {
             let adapter = ctx.adapter.clone();
-            let view = crate::client::stream::view::SessionView::new(ctx, session, opts.width, opts.height)
-                .map_err(render_err)?;
+            let view = crate::client::stream::view::SessionView::new(ctx, session, opts.width, opts.height)?;
             Ok((Some(view), adapter))
         }
-        Err(e) if mode == RenderMode::On => Err(render_err(e)),
+        Err(e) if mode == RenderMode::On => Err(e.into()),
         Err(e) => {
             tracing::warn!("not rendering: {e}");
             Ok((None, format!("off: {e}")))
@@ -635,7 +633,7 @@ pub fn run_client(
     #[cfg(not(feature = "gpu"))]
     let rendering = match run.render {
         RenderMode::On => {
-            return Err(ClientError::Render("this build has no `gpu` feature: cannot render".into()));
+            return Err(ClientError::NoGpuFeature);
         }
         _ => "off: built without the `gpu` feature".to_owned(),
     };
@@ -648,14 +646,13 @@ pub fn run_client(
         if let Some(v) = view.as_mut() {
             let write = run.frames_every > 0 && f.frame % run.frames_every == 0;
             let start = Instant::now();
-            let img = v.draw(s, write).map_err(|e| ClientError::Render(e.to_string()))?;
+            let img = v.draw(s, write)?;
             f.render_ms = start.elapsed().as_secs_f64() * 1e3;
             f.frame_ms += f.render_ms;
             if let Some(img) = img {
                 let start = Instant::now();
                 let path = frames_dir.join(format!("{:05}.png", f.frame));
-                crate::client::render::Renderer::save_png(&img, &path)
-                    .map_err(|e| ClientError::Render(e.to_string()))?;
+                crate::client::render::Renderer::save_png(&img, &path)?;
                 f.write_ms = start.elapsed().as_secs_f64() * 1e3;
             }
         }
@@ -666,10 +663,9 @@ pub fn run_client(
     })?;
     #[cfg(feature = "gpu")]
     if let (Some(v), true) = (view.as_mut(), run.frames_every > 0)
-        && let Some(img) = v.draw(&session, true).map_err(|e| ClientError::Render(e.to_string()))?
+        && let Some(img) = v.draw(&session, true)?
     {
-        crate::client::render::Renderer::save_png(&img, &frames_dir.join(FINAL_FRAME))
-            .map_err(|e| ClientError::Render(e.to_string()))?;
+        crate::client::render::Renderer::save_png(&img, &frames_dir.join(FINAL_FRAME))?;
     }
     let report = ReplayReport {
         tileset: run.tileset.clone(),
