@@ -1,0 +1,504 @@
+//! GPU bake of point levels with `wgpu`: the same 6-direction orthographic slicing as
+//! [`super::cpu`], whose module doc is the specification, cell for cell, run as compute passes
+//! over many (mesh, level) jobs per submission.
+//!
+//! # Rasterization in compute, all slices at once
+//!
+//! The paper renders every slice of every direction into a framebuffer. Here each view axis is
+//! rasterized once, with no depth test and no culling, and every fragment is binned into its
+//! slice by its own depth: the same sampling as one pass per slice, with one pass per axis
+//! (and ±axis views coincide without depth test, see `lod::cpu`). The rasterization runs in a
+//! compute shader (`../../shaders/bake/rasterize.wgsl`, one invocation per triangle and axis) rather than in
+//! the hardware rasterizer, because:
+//! - the CPU reference's coverage rule (canonical edge functions, the top-left tie rule at
+//!   pixel centres) is evaluated on the job's own grid coordinates, with no sub-pixel snapping
+//!   of vertices as rasterizers do (8 bits on most hardware, lavapipe included), so GPU and CPU
+//!   disagree only where f32 and f64 rounding differ on a near-tie;
+//! - the framebuffer of a view would be the tile's extent in cells, one render target per job
+//!   and axis, while a compute dispatch covers every job of a batch at once;
+//! - WebGPU has no point size and no conservative rasterization; compute needs neither.
+//!
+//! # Passes (one submission per batch)
+//!
+//! 1. `raster`: fragments → a per-job open-addressing hash table of cells keyed by the packed
+//!    cell index, summing in fixed point with atomics (per-axis counts, depth offsets in
+//!    cell/2^16, quantized normals in 2^-15): integer sums, so the result does not depend on the order in
+//!    which fragments arrive. The invocation that inserts a cell appends its slot to the job's
+//!    cell list (in the job's output range), so no later pass scans the whole table.
+//! 2. `columns`: per view, each column's front and back slice (before fills), one invocation
+//!    per cell-list entry.
+//! 3. `fill`: the median hole filler, one invocation per column, looking up its neighbours'
+//!    front and back cells in the table by key and adding fills to the table (and to the
+//!    cell list).
+//! 4. `compact`: every cell-list entry → its point record (cell, count, position and normal
+//!    sums), in place.
+//! 5. One copy of the counters and all points into one staging buffer, one map (read-back).
+//!
+//! Each pipeline binds only the buffers it uses, read-only where it only reads: on lavapipe
+//! every atomic access is scalarised per lane, plain loads are not.
+//!
+//! Slots in the table and the append order depend on scheduling; the host sorts each job's
+//! points by cell `(k, j, i)` as the CPU does, so two bakes are identical. The host prepares
+//! what the CPU reference computes in f64 per vertex or triangle: grid coordinates (relative
+//! to the job's base cell, then f32), the smallest-index-first rotation and the quantized
+//! triangle normal; validity checks and skip counts are the reference's.
+//!
+//! # Batching and memory
+//!
+//! Jobs are packed into batches whose buffers (device buffers and the read-back staging
+//! buffer, counted exactly as allocated) stay within the batch budget
+//! ([`DEFAULT_BATCH_BUDGET_MIB`], `--gpu-budget-mib`) and the adapter's binding limits. The
+//! table and output sizes of a job come from its projected area (fragments ≈ area): a job whose
+//! table or output overflows is re-run in a later batch with four times the room, so sizes are
+//! an estimate but results never depend on them. A job that alone exceeds the budget, or whose
+//! cell box does not fit the 32-bit keys (an extent over 2^16 − 1 cells, or over 2^32 − 2 cells
+//! in all), or in which one cell gets over 1023 fragments of one view (the per-axis count
+//! fields of the table, see `../../shaders/bake/common.wgsl`), is baked by the CPU reference instead and
+//! counted in [`BatchReport::cpu_jobs`].
+//! While the GPU runs one batch the host prepares and submits the next and decodes the
+//! previous, so at most two batches are in flight: the device memory peak is at most twice the
+//! batch budget. The buffers of a read batch are kept (two sets at most, between calls too) and
+//! reused by later batches when large enough and at most twice what they need, within the
+//! budget; only the accumulating ranges are cleared ([`BatchReport::reused_buffers`]).
+
+use std::sync::mpsc;
+
+use bytemuck::{Pod, Zeroable};
+use rayon::prelude::*;
+
+mod batch;
+mod prepare;
+
+use prepare::{decode, prepare};
+
+use super::cpu::{BakeStats, BakedCell, MAX_GRID_COORD, NORMAL_FRACTION_BITS, SliceOptions};
+use crate::geom::{Mesh, triangle_normal};
+use crate::gpu::{GpuError, open};
+
+/// Default GPU memory budget of one batch, in MiB.
+pub const DEFAULT_BATCH_BUDGET_MIB: u64 = 256;
+
+/// WGSL sources, one per pipeline, each prefixed by the shared head (and, for the passes that
+/// insert cells, by `insert.wgsl`). Public so the CPU-only validation test can parse and
+/// validate them with naga.
+pub const SHADERS: [(&str, &str); 4] = [
+    (
+        "raster",
+        concat!(
+            include_str!("../../../shaders/bake/common.wgsl"),
+            include_str!("../../../shaders/bake/insert.wgsl"),
+            include_str!("../../../shaders/bake/rasterize.wgsl")
+        ),
+    ),
+    (
+        "columns",
+        concat!(
+            include_str!("../../../shaders/bake/common.wgsl"),
+            include_str!("../../../shaders/bake/columns.wgsl")
+        ),
+    ),
+    (
+        "fill",
+        concat!(
+            include_str!("../../../shaders/bake/common.wgsl"),
+            include_str!("../../../shaders/bake/insert.wgsl"),
+            include_str!("../../../shaders/bake/fill_holes.wgsl")
+        ),
+    ),
+    (
+        "compact",
+        concat!(
+            include_str!("../../../shaders/bake/common.wgsl"),
+            include_str!("../../../shaders/bake/compact.wgsl")
+        ),
+    ),
+];
+
+/// How a pipeline binds a buffer.
+#[derive(Clone, Copy)]
+enum Access {
+    Uniform,
+    Read,
+    ReadWrite,
+}
+
+/// The bindings of each pipeline of [`SHADERS`], in order: only what its WGSL declares, read-only
+/// where it only reads (plain loads rather than atomics; see `../../shaders/bake/common.wgsl`).
+const BINDINGS: [&[(u32, Access)]; 4] = {
+    use Access::{Read as R, ReadWrite as W, Uniform as U};
+    [
+        &[(0, U), (1, R), (2, W), (3, W), (5, R), (6, R), (7, W)],
+        &[(0, U), (1, R), (2, R), (3, R), (4, W), (7, R)],
+        &[(0, U), (1, R), (2, W), (3, W), (4, R), (7, W)],
+        &[(0, U), (1, R), (2, R), (3, R), (7, W)],
+    ]
+};
+/// Storage buffers of the pipeline with the most.
+const MAX_STORAGE_BINDINGS: u32 = 6;
+
+const WORKGROUP: u32 = 64;
+const MAX_GROUPS_X: u32 = 65_535;
+const SLOT_BYTES: u64 = 32;
+const POINT_BYTES: u64 = 32;
+const COLUMN_BYTES: u64 = 8;
+const COUNTER_WORDS: usize = 8;
+/// Count word of a slot (`../../shaders/bake/common.wgsl`): per-view-axis counts of `COUNT_BITS` each,
+/// `FILL_BIT` on a filled cell.
+const COUNT_BITS: u32 = 10;
+const COUNT_FIELD: u32 = (1 << COUNT_BITS) - 1;
+const FILL_BIT: u32 = 1 << 31;
+/// Position offset of a pixel centre, in cell/2^16.
+const POS_HALF: u64 = 1 << (super::cpu::POSITION_FRACTION_BITS - 1);
+/// Largest job extent on any axis: slices must fit 16 bits in the fill keys.
+const MAX_EXTENT: i64 = 65_535;
+/// Room multiplier for a job re-run after its table or output overflowed.
+const RETRY_GROWTH: u64 = 4;
+const POS_ONE: f64 = (1u64 << super::cpu::POSITION_FRACTION_BITS) as f64;
+
+/// One point level to bake: `mesh` on the cubic grid of edge `cell` anchored at `origin`
+/// (the arguments of [`super::cpu::bake_cells`]).
+#[derive(Debug, Clone, Copy)]
+pub struct LevelJob<'a> {
+    pub mesh: &'a Mesh,
+    pub origin: [f64; 3],
+    pub cell: f64,
+}
+
+/// What a set of jobs cost.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BatchReport {
+    /// Submissions.
+    pub batches: u64,
+    /// Jobs baked on the GPU (re-runs not counted twice).
+    pub gpu_jobs: u64,
+    /// Jobs baked by the CPU reference (alone over the budget, or cell box too large).
+    pub cpu_jobs: u64,
+    /// Jobs re-run with more room after their table or output overflowed.
+    pub retried_jobs: u64,
+    /// Largest sum of buffer sizes of one batch, staging buffer included, in bytes.
+    pub peak_batch_bytes: u64,
+    /// The budget it was held to, in bytes.
+    pub budget_bytes: u64,
+    /// Batch buffers reused from an earlier batch rather than allocated (seven per batch).
+    pub reused_buffers: u64,
+}
+
+impl BatchReport {
+    /// Adds `other` (peaks take the maximum).
+    pub fn merge(&mut self, other: &Self) {
+        self.batches += other.batches;
+        self.gpu_jobs += other.gpu_jobs;
+        self.cpu_jobs += other.cpu_jobs;
+        self.retried_jobs += other.retried_jobs;
+        self.peak_batch_bytes = self.peak_batch_bytes.max(other.peak_batch_bytes);
+        self.budget_bytes = self.budget_bytes.max(other.budget_bytes);
+        self.reused_buffers += other.reused_buffers;
+    }
+}
+
+/// Job descriptor shared with the shaders (`Job` in `../../shaders/bake/common.wgsl`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
+pub struct GpuJob {
+    pub tri_start: u32,
+    pub tri_count: u32,
+    pub vert_start: u32,
+    pub raster_start: u32,
+    pub nx: u32,
+    pub ny: u32,
+    pub nz: u32,
+    pub slot_start: u32,
+    pub table_mask: u32,
+    pub out_start: u32,
+    pub out_cap: u32,
+    pub col_start: u32,
+    pub fill: u32,
+    pub pad: [u32; 3],
+}
+
+/// Pass sizes shared with the shaders (`Params` in `../../shaders/bake/common.wgsl`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
+pub struct GpuParams {
+    pub n_jobs: u32,
+    pub raster_items: u32,
+    pub slots: u32,
+    pub col_items: u32,
+    pub out_items: u32,
+    pub pad: [u32; 3],
+}
+
+/// One job's output: what [`super::cpu::bake_cells`] returns.
+pub type JobResult = (Vec<BakedCell>, BakeStats);
+
+/// Why a job cannot go to the GPU.
+enum Unfit {
+    /// No valid triangle: the result is empty.
+    Empty(BakeStats),
+    /// Cell box too large for the 32-bit keys.
+    TooLarge,
+}
+
+/// The batch buffers that are kept from batch to batch, in this order: vertices, triangles,
+/// counters, table, columns, points, read-back staging (name and usage of each).
+const POOLED: [(&str, wgpu::BufferUsages); 7] = {
+    use wgpu::BufferUsages as U;
+    [
+        ("verts", U::STORAGE.union(U::COPY_DST)),
+        ("tris", U::STORAGE.union(U::COPY_DST)),
+        ("counters", U::STORAGE.union(U::COPY_SRC).union(U::COPY_DST)),
+        ("table", U::STORAGE.union(U::COPY_DST)),
+        ("columns", U::STORAGE.union(U::COPY_DST)),
+        ("points", U::STORAGE.union(U::COPY_SRC).union(U::COPY_DST)),
+        ("read-back", U::MAP_READ.union(U::COPY_DST)),
+    ]
+};
+const P_VERTS: usize = 0;
+const P_TRIS: usize = 1;
+const P_COUNTERS: usize = 2;
+const P_TABLE: usize = 3;
+const P_COLUMNS: usize = 4;
+const P_POINTS: usize = 5;
+const P_STAGING: usize = 6;
+/// Batches in flight at once (double buffering), and so the buffer sets the pool keeps.
+const POOL_SETS: usize = 2;
+
+/// Buffers of one submitted batch, waiting for its read-back.
+struct InFlight {
+    jobs: Vec<Prepared>,
+    /// The pooled buffers (`POOLED` order), back to the pool once read.
+    buffers: [wgpu::Buffer; 7],
+    /// Bytes of the staging buffer that the batch uses (counters, then points).
+    staging_bytes: u64,
+    /// How many of `buffers` were reused from the pool.
+    reused: u64,
+    counters_bytes: u64,
+    out_offsets: Vec<u64>,
+    mapped: mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>,
+    bytes: u64,
+}
+
+/// The point-level baker: pipelines on a device and queue passed in.
+pub struct GpuBaker {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    adapter: String,
+    layouts: [wgpu::BindGroupLayout; 4],
+    pipelines: [wgpu::ComputePipeline; 4],
+    budget: u64,
+    max_binding: u64,
+    /// Buffer sets of finished batches (at most `POOL_SETS`, kept between calls), reused by
+    /// the next ones: a fresh buffer costs a page fault and a zero fill per page on every
+    /// batch (on lavapipe about a tenth of the point stage's time), a reused one only the
+    /// clear of the range the batch uses.
+    pool: std::sync::Mutex<Vec<[wgpu::Buffer; 7]>>,
+}
+
+impl GpuBaker {
+    /// Builds the four pipelines. `budget_bytes` caps the buffers of one batch; `adapter`
+    /// names the adapter in reports.
+    pub fn new(
+        device: wgpu::Device,
+        queue: wgpu::Queue,
+        adapter: String,
+        budget_bytes: u64,
+    ) -> Result<Self, GpuError> {
+        let limits = device.limits();
+        if limits.max_storage_buffers_per_shader_stage < MAX_STORAGE_BINDINGS {
+            return Err(GpuError::Failed(format!(
+                "adapter {adapter} allows {} storage buffers per shader stage, the bake needs {MAX_STORAGE_BINDINGS}",
+                limits.max_storage_buffers_per_shader_stage
+            )));
+        }
+        let layouts = BINDINGS.map(|bindings| {
+            let entries: Vec<wgpu::BindGroupLayoutEntry> = bindings
+                .iter()
+                .map(|&(binding, access)| wgpu::BindGroupLayoutEntry {
+                    binding,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: match access {
+                            Access::Uniform => wgpu::BufferBindingType::Uniform,
+                            Access::Read => wgpu::BufferBindingType::Storage { read_only: true },
+                            Access::ReadWrite => wgpu::BufferBindingType::Storage { read_only: false },
+                        },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                })
+                .collect();
+            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("lod::gpu"),
+                entries: &entries,
+            })
+        });
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let mut n = 0;
+        let pipelines = SHADERS.map(|(name, source)| {
+            let layout = &layouts[n];
+            n += 1;
+            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(name),
+                bind_group_layouts: &[Some(layout)],
+                immediate_size: 0,
+            });
+            let module = crate::gpu::shader_module(&device, name, source);
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(name),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                cache: None,
+            })
+        });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(GpuError::Failed(format!("pipeline creation on {adapter}: {e}")));
+        }
+        let max_binding = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        Ok(Self {
+            device,
+            queue,
+            adapter,
+            layouts,
+            pipelines,
+            budget: budget_bytes.max(1 << 20),
+            max_binding,
+            pool: std::sync::Mutex::new(Vec::new()),
+        })
+    }
+
+    /// Opens the default adapter ([`open`]) and builds a baker on it.
+    pub fn open_default(budget_bytes: u64) -> Result<Self, GpuError> {
+        let ctx = open()?;
+        Self::new(ctx.device, ctx.queue, ctx.adapter, budget_bytes)
+    }
+
+    /// The adapter's name, backend and type.
+    #[must_use]
+    pub fn adapter(&self) -> &str {
+        &self.adapter
+    }
+
+    /// The batch budget in bytes.
+    #[must_use]
+    pub fn budget_bytes(&self) -> u64 {
+        self.budget
+    }
+
+    /// [`super::cpu::bake_cells`] on the GPU: one job, one batch.
+    pub fn bake_cells(
+        &self,
+        mesh: &Mesh,
+        origin: [f64; 3],
+        cell: f64,
+        options: &SliceOptions,
+    ) -> Result<(Vec<BakedCell>, BakeStats), GpuError> {
+        let (mut out, _) = self.bake_jobs(&[LevelJob { mesh, origin, cell }], options)?;
+        out.pop().ok_or_else(|| GpuError::Failed("no result for the job".into()))
+    }
+
+    /// Bakes every job, batched under the memory budget; results in job order, each as
+    /// [`super::cpu::bake_cells`] returns it.
+    pub fn bake_jobs(
+        &self,
+        jobs: &[LevelJob<'_>],
+        options: &SliceOptions,
+    ) -> Result<(Vec<JobResult>, BatchReport), GpuError> {
+        let fill = options.fill_holes;
+        let mut report = BatchReport { budget_bytes: self.budget, ..BatchReport::default() };
+        let mut results: Vec<Option<JobResult>> = vec![None; jobs.len()];
+        let prepared: Vec<Result<Prepared, Unfit>> =
+            jobs.par_iter().enumerate().map(|(n, j)| prepare(n, j)).collect();
+        let mut queue: std::collections::VecDeque<Prepared> = std::collections::VecDeque::new();
+        let mut cpu: Vec<usize> = Vec::new();
+        for (n, p) in prepared.into_iter().enumerate() {
+            match p {
+                Ok(p) if p.bytes(fill) <= self.budget && self.fits_bindings(&p, fill) => queue.push_back(p),
+                Ok(_) | Err(Unfit::TooLarge) => cpu.push(n),
+                Err(Unfit::Empty(stats)) => results[n] = Some((Vec::new(), stats)),
+            }
+        }
+        report.gpu_jobs = queue.len() as u64;
+        report.cpu_jobs = cpu.len() as u64;
+
+        // Double buffering: submit the next batch before reading back the previous one.
+        let mut in_flight: Option<InFlight> = None;
+        loop {
+            let batch = self.take_batch(&mut queue, fill);
+            let submitted = if batch.is_empty() { None } else { Some(self.submit(batch, jobs, fill)?) };
+            if let Some(f) = in_flight.take() {
+                report.batches += 1;
+                report.peak_batch_bytes = report.peak_batch_bytes.max(f.bytes);
+                report.reused_buffers += f.reused;
+                for (p, r) in self.finish(f, jobs)? {
+                    match r {
+                        Ok(r) => results[p.job] = Some(r),
+                        Err(Redo::Cpu) => {
+                            report.cpu_jobs += 1;
+                            report.gpu_jobs -= 1;
+                            cpu.push(p.job);
+                        }
+                        Err(Redo::Grow) => {
+                            let mut p = p;
+                            p.grow();
+                            report.retried_jobs += 1;
+                            if p.bytes(fill) <= self.budget && self.fits_bindings(&p, fill) {
+                                queue.push_back(p);
+                            } else {
+                                report.cpu_jobs += 1;
+                                report.gpu_jobs -= 1;
+                                cpu.push(p.job);
+                            }
+                        }
+                    }
+                }
+            }
+            in_flight = submitted;
+            if in_flight.is_none() && queue.is_empty() {
+                break;
+            }
+        }
+        let cpu_results: Vec<(usize, JobResult)> = cpu
+            .par_iter()
+            .map(|&n| (n, super::cpu::bake_cells(jobs[n].mesh, jobs[n].origin, jobs[n].cell, options)))
+            .collect();
+        for (n, r) in cpu_results {
+            results[n] = Some(r);
+        }
+        let results = results
+            .into_iter()
+            .map(|r| r.ok_or_else(|| GpuError::Failed("a job was left without a result".into())))
+            .collect::<Result<_, _>>()?;
+        Ok((results, report))
+    }
+}
+
+/// The host's part of a job: what the CPU reference computes in f64, ready to upload.
+struct Prepared {
+    /// Index into the caller's job list.
+    job: usize,
+    base: [i64; 3],
+    dims: [u32; 3],
+    /// Local grid coordinates, 3 per mesh vertex.
+    verts: Vec<f32>,
+    /// 6 words per valid triangle.
+    tris: Vec<u32>,
+    skipped: usize,
+    /// Output room, points.
+    out_cap: u64,
+    /// Table slots (a power of two).
+    table_slots: u64,
+}
+
+/// Why a job's GPU result was not used.
+enum Redo {
+    /// Its table or output overflowed: re-run with more room.
+    Grow,
+    /// A cell's per-axis count filled up: bake it with the CPU reference.
+    Cpu,
+}
+
+/// A job's GPU result, or why it is not used.
+type Decoded = Result<JobResult, Redo>;
