@@ -80,8 +80,7 @@ fn bad_host(app: &App, req: &Request) -> Option<Response> {
         }
     };
     let resp = Problem::bad_request(detail).into_response();
-    app.metrics.record("unmatched", 400, start.elapsed());
-    tracing::debug!(method = %req.method(), path = %req.uri().path(), status = 400, "request without a valid Host");
+    http::observe(app, "unmatched", req.method(), req.uri().path(), &resp, start);
     Some(resp)
 }
 
@@ -123,13 +122,6 @@ fn cached_blob(app: &App, req: &Request) -> Option<Response> {
     let h = resp.headers_mut();
     h.insert(header::ACCESS_CONTROL_EXPOSE_HEADERS, HeaderValue::from_static(http::EXPOSE_HEADERS));
     h.insert(header::ACCESS_CONTROL_ALLOW_ORIGIN, HeaderValue::from_static("*"));
-    if let Some(len) =
-        resp.headers().get(header::CONTENT_LENGTH).and_then(|v| v.to_str().ok()?.parse::<u64>().ok())
-    {
-        app.metrics.bytes_sent.fetch_add(len, Ordering::Relaxed);
-    }
-    let status = resp.status().as_u16();
-    app.metrics.record(BLOB_ROUTE, status, start.elapsed());
-    tracing::debug!(method = "GET", %path, status, ms = start.elapsed().as_secs_f64() * 1e3, "request");
+    http::observe(app, BLOB_ROUTE, req.method(), path, &resp, start);
     Some(resp)
 }
