@@ -138,37 +138,15 @@ impl InstanceBench {
                 step_mode: wgpu::VertexStepMode::Vertex,
                 attributes: &attrs,
             })];
-            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some(entry),
-                layout: Some(&layout),
-                vertex: wgpu::VertexState {
-                    module: &module,
-                    entry_point: Some(entry),
-                    compilation_options: wgpu::PipelineCompilationOptions::default(),
-                    buffers: if mesh { &buffers } else { &[] },
-                },
-                primitive: wgpu::PrimitiveState::default(),
-                depth_stencil: Some(wgpu::DepthStencilState {
-                    format: DEPTH,
-                    depth_write_enabled: Some(true),
-                    depth_compare: Some(wgpu::CompareFunction::Less),
-                    stencil: wgpu::StencilState::default(),
-                    bias: wgpu::DepthBiasState::default(),
-                }),
-                multisample: wgpu::MultisampleState::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &module,
-                    entry_point: Some("fs_main"),
-                    compilation_options: wgpu::PipelineCompilationOptions::default(),
-                    targets: &[Some(wgpu::ColorTargetState {
-                        format: COLOR,
-                        blend: None,
-                        write_mask: wgpu::ColorWrites::ALL,
-                    })],
-                }),
-                multiview_mask: None,
-                cache: None,
-            })
+            crate::gpu::opaque_pipeline(
+                &device,
+                entry,
+                &layout,
+                &module,
+                entry,
+                if mesh { &buffers } else { &[] },
+                (COLOR, DEPTH),
+            )
         };
         let mesh = make("vs_mesh", &[Some(&globals_layout)], true);
         let points = make("vs_points", &[Some(&globals_layout), Some(&level_layout)], false);

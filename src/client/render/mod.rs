@@ -159,42 +159,13 @@ impl Renderer {
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let make = |(name, src): (&str, &str), step: wgpu::VertexStepMode| {
             let module = crate::gpu::shader_module(&device, name, src);
-            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some(name),
-                layout: Some(&layout),
-                vertex: wgpu::VertexState {
-                    module: &module,
-                    entry_point: Some("vs_main"),
-                    compilation_options: wgpu::PipelineCompilationOptions::default(),
-                    buffers: &[Some(wgpu::VertexBufferLayout {
-                        array_stride: std::mem::size_of::<Vertex>() as u64,
-                        step_mode: step,
-                        attributes: &attrs,
-                    })],
-                },
-                // No culling: skirts and TIN winding are both seen from either side.
-                primitive: wgpu::PrimitiveState::default(),
-                depth_stencil: Some(wgpu::DepthStencilState {
-                    format: DEPTH,
-                    depth_write_enabled: Some(true),
-                    depth_compare: Some(wgpu::CompareFunction::Less),
-                    stencil: wgpu::StencilState::default(),
-                    bias: wgpu::DepthBiasState::default(),
-                }),
-                multisample: wgpu::MultisampleState::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &module,
-                    entry_point: Some("fs_main"),
-                    compilation_options: wgpu::PipelineCompilationOptions::default(),
-                    targets: &[Some(wgpu::ColorTargetState {
-                        format: COLOR,
-                        blend: None,
-                        write_mask: wgpu::ColorWrites::ALL,
-                    })],
-                }),
-                multiview_mask: None,
-                cache: None,
-            })
+            let buffers = [Some(wgpu::VertexBufferLayout {
+                array_stride: std::mem::size_of::<Vertex>() as u64,
+                step_mode: step,
+                attributes: &attrs,
+            })];
+            // No culling: skirts and TIN winding are both seen from either side.
+            crate::gpu::opaque_pipeline(&device, name, &layout, &module, "vs_main", &buffers, (COLOR, DEPTH))
         };
         let mesh = make(SHADERS[0], wgpu::VertexStepMode::Vertex);
         let points = make(SHADERS[1], wgpu::VertexStepMode::Instance);
