@@ -155,7 +155,7 @@ fn shipped_flight_settles_under_threshold_within_the_byte_bound() {
     let world = flight.to_world(&session.manifest().bounds).unwrap();
     let camera = Camera::new(&world.pose_at(world.end()), opts.width, opts.height, opts.fov_deg);
     let last = frames.last().unwrap();
-    assert!(last.under_threshold && last.holes == 0 && last.complete, "{last:?}");
+    assert!(last.selection.under_threshold && last.selection.holes == 0 && last.complete, "{last:?}");
     let errors = drawn_errors_px(&session, &store, &camera);
     assert!(!errors.is_empty());
     for e in &errors {
@@ -165,7 +165,7 @@ fn shipped_flight_settles_under_threshold_within_the_byte_bound() {
         assert!(session.cache().contains(d.key, d.level), "{:?} drawn but not resident", d.key);
     }
     // The view is not trivially the root: the flight ends close to the terrain.
-    assert!(session.draws().iter().any(|d| d.key.z >= 2), "{:?}", last.drawn_per_level);
+    assert!(session.draws().iter().any(|d| d.key.z >= 2), "{:?}", last.selection.drawn_per_level);
 
     // (c) Bytes. The cache (512 MiB) never evicts on this tileset, so no resource is fetched
     // twice; hence everything received (manifest, chunks, blobs, all complete responses) is at
@@ -240,14 +240,14 @@ fn outages_keep_the_last_view_drawn_and_recover() {
         let until = session.now() + limit;
         loop {
             let f = session.frame(pose, 0.0, ReplayPhase::Settle).unwrap();
-            if (f.complete && f.retiring == 0) || session.now() > until {
+            if (f.complete && f.selection.retiring == 0) || session.now() > until {
                 return f;
             }
             std::thread::sleep(Duration::from_millis(20));
         }
     };
     let f = settle(&mut session, &far, 20.0);
-    assert!(f.complete && f.holes == 0, "{f:?}");
+    assert!(f.complete && f.selection.holes == 0, "{f:?}");
     let drawn_far = session.draws().len();
     assert!(drawn_far > 0);
 
@@ -258,7 +258,7 @@ fn outages_keep_the_last_view_drawn_and_recover() {
     let until = session.now() + 2.0;
     while session.now() < until {
         let f = session.frame(&near, 0.0, ReplayPhase::Flight).unwrap();
-        assert!(!session.draws().is_empty() && f.holes == 0, "{f:?}");
+        assert!(!session.draws().is_empty() && f.selection.holes == 0, "{f:?}");
         assert!(!f.complete);
         std::thread::sleep(Duration::from_millis(20));
     }
@@ -272,7 +272,7 @@ fn outages_keep_the_last_view_drawn_and_recover() {
     // Back up: the near view completes.
     up.store(true, Ordering::SeqCst);
     let f = settle(&mut session, &near, 20.0);
-    assert!(f.complete && f.under_threshold && f.holes == 0, "{f:?}");
+    assert!(f.complete && f.selection.under_threshold && f.selection.holes == 0, "{f:?}");
 
     // The server stopped outright (connections refused), the camera moves back out: still
     // drawing, no hole; restarted on the same address: complete again.
@@ -281,12 +281,12 @@ fn outages_keep_the_last_view_drawn_and_recover() {
     let until = session.now() + 1.5;
     while session.now() < until {
         let f = session.frame(&mid, 0.0, ReplayPhase::Flight).unwrap();
-        assert!(!session.draws().is_empty() && f.holes == 0, "{f:?}");
+        assert!(!session.draws().is_empty() && f.selection.holes == 0, "{f:?}");
         std::thread::sleep(Duration::from_millis(20));
     }
     let server = start(tmp.path(), &upstream.to_string());
     let f = settle(&mut session, &mid, 20.0);
-    assert!(f.complete && f.under_threshold && f.holes == 0, "{f:?}");
+    assert!(f.complete && f.selection.under_threshold && f.selection.holes == 0, "{f:?}");
     assert_eq!(session.scheduler().stats().failed, 0);
     server.stop();
 }
@@ -454,7 +454,7 @@ fn settled_view_covers_the_full_resolution_terrain() {
     println!(
         "settled view: {} tiles drawn (per level {:?}); terrain {terrain} px, empty in the client's frame {} px; frames in {}",
         session.draws().len(),
-        frames.last().unwrap().drawn_per_level,
+        frames.last().unwrap().selection.drawn_per_level,
         empty.len(),
         out.display()
     );

@@ -27,11 +27,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let j = find_job(item, 1u);
     let job = jobs[j];
     let idx = item - job.out_start;
-    if job.fill == 0u || idx >= min(counters[j * COUNTER_WORDS + C_OUT], job.out_cap) {
+    if job.fill == 0u || idx >= min(counters[counter_word(j, C_OUT)], job.out_cap) {
         return;
     }
-    let slot = points[item * 8u];
-    let c = unpack_key(job, table[slot * SLOT_WORDS] - 1u);
+    let slot = points[point_word(item)];
+    let c = unpack_key(job, table[slot_word(slot)] - 1u);
     for (var axis = 0u; axis < 3u; axis++) {
         let col = column_index(job, axis, c[(axis + 1u) % 3u], c[(axis + 2u) % 3u]) * COLUMN_WORDS;
         atomicMax(&columns[col], FRONT_BASE - c[axis]);

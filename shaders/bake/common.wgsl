@@ -68,6 +68,7 @@ struct Job {
 const WORKGROUP: u32 = 64u;
 const SLOT_WORDS: u32 = 8u;
 const COUNTER_WORDS: u32 = 8u;
+const POINT_WORDS: u32 = 8u;
 const C_OUT: u32 = 0u;
 const C_FRAGS: u32 = 2u;
 const C_OVERFLOW: u32 = 5u;
@@ -152,4 +153,18 @@ fn column_index(job: Job, axis: u32, u: u32, v: u32) -> u32 {
     }
     let nu = n[(axis + 1u) % 3u];
     return job.col_start + off + v * nu + u;
+}
+
+// The buffers' word indices, written once: counter `c` of job `j`, the first word of table
+// slot `s`, the first word of point record `n` (batch-wide).
+fn counter_word(j: u32, c: u32) -> u32 {
+    return j * COUNTER_WORDS + c;
+}
+
+fn slot_word(s: u32) -> u32 {
+    return s * SLOT_WORDS;
+}
+
+fn point_word(n: u32) -> u32 {
+    return n * POINT_WORDS;
 }

@@ -28,11 +28,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     }
     let j = find_job(item, 1u);
     let job = jobs[j];
-    if item - job.out_start >= min(counters[j * COUNTER_WORDS + C_OUT], job.out_cap) {
+    if item - job.out_start >= min(counters[counter_word(j, C_OUT)], job.out_cap) {
         return;
     }
-    let o = item * 8u;
-    let w = points[o] * SLOT_WORDS;
+    let o = point_word(item);
+    let w = slot_word(points[o]);
     points[o] = table[w] - 1u;
     // The sums themselves: the host divides them in f64 as the CPU reference does, so a cell
     // with the same fragments gives the same point bit for bit, whatever the adapter's f32

@@ -99,10 +99,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             c[va] = u32(v + o.y);
             let slot = find(job, pack_key(job, c));
             if slot < 0 {
-                atomicAdd(&counters[j * COUNTER_WORDS + C_OVERFLOW], 1u);
+                atomicAdd(&counters[counter_word(j, C_OVERFLOW)], 1u);
                 return;
             }
-            let w = u32(slot) * SLOT_WORDS;
+            let w = slot_word(u32(slot));
             // The mean offset on `axis` (see the table layout in common.wgsl); a neighbour
             // holds fragments only (no fills yet), at most 3 × COUNT_FIELD of them.
             let counts = atomicLoad(&table[w + 1u]);
@@ -147,13 +147,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         }
         let slot = find_or_insert(j, job, pack_key(job, c));
         if slot < 0 {
-            atomicAdd(&counters[j * COUNTER_WORDS + C_OVERFLOW], 1u);
+            atomicAdd(&counters[counter_word(j, C_OVERFLOW)], 1u);
             continue;
         }
-        let w = u32(slot) * SLOT_WORDS;
+        let w = slot_word(u32(slot));
         atomicOr(&table[w + 1u], FILL_BIT);
         if !add_count(w + 1u, axis) {
-            atomicAdd(&counters[j * COUNTER_WORDS + C_COUNT_OVERFLOW], 1u);
+            atomicAdd(&counters[counter_word(j, C_COUNT_OVERFLOW)], 1u);
         }
         atomicAdd(&table[w + 2u + axis], key & 65535u);
         for (var k = 0u; k < 3u; k++) {

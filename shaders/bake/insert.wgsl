@@ -16,7 +16,7 @@ fn find_or_insert(j: u32, job: Job, key: u32) -> i32 {
     var h = hash32(key) & job.table_mask;
     for (var probe = 0u; probe <= job.table_mask; probe++) {
         let s = job.slot_start + h;
-        let w = s * SLOT_WORDS;
+        let w = slot_word(s);
         loop {
             let cur = atomicLoad(&table[w]);
             if cur == key1 {
@@ -27,9 +27,9 @@ fn find_or_insert(j: u32, job: Job, key: u32) -> i32 {
             }
             let r = atomicCompareExchangeWeak(&table[w], 0u, key1);
             if r.exchanged {
-                let idx = atomicAdd(&counters[j * COUNTER_WORDS + C_OUT], 1u);
+                let idx = atomicAdd(&counters[counter_word(j, C_OUT)], 1u);
                 if idx < job.out_cap {
-                    points[(job.out_start + idx) * 8u] = s;
+                    points[point_word(job.out_start + idx)] = s;
                 }
                 return i32(s);
             }
@@ -51,7 +51,7 @@ fn find(job: Job, key: u32) -> i32 {
     var h = hash32(key) & job.table_mask;
     for (var probe = 0u; probe <= job.table_mask; probe++) {
         let s = job.slot_start + h;
-        let cur = atomicLoad(&table[s * SLOT_WORDS]);
+        let cur = atomicLoad(&table[slot_word(s)]);
         if cur == key1 {
             return i32(s);
         }

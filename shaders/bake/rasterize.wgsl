@@ -180,7 +180,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
                 overflow += 1u;
                 continue;
             }
-            let w = u32(slot) * SLOT_WORDS;
+            let w = slot_word(u32(slot));
             if !add_count(w + 1u, axis) {
                 count_overflow += 1u;
             }
@@ -192,12 +192,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         }
     }
     if count > 0u {
-        atomicAdd(&counters[j * COUNTER_WORDS + C_FRAGS + axis], count);
+        atomicAdd(&counters[counter_word(j, C_FRAGS + axis)], count);
     }
     if overflow > 0u {
-        atomicAdd(&counters[j * COUNTER_WORDS + C_OVERFLOW], overflow);
+        atomicAdd(&counters[counter_word(j, C_OVERFLOW)], overflow);
     }
     if count_overflow > 0u {
-        atomicAdd(&counters[j * COUNTER_WORDS + C_COUNT_OVERFLOW], count_overflow);
+        atomicAdd(&counters[counter_word(j, C_COUNT_OVERFLOW)], count_overflow);
     }
 }

@@ -84,7 +84,13 @@ pub fn run(a: &ClientArgs) -> Result<()> {
         if f.frame % 30 == 0 {
             eprintln!(
                 "frame {:>5} t {:>6.2}s {:<6} drawn {:?} in flight {:>2} select {:.3} ms frame {:.1} ms",
-                f.frame, f.t, f.phase, f.drawn_per_level, f.requests_in_flight, f.select_ms, f.frame_ms
+                f.frame,
+                f.t,
+                f.phase,
+                f.selection.drawn_per_level,
+                f.requests_in_flight,
+                f.select_ms,
+                f.frame_ms
             );
         }
     })?;

@@ -138,7 +138,7 @@ pub struct Want {
 }
 
 /// Counters of one selection.
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
 pub struct SelectStats {
     /// Nodes whose visibility and error were evaluated (the paper's control cost measure).
     pub visited: u32,

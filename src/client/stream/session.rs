@@ -18,7 +18,7 @@ use std::time::{Duration, Instant, SystemTime};
 use serde::Serialize;
 
 use crate::client::ClientError;
-use crate::client::select::{Camera, DrawItem, SelectParams, Selector};
+use crate::client::select::{Camera, DrawItem, SelectParams, SelectStats, Selector};
 use crate::client::stream::fetch::{
     self, FetchParams, Outcome, RequestId, Resource, Scheduler, TileCache, Transport, parse_retry_after,
 };
@@ -154,21 +154,11 @@ pub struct FrameStats {
     /// Session (wall-clock) time at the start of the frame (s).
     pub wall_s: f64,
     pub phase: ReplayPhase,
-    /// Nodes whose visibility and error were evaluated.
-    pub visited: u32,
-    /// Nodes in the active set and those of them in view.
-    pub active: u32,
-    pub visible: u32,
-    /// Tiles drawn per level (index = level), fading-out tiles excluded.
-    pub drawn_per_level: Vec<u32>,
-    /// Tiles fading out.
-    pub retiring: u32,
-    /// Visible active nodes nothing resident covers.
-    pub holes: u32,
-    /// Largest screen-space error among the drawn tiles (px).
-    pub max_error_px: f64,
-    /// Every drawn tile is under the threshold.
-    pub under_threshold: bool,
+    /// The frame's selection: nodes visited, active and visible, tiles drawn per level and
+    /// fading out, holes, the largest error drawn and whether every drawn tile is under the
+    /// threshold (false when nothing is drawn). Its fields sit at this level in `stats.json`.
+    #[serde(flatten)]
+    pub selection: SelectStats,
     /// Nothing wanted is missing: every visible active node has its chosen level resident and
     /// every index chunk needed is loaded.
     pub complete: bool,
@@ -329,14 +319,10 @@ impl Session {
             t,
             wall_s: now,
             phase,
-            visited: s.visited,
-            active: s.active,
-            visible: s.visible,
-            drawn_per_level: s.drawn_per_level.clone(),
-            retiring: s.retiring,
-            holes: s.holes,
-            max_error_px: s.max_error_px,
-            under_threshold: s.under_threshold && !sel.draws.is_empty(),
+            selection: SelectStats {
+                under_threshold: s.under_threshold && !sel.draws.is_empty(),
+                ..s.clone()
+            },
             complete: wants.is_empty() && self.tree.root().is_some(),
             select_ms,
             ..FrameStats::default()
@@ -502,7 +488,8 @@ pub fn replay(
         let phase = if t <= world.end() { ReplayPhase::Flight } else { ReplayPhase::Settle };
         if phase == ReplayPhase::Settle {
             let since = *settle_start.get_or_insert(session.now());
-            let last_complete = frames.last().is_some_and(|f: &FrameStats| f.complete && f.retiring == 0);
+            let last_complete =
+                frames.last().is_some_and(|f: &FrameStats| f.complete && f.selection.retiring == 0);
             if last_complete || session.now() - since > opts.settle_s {
                 break;
             }
@@ -538,7 +525,7 @@ fn totals(session: &Session, frames: &[FrameStats]) -> Totals {
         latency_p50_ms: percentile(&st.latencies_s, 0.5) * 1e3,
         latency_p99_ms: percentile(&st.latencies_s, 0.99) * 1e3,
         first_complete_s: frames.iter().find(|f| f.complete).map(|f| f.wall_s),
-        share_under_threshold: frames.iter().filter(|f| f.under_threshold).count() as f64 / n,
+        share_under_threshold: frames.iter().filter(|f| f.selection.under_threshold).count() as f64 / n,
         settled: frames.last().is_some_and(|f| f.complete),
         select_ms_mean: frames.iter().map(|f| f.select_ms).sum::<f64>() / n,
         select_ms_max: frames.iter().map(|f| f.select_ms).fold(0.0, f64::max),
