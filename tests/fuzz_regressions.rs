@@ -34,6 +34,25 @@ fn load_raster(name: &str, bytes: &[u8]) -> Result<raster::LoadedRaster, RasterE
     Ok(r)
 }
 
+/// `raster_png_terrarium` and `raster_png_terrain_rgb`: a `PLTE` chunk whose length is not a
+/// multiple of 3 (14 bytes here; 4 in the second) made the `png` crate (0.18.1,
+/// `decoder/transform/palette.rs`) index past the palette and panic — in release builds too,
+/// so one hostile upload would have panicked a bake. Refused before decoding by
+/// `raster::png::check_chunks` (PNG §11.2.3: 1 to 256 entries of 3 bytes).
+#[test]
+fn png_palette_with_a_partial_entry_is_corrupt() {
+    use terrastream::raster::HeightEncoding;
+    for (file, encoding) in [
+        ("png-plte-14-bytes.png", HeightEncoding::Terrarium),
+        ("png-plte-partial-terrain-rgb.png", HeightEncoding::TerrainRgb),
+    ] {
+        let opts = LoadOptions { limits: LIMITS, encoding: Some(encoding), ..LoadOptions::default() };
+        let e = raster::load_bytes(Path::new(file), &case(file), &opts).unwrap_err();
+        assert!(matches!(e, RasterError::Corrupt { .. }), "{file}: {e}");
+        assert!(e.to_string().contains("PLTE chunk of"), "{file}: {e}");
+    }
+}
+
 /// `raster_geotiff`: a ModelPixelScale of about −1.6e308 with a finite tiepoint gave a finite
 /// origin and cell size (so `load` accepted it) but a far corner at −inf, and every later stage
 /// would have worked on infinities. Fixed in `raster::geotiff::check_extent`.

@@ -377,6 +377,26 @@ fn detect(path: &Path, head: &[u8]) -> Result<Format, RasterError> {
 
 /// Loads, validates and fills a raster file.
 ///
+/// Runs a third-party decoder (PNG, OpenEXR) so that a panic inside it — a bug of that crate on
+/// a hostile file — becomes [`RasterError::Corrupt`] naming the file, instead of unwinding into
+/// (and, in a server, killing) the caller. The decoders run on the calling thread (OpenEXR with
+/// its parallel decompression off), so their panics arrive here. The panic is still printed by
+/// the process's panic hook; the decoders hold no state of ours, so nothing is left half-done.
+pub(crate) fn guard_decoder<T>(
+    path: &Path,
+    format: &'static str,
+    f: impl FnOnce() -> Result<T, RasterError>,
+) -> Result<T, RasterError> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).unwrap_or_else(|panic| {
+        let what = panic
+            .downcast_ref::<&str>()
+            .map(|s| (*s).to_owned())
+            .or_else(|| panic.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "no message".into());
+        Err(RasterError::corrupt(path, format, format!("the decoder failed on this file ({what})")))
+    })
+}
+
 /// Errors: [`RasterError`], each naming the file: unreadable or unrecognized file, corrupt or
 /// truncated data, unsupported sample type or band count, zero size, a declared size over
 /// `opts.limits`, all samples no-data, an unusable georeference or override.
@@ -641,6 +661,22 @@ mod tests {
 
     use super::test_util::{assert_names_path, write};
     use super::*;
+
+    /// A panic inside a decoder comes back as a corrupt-file error naming the file and the
+    /// panic's message (string and formatted messages alike); a decoder's own result passes.
+    #[test]
+    fn decoder_panics_become_corrupt_file_errors() {
+        let p = Path::new("x.exr");
+        let e =
+            guard_decoder::<()>(p, "OpenEXR", || panic!("attempt to subtract with overflow")).unwrap_err();
+        assert!(matches!(e, RasterError::Corrupt { .. }), "{e}");
+        let text = e.to_string();
+        assert!(text.contains("x.exr") && text.contains("attempt to subtract with overflow"), "{text}");
+        let n = 3;
+        let e = guard_decoder::<()>(p, "PNG", || panic!("index {n} out of range")).unwrap_err();
+        assert!(e.to_string().contains("index 3 out of range"), "{e}");
+        assert_eq!(guard_decoder(p, "PNG", || Ok(7)).unwrap(), 7);
+    }
 
     fn gray16(dir: &Path, w: u32, h: u32, data: Vec<u16>) -> PathBuf {
         let p = dir.join("g.png");

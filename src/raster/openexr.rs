@@ -156,25 +156,30 @@ pub(super) fn decode(
     let name = channel.name.clone();
 
     reader.seek(SeekFrom::Start(0)).map_err(|e| RasterError::io(path, e))?;
-    let image = read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .specific_channels()
-        .required(name)
-        .collect_pixels(
-            |size, _| (size.width(), vec![f32::NAN; size.area()]),
-            |(width, values): &mut (usize, Vec<f32>), pos, (v,): (f32,)| {
-                // Positions come from the layer's own size; `get_mut` keeps a malformed block
-                // from indexing past the buffer.
-                if let Some(slot) = values.get_mut(pos.y() * *width + pos.x()) {
-                    *slot = v;
-                }
-            },
-        )
-        .first_valid_layer()
-        .all_attributes()
-        .from_buffered(reader)
-        .map_err(|e| map_err(path, e))?;
+    // On this thread, so that a panic of the decoder reaches `guard_decoder` (exr's parallel
+    // decompression runs blocks on a rayon pool, where a panic aborts the whole process).
+    let image = super::guard_decoder(path, FORMAT, || {
+        read()
+            .no_deep_data()
+            .largest_resolution_level()
+            .specific_channels()
+            .required(name)
+            .collect_pixels(
+                |size, _| (size.width(), vec![f32::NAN; size.area()]),
+                |(width, values): &mut (usize, Vec<f32>), pos, (v,): (f32,)| {
+                    // Positions come from the layer's own size; `get_mut` keeps a malformed block
+                    // from indexing past the buffer.
+                    if let Some(slot) = values.get_mut(pos.y() * *width + pos.x()) {
+                        *slot = v;
+                    }
+                },
+            )
+            .first_valid_layer()
+            .all_attributes()
+            .non_parallel()
+            .from_buffered(reader)
+            .map_err(|e| map_err(path, e))
+    })?;
 
     let layer = image.layer_data;
     let (width, height) = (layer.size.width(), layer.size.height());

@@ -2,7 +2,7 @@
 //! height, and 8-bit RGB(A) in the Mapbox terrain-RGB or Terrarium encodings. PNG carries no
 //! georeference, so the frame is unit cells unless the user overrides it.
 
-use std::io::{BufRead, Seek};
+use std::io::{BufRead, Read, Seek, SeekFrom};
 use std::path::Path;
 
 use image::codecs::png::PngDecoder;
@@ -25,8 +25,52 @@ fn map_err(path: &Path, e: ImageError) -> RasterError {
     }
 }
 
-/// Decodes a PNG file whose signature was already checked.
+/// Checks the chunks before the image data against PNG's own rules where the `png` crate
+/// trusts them: a `PLTE` must hold 1 to 256 three-byte entries (PNG §11.2.3). The crate indexes
+/// past a palette of any other length (found by fuzzing: a 14-byte `PLTE` panicked in
+/// `png::decoder::transform::palette`). Walks chunk headers only, up to the first `IDAT` or
+/// `IEND` (the palette must come before the data) or the end of the file, each step at least
+/// 12 bytes forward; what does not parse here is left to the decoder to report. The reader is
+/// left at the start.
+fn check_chunks(path: &Path, reader: &mut (impl Read + Seek)) -> Result<(), RasterError> {
+    let io = |e| RasterError::io(path, e);
+    let end = reader.seek(SeekFrom::End(0)).map_err(io)?;
+    let mut at = 8u64;
+    while at + 8 <= end {
+        reader.seek(SeekFrom::Start(at)).map_err(io)?;
+        let mut head = [0u8; 8];
+        reader.read_exact(&mut head).map_err(io)?;
+        let len = u64::from(u32::from_be_bytes([head[0], head[1], head[2], head[3]]));
+        match &head[4..8] {
+            b"IDAT" | b"IEND" => break,
+            b"PLTE" if len == 0 || len > 768 || len % 3 != 0 => {
+                return Err(RasterError::corrupt(
+                    path,
+                    FORMAT,
+                    format!("PLTE chunk of {len} bytes; a palette holds 1 to 256 entries of 3 bytes"),
+                ));
+            }
+            _ => {}
+        }
+        at += 12 + len;
+    }
+    reader.seek(SeekFrom::Start(0)).map_err(io)?;
+    Ok(())
+}
+
+/// Decodes a PNG file whose signature was already checked. A panic inside the decoder (a bug
+/// of the `png` or `image` crate on a hostile file) is reported as a corrupt file, not passed
+/// on (see [`super::guard_decoder`]).
 pub(super) fn decode(
+    path: &Path,
+    mut reader: impl BufRead + Seek,
+    opts: &LoadOptions,
+) -> Result<Decoded, RasterError> {
+    check_chunks(path, &mut reader)?;
+    super::guard_decoder(path, FORMAT, || decode_checked(path, reader, opts))
+}
+
+fn decode_checked(
     path: &Path,
     reader: impl BufRead + Seek,
     opts: &LoadOptions,
