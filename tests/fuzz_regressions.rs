@@ -72,7 +72,7 @@ fn decoded_positions_stay_inside_the_header_bounds() {
     use terrastream::geom::{Bounds, Errors, Mesh};
     use terrastream::tiling::TileKey;
 
-    let bounds = Bounds { min: [0.0; 3], max: [1.0; 3] };
+    let bounds = Bounds::new([0.0; 3], [1.0; 3]);
     let q = Quantization { xy_step: 0.6, z_step: 0.6 };
     let mesh = Mesh {
         positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.5], [0.0, 1.0, 1.0]],
@@ -84,7 +84,7 @@ fn decoded_positions_stay_inside_the_header_bounds() {
     // position lies inside what it states.
     let blob = codec::decode(&blob).unwrap();
     let b = blob.header.bounds();
-    assert_eq!(b.max, [1.2, 1.2, 1.2]);
+    assert_eq!(b.max.to_array(), [1.2, 1.2, 1.2]);
     let Geometry::Mesh(m) = blob.geometry else { panic!("not a mesh") };
     for p in &m.positions {
         assert!((0..3).all(|a| b.min[a] <= p[a] && p[a] <= b.max[a]), "{p:?} outside {b:?}");

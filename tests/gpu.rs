@@ -191,11 +191,11 @@ fn agrees_with_cpu_on_the_bunny() {
     let mesh = terrastream::model::load(&data("stanford-bunny.obj")).unwrap().mesh;
     assert!(mesh.triangles.len() > 10_000);
     let b = terrastream::geom::Bounds::of_points(&mesh.positions);
-    let size = b.size().into_iter().fold(0.0, f64::max);
+    let size = b.size().max_element();
     // Framebuffers of 256, 128, 64 and 32 cells across the bunny's largest extent.
     let jobs: Vec<LevelJob<'_>> = [256.0, 128.0, 64.0, 32.0]
         .into_iter()
-        .map(|n| LevelJob { mesh: &mesh, origin: b.min, cell: size / n })
+        .map(|n| LevelJob { mesh: &mesh, origin: b.min.to_array(), cell: size / n })
         .collect();
     check_jobs("bunny", gpu, &jobs);
 }

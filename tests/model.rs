@@ -263,7 +263,7 @@ fn degenerate_triangles_are_skipped_and_counted() {
     assert_eq!(m.model.unreferenced_dropped, 2);
     assert_eq!((m.model.vertices, m.model.triangles), (8, 12));
     // The dropped vertices do not stretch the bounds.
-    assert_eq!(m.tileset.bounds.max, [1.0, 1.0, 1.0]);
+    assert_eq!(m.tileset.bounds.max.to_array(), [1.0, 1.0, 1.0]);
 }
 
 #[test]

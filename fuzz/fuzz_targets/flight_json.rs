@@ -41,7 +41,7 @@ fuzz_target!(|data: &[u8]| {
         Flight::from_json(&json).unwrap_or_else(|e| panic!("serialised flight does not parse: {e}\n{json}"));
     assert_eq!(f, back, "flight changed through JSON");
     // A normalised flight on a 10 km tileset must stay valid in world units.
-    let bounds = Bounds { min: [0.0, 0.0, 100.0], max: [10_000.0, 8_000.0, 2_500.0] };
+    let bounds = Bounds::new([0.0, 0.0, 100.0], [10_000.0, 8_000.0, 2_500.0]);
     if let Ok(w) = f.to_world(&bounds) {
         check_flight(&w);
     }

@@ -212,8 +212,8 @@ impl std::fmt::Display for ModelBakeReport<'_> {
             s.seconds,
             s.read_seconds,
             s.bake_seconds,
-            s.bounds.min,
-            s.bounds.max
+            s.bounds.min.to_array(),
+            s.bounds.max.to_array()
         )?;
         writeln!(f, "point levels baked by {}", s.point_baker)?;
         write!(f, "{}", ModelLevelTable(&s.levels))
@@ -288,16 +288,16 @@ pub fn bake_model(
     if !raw.is_valid() {
         return Err(ModelBakeError::NoBounds { file: source.name.clone() });
     }
-    let reach = raw.min.iter().chain(&raw.max).fold(0.0f64, |m, v| m.max(v.abs()));
+    let reach = raw.min.abs().max(raw.max.abs()).max_element();
     if reach.is_nan() || reach > MAX_MODEL_COORDINATE {
         return Err(ModelBakeError::TooLarge {
             file: source.name.clone(),
             reach,
-            min: raw.min,
-            max: raw.max,
+            min: raw.min.to_array(),
+            max: raw.max.to_array(),
         });
     }
-    let longest = raw.size().into_iter().fold(0.0f64, f64::max);
+    let longest = raw.size().max_element();
     if !(longest > 0.0 && longest.is_finite()) {
         return Err(ModelBakeError::ZeroExtent { file: source.name.clone() });
     }
@@ -347,7 +347,7 @@ pub fn bake_model(
 
     // Point levels: all baked by `baker` at once, then measured and encoded in parallel; each is
     // deterministic on its own.
-    let origin = raw.min;
+    let origin = raw.min.to_array();
     let grids: Vec<([f64; 3], f64)> =
         opts.resolutions.iter().map(|&t| (origin, longest / f64::from(t))).collect();
     let clouds = baker

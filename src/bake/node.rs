@@ -283,7 +283,7 @@ pub fn node_from_blobs(store: &Store, key: TileKey, levels: u8) -> Option<NodeEn
         if h.key != key || h.level != level {
             return None;
         }
-        bounds.get_or_insert(Bounds { min: h.bounds[0], max: h.bounds[1] });
+        bounds.get_or_insert(Bounds::new(h.bounds[0], h.bounds[1]));
         out.push(NodeLevel {
             errors: h.errors,
             count: h.vertex_count,

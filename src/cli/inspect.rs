@@ -40,8 +40,8 @@ pub fn run(a: &InspectArgs) -> Result<()> {
             m.model.vertices,
             m.model.triangles,
             m.model.degenerate_skipped,
-            m.tileset.bounds.min,
-            m.tileset.bounds.max,
+            m.tileset.bounds.min.to_array(),
+            m.tileset.bounds.max.to_array(),
             m.tileset.content_version
         );
         outln!("{}", ModelLevelTable(&m.model.levels));
@@ -54,7 +54,7 @@ pub fn run(a: &InspectArgs) -> Result<()> {
         if json {
             outln!("{}", serde_json::to_string_pretty(&node)?);
         } else {
-            outln!("tile {key}: bounds {:?} – {:?}", node.bounds.min, node.bounds.max);
+            outln!("tile {key}: bounds {:?} – {:?}", node.bounds.min.to_array(), node.bounds.max.to_array());
             let totals: Vec<LevelTotals> = node
                 .levels
                 .iter()

@@ -30,7 +30,7 @@ pub struct TreeNode {
     /// (a parent's downsampled mesh can miss a child's peak).
     pub cull: Bounds,
     /// Bounding sphere of `bounds`: the centre is the paper's R in `e_scr = e_obj·k/|R − E|`.
-    pub center: [f64; 3],
+    pub center: glam::DVec3,
     pub radius: f64,
     pub parent: NodeId,
     /// Child slots in (y, x) order: slot `2·dy + dx`; `NO_NODE` where absent or not loaded yet.
@@ -166,7 +166,11 @@ impl TileTree {
             return Err(tree_err(format!("node {key} is outside the tileset's quadtree")));
         }
         if !bounds.is_valid() {
-            return Err(tree_err(format!("node {key}: invalid bounds {:?} .. {:?}", bounds.min, bounds.max)));
+            return Err(tree_err(format!(
+                "node {key}: invalid bounds {:?} .. {:?}",
+                bounds.min.to_array(),
+                bounds.max.to_array()
+            )));
         }
         if errors.is_empty() || errors.len() > MAX_LEVELS {
             return Err(tree_err(format!("node {key}: {} levels (need 1 to {MAX_LEVELS})", errors.len())));
@@ -198,7 +202,7 @@ impl TileTree {
             expected |= 1 << child_slot(c);
         }
         let center = bounds.center();
-        let radius = 0.5 * glam::DVec3::from_array(bounds.size()).length();
+        let radius = 0.5 * bounds.size().length();
         let level_start =
             u32::try_from(self.errors.len()).map_err(|_| tree_err("more than 2^32 level entries"))?;
         self.errors.extend_from_slice(errors);
@@ -326,7 +330,7 @@ impl TileTree {
             }
             // Sampled extremes can miss the true ones: pad by the relief's finest-scale slack.
             let pad = 0.05 * spec.relief;
-            let bounds = Bounds { min: [x0, y0, zmin - pad], max: [x1, y1, zmax + pad] };
+            let bounds = Bounds::new([x0, y0, zmin - pad], [x1, y1, zmax + pad]);
             let step = f64::from(p.step(key.z));
             for (l, e) in errors.iter_mut().enumerate() {
                 *e = if l == 0 { spec.leaf_error * step } else { cell * step * f64::from(1u32 << l) * 0.5 };
@@ -448,7 +452,7 @@ mod tests {
     fn insertion_rules() {
         let p = Pyramid::new(513, 513, 256).unwrap();
         let mut t = TileTree::new(p);
-        let b = Bounds { min: [0.0, 0.0, 0.0], max: [512.0, 512.0, 10.0] };
+        let b = Bounds::new([0.0, 0.0, 0.0], [512.0, 512.0, 10.0]);
         let child = entry(TileKey::new(1, 1, 0), b, &[1.0]);
         assert!(t.insert(&child).unwrap_err().to_string().contains("before its parent 0/0/0"));
         t.insert(&entry(TileKey::new(0, 0, 0), b, &[2.0, 4.0])).unwrap();
@@ -456,7 +460,7 @@ mod tests {
         // Same entry twice is fine, different contents are not.
         t.insert(&entry(TileKey::new(0, 0, 0), b, &[2.0, 4.0])).unwrap();
         assert!(t.insert(&entry(TileKey::new(0, 0, 0), b, &[3.0])).is_err());
-        let high = Bounds { min: [256.0, 0.0, 0.0], max: [512.0, 256.0, 50.0] };
+        let high = Bounds::new([256.0, 0.0, 0.0], [512.0, 256.0, 50.0]);
         let id = t.insert(&entry(TileKey::new(1, 1, 0), high, &[1.0])).unwrap();
         assert_eq!(t.node(0).children[1], id);
         assert!((t.node(0).cull.max[2] - 50.0).abs() < 1e-12);
@@ -470,7 +474,7 @@ mod tests {
                 .contains("level 0")
         );
         assert!(t.insert(&entry(TileKey::new(1, 0, 0), b, &[])).is_err());
-        let bad = Bounds { min: [1.0, 0.0, 0.0], max: [0.0, 1.0, 1.0] };
+        let bad = Bounds::new([1.0, 0.0, 0.0], [0.0, 1.0, 1.0]);
         assert!(
             t.insert(&entry(TileKey::new(1, 0, 0), bad, &[1.0])).unwrap_err().to_string().contains("bounds")
         );

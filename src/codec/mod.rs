@@ -212,7 +212,7 @@ impl BlobHeader {
     /// The header bounds as a [`Bounds`].
     #[must_use]
     pub fn bounds(&self) -> Bounds {
-        Bounds { min: self.bounds[0], max: self.bounds[1] }
+        Bounds::new(self.bounds[0], self.bounds[1])
     }
 
     /// Total blob size this header announces.
@@ -347,8 +347,8 @@ pub fn quantized_bounds(bounds: &Bounds, positions: &[[f64; 3]], q: Quantization
     }
     let highest = frame.position(top);
     let mut out = *bounds;
-    for (m, h) in out.max.iter_mut().zip(highest) {
-        *m = m.max(h);
+    for (a, h) in highest.into_iter().enumerate() {
+        out.max[a] = out.max[a].max(h);
     }
     out
 }
@@ -367,7 +367,7 @@ pub(crate) struct QuantGrid {
 impl QuantGrid {
     fn new(bounds: &Bounds, q: Quantization) -> Result<Self, CodecError> {
         if !bounds.is_valid() {
-            return Err(CodecError::InvalidBounds { min: bounds.min, max: bounds.max });
+            return Err(CodecError::InvalidBounds { min: bounds.min.to_array(), max: bounds.max.to_array() });
         }
         let ok = |s: f64| s.is_finite() && s > 0.0;
         if !ok(q.xy_step) || !ok(q.z_step) {
@@ -398,7 +398,7 @@ impl QuantGrid {
             }
             q
         });
-        Ok(Self { min: bounds.min, step, qmax, qtop })
+        Ok(Self { min: bounds.min.to_array(), step, qmax, qtop })
     }
 
     /// The integer coordinates of `p`, which must decode inside the bounds; `index` names the
@@ -483,7 +483,7 @@ fn assemble(
         kind,
         key,
         level,
-        bounds: [bounds.min, bounds.max],
+        bounds: [bounds.min.to_array(), bounds.max.to_array()],
         quant,
         vertex_count,
         triangle_count,

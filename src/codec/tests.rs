@@ -30,7 +30,7 @@ fn tin_blob() -> (Mesh, Bounds, Quantization, Vec<u8>) {
 fn points_blob() -> (PointCloud, Bounds, Quantization, Vec<u8>) {
     let hf = synthetic(49, 49, 30.0);
     let pc = voxel_points(&hf, None, 60.0, false);
-    let b = Bounds { min: [0.0, 0.0, 0.0], max: [1500.0, 1500.0, 2000.0] };
+    let b = Bounds::new([0.0, 0.0, 0.0], [1500.0, 1500.0, 2000.0]);
     let q = Quantization { xy_step: 60.0 / 64.0, z_step: 60.0 / 64.0 };
     let blob = encode_points(KEY, 2, &b, q, &pc, Errors { max: 3.0, rms: 1.0, gap: 40.0 }).unwrap();
     (pc, b, q, blob)
@@ -46,7 +46,7 @@ fn header_bounds_hold_every_decoded_position() {
         positions: vec![[0.0, 0.0, 800.0], [4.0, 0.0, 835.9], [0.0, 4.0, 810.0]],
         triangles: vec![[0, 1, 2]],
     };
-    let b = Bounds { min: [0.0, 0.0, 800.0], max: [4.0, 4.0, 835.9] };
+    let b = Bounds::new([0.0, 0.0, 800.0], [4.0, 4.0, 835.9]);
     let blob = encode_mesh(KEY, 0, &b, q, &m, ERRORS).unwrap();
     let d = decode(&blob).unwrap();
     assert_eq!(d.header.bounds().max[2], 836.0);
@@ -163,7 +163,7 @@ fn points_blob_round_trip() {
 
 #[test]
 fn empty_geometry_is_allowed() {
-    let b = Bounds { min: [0.0; 3], max: [10.0; 3] };
+    let b = Bounds::new([0.0; 3], [10.0; 3]);
     let q = Quantization { xy_step: 1.0, z_step: 1.0 };
     let blob = encode_mesh(KEY, 0, &b, q, &Mesh::default(), Errors::default()).unwrap();
     assert_eq!(decode(&blob).unwrap().geometry, Geometry::Mesh(Mesh::default()));
@@ -173,7 +173,7 @@ fn empty_geometry_is_allowed() {
 
 #[test]
 fn quantization_is_exact() {
-    let b = Bounds { min: [-3.7, 12.1, -400.25], max: [1000.0, 2000.0, 3000.0] };
+    let b = Bounds::new([-3.7, 12.1, -400.25], [1000.0, 2000.0, 3000.0]);
     let q = Quantization { xy_step: 0.37, z_step: 0.013 };
     let mut rng = Rng(1);
     let positions: Vec<[f64; 3]> =
@@ -193,11 +193,11 @@ fn quantization_is_exact() {
 #[test]
 fn invalid_inputs_are_named() {
     let m = Mesh { positions: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], triangles: vec![[0, 1, 2]] };
-    let b = Bounds { min: [0.0; 3], max: [10.0; 3] };
+    let b = Bounds::new([0.0; 3], [10.0; 3]);
     let q = Quantization { xy_step: 1.0, z_step: 1.0 };
     let enc = |b: &Bounds, q: Quantization, m: &Mesh, e: Errors| encode_mesh(KEY, 0, b, q, m, e);
     assert!(matches!(enc(&Bounds::empty(), q, &m, ERRORS), Err(CodecError::InvalidBounds { .. })));
-    let flipped = Bounds { min: [1.0; 3], max: [0.0; 3] };
+    let flipped = Bounds::new([1.0; 3], [0.0; 3]);
     assert!(matches!(enc(&flipped, q, &m, ERRORS), Err(CodecError::InvalidBounds { .. })));
     for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
         let r = enc(&b, Quantization { xy_step: bad, z_step: 1.0 }, &m, ERRORS);
@@ -401,7 +401,7 @@ fn report_sizes() {
         for max_error in [1.0, 2.0, 5.0] {
             let m = greedy_tin(&hf, max_error);
             let b = Bounds::of_points(&m.positions);
-            let b = Bounds { min: [0.0, 0.0, b.min[2]], max: [extent, extent, b.max[2]] };
+            let b = Bounds::new([0.0, 0.0, b.min[2]], [extent, extent, b.max[2]]);
             for z_step in [0.1, 0.5] {
                 let q = Quantization { xy_step: hf.cell, z_step };
                 let t0 = std::time::Instant::now();
@@ -434,7 +434,7 @@ fn report_sizes() {
             for centres in [true, false] {
                 let pc = voxel_points(&surface, Some(&normals), cell, centres);
                 let b = Bounds::of_points(&pc.positions);
-                let b = Bounds { min: [0.0, 0.0, b.min[2]], max: [extent + cell, extent + cell, b.max[2]] };
+                let b = Bounds::new([0.0, 0.0, b.min[2]], [extent + cell, extent + cell, b.max[2]]);
                 let q = Quantization { xy_step: cell / 64.0, z_step: cell / 64.0 };
                 let t0 = std::time::Instant::now();
                 let blob = encode_points(KEY, 1, &b, q, &pc, ERRORS).unwrap();
@@ -479,7 +479,7 @@ fn analyse_zstd_levels() {
     let extent = 511.0 * 30.0;
     let m = greedy_tin(&hf, 2.0);
     let b = Bounds::of_points(&m.positions);
-    let b = Bounds { min: [0.0, 0.0, b.min[2]], max: [extent, extent, b.max[2]] };
+    let b = Bounds::new([0.0, 0.0, b.min[2]], [extent, extent, b.max[2]]);
     let mesh_blob = encode_mesh(KEY, 0, &b, Quantization { xy_step: 30.0, z_step: 0.1 }, &m, ERRORS).unwrap();
     let (surface, normals) = tin_surface(&hf, &m);
     let pc = voxel_points(&surface, Some(&normals), 60.0, true);

@@ -4,24 +4,33 @@
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-/// Axis-aligned box in world units.
+/// Axis-aligned box in world units. Serialized as `{"min": [x, y, z], "max": [x, y, z]}`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Bounds {
-    pub min: [f64; 3],
-    pub max: [f64; 3],
+    pub min: DVec3,
+    pub max: DVec3,
 }
 
 impl Bounds {
+    /// The box from corner `min` to corner `max`, as vectors or as arrays (positions are
+    /// arrays, see [`Mesh`]).
+    #[must_use]
+    pub fn new(min: impl Into<DVec3>, max: impl Into<DVec3>) -> Self {
+        Self { min: min.into(), max: max.into() }
+    }
+
     /// The empty box (min = +inf, max = -inf); `extend` grows it.
     #[must_use]
     pub fn empty() -> Self {
-        Self { min: [f64::INFINITY; 3], max: [f64::NEG_INFINITY; 3] }
+        Self { min: DVec3::INFINITY, max: DVec3::NEG_INFINITY }
     }
 
-    pub fn extend(&mut self, p: [f64; 3]) {
-        for (a, &v) in p.iter().enumerate() {
-            self.min[a] = self.min[a].min(v);
-            self.max[a] = self.max[a].max(v);
+    /// Grows the box to hold `p` (a NaN coordinate leaves it as it was on that axis).
+    pub fn extend(&mut self, p: impl Into<DVec3>) {
+        let p = p.into();
+        for a in 0..3 {
+            self.min[a] = self.min[a].min(p[a]);
+            self.max[a] = self.max[a].max(p[a]);
         }
     }
 
@@ -41,17 +50,13 @@ impl Bounds {
     }
 
     #[must_use]
-    pub fn size(&self) -> [f64; 3] {
-        [self.max[0] - self.min[0], self.max[1] - self.min[1], self.max[2] - self.min[2]]
+    pub fn size(&self) -> DVec3 {
+        self.max - self.min
     }
 
     #[must_use]
-    pub fn center(&self) -> [f64; 3] {
-        [
-            0.5 * (self.min[0] + self.max[0]),
-            0.5 * (self.min[1] + self.max[1]),
-            0.5 * (self.min[2] + self.max[2]),
-        ]
+    pub fn center(&self) -> DVec3 {
+        0.5 * (self.min + self.max)
     }
 }
 

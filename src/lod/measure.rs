@@ -394,8 +394,7 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
             bounds.extend(v.to_array());
         }
     }
-    let size = bounds.size();
-    let diag = DVec3::from_array(size).length();
+    let diag = bounds.size().length();
     let pts: Vec<V3> =
         points.positions.iter().map(|&p| DVec3::from_array(p)).filter(|p| p.is_finite()).collect();
     if pts.is_empty() {
@@ -410,11 +409,11 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
         1.0
     };
     let mut h = base;
-    let origin = DVec3::from_array(bounds.min);
+    let origin = bounds.min;
     let tri_box = |t: &[V3; 3], h: f64| {
         let b = Bounds::of_points(&t.map(|v| v.to_array()));
-        let a = HashGrid::coord(origin, h, DVec3::from_array(b.min));
-        let c = HashGrid::coord(origin, h, DVec3::from_array(b.max));
+        let a = HashGrid::coord(origin, h, b.min);
+        let c = HashGrid::coord(origin, h, b.max);
         ([a[0] as i64, a[1] as i64, a[2] as i64], [c[0] as i64, c[1] as i64, c[2] as i64])
     };
     let budget = (GRID_BUDGET_PER_ITEM * (tris.len() + pts.len()) as f64).max(GRID_BUDGET_MIN);

@@ -110,10 +110,10 @@ fn load_provisional(name: &str, dir: &Path, source: Arc<Source>, options: &serde
     let (w, h) = (f64::from(hf.width - 1), f64::from(hf.height - 1));
     let xs = [g.x0, g.x0 + w * g.dx];
     let ys = [g.y0, g.y0 + h * g.dy];
-    let bounds = crate::geom::Bounds {
-        min: [xs[0].min(xs[1]), ys[0].min(ys[1]), f64::from(lo)],
-        max: [xs[0].max(xs[1]), ys[0].max(ys[1]), f64::from(hi)],
-    };
+    let bounds = crate::geom::Bounds::new(
+        [xs[0].min(xs[1]), ys[0].min(ys[1]), f64::from(lo)],
+        [xs[0].max(xs[1]), ys[0].max(ys[1]), f64::from(hi)],
+    );
     let options_text = serde_json::to_vec(options).unwrap_or_default();
     let manifest = Manifest {
         format: crate::store::MANIFEST_FORMAT.into(),

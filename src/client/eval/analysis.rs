@@ -106,7 +106,7 @@ pub struct EvalCamera {
 /// Centre and radius (half the box diagonal, at least 1e-9) of the bounds' sphere.
 #[must_use]
 pub fn bounding_sphere(b: &Bounds) -> (DVec3, f64) {
-    (DVec3::from_array(b.center()), (0.5 * DVec3::from_array(b.size()).length()).max(1e-9))
+    (b.center(), (0.5 * b.size().length()).max(1e-9))
 }
 
 /// The distance at which a sphere of radius `r` just fills the narrower field of view.
@@ -139,7 +139,7 @@ pub enum PlanError {
 /// polar axis up. Errors name the bad setting.
 pub fn cameras(bounds: &Bounds, subject: Subject, plan: &CameraPlan) -> Result<Vec<EvalCamera>, PlanError> {
     if !bounds.is_valid() {
-        return Err(PlanError::Bounds { min: bounds.min, max: bounds.max });
+        return Err(PlanError::Bounds { min: bounds.min.to_array(), max: bounds.max.to_array() });
     }
     if plan.width == 0 || plan.height == 0 {
         return Err(PlanError::Viewport { width: plan.width, height: plan.height });
@@ -983,7 +983,7 @@ mod tests {
     }
 
     fn cube() -> Bounds {
-        Bounds { min: [10.0, 20.0, 0.0], max: [30.0, 40.0, 20.0] }
+        Bounds::new([10.0, 20.0, 0.0], [30.0, 40.0, 20.0])
     }
 
     #[test]
@@ -1164,7 +1164,7 @@ mod tests {
         let view = cam.camera.view().unwrap();
         for p in &o {
             let p = DVec3::from_array(*p);
-            assert!(view.intersects(&Bounds { min: (p - 0.7).to_array(), max: (p + 0.7).to_array() }));
+            assert!(view.intersects(&Bounds::new((p - 0.7).to_array(), (p + 0.7).to_array())));
         }
         assert!((median(&[3.0, 1.0, 2.0]) - 2.0).abs() < 1e-12);
         assert!((median(&[4.0, 1.0, 2.0, 3.0]) - 2.5).abs() < 1e-12);

@@ -60,7 +60,7 @@ pub struct InstanceBench {
     queue: wgpu::Queue,
     width: u32,
     height: u32,
-    origin: [f64; 3],
+    origin: glam::DVec3,
     mesh: wgpu::RenderPipeline,
     points: wgpu::RenderPipeline,
     globals: wgpu::Buffer,
@@ -90,7 +90,7 @@ impl InstanceBench {
         queue: wgpu::Queue,
         width: u32,
         height: u32,
-        origin: [f64; 3],
+        origin: glam::DVec3,
         levels: &[(Blob, f64)],
     ) -> Result<Self, GpuError> {
         let max = device.limits().max_texture_dimension_2d;

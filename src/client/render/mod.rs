@@ -95,7 +95,7 @@ pub struct Renderer {
     queue: wgpu::Queue,
     width: u32,
     height: u32,
-    origin: [f64; 3],
+    origin: DVec3,
     mesh: wgpu::RenderPipeline,
     points: wgpu::RenderPipeline,
     globals: wgpu::Buffer,
@@ -119,7 +119,7 @@ impl Renderer {
         queue: wgpu::Queue,
         width: u32,
         height: u32,
-        origin: [f64; 3],
+        origin: DVec3,
     ) -> Result<Self, GpuError> {
         let max = device.limits().max_texture_dimension_2d;
         if width == 0 || height == 0 || width > max || height > max {
@@ -278,7 +278,7 @@ impl Renderer {
         let ib =
             indices.as_ref().map(|i| buf("tile indices", bytemuck::cast_slice(i), wgpu::BufferUsages::INDEX));
         let extent = outer.map_or([f32::MIN, f32::MIN, f32::MAX, f32::MAX], |b| {
-            let (lo, hi) = (rel(b.min), rel(b.max));
+            let (lo, hi) = (rel(b.min.to_array()), rel(b.max.to_array()));
             [lo[0], lo[1], hi[0], hi[1]]
         });
         let u = TileUniform { spacing: point_spacing as f32, pad: [0.0; 3], extent };
@@ -602,12 +602,12 @@ pub fn clip_planes(far: f64) -> (f64, f64) {
 /// camera's horizontal one and `aspect` (width / height).
 pub(crate) fn view_proj(
     v: &crate::client::select::View,
-    origin: [f64; 3],
+    origin: DVec3,
     near: f64,
     far: f64,
     aspect: f64,
 ) -> [[f32; 4]; 4] {
-    let eye = v.eye - DVec3::from_array(origin);
+    let eye = v.eye - origin;
     let view = rh::view::look_to_mat4(eye, v.forward, v.up);
     let fov_y = 2.0 * (v.tan_h / aspect).atan();
     (rh::proj::directx::perspective(fov_y, aspect, near, far) * view).as_mat4().to_cols_array_2d()
@@ -642,7 +642,7 @@ mod tests {
             fov_deg: 60.0,
         };
         let v = cam.view().unwrap();
-        let m = view_proj(&v, [100.0, 0.0, 0.0], 1.0, 1000.0, 2.0);
+        let m = view_proj(&v, DVec3::new(100.0, 0.0, 0.0), 1.0, 1000.0, 2.0);
         let p = [0.0f32, 100.0, 0.0, 1.0];
         let clip: Vec<f32> = (0..4).map(|r| (0..4).map(|c| m[c][r] * p[c]).sum()).collect();
         assert!((clip[0] / clip[3]).abs() < 1e-5 && (clip[1] / clip[3]).abs() < 1e-5, "{clip:?}");

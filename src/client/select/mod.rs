@@ -356,13 +356,12 @@ impl Selector {
         e
     }
 
-    fn distance(&self, view: &View, center: [f64; 3], b: &Bounds) -> f64 {
+    fn distance(&self, view: &View, center: DVec3, b: &Bounds) -> f64 {
         match self.params.distance {
-            DistanceRule::Centre => (DVec3::from_array(center) - view.eye).length(),
+            DistanceRule::Centre => (center - view.eye).length(),
             DistanceRule::Nearest => {
                 let e = view.eye;
-                let d = [0, 1, 2].map(|a| (b.min[a] - e[a]).max(e[a] - b.max[a]).max(0.0));
-                DVec3::from_array(d).length()
+                (b.min - e).max(e - b.max).max(DVec3::ZERO).length()
             }
         }
     }

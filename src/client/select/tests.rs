@@ -82,14 +82,14 @@ fn frustum_and_screen_error() {
     // k = w / (2·tan(30°)).
     assert!((v.k - 320.0 / (2.0 * 30f64.to_radians().tan())).abs() < 1e-9);
     assert!((v.screen_error(2.0, 100.0) - 2.0 * v.k / 100.0).abs() < 1e-12);
-    let b = |x0: f64, y0: f64| Bounds { min: [x0, y0, -1.0], max: [x0 + 1.0, y0 + 1.0, 1.0] };
+    let b = |x0: f64, y0: f64| Bounds::new([x0, y0, -1.0], [x0 + 1.0, y0 + 1.0, 1.0]);
     assert!(v.intersects(&b(50.0, 0.0)));
     assert!(!v.intersects(&b(-50.0, 0.0)), "behind the eye");
     assert!(!v.intersects(&b(50.0, 60.0)), "left of a 60° view (tan 30° · 50 ≈ 29)");
     assert!(v.intersects(&b(50.0, 25.0)));
     // Vertical fov is narrower (200/320 of the horizontal tangent): 18 m up at 50 m is out.
-    assert!(!v.intersects(&Bounds { min: [50.0, 0.0, 19.0], max: [51.0, 1.0, 20.0] }));
-    assert!(v.intersects(&Bounds { min: [50.0, 0.0, 17.0], max: [51.0, 1.0, 18.0] }));
+    assert!(!v.intersects(&Bounds::new([50.0, 0.0, 19.0], [51.0, 1.0, 20.0])));
+    assert!(v.intersects(&Bounds::new([50.0, 0.0, 17.0], [51.0, 1.0, 18.0])));
 }
 
 #[test]
@@ -110,7 +110,7 @@ fn all_resident_meets_threshold_and_covers_once() {
     for d in &sel.draws {
         let errs = tree.level_errors(d.node);
         let node = tree.node(d.node);
-        let dist = (DVec3::from_array(node.center) - c.eye).length();
+        let dist = (node.center - c.eye).length();
         for &e in &errs[usize::from(d.level) + 1..] {
             assert!(view.screen_error(e, dist) > 2.0);
         }
@@ -431,7 +431,7 @@ fn skirts_face_outward_and_skip_the_outer_border() {
         assert!(n.dot(mid - centre) > 0.0);
     }
     // On the dataset's left and bottom border: only the two inner edges get walls.
-    let outer = Bounds { min: [0.0, 0.0, 0.0], max: [10.0, 10.0, 10.0] };
+    let outer = Bounds::new([0.0, 0.0, 0.0], [10.0, 10.0, 10.0]);
     let s3 = add_skirts(&mesh, 2.0, Some(&outer));
     assert_eq!(s3.mesh.triangles.len() - s3.first_skirt_triangle, 4);
     assert!((skirt_depth(0.5, 2.0) - 2.5).abs() < 1e-12);

@@ -152,7 +152,11 @@ impl Flight {
             return Ok(self.clone());
         }
         if !bounds.is_valid() {
-            return Err(format!("tileset bounds {:?} .. {:?} are not valid", bounds.min, bounds.max));
+            return Err(format!(
+                "tileset bounds {:?} .. {:?} are not valid",
+                bounds.min.to_array(),
+                bounds.max.to_array()
+            ));
         }
         let size = bounds.size();
         let extent = size[0].max(size[1]);
@@ -274,7 +278,7 @@ mod tests {
             r#"{"frame":"normalised","keys":[{"t":0,"eye":[0.5,0,0.25],"target":[1,1,0]}]}"#,
         )
         .unwrap();
-        let b = Bounds { min: [100.0, 200.0, 10.0], max: [500.0, 400.0, 60.0] };
+        let b = Bounds::new([100.0, 200.0, 10.0], [500.0, 400.0, 60.0]);
         let w = f.to_world(&b).unwrap();
         assert_eq!(w.frame, Frame::World);
         assert_eq!(w.keys[0].eye, [300.0, 200.0, 110.0]);
@@ -288,7 +292,7 @@ mod tests {
         let f = Flight::load(&path).unwrap();
         assert_eq!(f.frame, Frame::Normalized);
         assert!(f.duration() > 10.0);
-        let b = Bounds { min: [0.0, 0.0, 0.0], max: [15360.0, 15360.0, 3700.0] };
+        let b = Bounds::new([0.0, 0.0, 0.0], [15360.0, 15360.0, 3700.0]);
         let w = f.to_world(&b).unwrap();
         for i in 0..=100 {
             let p = w.pose_at(w.start() + w.duration() * f64::from(i) / 100.0);

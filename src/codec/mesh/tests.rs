@@ -13,7 +13,7 @@ use crate::geom::Bounds;
 fn frame_for(m: &Mesh, xy_step: f64, z_step: f64) -> (QuantGrid, Bounds, Quantization) {
     let mut b = Bounds::of_points(&m.positions);
     if !b.is_valid() {
-        b = Bounds { min: [0.0; 3], max: [1.0; 3] };
+        b = Bounds::new([0.0; 3], [1.0; 3]);
     }
     let q = Quantization { xy_step, z_step };
     // The bounds the header would state (grown to the rounded-up positions).
@@ -191,7 +191,7 @@ proptest! {
 
     #[test]
     fn random_payloads_never_panic(raw in proptest::collection::vec(any::<u8>(), 0..200), v in 0usize..50, t in 0usize..50, len in 0usize..300) {
-        let frame = QuantGrid::new(&Bounds { min: [0.0; 3], max: [100.0; 3] }, Quantization { xy_step: 1.0, z_step: 1.0 }).unwrap();
+        let frame = QuantGrid::new(&Bounds::new([0.0; 3], [100.0; 3]), Quantization { xy_step: 1.0, z_step: 1.0 }).unwrap();
         let _ = decode(&frame, v, t, &raw, len);
     }
 

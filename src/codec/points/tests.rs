@@ -13,7 +13,7 @@ use crate::geom::Bounds;
 fn setup(pc: &PointCloud, step: f64) -> (QuantGrid, Bounds, Quantization) {
     let mut b = Bounds::of_points(&pc.positions);
     if !b.is_valid() {
-        b = Bounds { min: [0.0; 3], max: [1.0; 3] };
+        b = Bounds::new([0.0; 3], [1.0; 3]);
     }
     let q = Quantization { xy_step: step, z_step: step };
     // The bounds the header would state (grown to the rounded-up positions).
@@ -116,9 +116,8 @@ fn input_order_does_not_matter() {
 
 #[test]
 fn bad_inputs_are_named() {
-    let frame =
-        QuantGrid::new(&Bounds { min: [0.0; 3], max: [10.0; 3] }, Quantization { xy_step: 1.0, z_step: 1.0 })
-            .unwrap();
+    let frame = QuantGrid::new(&Bounds::new([0.0; 3], [10.0; 3]), Quantization { xy_step: 1.0, z_step: 1.0 })
+        .unwrap();
     let pc = PointCloud { positions: vec![[1.0; 3]], normals: vec![] };
     assert!(matches!(encode(&frame, &pc), Err(CodecError::NormalCountMismatch { points: 1, normals: 0 })));
     let pc = PointCloud { positions: vec![[1.0; 3]; 2], normals: vec![[0.0, 0.0, 1.0], [0.0; 3]] };
@@ -154,7 +153,7 @@ proptest! {
 
     #[test]
     fn random_payloads_never_panic(raw in proptest::collection::vec(any::<u8>(), 0..200), n in 0usize..50, len in 0usize..300) {
-        let frame = QuantGrid::new(&Bounds { min: [0.0; 3], max: [100.0; 3] }, Quantization { xy_step: 1.0, z_step: 1.0 }).unwrap();
+        let frame = QuantGrid::new(&Bounds::new([0.0; 3], [100.0; 3]), Quantization { xy_step: 1.0, z_step: 1.0 }).unwrap();
         let _ = decode(&frame, n, &raw, len);
     }
 

@@ -1,0 +1,124 @@
+//! Criterion benchmarks of the pure stages, one group each, on fixed synthetic inputs:
+//!
+//! - `tin`: the TIN of one 257×257 leaf tile of `raster::synth::terrain` at 1 m error;
+//! - `codec`: encoding and decoding that tile's quantized mesh, and a point level of it;
+//! - `slicing`: the CPU reference of the 6-direction slicing (`lod::cpu`) for point levels 1
+//!   and 3 of that tile, and measuring level 1 against the mesh;
+//! - `selection`: one frame of `client::select::Selector::select` on a 100,000-node synthetic
+//!   tree, low over the terrain (a cut of thousands of nodes), everything resident.
+//!
+//! These track each stage's own cost from change to change (`cargo bench --bench stages`;
+//! criterion keeps the previous run under `target/criterion` and prints the change). The
+//! comparisons with the papers' figures and other tools are the anchor scripts in `bench/`.
+
+// A failed setup step is the benchmark failing: `expect` says which.
+#![allow(clippy::expect_used)]
+
+use std::hint::black_box;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use glam::DVec3;
+use terrastream::bake::{self, BakeOptions, NodeMesh};
+use terrastream::client::camera::Camera;
+use terrastream::client::select::{AllResident, DEFAULT_FOV_DEG, DistanceRule, SelectParams, Selector};
+use terrastream::client::stream::flight::Pose;
+use terrastream::client::tree::{Synthetic, TileTree};
+use terrastream::codec;
+use terrastream::geom::Errors;
+use terrastream::lod::cpu;
+use terrastream::raster::{Georef, synth};
+use terrastream::tiling::{Pyramid, TileKey};
+use terrastream::tin;
+
+/// Samples per side of the benchmark tile (one leaf of 256 cells).
+const SIDE: u32 = 257;
+
+fn tile() -> (Pyramid, Vec<f32>, Georef, BakeOptions) {
+    let heights = synth::terrain(SIDE, SIDE, 7);
+    let pyramid = Pyramid::new(SIDE, SIDE, SIDE - 1).expect("one-tile pyramid");
+    let georef = Georef { dx: 10.0, dy: -10.0, ..Georef::default() };
+    (pyramid, heights, georef, BakeOptions { tile_size: SIDE - 1, max_error: 1.0, levels: 3 })
+}
+
+fn node_mesh() -> NodeMesh {
+    let (pyramid, heights, georef, opts) = tile();
+    let hf = terrastream::raster::Heightfield { width: SIDE, height: SIDE, data: heights };
+    bake::node_mesh(&pyramid, &hf, &georef, TileKey::new(0, 0, 0), &opts).expect("node mesh")
+}
+
+fn tin_build(c: &mut Criterion) {
+    let (pyramid, heights, _, opts) = tile();
+    let grid = pyramid.grid(TileKey::new(0, 0, 0));
+    c.bench_function("tin/build 257x257 at 1 m", |b| {
+        b.iter(|| tin::build(black_box(&grid), black_box(&heights), opts.max_error).expect("tin"));
+    });
+}
+
+fn codec(c: &mut Criterion) {
+    let nm = node_mesh();
+    let key = nm.key;
+    let mesh_blob =
+        codec::encode_mesh(key, 0, &nm.bounds, nm.quantization, &nm.mesh, nm.mesh_errors).expect("mesh");
+    let (origin, cell) = nm.level_grid(1);
+    let (pc, errors, q) = nm.finish_level(1, cpu::bake_points(&nm.mesh, origin, cell));
+    let points_blob = codec::encode_points(key, 1, &nm.bounds, q, &pc, errors).expect("points");
+    let mut g = c.benchmark_group("codec");
+    g.bench_function(format!("encode mesh ({} vertices)", nm.mesh.positions.len()), |b| {
+        b.iter(|| {
+            codec::encode_mesh(key, 0, &nm.bounds, nm.quantization, black_box(&nm.mesh), Errors::default())
+                .expect("mesh")
+        });
+    });
+    g.bench_function(format!("decode mesh ({} bytes)", mesh_blob.len()), |b| {
+        b.iter(|| codec::decode(black_box(&mesh_blob)).expect("decode"));
+    });
+    g.bench_function(format!("encode points ({} points)", pc.positions.len()), |b| {
+        b.iter(|| codec::encode_points(key, 1, &nm.bounds, q, black_box(&pc), errors).expect("points"));
+    });
+    g.bench_function(format!("decode points ({} bytes)", points_blob.len()), |b| {
+        b.iter(|| codec::decode(black_box(&points_blob)).expect("decode"));
+    });
+    g.finish();
+}
+
+fn slicing(c: &mut Criterion) {
+    let nm = node_mesh();
+    let mut g = c.benchmark_group("slicing");
+    for level in [1u8, 3] {
+        let (origin, cell) = nm.level_grid(level);
+        g.bench_function(format!("cpu bake level {level} (cell {cell} m)"), |b| {
+            b.iter(|| cpu::bake_points(black_box(&nm.mesh), origin, cell));
+        });
+    }
+    let (origin, cell) = nm.level_grid(1);
+    let pc = cpu::bake_points(&nm.mesh, origin, cell);
+    g.bench_function("measure level 1", |b| b.iter(|| cpu::measure_points(black_box(&nm.mesh), &pc, cell)));
+    g.finish();
+}
+
+fn selection(c: &mut Criterion) {
+    let spec = Synthetic::with_nodes(100_000);
+    let tree = TileTree::synthetic(&spec).expect("synthetic tree");
+    let extent = f64::from(spec.width - 1) * spec.cell_size;
+    // Low over the middle, looking 20 km ahead and down (as examples/select_bench's low pass).
+    let eye = DVec3::new(0.5 * extent, 0.5 * extent, spec.relief + 300.0);
+    let pose =
+        Pose { eye, target: eye + DVec3::new(14_142.0, 14_142.0, -300.0 - 0.5 * spec.relief), up: DVec3::Z };
+    let camera = Camera::new(&pose, 1920, 1080, DEFAULT_FOV_DEG);
+    let params =
+        SelectParams { distance: DistanceRule::Nearest, threshold_px: 0.1, ..SelectParams::default() };
+    let mut sel = Selector::new(params).expect("selector");
+    // Warm: the first frame starts from the root; later frames refine the previous cut.
+    let mut t = 0.0;
+    sel.select(&tree, &camera, &AllResident, t).expect("select");
+    let drawn = sel.select(&tree, &camera, &AllResident, 0.0).expect("select").draws.len();
+    c.bench_function(&format!("selection/frame on {} nodes ({drawn} drawn)", tree.len()), |b| {
+        b.iter(|| {
+            t += 1.0 / 60.0;
+            sel.select(black_box(&tree), &camera, &AllResident, t).expect("select").draws.len()
+        });
+    });
+}
+
+criterion_group!(benches, tin_build, codec, slicing, selection);
+criterion_main!(benches);
