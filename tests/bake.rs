@@ -5,37 +5,21 @@
 #![allow(clippy::unwrap_used, clippy::float_cmp)]
 
 mod common;
-use common::{bin, data, tree};
+use common::{bin, data, fails, ok, tree};
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use terrastream::codec::{self, Geometry};
 use terrastream::store::Store;
 use terrastream::tiling::{Pyramid, TileKey};
 
-fn run_ok(cmd: &mut Command) -> String {
-    let out = cmd.output().unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "command failed: {cmd:?}\n{stderr}");
-    String::from_utf8(out.stdout).unwrap()
-}
-
-fn run_err(cmd: &mut Command) -> String {
-    let out = cmd.output().unwrap();
-    assert!(!out.status.success(), "command should fail: {cmd:?}");
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
 fn bake_fuji(out: &Path) -> String {
-    run_ok(
-        bin()
-            .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "128"])
-            .args(["--max-error", "2", "--levels", "3", "--out"])
-            .arg(out)
-            .arg(data("fuji.png")),
-    )
+    ok(bin()
+        .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "128"])
+        .args(["--max-error", "2", "--levels", "3", "--out"])
+        .arg(out)
+        .arg(data("fuji.png")))
 }
 
 fn decode(store: &Store, key: TileKey, level: u8) -> codec::Blob {
@@ -122,7 +106,7 @@ fn fuji_bake_errors_borders_determinism_resume() {
     assert!(tree(&b) == ta, "resumed bake differs from a fresh one");
 
     // A bake over it with other options is refused and changes nothing.
-    let err = run_err(
+    let err = fails(
         bin()
             .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30"])
             .arg("--out")
@@ -133,34 +117,29 @@ fn fuji_bake_errors_borders_determinism_resume() {
     assert!(tree(&b) == ta);
 
     // inspect and export work on the result.
-    let text = run_ok(bin().arg("inspect").arg(&a));
+    let text = ok(bin().arg("inspect").arg(&a));
     assert!(text.contains("mesh") && text.contains("points"), "{text}");
     let json: serde_json::Value =
-        serde_json::from_str(&run_ok(bin().arg("inspect").arg(&a).arg("--json"))).unwrap();
+        serde_json::from_str(&ok(bin().arg("inspect").arg(&a).arg("--json"))).unwrap();
     assert_eq!(json["depth"], 2);
     let node: serde_json::Value =
-        serde_json::from_str(&run_ok(bin().arg("inspect").arg(&a).args(["--json", "--tile", "1/1/0"])))
-            .unwrap();
+        serde_json::from_str(&ok(bin().arg("inspect").arg(&a).args(["--json", "--tile", "1/1/0"]))).unwrap();
     assert_eq!(node["levels"].as_array().unwrap().len(), 4);
     let ply = tmp.path().join("t.ply");
-    run_ok(
-        bin()
-            .arg("export")
-            .arg(&a)
-            .args(["--tile", "2/3/3", "--level", "0", "--format", "ply", "--out"])
-            .arg(&ply),
-    );
+    ok(bin()
+        .arg("export")
+        .arg(&a)
+        .args(["--tile", "2/3/3", "--level", "0", "--format", "ply", "--out"])
+        .arg(&ply));
     let head = std::fs::read(&ply).unwrap();
     let n = meshes[&TileKey::new(2, 3, 3)].positions.len();
     assert!(String::from_utf8_lossy(&head[..200]).contains(&format!("element vertex {n}")));
     let obj = tmp.path().join("p.obj");
-    run_ok(
-        bin()
-            .arg("export")
-            .arg(&a)
-            .args(["--tile", "0/0/0", "--level", "2", "--format", "obj", "--out"])
-            .arg(&obj),
-    );
+    ok(bin()
+        .arg("export")
+        .arg(&a)
+        .args(["--tile", "0/0/0", "--level", "2", "--format", "obj", "--out"])
+        .arg(&obj));
     assert!(std::fs::read_to_string(&obj).unwrap().contains("\nvn "));
 }
 
@@ -173,17 +152,17 @@ fn bad_inputs_fail_cleanly_and_write_nothing() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("out");
     let missing = tmp.path().join("nope.png");
-    let err = run_err(bin().arg("bake").arg(&missing).arg("--out").arg(&out));
+    let err = fails(bin().arg("bake").arg(&missing).arg("--out").arg(&out));
     assert!(err.contains("nope.png"), "{err}");
     assert!(!out.exists());
 
     let garbage = tmp.path().join("garbage.tif");
     std::fs::write(&garbage, b"II*\0garbage garbage").unwrap();
-    let err = run_err(bin().arg("bake").arg(&garbage).arg("--out").arg(&out));
+    let err = fails(bin().arg("bake").arg(&garbage).arg("--out").arg(&out));
     assert!(err.contains("garbage.tif"), "{err}");
     assert!(!out.exists());
 
-    let err = run_err(
+    let err = fails(
         bin()
             .arg("bake")
             .arg(data("fuji.png"))
@@ -193,7 +172,7 @@ fn bad_inputs_fail_cleanly_and_write_nothing() {
     assert!(err.contains("fuji.png"), "{err}");
     assert!(!out.exists());
 
-    let err = run_err(
+    let err = fails(
         bin()
             .arg("bake")
             .arg(data("fuji.png"))
@@ -203,7 +182,7 @@ fn bad_inputs_fail_cleanly_and_write_nothing() {
     assert!(err.contains("max-error"), "{err}");
     assert!(!out.exists());
 
-    let err = run_err(bin().arg("inspect").arg(tmp.path()));
+    let err = fails(bin().arg("inspect").arg(tmp.path()));
     assert!(err.contains("tileset.json"), "{err}");
 }
 
@@ -211,11 +190,12 @@ fn bad_inputs_fail_cleanly_and_write_nothing() {
 fn generated_geotiff_bakes_with_its_georeference() {
     let tmp = tempfile::tempdir().unwrap();
     let tif = tmp.path().join("synth.tif");
-    run_ok(bin().args(["synth", "--width", "300", "--height", "200", "--cell-size", "5", "--out"]).arg(&tif));
+    ok(bin().args(["synth", "--width", "300", "--height", "200", "--cell-size", "5", "--out"]).arg(&tif));
     let out = tmp.path().join("t");
-    let summary = run_ok(
-        bin().args(["bake", "--quiet", "--tile-size", "64", "--levels", "2", "--out"]).arg(&out).arg(&tif),
-    );
+    let summary = ok(bin()
+        .args(["bake", "--quiet", "--tile-size", "64", "--levels", "2", "--out"])
+        .arg(&out)
+        .arg(&tif));
     assert!(summary.contains("baked"), "{summary}");
     let m = Store::new(&out).manifest().unwrap();
     assert_eq!((m.source.format.as_str(), m.source.width, m.source.height), ("geotiff", 300, 200));
@@ -249,9 +229,8 @@ fn srtm_hgt_with_voids_bakes_in_a_local_metric_frame() {
     }
     std::fs::write(&hgt, bytes).unwrap();
     let out = tmp.path().join("t");
-    let summary = run_ok(
-        bin().args(["bake", "--quiet", "--levels", "1", "--max-error", "5", "--out"]).arg(&out).arg(&hgt),
-    );
+    let summary =
+        ok(bin().args(["bake", "--quiet", "--levels", "1", "--max-error", "5", "--out"]).arg(&out).arg(&hgt));
     assert!(summary.contains("200 no-data samples filled"), "{summary}");
     let m = Store::new(&out).manifest().unwrap();
     let geo = m.frame.geographic.expect("hgt is geographic");

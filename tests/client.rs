@@ -13,7 +13,7 @@
 #![allow(clippy::unwrap_used, clippy::float_cmp)]
 
 mod common;
-use common::require_gpu;
+use common::{gpu_or_skip, require_gpu};
 
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
@@ -385,14 +385,7 @@ fn settled_view_covers_the_full_resolution_terrain() {
     use terrastream::client::stream::view::SessionView;
     use terrastream::client::tree::TileTree;
 
-    let ctx = match terrastream::gpu::open() {
-        Ok(c) => c,
-        Err(e) if require_gpu() => panic!("TERRASTREAM_REQUIRE_GPU=1 but {e}"),
-        Err(e) => {
-            eprintln!("skipping GPU streaming test: {e} (set TERRASTREAM_REQUIRE_GPU=1 to fail instead)");
-            return;
-        }
-    };
+    let Some(ctx) = gpu_or_skip("GPU streaming test") else { return };
     let tmp = tempfile::tempdir().unwrap();
     bake(tmp.path());
     let server = start(tmp.path(), "127.0.0.1:0");

@@ -10,7 +10,7 @@
 #![allow(clippy::unwrap_used, clippy::panic)]
 
 mod common;
-use common::{bin, data, require_gpu, tree};
+use common::{bin, data, gpu_or_skip, require_gpu, tree};
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -436,14 +436,7 @@ fn gpu_bakes_keep_positions_inside_the_bounds() {
 /// times slower than the CPU reference for baking) to `--gpu on`; `on` takes either.
 #[test]
 fn gpu_auto_takes_hardware_adapters_only() {
-    let ctx = match terrastream::gpu::open() {
-        Ok(ctx) => ctx,
-        Err(e) if require_gpu() => panic!("TERRASTREAM_REQUIRE_GPU=1 but no adapter: {e}"),
-        Err(e) => {
-            eprintln!("skipping GPU test: {e} (set TERRASTREAM_REQUIRE_GPU=1 to fail instead)");
-            return;
-        }
-    };
+    let Some(ctx) = gpu_or_skip("GPU test") else { return };
     let (auto, notice) = lod::PointBaker::open(lod::GpuMode::Auto, 64 << 20).unwrap();
     if ctx.software {
         assert_eq!(auto.describe(), "cpu", "auto took the software adapter {}", ctx.adapter);

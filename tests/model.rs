@@ -5,32 +5,18 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::float_cmp)]
 
 mod common;
-use common::{bin, tree};
+use common::{bin, fails, ok, tree};
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use terrastream::bake::model::{self as bake_model, MODEL_TILE};
 use terrastream::codec::{self, Geometry};
 use terrastream::model::{self, ModelEncoding};
 use terrastream::store::{Store, TilesetKind};
 
-fn run_ok(cmd: &mut Command) -> String {
-    let out = cmd.output().unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "command failed: {cmd:?}\n{stderr}");
-    String::from_utf8(out.stdout).unwrap()
-}
-
-fn run_err(cmd: &mut Command) -> String {
-    let out = cmd.output().unwrap();
-    assert!(!out.status.success(), "command should fail: {cmd:?}");
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
 fn bake(model: &Path, out: &Path, extra: &[&str]) -> String {
-    run_ok(bin().arg("bake-model").arg(model).arg("--out").arg(out).args(extra))
+    ok(bin().arg("bake-model").arg(model).arg("--out").arg(out).args(extra))
 }
 
 fn decode(store: &Store, level: u8) -> codec::Blob {
@@ -336,16 +322,16 @@ fn malformed_models_are_refused_with_clear_errors_and_nothing_written() {
     for (name, bytes, expect) in cases {
         let path = write(d, name, &bytes);
         let out = d.join(format!("out-{name}"));
-        let stderr = run_err(bin().arg("bake-model").arg(&path).arg("--out").arg(&out));
+        let stderr = fails(bin().arg("bake-model").arg(&path).arg("--out").arg(&out));
         for e in expect {
             assert!(stderr.contains(e), "{name}: expected {e:?} in: {stderr}");
         }
         assert_eq!(stderr.lines().count(), 1, "{name}: one line: {stderr}");
         assert!(!out.exists(), "{name}: nothing may be written");
     }
-    let stderr = run_err(bin().arg("bake-model").arg(d.join("missing.obj")).arg("--out").arg(d.join("o")));
+    let stderr = fails(bin().arg("bake-model").arg(d.join("missing.obj")).arg("--out").arg(d.join("o")));
     assert!(stderr.contains("missing.obj"), "{stderr}");
-    let stderr = run_err(
+    let stderr = fails(
         bin()
             .arg("bake-model")
             .arg(write(d, "ok.obj", obj_negative()))
@@ -353,7 +339,7 @@ fn malformed_models_are_refused_with_clear_errors_and_nothing_written() {
             .arg(d.join("o")),
     );
     assert!(stderr.contains("must decrease"), "{stderr}");
-    let stderr = run_err(
+    let stderr = fails(
         bin()
             .arg("bake-model")
             .arg(d.join("ok.obj"))
@@ -435,40 +421,35 @@ fn stanford_bunny_next_to_the_papers_table_3() {
     assert!(tree(&out) == a);
 
     // Other options into the same directory, or a terrain bake into it, are refused.
-    let e = run_err(bin().arg("bake-model").arg(&bunny).args(["--resolution", "40", "--out"]).arg(&out));
+    let e = fails(bin().arg("bake-model").arg(&bunny).args(["--resolution", "40", "--out"]).arg(&out));
     assert!(e.contains("different options") && e.contains("resolutions"), "{e}");
     let fuji = terrastream::raster::test_data_dir().join("fuji.png");
-    let e =
-        run_err(bin().args(["bake", "--quiet", "--encoding", "terrain-rgb", "--out"]).arg(&out).arg(fuji));
+    let e = fails(bin().args(["bake", "--quiet", "--encoding", "terrain-rgb", "--out"]).arg(&out).arg(fuji));
     assert!(e.contains("different options"), "{e}");
     assert!(tree(&out) == a);
 
     // inspect and export work on the model tileset.
-    let text = run_ok(bin().arg("inspect").arg(&out));
+    let text = ok(bin().arg("inspect").arg(&out));
     assert!(text.contains("model stanford-bunny.obj") && text.contains("69451"), "{text}");
     let json: serde_json::Value =
-        serde_json::from_str(&run_ok(bin().arg("inspect").arg(&out).arg("--json"))).unwrap();
+        serde_json::from_str(&ok(bin().arg("inspect").arg(&out).arg("--json"))).unwrap();
     assert_eq!(json["kind"], "model");
     assert_eq!(json["model"]["levels"][1]["count"], levels[1].count);
     let ply = tmp.path().join("l2.ply");
-    let text =
-        run_ok(bin().arg("export").arg(&out).args(["--tile", "0/0/0", "--level", "2", "--out"]).arg(&ply));
+    let text = ok(bin().arg("export").arg(&out).args(["--tile", "0/0/0", "--level", "2", "--out"]).arg(&ply));
     assert!(text.contains(&format!("{} points", levels[2].count)), "{text}");
     // The exported level reads back through the model reader (no faces: a point cloud is not
     // a model), and the exported mesh does.
     let e = model::load(&ply).unwrap_err().to_string();
     assert!(e.contains("no faces"), "{e}");
     let obj = tmp.path().join("l0.obj");
-    run_ok(
-        bin()
-            .arg("export")
-            .arg(&out)
-            .args(["--tile", "0/0/0", "--level", "0", "--format", "obj", "--out"])
-            .arg(&obj),
-    );
+    ok(bin()
+        .arg("export")
+        .arg(&out)
+        .args(["--tile", "0/0/0", "--level", "0", "--format", "obj", "--out"])
+        .arg(&obj));
     let back = model::load(&obj).unwrap();
     assert_eq!((back.mesh.positions.len(), back.mesh.triangles.len()), (levels[0].count as usize, 69_451));
-    let e =
-        run_err(bin().arg("export").arg(&out).args(["--tile", "0/0/0", "--level", "9", "--out"]).arg(&obj));
+    let e = fails(bin().arg("export").arg(&out).args(["--tile", "0/0/0", "--level", "9", "--out"]).arg(&obj));
     assert!(e.contains("no tile 0/0/0 level 9"), "{e}");
 }

@@ -8,7 +8,7 @@
 #![allow(clippy::unwrap_used, clippy::panic)]
 
 mod common;
-use common::require_gpu;
+use common::gpu_or_skip;
 
 use std::path::Path;
 use std::process::Command;
@@ -40,14 +40,7 @@ fn bake(out: &Path) {
 
 #[test]
 fn lod_frames_cover_the_full_resolution_terrain() {
-    let ctx = match terrastream::gpu::open() {
-        Ok(c) => c,
-        Err(e) if require_gpu() => panic!("TERRASTREAM_REQUIRE_GPU=1 but {e}"),
-        Err(e) => {
-            eprintln!("skipping GPU render test: {e} (set TERRASTREAM_REQUIRE_GPU=1 to fail instead)");
-            return;
-        }
-    };
+    let Some(ctx) = gpu_or_skip("GPU render test") else { return };
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("fuji");
     bake(&dir);

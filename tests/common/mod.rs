@@ -52,6 +52,20 @@ pub fn require_gpu() -> bool {
     std::env::var("TERRASTREAM_REQUIRE_GPU").is_ok_and(|v| v == "1")
 }
 
+/// An adapter for a GPU test, or `None` after printing why `what` is skipped; panics instead
+/// under `TERRASTREAM_REQUIRE_GPU=1` (see [`require_gpu`]).
+#[cfg(feature = "gpu")]
+pub fn gpu_or_skip(what: &str) -> Option<terrastream::gpu::GpuContext> {
+    match terrastream::gpu::open() {
+        Ok(ctx) => Some(ctx),
+        Err(e) if require_gpu() => panic!("TERRASTREAM_REQUIRE_GPU=1 but no adapter: {e}"),
+        Err(e) => {
+            eprintln!("skipping {what}: {e} (set TERRASTREAM_REQUIRE_GPU=1 to fail instead)");
+            None
+        }
+    }
+}
+
 /// A file of the shared test data (`$TERRASTREAM_DATA`, default `../shared/data`).
 pub fn data(name: &str) -> PathBuf {
     terrastream::raster::test_data_dir().join(name)
