@@ -11,8 +11,24 @@ pub enum GpuError {
     NoAdapter,
     #[error("gpu: cannot open a device on adapter {adapter}: {message}")]
     Device { adapter: String, message: String },
+    /// wgpu refused or lost work (validation, out of memory, device lost, mapping): what was
+    /// being done, and wgpu's own message.
+    #[error("gpu: {during}: {message}")]
+    Wgpu { during: String, message: String },
+    #[error("gpu: adapter {adapter} allows {got} storage buffers per shader stage, the bake needs {needed}")]
+    StorageBindings { adapter: String, got: u32, needed: u32 },
+    #[error("gpu: {stage}: viewport {width}×{height} (1 to {max} per side)")]
+    Viewport { stage: &'static str, width: u32, height: u32, max: u32 },
+    #[error("gpu: render: clip planes {near}..{far} (need 0 < near < far)")]
+    ClipPlanes { near: f64, far: f64 },
+    /// The camera has no view (not finite, or eye = target).
+    #[error("gpu: {stage}: {message}")]
+    Camera { stage: &'static str, message: String },
+    #[error("gpu: instances: level 0 of the model is not a mesh")]
+    NotAMesh,
+    /// An invariant of our own GPU code did not hold (a bug, not an input problem).
     #[error("gpu: {0}")]
-    Failed(String),
+    Internal(&'static str),
 }
 
 /// A device and queue with the name of their adapter.

@@ -70,8 +70,9 @@ pub struct InstanceBench {
     depth: wgpu::TextureView,
 }
 
-fn fail(m: impl Into<String>) -> GpuError {
-    GpuError::Failed(m.into())
+/// wgpu's error `e` while doing `during`.
+fn wgpu_err(during: &str, e: impl std::fmt::Display) -> GpuError {
+    GpuError::Wgpu { during: during.into(), message: e.to_string() }
 }
 
 /// What one frame drew.
@@ -95,10 +96,10 @@ impl InstanceBench {
     ) -> Result<Self, GpuError> {
         let max = device.limits().max_texture_dimension_2d;
         if width == 0 || height == 0 || width > max || height > max {
-            return Err(fail(format!("instances: viewport {width}×{height} (1 to {max} per side)")));
+            return Err(GpuError::Viewport { stage: "instances", width, height, max });
         }
         if !matches!(levels.first(), Some((Blob { geometry: Geometry::Mesh(_), .. }, _))) {
-            return Err(fail("instances: level 0 of the model is not a mesh"));
+            return Err(GpuError::NotAMesh);
         }
         let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
             binding,
@@ -234,7 +235,7 @@ impl InstanceBench {
         let color = target(COLOR);
         let depth = target(DEPTH);
         if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(fail(format!("instances: pipeline creation: {e}")));
+            return Err(wgpu_err("instances: pipeline creation", e));
         }
         Ok(Self {
             device,
@@ -263,7 +264,8 @@ impl InstanceBench {
         levels: &[usize],
         frames: u32,
     ) -> Result<(Vec<f64>, FrameCounts), GpuError> {
-        let view = camera.view().map_err(|e| fail(format!("instances: {e}")))?;
+        let view =
+            camera.view().map_err(|e| GpuError::Camera { stage: "instances", message: e.to_string() })?;
         let (near, far) = clip_planes(far);
         let vp = view_proj(&view, self.origin, near, far, f64::from(self.width) / f64::from(self.height));
         let g = Globals {
@@ -364,7 +366,7 @@ impl InstanceBench {
             self.queue.submit([enc.finish()]);
             self.device
                 .poll(wgpu::PollType::wait_indefinitely())
-                .map_err(|e| fail(format!("instances: waiting for the device: {e}")))?;
+                .map_err(|e| wgpu_err("instances: waiting for the device", e))?;
             if f > 0 {
                 times.push(t0.elapsed().as_secs_f64() * 1e3);
             }

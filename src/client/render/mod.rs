@@ -108,8 +108,9 @@ pub struct Renderer {
     tiles: HashMap<(TileKey, u8), GpuTile>,
 }
 
-fn fail(m: impl Into<String>) -> GpuError {
-    GpuError::Failed(m.into())
+/// wgpu's error `e` while doing `during`.
+fn wgpu_err(during: &str, e: impl std::fmt::Display) -> GpuError {
+    GpuError::Wgpu { during: during.into(), message: e.to_string() }
 }
 
 impl Renderer {
@@ -123,7 +124,7 @@ impl Renderer {
     ) -> Result<Self, GpuError> {
         let max = device.limits().max_texture_dimension_2d;
         if width == 0 || height == 0 || width > max || height > max {
-            return Err(fail(format!("render: viewport {width}×{height} (1 to {max} per side)")));
+            return Err(GpuError::Viewport { stage: "render", width, height, max });
         }
         let uniform = |binding, visibility, has_dynamic_offset| wgpu::BindGroupLayoutEntry {
             binding,
@@ -196,7 +197,7 @@ impl Renderer {
         // COPY_SRC: `render_with_depth` reads the depth back (the evaluation's depth differences).
         let depth = target(DEPTH, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC);
         if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(fail(format!("render: pipeline creation: {e}")));
+            return Err(wgpu_err("render: pipeline creation", e));
         }
         Ok(Self {
             device,
@@ -309,7 +310,10 @@ impl Renderer {
         far: f64,
     ) -> Result<image::RgbaImage, GpuError> {
         let (near, far) = clip_planes(far);
-        Ok(self.frame(camera, draws, near, far, true, false)?.ok_or_else(|| fail("render: no read-back"))?.0)
+        Ok(self
+            .frame(camera, draws, near, far, true, false)?
+            .ok_or(GpuError::Internal("render: no read-back"))?
+            .0)
     }
 
     /// As [`Renderer::render`] with explicit clip planes (`0 < near < far`; a near plane close
@@ -324,9 +328,9 @@ impl Renderer {
         far: f64,
     ) -> Result<(image::RgbaImage, Vec<f32>), GpuError> {
         if !(near.is_finite() && far.is_finite() && near > 0.0 && near < far) {
-            return Err(fail(format!("render: clip planes {near}..{far} (need 0 < near < far)")));
+            return Err(GpuError::ClipPlanes { near, far });
         }
-        self.frame(camera, draws, near, far, true, true)?.ok_or_else(|| fail("render: no read-back"))
+        self.frame(camera, draws, near, far, true, true)?.ok_or(GpuError::Internal("render: no read-back"))
     }
 
     /// As [`Renderer::render`] and waits for the GPU to finish, without reading the frame back
@@ -345,7 +349,7 @@ impl Renderer {
         read_back: bool,
         with_depth: bool,
     ) -> Result<Option<(image::RgbaImage, Vec<f32>)>, GpuError> {
-        let view = camera.view().map_err(|e| fail(format!("render: {e}")))?;
+        let view = camera.view().map_err(|e| GpuError::Camera { stage: "render", message: e.to_string() })?;
         let vp = view_proj(&view, self.origin, near, far, f64::from(self.width) / f64::from(self.height));
         let g = Globals {
             view_proj: vp,
@@ -442,7 +446,7 @@ impl Renderer {
             self.queue.submit([enc.finish()]);
             self.device
                 .poll(wgpu::PollType::wait_indefinitely())
-                .map_err(|e| fail(format!("render: waiting for the device: {e}")))?;
+                .map_err(|e| wgpu_err("render: waiting for the device", e))?;
             return Ok(None);
         }
         let row = (self.width * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
@@ -510,13 +514,13 @@ impl Renderer {
         }
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| fail(format!("render: waiting for the device: {e}")))?;
+            .map_err(|e| wgpu_err("render: waiting for the device", e))?;
         for _ in 0..=usize::from(depth_staging.is_some()) {
             rx.recv()
-                .map_err(|_| fail("render: read-back callback dropped"))?
-                .map_err(|e| fail(format!("render: read-back: {e}")))?;
+                .map_err(|_| GpuError::Internal("render: read-back callback dropped"))?
+                .map_err(|e| wgpu_err("render: read-back", e))?;
         }
-        let data = staging.slice(..).get_mapped_range().map_err(|e| fail(format!("render: mapping: {e}")))?;
+        let data = staging.slice(..).get_mapped_range().map_err(|e| wgpu_err("render: mapping", e))?;
         let mut px = Vec::with_capacity((self.width * self.height * 4) as usize);
         for r in 0..self.height as usize {
             let s = r * row as usize;
@@ -525,7 +529,7 @@ impl Renderer {
         drop(data);
         let mut depth = Vec::new();
         if let Some(b) = &depth_staging {
-            let data = b.slice(..).get_mapped_range().map_err(|e| fail(format!("render: mapping: {e}")))?;
+            let data = b.slice(..).get_mapped_range().map_err(|e| wgpu_err("render: mapping", e))?;
             depth.reserve((self.width * self.height) as usize);
             for r in 0..self.height as usize {
                 let s = r * row as usize;
@@ -534,7 +538,7 @@ impl Renderer {
             }
         }
         let img = image::RgbaImage::from_raw(self.width, self.height, px)
-            .ok_or_else(|| fail("render: image size"))?;
+            .ok_or(GpuError::Internal("render: image size"))?;
         Ok(Some((img, depth)))
     }
 

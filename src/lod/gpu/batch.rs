@@ -219,7 +219,10 @@ impl GpuBaker {
         }
         self.queue.submit([enc.finish()]);
         if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(GpuError::Failed(format!("batch submission on {}: {e}", self.adapter)));
+            return Err(GpuError::Wgpu {
+                during: format!("batch submission on {}", self.adapter),
+                message: e.to_string(),
+            });
         }
         let (tx, rx) = mpsc::channel();
         let staging_bytes = counters_bytes + out_bytes;
@@ -244,18 +247,19 @@ impl GpuBaker {
         f: InFlight,
         jobs: &[LevelJob<'_>],
     ) -> Result<Vec<(Prepared, Decoded)>, GpuError> {
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Failed(format!("waiting for the device: {e}")))?;
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Wgpu {
+            during: "waiting for the device".into(),
+            message: e.to_string(),
+        })?;
         f.mapped
             .recv()
-            .map_err(|_| GpuError::Failed("read-back callback dropped".into()))?
-            .map_err(|e| GpuError::Failed(format!("read-back: {e}")))?;
+            .map_err(|_| GpuError::Internal("read-back callback dropped"))?
+            .map_err(|e| GpuError::Wgpu { during: "read-back".into(), message: e.to_string() })?;
         let out = {
             let view = f.buffers[P_STAGING]
                 .slice(..f.staging_bytes)
                 .get_mapped_range()
-                .map_err(|e| GpuError::Failed(format!("read-back mapping: {e}")))?;
+                .map_err(|e| GpuError::Wgpu { during: "read-back mapping".into(), message: e.to_string() })?;
             let words: &[u32] = bytemuck::cast_slice(&view);
             let counters = &words[..f.counters_bytes as usize / 4];
             let points = &words[f.counters_bytes as usize / 4..];

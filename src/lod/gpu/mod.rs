@@ -305,10 +305,11 @@ impl GpuBaker {
     ) -> Result<Self, GpuError> {
         let limits = device.limits();
         if limits.max_storage_buffers_per_shader_stage < MAX_STORAGE_BINDINGS {
-            return Err(GpuError::Failed(format!(
-                "adapter {adapter} allows {} storage buffers per shader stage, the bake needs {MAX_STORAGE_BINDINGS}",
-                limits.max_storage_buffers_per_shader_stage
-            )));
+            return Err(GpuError::StorageBindings {
+                adapter,
+                got: limits.max_storage_buffers_per_shader_stage,
+                needed: MAX_STORAGE_BINDINGS,
+            });
         }
         let layouts = BINDINGS.map(|bindings| {
             let entries: Vec<wgpu::BindGroupLayoutEntry> = bindings
@@ -354,7 +355,10 @@ impl GpuBaker {
             })
         });
         if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(GpuError::Failed(format!("pipeline creation on {adapter}: {e}")));
+            return Err(GpuError::Wgpu {
+                during: format!("pipeline creation on {adapter}"),
+                message: e.to_string(),
+            });
         }
         let max_binding = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
         Ok(Self {
@@ -396,7 +400,7 @@ impl GpuBaker {
         options: &SliceOptions,
     ) -> Result<(Vec<BakedCell>, BakeStats), GpuError> {
         let (mut out, _) = self.bake_jobs(&[LevelJob { mesh, origin, cell }], options)?;
-        out.pop().ok_or_else(|| GpuError::Failed("no result for the job".into()))
+        out.pop().ok_or(GpuError::Internal("no result for the job"))
     }
 
     /// Bakes every job, batched under the memory budget; results in job order, each as
@@ -469,7 +473,7 @@ impl GpuBaker {
         }
         let results = results
             .into_iter()
-            .map(|r| r.ok_or_else(|| GpuError::Failed("a job was left without a result".into())))
+            .map(|r| r.ok_or(GpuError::Internal("a job was left without a result")))
             .collect::<Result<_, _>>()?;
         Ok((results, report))
     }
