@@ -36,7 +36,7 @@ max_len() {
 
 if [ $# -gt 0 ]; then targets=("$@"); else mapfile -t targets < <(cargo +nightly fuzz list); fi
 
-[ -n "${SKIP_BUILD:-}" ] || cargo +nightly fuzz build -s none
+[ -n "${SKIP_BUILD:-}" ] || cargo +nightly fuzz build -O -s none
 
 {
     echo
