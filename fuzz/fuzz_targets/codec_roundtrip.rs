@@ -51,7 +51,7 @@ fuzz_target!(|inp: Input| {
         let beyond = (f64::from(frac) / 256.0).max(0.0);
         min[a] + (f64::from(n) + beyond) * s[a]
     });
-    let bounds = Bounds { min, max };
+    let bounds = Bounds::new(min, max);
     let qmax: [i64; 3] = std::array::from_fn(|a| ((max[a] - min[a]) / s[a]).round() as i64);
     let positions: Vec<[f64; 3]> = inp
         .verts
