@@ -53,6 +53,27 @@ fn png_palette_with_a_partial_entry_is_corrupt() {
     }
 }
 
+/// `raster_openexr`: a B44-compressed block whose 14-byte header makes exr's `unpack14`
+/// (exr 1.74.2, `compression/b44/mod.rs:186`) subtract past zero in `u32`. Two defects: in an
+/// overflow-checked build it panicked, and it panicked on exr's rayon pool — where a panic
+/// aborts the whole process (a server with it), and where it surfaced during a later input. Now
+/// the decoder runs on the calling thread under `raster::guard_decoder`, and exr is built as
+/// release builds it (its B44 arithmetic wraps, as OpenEXR's C code does): the file decodes or
+/// is refused, without a panic.
+#[test]
+fn exr_b44_block_underflow_neither_panics_nor_aborts() {
+    match load_raster("fuzz.exr", &case("exr-b44-overflow.exr")) {
+        Ok(r) => assert!(r.heights.width > 0 && r.heights.height > 0),
+        Err(e) => assert!(
+            matches!(
+                e,
+                RasterError::Corrupt { .. } | RasterError::Unsupported { .. } | RasterError::AllNoData { .. }
+            ),
+            "{e}"
+        ),
+    }
+}
+
 /// `raster_geotiff`: a ModelPixelScale of about −1.6e308 with a finite tiepoint gave a finite
 /// origin and cell size (so `load` accepted it) but a far corner at −inf, and every later stage
 /// would have worked on infinities. Fixed in `raster::geotiff::check_extent`.
