@@ -1,8 +1,12 @@
 //! Plain geometry values shared by every stage: bounds, triangle meshes, point clouds and the
-//! measured errors that travel with them. No I/O, no behaviour beyond small helpers.
+//! measured errors that travel with them, normals and skirts (`skirts`). No I/O.
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
+
+mod skirts;
+
+pub use skirts::{Skirted, add_skirts, skirt_depth};
 
 /// Axis-aligned box in world units. Serialized as `{"min": [x, y, z], "max": [x, y, z]}`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

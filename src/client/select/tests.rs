@@ -4,6 +4,7 @@ use proptest::prelude::*;
 
 use super::*;
 use crate::client::tree::{Synthetic, entry};
+use crate::geom::Mesh;
 use crate::store::IndexChunk;
 use crate::tiling::Pyramid;
 
