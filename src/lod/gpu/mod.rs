@@ -142,7 +142,7 @@ const SLOT_BYTES: u64 = 32;
 const POINT_BYTES: u64 = 32;
 const COLUMN_BYTES: u64 = 8;
 const COUNTER_WORDS: usize = 8;
-/// Count word of a slot (`../../shaders/bake/common.wgsl`): per-view-axis counts of `COUNT_BITS` each,
+/// Count word of a slot (`shaders/bake/common.wgsl`): per-view-axis counts of `COUNT_BITS` each,
 /// `FILL_BIT` on a filled cell.
 const COUNT_BITS: u32 = 10;
 const COUNT_FIELD: u32 = (1 << COUNT_BITS) - 1;
