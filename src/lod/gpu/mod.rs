@@ -8,7 +8,7 @@
 //! rasterized once, with no depth test and no culling, and every fragment is binned into its
 //! slice by its own depth: the same sampling as one pass per slice, with one pass per axis
 //! (and ±axis views coincide without depth test, see `lod::cpu`). The rasterization runs in a
-//! compute shader (`../../shaders/bake/rasterize.wgsl`, one invocation per triangle and axis) rather than in
+//! compute shader (`shaders/bake/rasterize.wgsl`, one invocation per triangle and axis) rather than in
 //! the hardware rasterizer, because:
 //! - the CPU reference's coverage rule (canonical edge functions, the top-left tie rule at
 //!   pixel centres) is evaluated on the job's own grid coordinates, with no sub-pixel snapping
@@ -53,7 +53,7 @@
 //! an estimate but results never depend on them. A job that alone exceeds the budget, or whose
 //! cell box does not fit the 32-bit keys (an extent over 2^16 − 1 cells, or over 2^32 − 2 cells
 //! in all), or in which one cell gets over 1023 fragments of one view (the per-axis count
-//! fields of the table, see `../../shaders/bake/common.wgsl`), is baked by the CPU reference instead and
+//! fields of the table, see `shaders/bake/common.wgsl`), is baked by the CPU reference instead and
 //! counted in [`BatchReport::cpu_jobs`].
 //! While the GPU runs one batch the host prepares and submits the next and decodes the
 //! previous, so at most two batches are in flight: the device memory peak is at most twice the
@@ -123,7 +123,7 @@ enum Access {
 }
 
 /// The bindings of each pipeline of [`SHADERS`], in order: only what its WGSL declares, read-only
-/// where it only reads (plain loads rather than atomics; see `../../shaders/bake/common.wgsl`).
+/// where it only reads (plain loads rather than atomics; see `shaders/bake/common.wgsl`).
 const BINDINGS: [&[(u32, Access)]; 4] = {
     use Access::{Read as R, ReadWrite as W, Uniform as U};
     [
@@ -196,7 +196,7 @@ impl BatchReport {
     }
 }
 
-/// Job descriptor shared with the shaders (`Job` in `../../shaders/bake/common.wgsl`).
+/// Job descriptor shared with the shaders (`Job` in `shaders/bake/common.wgsl`).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
 pub struct GpuJob {
@@ -216,7 +216,7 @@ pub struct GpuJob {
     pub pad: [u32; 3],
 }
 
-/// Pass sizes shared with the shaders (`Params` in `../../shaders/bake/common.wgsl`).
+/// Pass sizes shared with the shaders (`Params` in `shaders/bake/common.wgsl`).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
 pub struct GpuParams {

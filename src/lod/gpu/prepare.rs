@@ -60,7 +60,7 @@ pub(super) fn decode(p: &Prepared, job: &LevelJob<'_>, counters: &[u32], points:
             let key = r[0];
             let local = [key % nx, (key / nx) % ny, key / nx / ny];
             let index = [0, 1, 2].map(|d| (p.base[d] + i64::from(local[d])) as i32);
-            // Per-axis counts and depth sums → the three position sums (`../../shaders/bake/common.wgsl`).
+            // Per-axis counts and depth sums → the three position sums (`shaders/bake/common.wgsl`).
             let counts = [0, 1, 2].map(|d: u32| u64::from((r[1] >> (d * COUNT_BITS)) & COUNT_FIELD));
             let count = counts.iter().sum::<u64>();
             let denom = count.max(1) as f64 * POS_ONE;
