@@ -300,8 +300,19 @@ impl Store {
             None => {
                 check_out_dir(&self.dir)?;
                 if self.dir.exists() {
-                    let mut entries = fs::read_dir(&self.dir).map_err(io(&self.dir))?;
-                    if entries.next().is_some() {
+                    for entry in fs::read_dir(&self.dir).map_err(io(&self.dir))? {
+                        let entry = entry.map_err(io(&self.dir))?;
+                        let name = entry.file_name();
+                        // A bake killed before its options record was first written leaves
+                        // only that record's temporary file: the directory is still an empty
+                        // one of ours, not a foreign one.
+                        if entry.file_type().map_err(io(&entry.path()))?.is_file()
+                            && name.to_string_lossy().starts_with(&format!(".{STATE_FILE}."))
+                            && stale_temp(&name.to_string_lossy())
+                        {
+                            fs::remove_file(entry.path()).map_err(io(&entry.path()))?;
+                            continue;
+                        }
                         return Err(StoreError::NotATileset { path: self.dir.clone() });
                     }
                 }
@@ -318,8 +329,6 @@ impl Store {
     /// tileset's own layout (root, `tiles/` and `index/` down to their blob depth). Returns how
     /// many were removed.
     pub fn remove_stale_temps(&self) -> Result<u64, StoreError> {
-        let proc_fs = Path::new("/proc/self").exists();
-        let me = std::process::id();
         let mut removed = 0u64;
         let mut stack = vec![(self.dir.clone(), 0u32)];
         while let Some((dir, depth)) = stack.pop() {
@@ -339,10 +348,7 @@ impl Store {
                     if ours && depth < 5 {
                         stack.push((path, depth + 1));
                     }
-                } else if ty.is_file()
-                    && let Some(pid) = temp_owner(&name)
-                    && (pid == me || !proc_fs || !Path::new(&format!("/proc/{pid}")).exists())
-                {
+                } else if ty.is_file() && stale_temp(&name) {
                     fs::remove_file(&path).map_err(io(&path))?;
                     removed += 1;
                 }
@@ -513,6 +519,16 @@ fn check_out_dir(dir: &Path) -> Result<(), StoreError> {
     Ok(())
 }
 
+/// Whether `name` is a [`write_atomic`] temporary file of this process or of one that no longer
+/// runs (where `/proc` tells; elsewhere every one counts as stale).
+fn stale_temp(name: &str) -> bool {
+    temp_owner(name).is_some_and(|pid| {
+        pid == std::process::id()
+            || !Path::new("/proc/self").exists()
+            || !Path::new(&format!("/proc/{pid}")).exists()
+    })
+}
+
 /// The process id in a [`write_atomic`] temporary file name `.NAME.PID.N.tmp`.
 fn temp_owner(name: &str) -> Option<u32> {
     let rest = name.strip_prefix('.')?.strip_suffix(".tmp")?;
@@ -599,6 +615,29 @@ mod tests {
         assert!(!dead.exists() && !mine.exists());
         assert!(other.exists());
         assert_eq!(live.exists(), Path::new("/proc/1").exists());
+    }
+
+    /// A bake killed before its options record was first written leaves only that record's
+    /// temporary file (found by `tests/hardening.rs`'s kill at once): the next bake starts
+    /// there and removes it; a live writer's temporary file, or any other file, still makes the
+    /// directory foreign.
+    #[test]
+    fn a_bake_killed_before_its_first_write_can_start_again() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("ts");
+        fs::create_dir_all(&out).unwrap();
+        let dead = out.join(format!(".{STATE_FILE}.{}.0.tmp", u32::MAX - 1));
+        fs::write(&dead, b"{\"tile_").unwrap();
+        let opts = serde_json::json!({"a": 1});
+        assert!(!Store::new(&out).begin_bake(&opts).unwrap());
+        assert!(!dead.exists());
+        assert!(Store::new(&out).begin_bake(&opts).unwrap());
+
+        let other = dir.path().join("other");
+        fs::create_dir_all(&other).unwrap();
+        fs::write(other.join(format!(".{STATE_FILE}.1.0.tmp")), b"x").unwrap(); // pid 1 is alive
+        fs::write(other.join("notes.txt"), b"x").unwrap();
+        assert!(matches!(Store::new(&other).begin_bake(&opts), Err(StoreError::NotATileset { .. })));
     }
 
     #[test]
