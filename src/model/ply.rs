@@ -213,6 +213,12 @@ pub fn parse(bytes: &[u8], name: &str) -> Result<Model, MeshError> {
             }
             Role::Skip => {}
         }
+        // An element without properties holds no data, whatever its count: nothing to read, and
+        // no loop of a count the file never pays for in bytes (`element x 9223372036854775807`
+        // spun for hours; found by fuzzing `model_ply`).
+        if e.props.is_empty() {
+            continue;
+        }
         let mut has_normals = false;
         if let Role::Vertex(s) = &role
             && s[3..].iter().all(Option::is_some)
@@ -459,6 +465,35 @@ mod tests {
     fn replace(b: &[u8], from: &[u8], to: &[u8]) -> Vec<u8> {
         let i = b.windows(from.len()).position(|w| w == from).unwrap();
         [&b[..i], to, &b[i + from.len()..]].concat()
+    }
+
+    #[test]
+    fn elements_without_properties_cost_nothing_whatever_their_count() {
+        for format in ["ascii", "binary_little_endian"] {
+            let mut text = format!(
+                "ply\nformat {format} 1.0\nelement empty 9223372036854775807\nelement vertex 3\n\
+                 property float x\nproperty float y\nproperty float z\nelement face 1\n\
+                 property list uchar int vertex_indices\nend_header\n"
+            )
+            .into_bytes();
+            if format == "ascii" {
+                text.extend_from_slice(b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n");
+            } else {
+                for v in [[0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
+                    for c in v {
+                        text.extend_from_slice(&c.to_le_bytes());
+                    }
+                }
+                text.push(3);
+                for i in [0i32, 1, 2] {
+                    text.extend_from_slice(&i.to_le_bytes());
+                }
+            }
+            let t0 = std::time::Instant::now();
+            let m = parse(&text, "empty.ply").unwrap();
+            assert_eq!((m.mesh.positions.len(), m.mesh.triangles.len()), (3, 1), "{format}");
+            assert!(t0.elapsed() < std::time::Duration::from_secs(5), "{format}: {:?}", t0.elapsed());
+        }
     }
 
     #[test]
