@@ -60,7 +60,10 @@ fn fuji_bake_errors_borders_determinism_resume() {
             let e = node.levels[usize::from(l)].errors;
             let cell = 30.0 * step * f64::from(1u32 << l);
             assert!(matches!(pts.geometry, Geometry::Points(ref p) if !p.positions.is_empty()));
-            assert!(e.max < cell, "{key} level {l}: point distance {} vs cell {cell}", e.max);
+            // `max` is measured on the level as drawn: a point within half a cell of the surface,
+            // its footprint's corners at most a cube's half-diagonal (√3 · 0.9 cells) further.
+            let reach = (0.5 + 3f64.sqrt() * terrastream::lod::TERRAIN_FOOTPRINT_HALF) * cell;
+            assert!(e.max < reach, "{key} level {l}: drawn distance {} vs cell {cell}", e.max);
             assert!(e.gap < 2.0 * cell, "{key} level {l}: gap {} vs cell {cell}", e.gap);
         }
         let Geometry::Mesh(mesh) = blob.geometry else { panic!("level 0 of {key} is not a mesh") };

@@ -89,7 +89,9 @@ fn options() -> SessionOptions {
     SessionOptions {
         width: 640,
         height: 360,
-        select: SelectParams { fade_seconds: 0.1, ..SelectParams::default() },
+        // 2 px: the outage scenario needs the far pose's tiles to differ from the near pose's,
+        // which at the default 1 px they already share on this small tileset.
+        select: SelectParams { fade_seconds: 0.1, threshold_px: 2.0, ..SelectParams::default() },
         // Short backoff so recovery is quick in a test; the rules are the defaults'.
         fetch: FetchParams {
             backoff_base_s: 0.05,
@@ -421,7 +423,7 @@ fn settled_view_covers_the_full_resolution_terrain() {
         .map(|(i, n)| {
             let blob = terrastream::codec::decode(&store.read_blob(n.key, 0).unwrap().unwrap()).unwrap();
             // Leaves share their border vertices: no skirts needed at full resolution.
-            reference.upload(&blob, 0.0, Some(&manifest.bounds), 0.0);
+            reference.upload(&blob, 0.0, Some(&manifest.bounds), 0.0, 0.0);
             DrawItem {
                 node: i as u32,
                 key: n.key,

@@ -125,8 +125,9 @@ fn check_jobs(name: &str, gpu: &GpuBaker, jobs: &[LevelJob<'_>]) -> Agreement {
         let a = compare(&c, g, job.cell);
         assert!(a.fraction() >= 0.995, "{name} job {n}: {a:?} ({:.4})", a.fraction());
         assert!(a.max_pos <= 1e-3, "{name} job {n}: {a:?}");
-        let ec = cpu::measure_points(job.mesh, &cloud(&c), job.cell);
-        let eg = cpu::measure_points(job.mesh, &cloud(g), job.cell);
+        let ec =
+            cpu::measure_points(job.mesh, &cloud(&c), job.cell, terrastream::lod::TERRAIN_FOOTPRINT_HALF);
+        let eg = cpu::measure_points(job.mesh, &cloud(g), job.cell, terrastream::lod::TERRAIN_FOOTPRINT_HALF);
         assert!(
             close(ec.max, eg.max) && close(ec.rms, eg.rms) && close(ec.gap, eg.gap),
             "{name} job {n}: errors cpu {ec:?} gpu {eg:?}"

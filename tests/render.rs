@@ -13,18 +13,17 @@ use common::gpu_or_skip;
 use std::path::Path;
 use std::process::Command;
 
-use terrastream::client::render::{Renderer, covered};
+use terrastream::client::render::{self, Renderer, covered};
 use terrastream::client::select::{AllResident, Camera, DrawItem, SelectParams, Selector, skirt_depth};
 use terrastream::client::stream::flight::Flight;
 use terrastream::client::tree::TileTree;
 use terrastream::codec;
 use terrastream::store::Store;
 
-/// Poses (flight time) and thresholds coarse enough that point levels (splats) are drawn:
-/// levels 1 and 2 of this bake. (Level 3, at 24 px, leaves 0.8 % of the terrain pixels empty
-/// at t = 0, see docs/client.md, *Rendering*: a splat at a level that coarse can sit a whole
-/// error above its neighbour's, and the gap between them shows through.)
-const POINT_CASES: [(f64, f64); 3] = [(0.0, 8.0), (0.0, 12.0), (8.0, 16.0)];
+/// Poses (flight time) and thresholds coarse enough that point levels (footprints) are drawn:
+/// levels 1 and 2 of this bake. (The point levels' errors include their footprints' reach, so
+/// these thresholds are about twice those that drew the same levels with the earlier discs.)
+const POINT_CASES: [(f64, f64); 3] = [(0.0, 16.0), (0.0, 24.0), (8.0, 32.0)];
 
 fn bake(out: &Path) {
     let fuji = terrastream::raster::test_data_dir().join("fuji.png");
@@ -58,7 +57,7 @@ fn lod_frames_cover_the_full_resolution_terrain() {
         let spacing = manifest.levels[usize::from(d.level)]
             .cell_leaf_cells
             .map_or(0.0, |c| f64::from(c) * f64::from(tree.pyramid().step(d.key.z)) * cell);
-        r.upload(&blob, depth, Some(&bounds), spacing);
+        r.upload(&blob, depth, Some(&bounds), spacing, render::footprint_half(&manifest, d.level));
     };
     // The reference: every leaf's TIN (full resolution; leaves share their border vertices).
     let leaves: Vec<DrawItem> = tree

@@ -4,8 +4,9 @@
 //   group 0, binding 0: Globals (uniform) — view-projection (world relative to the tileset
 //                       origin), light direction, viewport (width px, height px, k = pixels
 //                       per world unit at unit view depth, unused)
-//   group 1, binding 0: Tile (uniform) — point spacing in world units and the dataset's
-//                       horizontal extent (points only)
+//   group 1, binding 0: Tile (uniform) — a point level's cell edge in world units and
+//                       footprint half-width in cells, and the dataset's horizontal extent
+//                       (points only)
 //   group 2, binding 0: Draw (uniform, dynamic offset per draw) — fade alpha and whether the
 //                       tile is retiring (fading out)
 // Vertex buffers: location 0 = position (vec3<f32>, relative to the origin), location 1 =
@@ -18,8 +19,9 @@ struct Globals {
 };
 
 struct Tile {
+    // Points: the level's cell edge (world units) and footprint half-width (cells).
     spacing: f32,
-    pad0: f32,
+    half: f32,
     pad1: f32,
     pad2: f32,
     // The dataset's horizontal extent (min x, min y, max x, max y) splats are clipped to.
@@ -40,8 +42,8 @@ struct Draw {
 struct VOut {
     @builtin(position) pos: vec4<f32>,
     @location(0) normal: vec3<f32>,
-    // Position in a point's splat disc (splat.wgsl); zero for meshes.
-    @location(1) uv: vec2<f32>,
+    // Offset in a point's footprint cube (splat.wgsl); zero for meshes.
+    @location(1) uv: vec3<f32>,
 };
 
 // Screen-door fade: a 4×4 ordered-dither threshold per pixel. A tile fading in keeps the
@@ -57,7 +59,7 @@ fn dither(p: vec2<f32>) -> f32 {
 @fragment
 fn fs_main(v: VOut) -> @location(0) vec4<f32> {
     let d = dither(v.pos.xy);
-    if (dot(v.uv, v.uv) > 1.0 || (draw.retiring > 0.5 && d < 1.0 - draw.alpha) || (draw.retiring <= 0.5 && d >= draw.alpha)) {
+    if (max(abs(v.uv.x), max(abs(v.uv.y), abs(v.uv.z))) > 1.0 || (draw.retiring > 0.5 && d < 1.0 - draw.alpha) || (draw.retiring <= 0.5 && d >= draw.alpha)) {
         discard;
     }
     // Lambert with an ambient floor; normals flipped to face up (terrain is seen from above).

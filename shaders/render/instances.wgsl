@@ -8,7 +8,8 @@
 //                       indexed by instance_index (draws pass first_instance to pick a range)
 //   group 1, binding 0: points (storage, read) — vs_points only: two vec4 per point
 //                       (position xyz, normal xyz)
-//   group 1, binding 1: Level (uniform) — vs_points only: point spacing in world units
+//   group 1, binding 1: Level (uniform) — vs_points only: cell edge in world units and
+//                       footprint half-width in cells
 // Vertex buffers (vs_mesh only): location 0 = position (vec3<f32>), location 1 = normal.
 
 struct Globals {
@@ -24,7 +25,7 @@ struct Point {
 
 struct Level {
     spacing: f32,
-    pad0: f32,
+    half: f32,
     pad1: f32,
     pad2: f32,
 };
@@ -37,8 +38,8 @@ struct Level {
 struct VOut {
     @builtin(position) pos: vec4<f32>,
     @location(0) normal: vec3<f32>,
-    // Position in a point's splat disc (splat.wgsl); zero for meshes.
-    @location(1) uv: vec2<f32>,
+    // Offset in a point's footprint cube (splat.wgsl); zero for meshes.
+    @location(1) uv: vec3<f32>,
 };
 
 @vertex
@@ -46,7 +47,7 @@ fn vs_mesh(@builtin(instance_index) ii: u32, @location(0) p: vec3<f32>, @locatio
     var out: VOut;
     out.pos = g.view_proj * vec4<f32>(p + offsets[ii].xyz, 1.0);
     out.normal = n;
-    out.uv = vec2<f32>(0.0);
+    out.uv = vec3<f32>(0.0);
     return out;
 }
 
@@ -61,7 +62,7 @@ fn vs_points(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -
     let pt = points[vi / 6u];
     var out: VOut;
     let unbounded = vec4<f32>(-3.0e38, -3.0e38, 3.0e38, 3.0e38);
-    let s = splat_corner(g.view_proj, g.viewport, pt.p.xyz + offsets[ii].xyz, pt.n.xyz, level.spacing, unbounded, corners[vi % 6u]);
+    let s = splat_corner(g.view_proj, g.viewport, pt.p.xyz + offsets[ii].xyz, pt.n.xyz, level.spacing, level.half, unbounded, corners[vi % 6u]);
     out.pos = s.pos;
     out.uv = s.uv;
     out.normal = pt.n.xyz;
@@ -70,7 +71,7 @@ fn vs_points(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -
 
 @fragment
 fn fs_main(v: VOut) -> @location(0) vec4<f32> {
-    if (dot(v.uv, v.uv) > 1.0) {
+    if (max(abs(v.uv.x), max(abs(v.uv.y), abs(v.uv.z))) > 1.0) {
         discard;
     }
     let n = normalize(v.normal);

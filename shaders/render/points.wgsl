@@ -8,7 +8,7 @@ fn vs_main(@builtin(vertex_index) vi: u32, @location(0) p: vec3<f32>, @location(
         vec2<f32>(-1.0, -1.0), vec2<f32>(1.0, 1.0), vec2<f32>(-1.0, 1.0),
     );
     var out: VOut;
-    let s = splat_corner(g.view_proj, g.viewport, p, n, tile.spacing, tile.extent, corners[vi]);
+    let s = splat_corner(g.view_proj, g.viewport, p, n, tile.spacing, tile.half, tile.extent, corners[vi]);
     out.pos = s.pos;
     out.uv = s.uv;
     out.normal = n;

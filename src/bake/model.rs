@@ -365,7 +365,7 @@ pub fn bake_model(
             let q = Quantization { xy_step: step, z_step: step };
             // Onto the grid and into the box the header states (see `codec::snap_positions`).
             pc.positions = codec::snap_positions(&pc.positions, &bounds, q).map_err(codec_err(level))?;
-            let errors = lod::cpu::measure_points(mesh, &pc, cell);
+            let errors = lod::cpu::measure_points(mesh, &pc, cell, lod::MODEL_FOOTPRINT_HALF);
             let blob =
                 codec::encode_points(MODEL_TILE, level, &bounds, q, &pc, errors).map_err(codec_err(level))?;
             Ok(BakedLevel {

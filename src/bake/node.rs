@@ -109,7 +109,7 @@ impl NodeMesh {
         // bounds are unusable the encoder reports it.
         pc.positions = codec::snap_positions(&pc.positions, &self.bounds, q)
             .unwrap_or_else(|_| codec::quantize_positions(&pc.positions, &self.bounds, q));
-        let errors = lod::cpu::measure_points(&self.mesh, &pc, cell);
+        let errors = lod::cpu::measure_points(&self.mesh, &pc, cell, lod::TERRAIN_FOOTPRINT_HALF);
         (pc, errors, q)
     }
 }

@@ -195,6 +195,7 @@ pub fn level_specs(opts: &BakeOptions) -> Vec<LevelSpec> {
         cell_leaf_cells: None,
         texture_size: None,
         precision_per_cell: None,
+        footprint_half: None,
     }];
     for l in 1..=opts.levels {
         let cells = 1u32 << l;
@@ -205,6 +206,7 @@ pub fn level_specs(opts: &BakeOptions) -> Vec<LevelSpec> {
             cell_leaf_cells: Some(cells),
             texture_size: Some(opts.tile_size.div_ceil(cells)),
             precision_per_cell: Some(POINT_STEPS_PER_CELL),
+            footprint_half: Some(lod::TERRAIN_FOOTPRINT_HALF),
         });
     }
     out

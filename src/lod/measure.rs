@@ -383,7 +383,7 @@ fn sample_triangle(t: &[V3; 3], owned: [bool; 3], s: f64, mut f: impl FnMut(V3))
 }
 
 /// See [`super::cpu::measure_points`].
-pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
+pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_half: f64) -> Errors {
     let tris = valid_triangles(mesh);
     if tris.is_empty() {
         return Errors::default();
@@ -454,11 +454,27 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
 
     let mut max2 = 0.0f64;
     let mut sum2 = 0.0f64;
-    for &p in &pts {
-        let (d2, _) =
-            tri_grid.nearest2(p, 0.0, tris.len() as u32, |i| point_triangle_dist2(p, &tris[i as usize].0));
+    let dist2 = |q: V3| {
+        tri_grid.nearest2(q, 0.0, tris.len() as u32, |i| point_triangle_dist2(q, &tris[i as usize].0)).0
+    };
+    let mut corners = Vec::with_capacity(12);
+    for (i, &p) in points.positions.iter().enumerate() {
+        let p = DVec3::from_array(p);
+        if !p.is_finite() {
+            continue;
+        }
+        let d2 = dist2(p);
         max2 = max2.max(d2);
         sum2 += d2;
+        // The level as drawn: the footprint's corners reach farthest from the point.
+        let n = points
+            .normals
+            .get(i)
+            .map_or(DVec3::Z, |n| DVec3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2])));
+        super::footprint::footprint_corners(p, n, footprint_half * base, &mut corners);
+        for &q in &corners {
+            max2 = max2.max(dist2(q));
+        }
     }
 
     // Only samples farther than the current gap can raise it, so each query may stop at the

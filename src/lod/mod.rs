@@ -5,9 +5,11 @@
 mod baker;
 pub mod cpu;
 mod fasthash;
+mod footprint;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 mod measure;
+pub use footprint::{MODEL_FOOTPRINT_HALF, TERRAIN_FOOTPRINT_HALF};
 
 #[cfg(feature = "gpu")]
 pub(crate) use baker::cells_to_cloud;

@@ -100,6 +100,11 @@ pub struct LevelSpec {
     /// Points: quantization step as a fraction of the cell edge.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub precision_per_cell: Option<u32>,
+    /// Points: half-width, in cells, of the cube each point's footprint is clipped to (how the
+    /// level is drawn and measured; see `lod::footprint_half`). Absent in tilesets baked before
+    /// it was recorded: the kind's default then.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub footprint_half: Option<f64>,
 }
 
 /// Per-level figures of one node.

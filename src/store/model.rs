@@ -130,6 +130,7 @@ impl ModelManifest {
                 cell_leaf_cells: None,
                 texture_size: l.resolution,
                 precision_per_cell: l.resolution.map(|_| precision_per_cell),
+                footprint_half: l.resolution.map(|_| crate::lod::MODEL_FOOTPRINT_HALF),
             })
             .collect();
         Self {

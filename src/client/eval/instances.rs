@@ -84,7 +84,8 @@ pub struct FrameCounts {
 }
 
 impl InstanceBench {
-    /// Uploads the model's levels (`levels[l]` with its point spacing in world units; level 0
+    /// Uploads the model's levels (`levels[l]` with its point spacing in world units and its
+    /// footprint half-width in cells; level 0
     /// must be the mesh). Positions are uploaded relative to `origin`.
     pub fn new(
         device: wgpu::Device,
@@ -92,13 +93,13 @@ impl InstanceBench {
         width: u32,
         height: u32,
         origin: glam::DVec3,
-        levels: &[(Blob, f64)],
+        levels: &[(Blob, f64, f64)],
     ) -> Result<Self, GpuError> {
         let max = device.limits().max_texture_dimension_2d;
         if width == 0 || height == 0 || width > max || height > max {
             return Err(GpuError::Viewport { stage: "instances", width, height, max });
         }
-        if !matches!(levels.first(), Some((Blob { geometry: Geometry::Mesh(_), .. }, _))) {
+        if !matches!(levels.first(), Some((Blob { geometry: Geometry::Mesh(_), .. }, _, _))) {
             return Err(GpuError::NotAMesh);
         }
         let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
@@ -166,7 +167,7 @@ impl InstanceBench {
         let rel =
             |p: [f64; 3]| [(p[0] - origin[0]) as f32, (p[1] - origin[1]) as f32, (p[2] - origin[2]) as f32];
         let mut gpu_levels = Vec::with_capacity(levels.len());
-        for (blob, spacing) in levels {
+        for (blob, spacing, half) in levels {
             match &blob.geometry {
                 Geometry::Mesh(m) => {
                     let normals = vertex_normals(&m.positions, &m.triangles);
@@ -198,7 +199,7 @@ impl InstanceBench {
                         })
                         .collect();
                     let sb = buf("instances points", bytemuck::cast_slice(&pts), wgpu::BufferUsages::STORAGE);
-                    let lv = [*spacing as f32, 0.0, 0.0, 0.0];
+                    let lv = [*spacing as f32, *half as f32, 0.0, 0.0];
                     let ub = buf("instances level", bytemuck::cast_slice(&lv), wgpu::BufferUsages::UNIFORM);
                     let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
                         label: Some("instances level"),

@@ -22,7 +22,7 @@ use crate::client::eval::analysis::{
     self, CameraPlan, CameraResult, Confusion, DepthDiff, EvalReport, InstanceRow, Subject, linear_depth,
 };
 use crate::client::eval::instances::InstanceBench;
-use crate::client::render::{Renderer, covered};
+use crate::client::render::{Renderer, covered, footprint_half};
 use crate::client::select::{AllResident, DrawItem, SelectParams, Selector, skirt_depth};
 use crate::client::tree::TileTree;
 use crate::codec::{self, Blob, Geometry};
@@ -79,6 +79,8 @@ struct Tileset {
     bounds: Bounds,
     /// Point spacing (world units) of level `l` at depth `z`: `spacing[l] * step(z)`.
     spacing: Vec<f64>,
+    /// Footprint half-width (cells) of each point level.
+    half: Vec<f64>,
     levels: Vec<String>,
     blobs: HashMap<(TileKey, u8), Blob>,
 }
@@ -133,7 +135,17 @@ impl Tileset {
         if tree.is_empty() {
             return Err(EvalError::EmptyIndex(dir.to_owned()));
         }
-        Ok(Self { store, subject, tree, bounds: manifest.bounds, spacing, levels, blobs: HashMap::new() })
+        let half = (0..manifest.levels.len()).map(|l| footprint_half(&manifest, l as u8)).collect();
+        Ok(Self {
+            store,
+            subject,
+            tree,
+            bounds: manifest.bounds,
+            spacing,
+            half,
+            levels,
+            blobs: HashMap::new(),
+        })
     }
 
     fn blob(&mut self, key: TileKey, level: u8) -> Result<&Blob, EvalError> {
@@ -169,12 +181,13 @@ impl Tileset {
                 Subject::Model => 0.0,
             };
             let spacing = self.point_spacing(d.key, d.level);
+            let half = self.half.get(usize::from(d.level)).copied().unwrap_or(0.0);
             let blob = self.blob(d.key, d.level)?;
             match &blob.geometry {
                 Geometry::Mesh(m) => triangles += m.triangles.len() as u64,
                 Geometry::Points(p) => points += p.positions.len() as u64,
             }
-            r.upload(blob, depth, outer.as_ref(), spacing);
+            r.upload(blob, depth, outer.as_ref(), spacing, half);
         }
         Ok((points, triangles))
     }
@@ -265,7 +278,7 @@ pub fn run(
         let outer = ts.outer();
         let spacing = ts.point_spacing(d.key, 0);
         let blob = ts.blob(d.key, 0)?;
-        reference.upload(blob, 0.0, outer.as_ref(), spacing);
+        reference.upload(blob, 0.0, outer.as_ref(), spacing, 0.0);
     }
     let level_count = tree.nodes().iter().map(crate::client::tree::TreeNode::level_count).max().unwrap_or(1);
     let mut selector = Selector::new(SelectParams {
@@ -386,7 +399,7 @@ fn instances(
     let mut levels = Vec::with_capacity(n_levels);
     for l in 0..n_levels {
         let spacing = ts.point_spacing(key, l as u8);
-        levels.push((ts.blob(key, l as u8)?.clone(), spacing));
+        levels.push((ts.blob(key, l as u8)?.clone(), spacing, ts.half.get(l).copied().unwrap_or(0.0)));
     }
     let errors = tree.level_errors(root).to_vec();
     let (c, r) = analysis::bounding_sphere(&ts.bounds);

@@ -58,8 +58,10 @@ struct Globals {
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct TileUniform {
+    /// A point level's cell edge (world units) and footprint half-width (cells).
     spacing: f32,
-    pad: [f32; 3],
+    half: f32,
+    pad: [f32; 2],
     /// The dataset's horizontal extent relative to the origin (min x, min y, max x, max y):
     /// splats are clipped to it (terrain does not go on past its raster).
     extent: [f32; 4],
@@ -231,9 +233,17 @@ impl Renderer {
     }
 
     /// Uploads a decoded blob once: a mesh with skirts `skirt_depth` deep (none on the dataset's
-    /// `outer` border), or points drawn as oriented splats for a `point_spacing` (world units)
-    /// apart, clipped horizontally to `outer`.
-    pub fn upload(&mut self, blob: &Blob, skirt_depth: f64, outer: Option<&Bounds>, point_spacing: f64) {
+    /// `outer` border), or points drawn as footprints for a level of cell edge `point_spacing`
+    /// (world units) and footprint half-width `footprint_half` (cells; see [`footprint_half`]),
+    /// clipped horizontally to `outer`.
+    pub fn upload(
+        &mut self,
+        blob: &Blob,
+        skirt_depth: f64,
+        outer: Option<&Bounds>,
+        point_spacing: f64,
+        footprint_half: f64,
+    ) {
         let key = (blob.header.key, blob.header.level);
         if self.tiles.contains_key(&key) {
             return;
@@ -282,7 +292,8 @@ impl Renderer {
             let (lo, hi) = (rel(b.min.to_array()), rel(b.max.to_array()));
             [lo[0], lo[1], hi[0], hi[1]]
         });
-        let u = TileUniform { spacing: point_spacing as f32, pad: [0.0; 3], extent };
+        let u =
+            TileUniform { spacing: point_spacing as f32, half: footprint_half as f32, pad: [0.0; 2], extent };
         let ub = buf("tile uniform", bytemuck::bytes_of(&u), wgpu::BufferUsages::UNIFORM);
         let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("render tile"),
@@ -567,6 +578,23 @@ pub fn point_spacing(manifest: &Manifest, tree: &TileTree, key: TileKey, level: 
         (Some(t), Some(n)) if t > 0 => {
             let s = tree.node(n).bounds.size();
             s[0].abs().max(s[1].abs()).max(s[2].abs()) / f64::from(t)
+        }
+        _ => 0.0,
+    }
+}
+
+/// Footprint half-width (cells) of point `level`: the manifest's `footprint_half`, or for a
+/// tileset baked before it was recorded the kind's default (terrain levels have a
+/// `cell_leaf_cells`); 0 for a mesh level.
+#[must_use]
+pub fn footprint_half(manifest: &Manifest, level: u8) -> f64 {
+    match manifest.levels.get(usize::from(level)) {
+        Some(spec) if spec.kind == crate::codec::Kind::Points => {
+            spec.footprint_half.unwrap_or(if spec.cell_leaf_cells.is_some() {
+                crate::lod::TERRAIN_FOOTPRINT_HALF
+            } else {
+                crate::lod::MODEL_FOOTPRINT_HALF
+            })
         }
         _ => 0.0,
     }

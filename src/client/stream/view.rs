@@ -3,7 +3,7 @@
 
 use std::collections::HashMap;
 
-use crate::client::render::{Renderer, point_spacing};
+use crate::client::render::{Renderer, footprint_half, point_spacing};
 use crate::client::select::skirt_depth;
 use crate::client::stream::session::Session;
 use crate::codec::Geometry;
@@ -77,7 +77,8 @@ impl SessionView {
                 self.renderer.evict(d.key, d.level);
             }
             let spacing = point_spacing(session.manifest(), session.tree(), d.key, d.level);
-            self.renderer.upload(blob, depth, Some(&self.outer), spacing);
+            let half = footprint_half(session.manifest(), d.level);
+            self.renderer.upload(blob, depth, Some(&self.outer), spacing, half);
             // Point levels have no skirts: any depth will do for them.
             let kept = if matches!(blob.geometry, Geometry::Mesh(_)) { depth } else { f64::INFINITY };
             self.skirts.insert((d.key, d.level), kept);

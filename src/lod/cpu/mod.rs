@@ -292,8 +292,12 @@ pub fn bake_cells(
 }
 
 /// Measures a point level against the mesh it was baked from, in world units:
-/// - `max` / `rms`: the distance from each point to its nearest triangle (exact point–triangle
-///   distance);
+/// - `max`: the largest distance to the nearest triangle (exact point–triangle distance) from
+///   the level *as drawn*: each point and the corners of its footprint, its tangent plane
+///   clipped to the cube of half-width `footprint_half · cell` centred on it
+///   (the corners reach farthest; where a footprint sticks out past a silhouette or across a
+///   thin part, they measure how far);
+/// - `rms`: the root mean square of the points' own distances;
 /// - `gap`: the largest distance from a surface sample to its nearest point, samples taken on
 ///   every triangle along its edges (vertices included) and in rows across it at a spacing of
 ///   at most `cell / 4` — so `gap` is the true value within `cell / 8`.
@@ -303,8 +307,8 @@ pub fn bake_cells(
 /// whole surface is a hole). An invalid `cell` (not finite and positive) falls back to
 /// 1/256 of that diagonal. Cost grows with the surface area / cell² (the gap samples).
 #[must_use]
-pub fn measure_points(mesh: &Mesh, points: &PointCloud, cell: f64) -> Errors {
-    super::measure::measure(mesh, points, cell)
+pub fn measure_points(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_half: f64) -> Errors {
+    super::measure::measure(mesh, points, cell, footprint_half)
 }
 
 /// Cell key, ordered as the output: by `k`, then `j`, then `i`.

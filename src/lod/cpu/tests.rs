@@ -167,7 +167,7 @@ fn flat_square_gives_one_point_per_column_on_the_plane() {
         assert_eq!(c.normal, [0.0, 0.0, 1.0]);
     }
     let cloud = bake_points(&m, [0.0; 3], 1.0);
-    let e = measure_points(&m, &cloud, 1.0);
+    let e = point_errors(&m, &cloud, 1.0);
     assert!(e.max < 1e-12 && e.rms < 1e-12, "{e:?}");
     // Corners of the square are √½ from the nearest pixel centre.
     assert!((e.gap - 0.5f64.sqrt()).abs() < 0.01, "{e:?}");
@@ -217,7 +217,7 @@ fn tilted_plane_points_lie_on_it_without_holes() {
         let n = (0.3f64 * 0.3 + 0.2 * 0.2 + 1.0).sqrt();
         assert!((p[2] - f(p[0], p[1])).abs() / n < 2.0 * cell / POS_ONE, "{p:?}");
     }
-    let e = measure_points(&m, &cloud, cell);
+    let e = point_errors(&m, &cloud, cell);
     assert!(e.max < 1e-4 * cell && e.gap < cell, "{e:?}");
 }
 
@@ -229,7 +229,7 @@ fn steep_slope_is_covered_by_the_side_views() {
     let cell = 1.0;
     let (cloud, stats) = bake_points_with_stats(&m, [0.0; 3], cell);
     assert!(stats.fragments[0] > 2 * stats.fragments[2], "{stats:?}");
-    let e = measure_points(&m, &cloud, cell);
+    let e = point_errors(&m, &cloud, cell);
     assert!(e.gap < cell && e.max < 1e-4, "{e:?}");
 }
 
@@ -258,7 +258,7 @@ fn closed_sphere_gets_points_on_all_sides_and_none_inside() {
         assert!(e.abs() > r - cell, "side {a}: {e}");
     }
     let cloud = bake_points(&m, [0.0; 3], cell);
-    let e = measure_points(&m, &cloud, cell);
+    let e = point_errors(&m, &cloud, cell);
     assert!(e.max < 0.1 * cell && e.gap < cell, "{e:?}");
 }
 
@@ -410,7 +410,7 @@ fn measure_matches_brute_force() {
         normals: vec![[0.0, 0.0, 1.0]; 60],
     };
     let cell = 0.7;
-    let e = measure_points(&m, &points, cell);
+    let e = point_errors(&m, &points, cell);
     let d: Vec<f64> = points.positions.iter().map(|&p| dist_to_mesh(&m, p)).collect();
     let max = d.iter().copied().fold(0.0, f64::max);
     let rms = (d.iter().map(|v| v * v).sum::<f64>() / d.len() as f64).sqrt();
@@ -453,8 +453,8 @@ fn degenerate_inputs_give_empty_results() {
     assert_eq!(stats.skipped_triangles, 3);
 
     let cloud = bake_points(&m, [0.0; 3], 0.5);
-    assert_eq!(measure_points(&Mesh::default(), &cloud, 0.5), Errors::default());
-    let e = measure_points(&m, &PointCloud::default(), 0.5);
+    assert_eq!(measure_points(&Mesh::default(), &cloud, 0.5, 0.6), Errors::default());
+    let e = measure_points(&m, &PointCloud::default(), 0.5, 0.6);
     assert!(e.max == 0.0 && (e.gap - 8.0f64.sqrt()).abs() < 1e-12, "{e:?}");
 }
 
@@ -464,7 +464,7 @@ fn terrain_tile_has_no_holes() {
     let cell = 2.0;
     let (cloud, stats) = bake_points_with_stats(&m, [0.0, 0.0, -50.0], cell);
     assert!(stats.fragments[0] > 0 && stats.fragments[1] > 0, "{stats:?}");
-    let e = measure_points(&m, &cloud, cell);
+    let e = point_errors(&m, &cloud, cell);
     // Inside the tile the side views keep the gap under a cell; along the tile's border
     // the surface beyond the last pixel centre (half a cell) is sampled only where it
     // crosses a slice, so the gap there reaches about √½·√(1 + slope²) cells.
@@ -531,7 +531,7 @@ fn time_terrain_tile() {
         times.sort_by(f64::total_cmp);
         let (bake, median) = (times[0], times[times.len() / 2]);
         let t = std::time::Instant::now();
-        let e = measure_points(&m, &cloud, cell);
+        let e = measure_points(&m, &cloud, cell, 0.6);
         let measure = t.elapsed().as_secs_f64();
         eprintln!(
             "{} triangles: bake {:.2} ms (median {:.2}; {} points, {stats:?}), measure {:.1} ms {e:?}",
@@ -578,4 +578,30 @@ proptest! {
             prop_assert!((len - 1.0).abs() < 1e-5);
         }
     }
+}
+
+/// The errors with every point measured as a point (no normals, so no footprints): what the
+/// slicing itself put where, before the footprints the renderer draws around each point.
+fn point_errors(m: &Mesh, cloud: &PointCloud, cell: f64) -> Errors {
+    let bare =
+        PointCloud { positions: cloud.positions.clone(), normals: vec![[0.0; 3]; cloud.positions.len()] };
+    measure_points(m, &bare, cell, 0.6)
+}
+
+#[test]
+fn max_error_covers_a_footprint_tilted_off_the_surface() {
+    // A flat 8 × 8 square; one point at its centre with its normal tilted 45° about x: the
+    // footprint's corners lie half a footprint's width above and below the plane.
+    let m = Mesh {
+        positions: vec![[0.0, 0.0, 0.0], [8.0, 0.0, 0.0], [8.0, 8.0, 0.0], [0.0, 8.0, 0.0]],
+        triangles: vec![[0, 1, 2], [0, 2, 3]],
+    };
+    let s = std::f32::consts::FRAC_1_SQRT_2;
+    let cell = 1.0;
+    let tilted = PointCloud { positions: vec![[4.0, 4.0, 0.0]], normals: vec![[0.0, s, s]] };
+    let e = measure_points(&m, &tilted, cell, 0.6);
+    assert!((e.max - 0.6 * cell).abs() < 1e-6, "{e:?}");
+    assert!(e.rms < 1e-12, "{e:?}");
+    let flat = PointCloud { positions: vec![[4.0, 4.0, 0.0]], normals: vec![[0.0, 0.0, 1.0]] };
+    assert!(measure_points(&m, &flat, cell, 0.6).max < 1e-12);
 }
