@@ -26,7 +26,7 @@ pub const TERRAIN_FOOTPRINT_HALF: f64 = 0.9;
 /// zero or non-finite normal (drawn as a half-pixel dot at `p`).
 pub(crate) fn footprint_corners(p: DVec3, n: DVec3, h: f64, out: &mut Vec<DVec3>) {
     out.clear();
-    if !n.is_finite() || n.abs().max_element() < 1e-6 || !(h > 0.0) {
+    if !n.is_finite() || n.abs().max_element() < 1e-6 || h.is_nan() || h <= 0.0 {
         return;
     }
     let n = n.normalize();
