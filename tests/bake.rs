@@ -37,10 +37,12 @@ fn fuji_bake_errors_borders_determinism_resume() {
     let m = store.manifest().unwrap();
     assert_eq!((m.source.width, m.source.height, m.tile_size, m.depth), (512, 512, 128, 2));
     let pyramid = Pyramid::new(512, 512, 128).unwrap();
+    // Only levels that pay are stored, and the index says which (issue 13).
+    let (nodes, stored, left_out) = common::assert_levels_pay(&a);
+    assert_eq!((nodes, stored + left_out), (21, 21 * 4));
     let mut meshes = BTreeMap::new();
     for key in pyramid.nodes() {
         let node = store.node(key).unwrap().unwrap();
-        assert_eq!(node.levels.len(), 4);
         let step = f64::from(pyramid.step(key.z));
         let blob = decode(&store, key, 0);
         // Leaves hold every full-resolution sample within the bound (plus half a z quantization
@@ -55,9 +57,9 @@ fn fuji_bake_errors_borders_determinism_resume() {
         }
         assert!(e.max > 0.0 && e.rms <= e.max);
         assert_eq!(blob.header.errors, node.levels[0].errors);
-        for l in 1..4u8 {
+        for l in node.levels.iter().map(|l| l.level).filter(|&l| l > 0) {
             let pts = decode(&store, key, l);
-            let e = node.levels[usize::from(l)].errors;
+            let e = node.level(l).unwrap().errors;
             let cell = 30.0 * step * f64::from(1u32 << l);
             assert!(matches!(pts.geometry, Geometry::Points(ref p) if !p.positions.is_empty()));
             // `max` is measured on the level as drawn: a point within half a cell of the surface,
@@ -102,7 +104,19 @@ fn fuji_bake_errors_borders_determinism_resume() {
     // Resume: delete some blobs and the manifest, bake again, get the same tree.
     std::fs::remove_file(b.join("tileset.json")).unwrap();
     std::fs::remove_file(store_blob(&b, TileKey::new(2, 1, 2), 0)).unwrap();
-    std::fs::remove_file(store_blob(&b, TileKey::new(0, 0, 0), 3)).unwrap();
+    // A point blob lost since is baked again (the node's other levels say it was stored), and
+    // so is a lost `unpaid` marker.
+    let root = store.node(TileKey::new(0, 0, 0)).unwrap().unwrap();
+    let kept = root.levels.last().unwrap().level;
+    if kept > 0 {
+        std::fs::remove_file(store_blob(&b, TileKey::new(0, 0, 0), kept)).unwrap();
+    }
+    for l in 1..4u8 {
+        if root.level(l).is_none() {
+            std::fs::remove_file(Store::new(&b).unpaid_path(TileKey::new(0, 0, 0), l)).unwrap();
+            break;
+        }
+    }
     std::fs::remove_dir_all(b.join("index")).unwrap();
     let summary = bake_fuji(&b);
     assert!(summary.contains("(19 resumed)"), "{summary}");
@@ -127,7 +141,9 @@ fn fuji_bake_errors_borders_determinism_resume() {
     assert_eq!(json["depth"], 2);
     let node: serde_json::Value =
         serde_json::from_str(&ok(bin().arg("inspect").arg(&a).args(["--json", "--tile", "1/1/0"]))).unwrap();
-    assert_eq!(node["levels"].as_array().unwrap().len(), 4);
+    let stored_1_1_0 = store.node(TileKey::new(1, 1, 0)).unwrap().unwrap().levels.len();
+    assert_eq!(node["levels"].as_array().unwrap().len(), stored_1_1_0);
+    assert!(text.contains("levels per node"), "{text}");
     let ply = tmp.path().join("t.ply");
     ok(bin()
         .arg("export")

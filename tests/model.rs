@@ -193,15 +193,18 @@ fn every_encoding_reads_the_same_cube() {
         assert_eq!(m.stats.degenerate, 0);
     }
 
-    // Baked, every encoding gives byte-identical point levels (the same surface), and the
-    // PLY encodings (same vertex order) identical level 0 meshes.
-    let mut points: Option<Vec<Vec<u8>>> = None;
+    // Baked, every encoding gives the same point levels (the same surface: the counts, bytes
+    // and errors of every baked level, stored or not — on an 8-vertex cube no point level pays,
+    // so none is stored), and the PLY encodings (same vertex order) identical
+    // level 0 meshes.
+    let mut points: Option<Vec<terrastream::bake::model::ModelLevel>> = None;
     for (path, _) in &files {
         let out = d.join(format!("ts-{}", path.file_name().unwrap().to_string_lossy()));
         bake(path, &out, &["--resolutions", "12,6"]);
         let store = Store::new(&out);
-        let levels: Vec<Vec<u8>> =
-            (1..=2).map(|l| store.read_blob(MODEL_TILE, l).unwrap().unwrap()).collect();
+        let levels = bake_model::read_manifest(&store).unwrap().model.levels[1..].to_vec();
+        assert!(levels.iter().all(|l| !l.stored && l.count > 8), "{levels:?}");
+        assert_eq!(common::assert_levels_pay(&out), (1, 1, 2));
         match &points {
             None => points = Some(levels),
             Some(p) => assert!(p == &levels, "{} bakes other points", path.display()),
@@ -395,8 +398,12 @@ fn stanford_bunny_next_to_the_papers_table_3() {
         assert!(info.errors.max > 0.0 && info.errors.max < cell, "{info:?}");
         assert!(info.errors.gap > 0.0 && info.errors.gap < 2.0 * cell, "{info:?}");
     }
-    // Blobs hold what the manifest says, and points carry unit normals.
-    for info in levels {
+    // Only levels that pay are stored (issue 13); blobs hold what the manifest says, and
+    // points carry unit normals.
+    let (_, stored, left_out) = common::assert_levels_pay(&out);
+    assert_eq!(stored + left_out, 5);
+    assert_eq!(stored, levels.iter().filter(|l| l.stored).count());
+    for info in levels.iter().filter(|l| l.stored) {
         let blob = decode(&store, info.level);
         assert_eq!(blob.header.vertex_count, info.count);
         assert_eq!(blob.header.errors, info.errors);

@@ -341,6 +341,7 @@ pub fn bake_model(
             filled: None,
             errors: mesh_errors,
             bytes: blob0.len() as u64,
+            stored: true,
         },
         blob: blob0,
     };
@@ -382,6 +383,7 @@ pub fn bake_model(
                     filled: Some(filled),
                     errors,
                     bytes: blob.len() as u64,
+                    stored: true,
                 },
                 blob,
             })
@@ -389,7 +391,7 @@ pub fn bake_model(
         .collect::<Result<_, ModelBakeError>>()?;
     let bake_seconds = t0.elapsed().as_secs_f64();
 
-    let levels: Vec<BakedLevel> = std::iter::once(level0).chain(points).collect();
+    let mut levels: Vec<BakedLevel> = std::iter::once(level0).chain(points).collect();
     let options_json = serde_json::json!({
         "kind": TilesetKind::Model,
         "resolutions": opts.resolutions,
@@ -397,20 +399,25 @@ pub fn bake_model(
         "format_version": codec::FORMAT_VERSION,
     });
     let resumed = store.begin_bake(&options_json)?;
-    // Points first, the mesh last, as `bake` does: a node is complete when all levels exist.
-    for l in levels.iter().rev() {
-        store.write_blob(MODEL_TILE, l.info.level, &l.blob)?;
-    }
-    let node_levels: Vec<NodeLevel> = levels
+    // Only the levels that pay are stored; points first, the mesh last, as `bake` does.
+    let blobs = levels
         .iter()
-        .map(|l| NodeLevel {
-            errors: l.info.errors,
-            count: l.info.count,
-            triangles: l.info.triangles,
-            bytes: l.info.bytes,
-            checksum: l.checksum,
+        .map(|l| {
+            let nl = NodeLevel {
+                level: l.info.level,
+                errors: l.info.errors,
+                count: l.info.count,
+                triangles: l.info.triangles,
+                bytes: l.info.bytes,
+                checksum: l.checksum,
+            };
+            (nl, l.blob.clone())
         })
         .collect();
+    let node_levels = super::node::write_paying(store, MODEL_TILE, blobs)?;
+    for l in &mut levels {
+        l.info.stored = node_levels.iter().any(|n| n.level == l.info.level);
+    }
     store.write_chunk(&IndexChunk {
         root: MODEL_TILE,
         nodes: vec![NodeEntry { key: MODEL_TILE, bounds, levels: node_levels.clone() }],

@@ -8,7 +8,7 @@ use crate::codec::{self, Quantization};
 use crate::geom::{Bounds, Errors, Mesh, PointCloud};
 use crate::lod::{self, PointBaker};
 use crate::raster::{Georef, LoadedRaster, WindowReader};
-use crate::store::{NodeEntry, NodeLevel, Store};
+use crate::store::{self, NodeEntry, NodeLevel, Store};
 use crate::tiling::{Pyramid, TileKey};
 use crate::tin;
 
@@ -219,7 +219,8 @@ pub(super) fn finish_node(nm: NodeMesh, clouds: Vec<PointCloud>) -> (NodeBake, V
     (nb, quants)
 }
 
-/// Encodes and writes one baked node's blobs; returns its index entry.
+/// Encodes one baked node's levels, keeps those that pay ([`store::levels_that_pay`]) and
+/// writes their blobs (the others get an `unpaid` marker); returns its index entry.
 pub(super) fn write_node(
     nb: &NodeBake,
     quants: &[Quantization],
@@ -227,44 +228,66 @@ pub(super) fn write_node(
 ) -> Result<NodeEntry, BakeError> {
     let key = nb.key;
     let codec_err = |level: u8| move |source| BakeError::Codec { key, level, source };
-    let mut levels = Vec::with_capacity(nb.points.len() + 1);
     let mesh_blob =
         codec::encode_mesh(key, 0, &nb.bounds, quants[0], &nb.mesh, nb.mesh_errors).map_err(codec_err(0))?;
-    let mut blobs = vec![mesh_blob];
-    levels.push(NodeLevel {
-        errors: nb.mesh_errors,
-        count: nb.mesh.positions.len() as u32,
-        triangles: nb.mesh.triangles.len() as u32,
-        bytes: 0,
-        checksum: 0,
-    });
+    let mut blobs = vec![(
+        NodeLevel {
+            level: 0,
+            errors: nb.mesh_errors,
+            count: nb.mesh.positions.len() as u32,
+            triangles: nb.mesh.triangles.len() as u32,
+            bytes: mesh_blob.len() as u64,
+            checksum: codec::decode_header(&mesh_blob).map_err(codec_err(0))?.checksum,
+        },
+        mesh_blob,
+    )];
     for (k, (pc, errors)) in nb.points.iter().enumerate() {
         let level = k as u8 + 1;
-        blobs.push(
-            codec::encode_points(key, level, &nb.bounds, quants[k + 1], pc, *errors)
-                .map_err(codec_err(level))?,
-        );
-        levels.push(NodeLevel {
+        let blob = codec::encode_points(key, level, &nb.bounds, quants[k + 1], pc, *errors)
+            .map_err(codec_err(level))?;
+        let info = NodeLevel {
+            level,
             errors: *errors,
             count: pc.positions.len() as u32,
             triangles: 0,
-            bytes: 0,
-            checksum: 0,
-        });
+            bytes: blob.len() as u64,
+            checksum: codec::decode_header(&blob).map_err(codec_err(level))?.checksum,
+        };
+        blobs.push((info, blob));
     }
-    // Mesh last: a node counts as complete on resume only when all its levels exist, and the
-    // order makes an interrupted node's missing blob the cheap one to notice.
-    for (level, bytes) in blobs.iter().enumerate().rev() {
-        store.write_blob(key, level as u8, bytes)?;
-        levels[level].bytes = bytes.len() as u64;
-        levels[level].checksum = codec::decode_header(bytes).map_err(codec_err(level as u8))?.checksum;
-    }
+    let levels = write_paying(store, key, blobs)?;
     Ok(NodeEntry { key, bounds: nb.bounds, levels })
 }
 
-/// The index entry of a node whose every level blob is present, whole and valid (it decodes completely: exact
-/// length, payload checksum, geometry inside its bounds — see [`codec::decode`]) and names that
-/// node and level, rebuilt from the blob headers; `None` for anything else — missing,
+/// Writes the blobs of one node's levels that pay and the `unpaid` markers of the others,
+/// coarsest first and the mesh (level 0) last: a node counts as complete on resume only once its
+/// mesh blob exists, and then every other level has its blob or its marker. Returns the kept
+/// levels, finest first. Shared by terrain nodes and model tilesets.
+pub(crate) fn write_paying(
+    store: &Store,
+    key: TileKey,
+    blobs: Vec<(NodeLevel, Vec<u8>)>,
+) -> Result<Vec<NodeLevel>, store::StoreError> {
+    let infos: Vec<NodeLevel> = blobs.iter().map(|(l, _)| *l).collect();
+    let pays = store::levels_that_pay(&infos);
+    let mut kept = Vec::with_capacity(blobs.len());
+    for ((info, bytes), pays) in blobs.into_iter().zip(pays).rev() {
+        if pays {
+            store.write_blob(key, info.level, &bytes)?;
+            kept.push(info);
+        } else {
+            store.write_unpaid(key, info.level)?;
+        }
+    }
+    kept.reverse();
+    Ok(kept)
+}
+
+/// The index entry of a node whose mesh blob and every point level's blob are present, whole
+/// and valid (they decode completely: exact length, payload checksum, geometry inside their
+/// bounds — see [`codec::decode`]) and name that node and level — or, for a point level, whose
+/// `unpaid` marker says it was left out — rebuilt from the blob headers, and holding only the
+/// levels that pay (an earlier version stored them all); `None` for anything else — missing,
 /// truncated, extended, flipped, or written by a version whose blobs this one refuses — which a
 /// resumed bake bakes again (replacing its blobs).
 #[must_use]
@@ -272,7 +295,12 @@ pub fn node_from_blobs(store: &Store, key: TileKey, levels: u8) -> Option<NodeEn
     let mut out = Vec::new();
     let mut bounds = None;
     for level in 0..=levels {
-        let bytes = store.read_blob(key, level).ok()??;
+        let Some(bytes) = store.read_blob(key, level).ok()? else {
+            if level > 0 && store.is_unpaid(key, level) {
+                continue;
+            }
+            return None;
+        };
         let h = match codec::decode(&bytes) {
             Ok(b) => b.header,
             Err(e) => {
@@ -285,12 +313,21 @@ pub fn node_from_blobs(store: &Store, key: TileKey, levels: u8) -> Option<NodeEn
         }
         bounds.get_or_insert(Bounds::new(h.bounds[0], h.bounds[1]));
         out.push(NodeLevel {
+            level,
             errors: h.errors,
             count: h.vertex_count,
             triangles: h.triangle_count,
             bytes: bytes.len() as u64,
             checksum: h.checksum,
         });
+    }
+    let pays = store::levels_that_pay(&out);
+    if pays.iter().any(|p| !p) {
+        // Blobs of a bake from before levels had to pay: mark the ones that do not.
+        for (l, _) in out.iter().zip(&pays).filter(|(_, p)| !**p) {
+            store.write_unpaid(key, l.level).ok()?;
+        }
+        out = out.into_iter().zip(pays).filter(|(_, p)| *p).map(|(l, _)| l).collect();
     }
     Some(NodeEntry { key, bounds: bounds?, levels: out })
 }

@@ -1,8 +1,8 @@
 //! `terrastream eval`: the first paper's LOD evaluation of a tileset (section 4.6).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use terrastream::client;
 
 #[derive(clap::Args)]
@@ -43,6 +43,17 @@ pub struct EvalArgs {
     /// Frames timed per configuration (median reported; one warm-up frame before).
     #[arg(long, default_value_t = client::eval::DEFAULT_FRAMES)]
     pub frames: u32,
+    /// Also replay this flight (JSON, as `client --flight`) over the tileset with everything
+    /// resident: primitives and bytes drawn per frame and bytes streamed, written to
+    /// OUT/flight.json.
+    #[arg(long)]
+    pub flight: Option<PathBuf>,
+    /// Frames per second of the flight replay.
+    #[arg(long, default_value_t = 30.0)]
+    pub flight_fps: f64,
+    /// Skip the large-terrain frame-time experiment on terrain tilesets.
+    #[arg(long)]
+    pub no_frame_times: bool,
     /// Print only the summary (no per-camera progress).
     #[arg(long)]
     pub quiet: bool,
@@ -70,6 +81,58 @@ pub fn run(a: &EvalArgs) -> Result<()> {
     })?;
     let path = evaluate::write_report(&report, &samples, &a.out)?;
     eprintln!("report: {}", path.display());
-    outln!("{}", report.text());
+    let mut extra = Vec::new();
+    if report.subject == evaluate::analysis::Subject::Terrain && !a.no_frame_times {
+        let f = evaluate::frames::terrain_frames(&a.dir, &opts, |line| {
+            if !quiet {
+                eprintln!("{line}");
+            }
+        })?;
+        write_json(&a.out, "frames.json", &f)?;
+        extra.push(f.text());
+    }
+    if let Some(flight) = &a.flight {
+        let store = terrastream::store::Store::new(&a.dir);
+        let manifest = store.manifest()?;
+        let tree = if store.manifest_kind()? == terrastream::store::TilesetKind::Model {
+            let mut t = client::tree::TileTree::new(terrastream::tiling::Pyramid::new(2, 2, 1)?);
+            t.insert_chunk(&store.chunk(terrastream::tiling::TileKey::new(0, 0, 0))?)?;
+            t
+        } else {
+            client::tree::TileTree::load(&store)?
+        };
+        let f = client::stream::flight::Flight::load(flight)?;
+        let cost = evaluate::flight::flight_cost(
+            flight,
+            &tree,
+            &manifest.bounds,
+            &f,
+            (a.width, a.height, a.fov),
+            a.threshold,
+            a.flight_fps,
+        )?;
+        write_json(&a.out, "flight.json", &cost)?;
+        extra.push(cost.summary());
+    }
+    // The summary's last line stays `F-measure: …` (scripts read it).
+    let text = report.text();
+    let (head, last) = text.rsplit_once('\n').unwrap_or(("", &text));
+    outln!("{head}");
+    for e in &extra {
+        outln!("{e}");
+    }
+    outln!("{last}");
+    Ok(())
+}
+
+/// Writes `v` as `OUT/NAME` (pretty JSON), through a temporary file renamed into place.
+fn write_json<T: serde::Serialize>(out: &Path, name: &str, v: &T) -> Result<()> {
+    let p = out.join(name);
+    let tmp = out.join(format!(".{name}.tmp"));
+    let mut bytes = serde_json::to_vec_pretty(v)?;
+    bytes.push(b'\n');
+    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, &p).with_context(|| format!("writing {}", p.display()))?;
+    eprintln!("{name}: {}", p.display());
     Ok(())
 }

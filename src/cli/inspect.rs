@@ -4,7 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use terrastream::bake::model::{self, ModelLevelTable};
-use terrastream::store::{LevelTable, LevelTotals, Store};
+use terrastream::store::{LevelTable, LevelTotals, Store, level_sets};
+use terrastream::tiling::Pyramid;
 use terrastream::tiling::TileKey;
 
 use super::parse_key;
@@ -45,6 +46,11 @@ pub fn run(a: &InspectArgs) -> Result<()> {
             m.tileset.content_version
         );
         outln!("{}", ModelLevelTable(&m.model.levels));
+        let nodes: Vec<_> = store.node(TileKey::new(0, 0, 0))?.into_iter().collect();
+        outln!("levels per node (a node stores only the levels that pay):");
+        for (set, n) in level_sets(&nodes) {
+            outln!("  {n:>7} nodes: levels {set:?}");
+        }
         return Ok(());
     }
     if let Some(key) = tile {
@@ -55,15 +61,13 @@ pub fn run(a: &InspectArgs) -> Result<()> {
             outln!("{}", serde_json::to_string_pretty(&node)?);
         } else {
             outln!("tile {key}: bounds {:?} – {:?}", node.bounds.min.to_array(), node.bounds.max.to_array());
-            let totals: Vec<LevelTotals> = node
-                .levels
-                .iter()
-                .map(|l| {
-                    let mut t = LevelTotals::default();
+            // One row per level of the ladder; a level the node does not store says so.
+            let mut totals = vec![LevelTotals::default(); manifest.levels.len().max(1)];
+            for l in &node.levels {
+                if let Some(t) = totals.get_mut(usize::from(l.level)) {
                     t.add(l);
-                    t
-                })
-                .collect();
+                }
+            }
             outln!("{}", LevelTable(&totals));
         }
         return Ok(());
@@ -83,6 +87,12 @@ pub fn run(a: &InspectArgs) -> Result<()> {
             manifest.content_version
         );
         outln!("{}", LevelTable(&manifest.totals));
+        let pyramid = Pyramid::new(manifest.source.width, manifest.source.height, manifest.tile_size)?;
+        let nodes = store.all_nodes(&pyramid)?;
+        outln!("levels per node (a node stores only the levels that pay):");
+        for (set, n) in level_sets(&nodes) {
+            outln!("  {n:>7} nodes: levels {set:?}");
+        }
     }
     Ok(())
 }

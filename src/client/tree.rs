@@ -39,13 +39,28 @@ pub struct TreeNode {
     pub expected: u8,
     level_start: u32,
     level_count: u8,
+    /// Bit `l` set for each level `l` the node stores (a level that did not pay is absent).
+    present: u32,
 }
 
 impl TreeNode {
-    /// Number of levels (0 = mesh, 1.. = coarser point levels).
+    /// One more than the node's highest level id (0 = mesh, 1.. = coarser point levels); the
+    /// node may skip ids below it ([`TreeNode::has_level`]).
     #[must_use]
     pub fn level_count(&self) -> usize {
         usize::from(self.level_count)
+    }
+
+    /// Bit `l` set for each level `l` the node stores.
+    #[must_use]
+    pub fn level_mask(&self) -> u32 {
+        self.present
+    }
+
+    /// True when the node stores level `level`.
+    #[must_use]
+    pub fn has_level(&self, level: u8) -> bool {
+        level < 32 && self.present & (1 << level) != 0
     }
 
     /// True when every child the quadtree has is loaded (a node without children counts).
@@ -72,8 +87,24 @@ impl TreeNode {
 pub struct TileTree {
     pyramid: Pyramid,
     nodes: Vec<TreeNode>,
+    /// Per node and level id: the geometric error (`f64::INFINITY` for a level the node does
+    /// not store, so no threshold selects it) and the cost to draw (primitives, bytes).
     errors: Vec<f64>,
+    costs: Vec<LevelCost>,
     index: HashMap<TileKey, NodeId>,
+}
+
+/// What drawing one level of a node costs: primitives (vertices or points), then bytes.
+/// Ordered, so the selector takes the least one among the levels under the threshold.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub struct LevelCost {
+    pub primitives: u32,
+    pub bytes: u64,
+}
+
+impl LevelCost {
+    /// The cost of a level a node does not store.
+    pub const ABSENT: Self = Self { primitives: u32::MAX, bytes: u64::MAX };
 }
 
 fn tree_err(msg: impl Into<String>) -> ClientError {
@@ -84,7 +115,7 @@ impl TileTree {
     /// An empty tree over `pyramid`; nodes are added with [`TileTree::insert`].
     #[must_use]
     pub fn new(pyramid: Pyramid) -> Self {
-        Self { pyramid, nodes: Vec::new(), errors: Vec::new(), index: HashMap::new() }
+        Self { pyramid, nodes: Vec::new(), errors: Vec::new(), costs: Vec::new(), index: HashMap::new() }
     }
 
     /// An empty tree for the tileset the manifest describes (its quadtree shape only).
@@ -140,27 +171,53 @@ impl TileTree {
     /// Adds one node. Its parent must already be present (the root excepted).
     pub fn insert(&mut self, entry: &NodeEntry) -> Result<NodeId, ClientError> {
         // `f64::max` drops NaN, so check the raw fields before taking the geometric error.
-        if let Some((l, e)) = entry
-            .levels
-            .iter()
-            .enumerate()
-            .find(|(_, l)| !l.errors.max.is_finite() || !l.errors.gap.is_finite())
+        if let Some(e) = entry.levels.iter().find(|l| !l.errors.max.is_finite() || !l.errors.gap.is_finite())
         {
             return Err(tree_err(format!(
-                "node {}: level {l} errors (max {}, gap {}) are not finite",
-                entry.key, e.errors.max, e.errors.gap
+                "node {}: level {} errors (max {}, gap {}) are not finite",
+                entry.key, e.level, e.errors.max, e.errors.gap
             )));
         }
-        let levels: Vec<f64> = entry.levels.iter().map(|l: &NodeLevel| l.errors.geometric()).collect();
-        self.insert_node(entry.key, entry.bounds, &levels)
+        let levels: Vec<(u8, f64, LevelCost)> = entry
+            .levels
+            .iter()
+            .map(|l: &NodeLevel| {
+                (l.level, l.errors.geometric(), LevelCost { primitives: l.count, bytes: l.bytes })
+            })
+            .collect();
+        self.insert_levels(entry.key, entry.bounds, &levels)
     }
 
-    /// Adds one node from its key, bounds and per-level geometric errors (world units).
+    /// Adds one node from its key, bounds and per-level geometric errors (world units), every
+    /// level present and each coarser level cheaper than the finer ones (synthetic trees).
     pub fn insert_node(
         &mut self,
         key: TileKey,
         bounds: Bounds,
         errors: &[f64],
+    ) -> Result<NodeId, ClientError> {
+        let levels: Vec<(u8, f64, LevelCost)> = errors
+            .iter()
+            .enumerate()
+            .map(|(l, &e)| {
+                let rank = u32::try_from(l).unwrap_or(u32::MAX);
+                (
+                    u8::try_from(l).unwrap_or(u8::MAX),
+                    e,
+                    LevelCost { primitives: u32::MAX - rank, bytes: u64::from(u32::MAX - rank) },
+                )
+            })
+            .collect();
+        self.insert_levels(key, bounds, &levels)
+    }
+
+    /// Adds one node from its key, bounds and stored levels: (level id, geometric error in
+    /// world units, cost), ids increasing from 0 (the mesh).
+    pub fn insert_levels(
+        &mut self,
+        key: TileKey,
+        bounds: Bounds,
+        levels: &[(u8, f64, LevelCost)],
     ) -> Result<NodeId, ClientError> {
         if !self.pyramid.contains(key) {
             return Err(tree_err(format!("node {key} is outside the tileset's quadtree")));
@@ -172,17 +229,33 @@ impl TileTree {
                 bounds.max.to_array()
             )));
         }
-        if errors.is_empty() || errors.len() > MAX_LEVELS {
-            return Err(tree_err(format!("node {key}: {} levels (need 1 to {MAX_LEVELS})", errors.len())));
+        let count = levels.last().map_or(0, |l| usize::from(l.0) + 1);
+        if levels.is_empty() || count > MAX_LEVELS {
+            return Err(tree_err(format!(
+                "node {key}: {count} level ids (need 1 to {MAX_LEVELS}, level 0 the mesh)"
+            )));
         }
-        if let Some((l, e)) = errors.iter().enumerate().find(|(_, e)| !e.is_finite() || **e < 0.0) {
+        if levels[0].0 != 0 || levels.windows(2).any(|w| w[1].0 <= w[0].0) {
+            let ids: Vec<u8> = levels.iter().map(|l| l.0).collect();
+            return Err(tree_err(format!("node {key}: level ids {ids:?} must start at 0 and increase")));
+        }
+        if let Some((l, e, _)) = levels.iter().find(|(_, e, _)| !e.is_finite() || *e < 0.0) {
             return Err(tree_err(format!(
                 "node {key}: level {l} error {e} is not a finite non-negative number"
             )));
         }
+        let mut errors = vec![f64::INFINITY; count];
+        let mut costs = vec![LevelCost::ABSENT; count];
+        let mut present = 0u32;
+        for &(l, e, c) in levels {
+            errors[usize::from(l)] = e;
+            costs[usize::from(l)] = c;
+            present |= 1 << l;
+        }
+        let errors = &errors[..];
         if let Some(&id) = self.index.get(&key) {
             let n = &self.nodes[id as usize];
-            if n.bounds == bounds && self.level_errors(id) == errors {
+            if n.bounds == bounds && self.level_errors(id) == errors && n.present == present {
                 return Ok(id);
             }
             return Err(tree_err(format!("node {key} delivered twice with different contents")));
@@ -206,6 +279,7 @@ impl TileTree {
         let level_start =
             u32::try_from(self.errors.len()).map_err(|_| tree_err("more than 2^32 level entries"))?;
         self.errors.extend_from_slice(errors);
+        self.costs.extend_from_slice(&costs);
         self.nodes.push(TreeNode {
             key,
             bounds,
@@ -217,6 +291,7 @@ impl TileTree {
             expected,
             level_start,
             level_count: errors.len() as u8,
+            present,
         });
         self.index.insert(key, id);
         if parent != NO_NODE {
@@ -273,12 +348,21 @@ impl TileTree {
         self.index.get(&key).copied()
     }
 
-    /// The node's geometric error per level (world units; `Errors::geometric`).
+    /// The node's geometric error per level id (world units; `Errors::geometric`);
+    /// `f64::INFINITY` for a level it does not store.
     #[must_use]
     pub fn level_errors(&self, id: NodeId) -> &[f64] {
         let n = &self.nodes[id as usize];
         let s = n.level_start as usize;
         &self.errors[s..s + n.level_count()]
+    }
+
+    /// The node's cost per level id ([`LevelCost::ABSENT`] for a level it does not store).
+    #[must_use]
+    pub fn level_costs(&self, id: NodeId) -> &[LevelCost] {
+        let n = &self.nodes[id as usize];
+        let s = n.level_start as usize;
+        &self.costs[s..s + n.level_count()]
     }
 
     /// The bounds of the whole dataset (the root's cull box), if the root is loaded.
@@ -397,7 +481,9 @@ pub fn entry(key: TileKey, bounds: Bounds, errors: &[f64]) -> NodeEntry {
         bounds,
         levels: errors
             .iter()
-            .map(|&e| NodeLevel {
+            .enumerate()
+            .map(|(l, &e)| NodeLevel {
+                level: l as u8,
                 errors: Errors { max: e, rms: e, gap: 0.0 },
                 count: 0,
                 triangles: 0,

@@ -518,6 +518,14 @@ async fn load_blob(app: &App, ts: &Arc<Tileset>, key: TileKey, level: u8) -> Res
                 }
             }
             Read::Missing => {
+                if tokio::fs::metadata(ts.store.unpaid_path(key, level)).await.is_ok() {
+                    return Err(Problem::not_found(format!(
+                        "tile {key} has no level {level} in tileset {:?}: that level did not pay (it would \
+                         cost as many primitives or bytes as a finer level of the tile); its index entry \
+                         lists the levels it has",
+                        ts.name
+                    )));
+                }
                 let Some(src) = &ts.source else {
                     return Err(Problem::not_found(format!(
                         "no tile {key} level {level} in tileset {:?}",

@@ -144,10 +144,12 @@ pub fn export_tile(
 ) -> Result<usize, ExportError> {
     use crate::codec::{Geometry, decode};
     let path = store.blob_path(key, level);
-    let bytes = store.read_blob(key, level)?.ok_or_else(|| crate::store::StoreError::NoSuchTile {
-        path: store.dir().to_owned(),
-        key,
-        level,
+    let bytes = store.read_blob(key, level)?.ok_or_else(|| {
+        if store.is_unpaid(key, level) {
+            crate::store::StoreError::LevelNotStored { path: store.dir().to_owned(), key, level }
+        } else {
+            crate::store::StoreError::NoSuchTile { path: store.dir().to_owned(), key, level }
+        }
     })?;
     let blob = decode(&bytes).map_err(|source| ExportError::Codec { path: path.clone(), source })?;
     let mut buf = Vec::new();

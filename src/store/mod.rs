@@ -4,7 +4,9 @@
 //! DIR/tileset.json                  manifest, written last (its presence = a complete bake)
 //! DIR/index/{z}/{x}/{y}.json        index chunk: every node of the subtree rooted at (z, x, y),
 //!                                   SUBTREE_LEVELS deep; roots at z = 0, 4, 8, …
-//! DIR/tiles/{z}/{x}/{y}/{level}.tsb one blob per (tile, level)
+//! DIR/tiles/{z}/{x}/{y}/{level}.tsb one blob per (tile, level) the node stores
+//! DIR/tiles/{z}/{x}/{y}/{level}.unpaid  empty: the level was baked and did not pay (it would
+//!                                   cost as much as a finer level), so the node has no blob
 //! DIR/bake-options.json             the options of the bake, written first, so an interrupted
 //!                                   bake (no manifest yet) can be resumed and checked
 //! ```
@@ -77,6 +79,11 @@ pub enum StoreError {
     NotATileset { path: PathBuf },
     #[error("{path}: no tile {key} level {level} in this tileset")]
     NoSuchTile { path: PathBuf, key: TileKey, level: u8 },
+    #[error(
+        "{path}: tile {key} does not store level {level}: it did not pay (it would cost as many primitives \
+         or bytes as a finer level); `terrastream inspect --tile {key}` lists the levels it has"
+    )]
+    LevelNotStored { path: PathBuf, key: TileKey, level: u8 },
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
@@ -110,6 +117,11 @@ pub struct LevelSpec {
 /// Per-level figures of one node.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct NodeLevel {
+    /// The level's id in the manifest's ladder (0 = the mesh). A node stores only the levels
+    /// that pay ([`levels_that_pay`]), so ids may skip; an index written before ids were
+    /// recorded lists every level in order, and reading it numbers them by position.
+    #[serde(default = "unnumbered")]
+    pub level: u8,
     pub errors: Errors,
     /// Vertices (mesh) or points.
     pub count: u32,
@@ -121,10 +133,90 @@ pub struct NodeLevel {
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "RawNodeEntry")]
 pub struct NodeEntry {
     pub key: TileKey,
     pub bounds: Bounds,
+    /// The levels this node stores, finest first: level 0 (the mesh) always, then the point
+    /// levels that pay, by increasing id.
     pub levels: Vec<NodeLevel>,
+}
+
+impl NodeEntry {
+    /// The node's figures for level `level`, if it stores that level.
+    #[must_use]
+    pub fn level(&self, level: u8) -> Option<&NodeLevel> {
+        self.levels.iter().find(|l| l.level == level)
+    }
+
+    /// Bit `l` set for each level `l` the node stores.
+    #[must_use]
+    pub fn level_mask(&self) -> u64 {
+        self.levels.iter().fold(0, |m, l| m | (1u64 << (l.level & 63)))
+    }
+}
+
+/// `NodeLevel::level` of an index entry written before level ids were recorded.
+const UNNUMBERED: u8 = u8::MAX;
+fn unnumbered() -> u8 {
+    UNNUMBERED
+}
+
+/// A node entry as read, before its level ids are checked (or numbered by position).
+#[derive(Deserialize)]
+struct RawNodeEntry {
+    key: TileKey,
+    bounds: Bounds,
+    levels: Vec<NodeLevel>,
+}
+
+impl TryFrom<RawNodeEntry> for NodeEntry {
+    type Error = String;
+    fn try_from(raw: RawNodeEntry) -> Result<Self, String> {
+        let RawNodeEntry { key, bounds, mut levels } = raw;
+        let unnumbered = levels.iter().filter(|l| l.level == UNNUMBERED).count();
+        if unnumbered == levels.len() {
+            if levels.len() > usize::from(UNNUMBERED) {
+                return Err(format!("node {key}: {} levels", levels.len()));
+            }
+            for (i, l) in levels.iter_mut().enumerate() {
+                l.level = i as u8;
+            }
+        } else if unnumbered > 0 {
+            return Err(format!("node {key}: some levels have a `level` id and some do not"));
+        }
+        if levels.first().map(|l| l.level) != Some(0) {
+            return Err(format!("node {key}: the first level must be level 0 (the mesh)"));
+        }
+        if let Some(w) = levels.windows(2).find(|w| w[1].level <= w[0].level) {
+            return Err(format!(
+                "node {key}: level ids must increase (level {} after {})",
+                w[1].level, w[0].level
+            ));
+        }
+        Ok(Self { key, bounds, levels })
+    }
+}
+
+/// Which of a node's levels pay for themselves: level 0 (the mesh) always; a coarser level
+/// only if it is cheaper — fewer primitives (vertices of the mesh, points of a point level: what
+/// the GPU transforms) *and* fewer bytes — than every finer level that is kept. A level that
+/// costs as much as a finer one is worse in every respect (slower to draw and to stream, less
+/// exact), so the node simply goes without it. `levels` is finest first; the result is
+/// parallel to it.
+#[must_use]
+pub fn levels_that_pay(levels: &[NodeLevel]) -> Vec<bool> {
+    let mut keep = Vec::with_capacity(levels.len());
+    // Cheapest kept so far: every finer kept level costs at least this much in both measures.
+    let mut cheapest: Option<(u32, u64)> = None;
+    for l in levels {
+        let pays = cheapest.is_none_or(|(count, bytes)| l.count < count && l.bytes < bytes);
+        if pays {
+            cheapest = Some((l.count, l.bytes));
+        }
+        keep.push(pays);
+    }
+    keep
 }
 
 /// One index chunk: the nodes of the subtree rooted at `root`, `SUBTREE_LEVELS` deep.
@@ -175,6 +267,10 @@ impl std::fmt::Display for LevelTable<'_> {
             "worst gap"
         )?;
         for (l, t) in self.0.iter().enumerate() {
+            if l > 0 && t.tiles == 0 {
+                write!(f, "\n{l:>5}  {:>6}  {:>7}  (not stored: it did not pay)", "points", 0)?;
+                continue;
+            }
             write!(
                 f,
                 "\n{:>5}  {:>6}  {:>7}  {:>11}  {:>10}  {:>12}  {:>7.2}  {:>10.3}  {:>10.3}  {:>10.3}",
@@ -192,6 +288,18 @@ impl std::fmt::Display for LevelTable<'_> {
         }
         Ok(())
     }
+}
+
+/// How many nodes store each set of levels (`inspect`'s "levels per node"), most common first.
+#[must_use]
+pub fn level_sets<'a>(nodes: impl IntoIterator<Item = &'a NodeEntry>) -> Vec<(Vec<u8>, u64)> {
+    let mut sets: std::collections::BTreeMap<Vec<u8>, u64> = std::collections::BTreeMap::new();
+    for n in nodes {
+        *sets.entry(n.levels.iter().map(|l| l.level).collect()).or_default() += 1;
+    }
+    let mut out: Vec<(Vec<u8>, u64)> = sets.into_iter().collect();
+    out.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+    out
 }
 
 impl LevelTotals {
@@ -395,7 +503,29 @@ impl Store {
     }
 
     pub fn write_blob(&self, key: TileKey, level: u8, bytes: &[u8]) -> Result<(), StoreError> {
-        write_atomic(&self.blob_path(key, level), bytes)
+        write_atomic(&self.blob_path(key, level), bytes)?;
+        remove_if_present(&self.unpaid_path(key, level))
+    }
+
+    /// The empty marker saying a node's level was baked and did not pay
+    /// ([`levels_that_pay`]): `tiles/{z}/{x}/{y}/{level}.unpaid`. A resumed bake tells a level
+    /// left out on purpose from a blob lost since (which it bakes again) by it.
+    #[must_use]
+    pub fn unpaid_path(&self, key: TileKey, level: u8) -> PathBuf {
+        self.dir.join(format!("tiles/{}/{}/{}/{level}.unpaid", key.z, key.x, key.y))
+    }
+
+    /// Records that `level` of `key` is not stored (it did not pay): writes the marker and
+    /// removes any blob an earlier bake left for it.
+    pub fn write_unpaid(&self, key: TileKey, level: u8) -> Result<(), StoreError> {
+        write_atomic(&self.unpaid_path(key, level), b"")?;
+        remove_if_present(&self.blob_path(key, level))
+    }
+
+    /// True when [`Store::write_unpaid`] marked `level` of `key` as not stored.
+    #[must_use]
+    pub fn is_unpaid(&self, key: TileKey, level: u8) -> bool {
+        self.unpaid_path(key, level).is_file()
     }
 
     /// The blob's bytes; `Ok(None)` when it does not exist.
@@ -432,10 +562,38 @@ impl Store {
         Ok(m)
     }
 
+    /// Every node of the index, chunk by chunk from the root (`pyramid` gives the keys of the
+    /// chunks below a chunk's deepest nodes). Bounded by the pyramid: each chunk is read once.
+    pub fn all_nodes(&self, pyramid: &crate::tiling::Pyramid) -> Result<Vec<NodeEntry>, StoreError> {
+        let mut out = Vec::new();
+        let mut roots = vec![TileKey::new(0, 0, 0)];
+        while let Some(root) = roots.pop() {
+            if !pyramid.contains(root) {
+                continue;
+            }
+            let chunk = self.chunk(root)?;
+            let last = root.z.saturating_add(SUBTREE_LEVELS - 1);
+            for n in &chunk.nodes {
+                if n.key.z == last && chunk_root(n.key) == root {
+                    roots.extend(pyramid.children(n.key));
+                }
+            }
+            out.extend(chunk.nodes);
+        }
+        Ok(out)
+    }
+
     /// The index entry of one node.
     pub fn node(&self, key: TileKey) -> Result<Option<NodeEntry>, StoreError> {
         let chunk = self.chunk(chunk_root(key))?;
         Ok(chunk.nodes.into_iter().find(|n| n.key == key))
+    }
+}
+
+fn remove_if_present(path: &Path) -> Result<(), StoreError> {
+    match fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(io(path)(e)),
+        _ => Ok(()),
     }
 }
 

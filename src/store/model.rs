@@ -35,6 +35,14 @@ pub struct ModelLevel {
     pub filled: Option<u64>,
     pub errors: Errors,
     pub bytes: u64,
+    /// False for a level that was baked and did not pay (`store::levels_that_pay`): it has no
+    /// blob and the index does not list it. Absent in manifests from before levels had to pay.
+    #[serde(default = "stored_default")]
+    pub stored: bool,
+}
+
+fn stored_default() -> bool {
+    true
 }
 
 /// The per-level table `bake-model` and `inspect` print for a model tileset: one header line
@@ -45,13 +53,13 @@ impl std::fmt::Display for ModelLevelTable<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{:>5}  {:>6}  {:>5}  {:>10}  {:>9}  {:>9}  {:>9}  {:>10}  {:>10}  {:>10}",
-            "level", "kind", "T", "cell", "count", "triangles", "bytes", "max err", "rms", "gap"
+            "{:>5}  {:>6}  {:>5}  {:>10}  {:>9}  {:>9}  {:>9}  {:>10}  {:>10}  {:>10}  {:>6}",
+            "level", "kind", "T", "cell", "count", "triangles", "bytes", "max err", "rms", "gap", "stored"
         )?;
         for l in self.0 {
             write!(
                 f,
-                "\n{:>5}  {:>6}  {:>5}  {:>10}  {:>9}  {:>9}  {:>9}  {:>10.3e}  {:>10.3e}  {:>10.3e}",
+                "\n{:>5}  {:>6}  {:>5}  {:>10}  {:>9}  {:>9}  {:>9}  {:>10.3e}  {:>10.3e}  {:>10.3e}  {:>6}",
                 l.level,
                 l.kind,
                 l.resolution.map_or_else(|| "-".to_owned(), |t| t.to_string()),
@@ -61,8 +69,12 @@ impl std::fmt::Display for ModelLevelTable<'_> {
                 l.bytes,
                 l.errors.max,
                 l.errors.rms,
-                l.errors.gap
+                l.errors.gap,
+                if l.stored { "yes" } else { "no" }
             )?;
+        }
+        if self.0.iter().any(|l| !l.stored) {
+            write!(f, "\n(a level not stored would cost as many points or bytes as a finer one)")?;
         }
         Ok(())
     }
@@ -112,11 +124,15 @@ impl ModelManifest {
         options: serde_json::Value,
         point_baker: String,
     ) -> Self {
-        let totals = node_levels
+        // One row per level of the ladder, empty for a level the node does not store.
+        let totals = model
+            .levels
             .iter()
-            .map(|l| {
+            .map(|ml| {
                 let mut t = LevelTotals::default();
-                t.add(l);
+                if let Some(l) = node_levels.iter().find(|l| l.level == ml.level) {
+                    t.add(l);
+                }
                 t
             })
             .collect();

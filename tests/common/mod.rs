@@ -87,3 +87,64 @@ pub fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
     walk(dir, dir, &mut out);
     out
 }
+
+/// Asserts that every node of the tileset in `dir` stores only levels that pay: level 0 always,
+/// each further level with fewer primitives *and* fewer bytes than every finer level the node
+/// stores; the index's figures match the blobs; and every level of the ladder a node does not
+/// store has its `unpaid` marker and no blob. Returns (nodes, levels stored, levels left out).
+#[allow(dead_code)]
+pub fn assert_levels_pay(dir: &Path) -> (usize, usize, usize) {
+    use terrastream::store::{Store, TilesetKind};
+    let store = Store::new(dir);
+    let m = store.manifest().unwrap();
+    let nodes = if store.manifest_kind().unwrap() == TilesetKind::Model {
+        vec![store.node(terrastream::tiling::TileKey::new(0, 0, 0)).unwrap().unwrap()]
+    } else {
+        let pyramid =
+            terrastream::tiling::Pyramid::new(m.source.width, m.source.height, m.tile_size).unwrap();
+        let all = store.all_nodes(&pyramid).unwrap();
+        assert_eq!(all.len(), pyramid.nodes().len(), "{}: index misses nodes", dir.display());
+        all
+    };
+    let (mut stored, mut left_out) = (0, 0);
+    for n in &nodes {
+        assert_eq!(n.levels.first().map(|l| l.level), Some(0), "{}: no mesh", n.key);
+        for (i, l) in n.levels.iter().enumerate() {
+            let bytes = store.read_blob(n.key, l.level).unwrap().expect("stored level has a blob");
+            let h = terrastream::codec::decode(&bytes).unwrap().header;
+            assert_eq!(
+                (h.level, h.vertex_count, bytes.len() as u64),
+                (l.level, l.count, l.bytes),
+                "{}",
+                n.key
+            );
+            for finer in &n.levels[..i] {
+                assert!(
+                    l.count < finer.count && l.bytes < finer.bytes,
+                    "{} level {} ({} primitives, {} B) does not pay against level {} ({} primitives, {} B)",
+                    n.key,
+                    l.level,
+                    l.count,
+                    l.bytes,
+                    finer.level,
+                    finer.count,
+                    finer.bytes
+                );
+            }
+            stored += 1;
+        }
+        for spec in &m.levels {
+            if n.level(spec.level).is_none() {
+                assert!(
+                    store.is_unpaid(n.key, spec.level),
+                    "{} level {}: neither blob nor marker",
+                    n.key,
+                    spec.level
+                );
+                assert!(store.read_blob(n.key, spec.level).unwrap().is_none());
+                left_out += 1;
+            }
+        }
+    }
+    (nodes.len(), stored, left_out)
+}

@@ -6,6 +6,9 @@
 use std::path::PathBuf;
 
 pub mod analysis;
+pub mod flight;
+#[cfg(feature = "gpu")]
+pub mod frames;
 #[cfg(feature = "gpu")]
 pub mod instances;
 #[cfg(feature = "gpu")]
@@ -23,6 +26,8 @@ pub enum EvalError {
     Plan(#[from] analysis::PlanError),
     #[error("eval: {0}: the tileset's index holds no node")]
     EmptyIndex(PathBuf),
+    #[error("eval: {0}: not a terrain tileset (the large-terrain experiment needs one)")]
+    NotTerrain(PathBuf),
     #[error("eval: model tileset without a root node")]
     NoRoot,
     #[error("eval: {0}: blob missing")]

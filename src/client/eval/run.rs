@@ -72,11 +72,11 @@ impl Default for EvalOptions {
 }
 
 /// The tileset as the evaluation reads it.
-struct Tileset {
+pub(super) struct Tileset {
     store: Store,
-    subject: Subject,
-    tree: TileTree,
-    bounds: Bounds,
+    pub(super) subject: Subject,
+    pub(super) tree: TileTree,
+    pub(super) bounds: Bounds,
     /// Point spacing (world units) of level `l` at depth `z`: `spacing[l] * step(z)`.
     spacing: Vec<f64>,
     /// Footprint half-width (cells) of each point level.
@@ -86,7 +86,7 @@ struct Tileset {
 }
 
 impl Tileset {
-    fn open(dir: &Path) -> Result<Self, EvalError> {
+    pub(super) fn open(dir: &Path) -> Result<Self, EvalError> {
         let store = Store::new(dir);
         let kind = store.manifest_kind()?;
         let manifest = store.manifest()?;
@@ -171,7 +171,7 @@ impl Tileset {
     }
 
     /// Uploads the draws (skirts as deep as the crack bound of this set of draws).
-    fn upload(&mut self, r: &mut Renderer, draws: &[DrawItem]) -> Result<(u64, u64), EvalError> {
+    pub(super) fn upload(&mut self, r: &mut Renderer, draws: &[DrawItem]) -> Result<(u64, u64), EvalError> {
         let max_e = draws.iter().map(|d| d.error_world).fold(0.0, f64::max);
         let outer = self.outer();
         let (mut points, mut triangles) = (0, 0);
@@ -193,7 +193,7 @@ impl Tileset {
     }
 }
 
-fn item(tree: &TileTree, node: u32, level: u8) -> DrawItem {
+pub(super) fn item(tree: &TileTree, node: u32, level: u8) -> DrawItem {
     let e = tree.level_errors(node).get(usize::from(level)).copied().unwrap_or(0.0);
     DrawItem {
         node,
@@ -318,10 +318,18 @@ pub fn run(
         let depth = DepthDiff::of(&full.depth, &sel.depth);
         let mut per_level = Vec::with_capacity(level_count);
         for l in 0..level_count {
+            // Every selected node at level l, or where it does not store l (the level did not
+            // pay) at its coarsest stored level finer than l, which is cheaper anyway.
             let forced: Vec<DrawItem> = draws
                 .iter()
-                .filter(|d| tree.node(d.node).level_count() > l)
-                .map(|d| item(&tree, d.node, l as u8))
+                .map(|d| {
+                    let n = tree.node(d.node);
+                    let stored = (0..=l.min(n.level_count().saturating_sub(1)) as u8)
+                        .rev()
+                        .find(|&s| n.has_level(s))
+                        .unwrap_or(0);
+                    item(&tree, d.node, stored)
+                })
                 .collect();
             ts.upload(&mut lod, &forced)?;
             let f = frame(&lod, c, &forced)?;
@@ -395,13 +403,17 @@ fn instances(
     let root = tree.root().ok_or(EvalError::NoRoot)?;
     let node = tree.node(root);
     let key = node.key;
-    let n_levels = node.level_count();
-    let mut levels = Vec::with_capacity(n_levels);
-    for l in 0..n_levels {
-        let spacing = ts.point_spacing(key, l as u8);
-        levels.push((ts.blob(key, l as u8)?.clone(), spacing, ts.half.get(l).copied().unwrap_or(0.0)));
+    // The levels the model stores (ids may skip a level that did not pay); the bench numbers
+    // them 0.. in this order.
+    let ids: Vec<u8> = (0..node.level_count() as u8).filter(|&l| node.has_level(l)).collect();
+    let mut levels = Vec::with_capacity(ids.len());
+    for &l in &ids {
+        let spacing = ts.point_spacing(key, l);
+        levels.push((ts.blob(key, l)?.clone(), spacing, ts.half.get(usize::from(l)).copied().unwrap_or(0.0)));
     }
+    let position = |id: usize| ids.iter().position(|&l| usize::from(l) == id).unwrap_or(0);
     let errors = tree.level_errors(root).to_vec();
+    let costs = tree.level_costs(root).to_vec();
     let (c, r) = analysis::bounding_sphere(&ts.bounds);
     let size = ts.bounds.size();
     let spacing = analysis::GRID_SPACING * size[0].max(size[1]).max(size[2]);
@@ -420,17 +432,22 @@ fn instances(
             .map(|o| {
                 let centre = c + DVec3::from_array(*o);
                 let d = (centre - view.eye).length();
-                analysis::level_for(&errors, view.k, d, opts.threshold_px)
+                position(analysis::level_for(&errors, &costs, view.k, d, opts.threshold_px))
             })
             .collect();
         let full = vec![0usize; offsets.len()];
         let (t_full, c_full) = bench.time_frames(&cam.camera, cam.far, &offsets, &full, frames)?;
         let (t_lod, c_lod) = bench.time_frames(&cam.camera, cam.far, &offsets, &chosen, frames)?;
+        // Instances per level id (0 for a level not stored).
+        let mut per_level = vec![0; node.level_count()];
+        for (&id, &c) in ids.iter().zip(&c_lod.per_level) {
+            per_level[usize::from(id)] = c;
+        }
         let row = InstanceRow {
             n,
             ms_full: analysis::median(&t_full),
             ms_lod: analysis::median(&t_lod),
-            per_level: c_lod.per_level,
+            per_level,
             triangles_full: c_full.triangles,
             triangles_lod: c_lod.triangles,
             points_lod: c_lod.points,

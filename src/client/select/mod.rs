@@ -350,8 +350,11 @@ impl Selector {
         if visible {
             // e·k/d ≤ t  ⇔  e ≤ t·d/k: one multiply per node, one compare per level.
             let allowed = self.params.threshold_px * dist.max(MIN_DISTANCE) / ctx.view.k;
+            // Among the levels under the threshold the cheapest (a tie goes to the coarser);
+            // a level the node does not store has an infinite error.
             let errs = ctx.tree.level_errors(n);
-            if let Some(l) = (0..errs.len()).rev().find(|&l| errs[l] <= allowed) {
+            let costs = ctx.tree.level_costs(n);
+            if let Some(l) = (0..errs.len()).rev().filter(|&l| errs[l] <= allowed).min_by_key(|&l| costs[l]) {
                 level = l as u8;
             }
         }
@@ -479,7 +482,7 @@ impl Selector {
 
     fn resident<R: Residency + ?Sized>(ctx: &Ctx<'_, R>, n: NodeId) -> u32 {
         let node = ctx.tree.node(n);
-        ctx.res.levels(node.key) & level_mask(node.level_count())
+        ctx.res.levels(node.key) & level_mask(node.level_count()) & node.level_mask()
     }
 
     /// Draws for a cut node or a node above the cut; true when its whole visible area is covered.

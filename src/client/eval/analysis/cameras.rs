@@ -118,13 +118,24 @@ pub fn cameras(bounds: &Bounds, subject: Subject, plan: &CameraPlan) -> Result<V
     Ok(out)
 }
 
-/// Chooses a level for an object at `dist` whose levels have the geometric errors `errors`
-/// (finest first): the coarsest with `e · k / dist ≤ threshold`, else level 0 (the selection's
-/// rule for one node).
+/// Chooses a level for an object at `dist` whose levels have the geometric errors `errors` and
+/// the costs `costs` (by level id, finest first; an absent level's error is infinite): the
+/// cheapest with `e · k / dist ≤ threshold` (a tie to the coarser), else level 0 — the
+/// selection's rule for one node.
 #[must_use]
-pub fn level_for(errors: &[f64], k: f64, dist: f64, threshold_px: f64) -> usize {
+pub fn level_for(
+    errors: &[f64],
+    costs: &[crate::client::tree::LevelCost],
+    k: f64,
+    dist: f64,
+    threshold_px: f64,
+) -> usize {
     let allowed = threshold_px * dist.max(1e-6) / k;
-    (0..errors.len()).rev().find(|&l| errors[l] <= allowed).unwrap_or(0)
+    (0..errors.len().min(costs.len()))
+        .rev()
+        .filter(|&l| errors[l] <= allowed)
+        .min_by_key(|&l| costs[l])
+        .unwrap_or(0)
 }
 
 /// Instance offsets of an `n × n` grid centred on the origin in the plane perpendicular to the

@@ -171,13 +171,23 @@ fn summaries_sum_pixels_and_group_by_distance() {
 
 #[test]
 fn level_choice_follows_the_screen_space_error() {
+    use crate::client::tree::LevelCost;
+    let cost = |p: u32| LevelCost { primitives: p, bytes: u64::from(p) * 4 };
     let errs = [0.1, 1.0, 10.0];
+    let costs = [cost(300), cost(200), cost(100)];
     let k = 500.0;
     // e·k/d ≤ 2 ⇔ d ≥ e·k/2: level 2 from 2500, level 1 from 250, else 0.
-    assert_eq!(level_for(&errs, k, 3000.0, 2.0), 2);
-    assert_eq!(level_for(&errs, k, 2499.0, 2.0), 1);
-    assert_eq!(level_for(&errs, k, 250.0, 2.0), 1);
-    assert_eq!(level_for(&errs, k, 10.0, 2.0), 0);
+    assert_eq!(level_for(&errs, &costs, k, 3000.0, 2.0), 2);
+    assert_eq!(level_for(&errs, &costs, k, 2499.0, 2.0), 1);
+    assert_eq!(level_for(&errs, &costs, k, 250.0, 2.0), 1);
+    assert_eq!(level_for(&errs, &costs, k, 10.0, 2.0), 0);
+    // Under the threshold the cheapest wins, not the coarsest; an absent level never does.
+    let dearer = [cost(300), cost(100), cost(200)];
+    assert_eq!(level_for(&errs, &dearer, k, 3000.0, 2.0), 1);
+    let absent = [0.1, f64::INFINITY, 10.0];
+    let gap = [cost(300), LevelCost::ABSENT, cost(100)];
+    assert_eq!(level_for(&absent, &gap, k, 2499.0, 2.0), 0);
+    assert_eq!(level_for(&absent, &gap, k, 3000.0, 2.0), 2);
 }
 
 #[test]
