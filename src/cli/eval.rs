@@ -51,6 +51,11 @@ pub struct EvalArgs {
     /// Frames per second of the flight replay.
     #[arg(long, default_value_t = 30.0)]
     pub flight_fps: f64,
+    /// Selection rule of the flight replay: `cheapest` (the client's: the cheapest level under
+    /// the threshold) or `coarsest` (the rule before levels were compared by cost, for
+    /// before/after comparisons).
+    #[arg(long, default_value = "cheapest", value_parser = ["cheapest", "coarsest"])]
+    pub flight_rule: String,
     /// Skip the large-terrain frame-time experiment on terrain tilesets.
     #[arg(long)]
     pub no_frame_times: bool,
@@ -101,6 +106,7 @@ pub fn run(a: &EvalArgs) -> Result<()> {
         } else {
             client::tree::TileTree::load(&store)?
         };
+        let tree = if a.flight_rule == "coarsest" { evaluate::flight::coarsest_first(&tree)? } else { tree };
         let f = client::stream::flight::Flight::load(flight)?;
         let cost = evaluate::flight::flight_cost(
             flight,

@@ -13,7 +13,7 @@ use crate::client::ClientError;
 use crate::client::camera::Camera;
 use crate::client::select::{AllResident, SelectParams, Selector};
 use crate::client::stream::flight::Flight;
-use crate::client::tree::TileTree;
+use crate::client::tree::{LevelCost, TileTree};
 use crate::geom::Bounds;
 use crate::tiling::TileKey;
 
@@ -152,10 +152,32 @@ pub fn flight_cost(
     })
 }
 
+/// `tree` with each node's level costs replaced by their rank (every coarser level cheaper than
+/// the finer ones), so the selection draws the coarsest level under the threshold — its rule
+/// before it compared costs (issue 13), for before/after comparisons (`eval --flight-rule
+/// coarsest`). Errors and stored levels are unchanged.
+pub fn coarsest_first(tree: &TileTree) -> Result<TileTree, ClientError> {
+    let mut out = TileTree::new(*tree.pyramid());
+    for (i, n) in tree.nodes().iter().enumerate() {
+        let levels: Vec<(u8, f64, LevelCost)> = tree
+            .level_errors(i as u32)
+            .iter()
+            .enumerate()
+            .filter(|&(l, _)| n.has_level(l as u8))
+            .map(|(l, &e)| {
+                let rank = u32::MAX - l as u32;
+                (l as u8, e, LevelCost { primitives: rank, bytes: u64::from(rank) })
+            })
+            .collect();
+        out.insert_levels(n.key, n.bounds, &levels)?;
+    }
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::client::tree::{LevelCost, Synthetic};
+    use crate::client::tree::Synthetic;
 
     fn orbit() -> Flight {
         Flight::from_json(include_str!("../../../data/flight-orbit.json")).unwrap()
@@ -208,6 +230,11 @@ mod tests {
             2.0,
         )
         .unwrap();
+        // The rule before costs were compared draws the dearer point levels.
+        let c = coarsest_first(&dear).unwrap();
+        let before = flight_cost(std::path::Path::new("orbit.json"), &c, &bounds, &orbit(), (640, 360, 60.0), 1.0, 2.0).unwrap();
+        let sum = |f: &FlightCost| f.frames.iter().map(|x| x.primitives).sum::<u64>();
+        assert!(sum(&before) > 0 && sum(&d) < sum(&before) / 2, "{} vs {}", sum(&d), sum(&before));
         assert!(d.frames.iter().all(|f| f.primitives == u64::from(f.draws) * 100), "{:?}", d.frames[0]);
         assert_eq!(d.frames_over_threshold, 0);
     }
