@@ -45,5 +45,13 @@ pub fn run(a: &BakeModelArgs) -> Result<()> {
     let baker = a.baker.open()?;
     let s = bake_model::bake_model(&file, &opts, &baker, &Store::new(&a.out))?;
     outln!("{}", bake_model::ModelBakeReport { summary: &s, out: &a.out });
+    // The paper's figures live with the evaluation (`client` feature).
+    #[cfg(feature = "client")]
+    {
+        let levels: Vec<(u8, u64)> = s.levels.iter().map(|l| (l.level, u64::from(l.count))).collect();
+        if let Some(t) = terrastream::client::eval::analysis::paper::table_3_comparison(&s.file, &levels) {
+            outln!("{t}");
+        }
+    }
     Ok(())
 }

@@ -82,6 +82,8 @@ pub(super) struct Tileset {
     /// Footprint half-width (cells) of each point level.
     half: Vec<f64>,
     levels: Vec<String>,
+    /// The manifest's source file name (for the report's paper figures).
+    source_file: String,
     blobs: HashMap<(TileKey, u8), Blob>,
 }
 
@@ -144,6 +146,7 @@ impl Tileset {
             spacing,
             half,
             levels,
+            source_file: manifest.source.file.clone(),
             blobs: HashMap::new(),
         })
     }
@@ -370,6 +373,7 @@ pub fn run(
     drop((reference, lod));
     let mut report = EvalReport {
         tileset: dir.display().to_string(),
+        source_file: ts.source_file.clone(),
         subject: ts.subject,
         adapter,
         plan,

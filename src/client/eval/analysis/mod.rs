@@ -4,7 +4,8 @@
 //! experiment, the Markdown report and its PNG charts (drawn with `image`, no fonts).
 //!
 //! Files: `cameras` (placement, the instance grid), `coverage` (per-pixel metrics, depth,
-//! aggregation), `report` (results, Markdown), `charts` (PNG charts).
+//! aggregation), `report` (results, Markdown), `charts` (PNG charts), [`paper`] (the first
+//! paper's published tables, printed beside ours).
 //!
 //! No GPU and no file system here: [`crate::client::eval`] renders and writes, this module only
 //! computes on values, so every rule is unit-tested.
@@ -39,10 +40,6 @@ pub const DEFAULT_GRID_SIDES: [u32; 4] = [11, 21, 41, 81];
 pub const GRID_SPACING: f64 = 1.5;
 /// Elevation (degrees) of the camera that sees the whole instance grid.
 pub const GRID_ELEVATION_DEG: f64 = 35.0;
-/// The first paper's averages (section 4.6), as cited in DESIGN.md and issue 4.
-pub const PAPER_F_AVERAGE: f64 = 0.947;
-pub const PAPER_F_TERRAIN: f64 = 0.972;
-pub const PAPER_F_BUNNY: f64 = 0.965;
 
 /// What a tileset holds; it decides the sphere's polar axis and default elevations.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -81,6 +78,7 @@ impl Subject {
 mod cameras;
 mod charts;
 mod coverage;
+pub mod paper;
 mod report;
 
 pub use cameras::*;

@@ -1,5 +1,6 @@
 //! The evaluation report: per-camera results, instance rows and the Markdown text.
 
+use super::paper::{self, GPUS, PaperModel};
 use super::*;
 
 /// One row of the rendering experiment.
@@ -41,6 +42,9 @@ pub fn median(v: &[f64]) -> f64 {
 #[derive(Debug, Clone, PartialEq)]
 pub struct EvalReport {
     pub tileset: String,
+    /// The tileset's source file name (the manifest's `source.file`): it says whether a model
+    /// is one of the paper's, whose own figures are then printed beside ours.
+    pub source_file: String,
     pub subject: Subject,
     pub adapter: String,
     pub plan: CameraPlan,
@@ -63,13 +67,33 @@ impl EvalReport {
         summarize(&self.results)
     }
 
-    /// The paper's F-measure for this kind of subject.
+    /// The paper's model this tileset is, from its source file name (model tilesets only).
     #[must_use]
-    pub fn paper_f(&self) -> (f64, &'static str) {
+    pub fn paper_model(&self) -> Option<PaperModel> {
         match self.subject {
-            Subject::Terrain => (PAPER_F_TERRAIN, "terrain"),
-            Subject::Model => (PAPER_F_BUNNY, "bunny"),
+            Subject::Model => PaperModel::from_source_name(&self.source_file),
+            Subject::Terrain => None,
         }
+    }
+
+    /// The paper's coverage figures beside our LOD selection's, for the terminal: Table 12's
+    /// row for the paper's model, else its average; terrain: the large-terrain F-measure too.
+    fn paper_coverage_text(&self) -> String {
+        let c = paper::table_12(self.paper_model());
+        let figures = format!("recall {:.3}, precision {:.3}, F {:.3}", c.recall, c.precision, c.f_measure);
+        match (self.subject, self.paper_model()) {
+            (Subject::Terrain, _) => {
+                format!("paper: F {} (large terrain), Table 12 average: {figures}", paper::LARGE_TERRAIN_F)
+            }
+            (Subject::Model, Some(m)) => format!("paper (Table 12, {}): {figures}", m.name()),
+            (Subject::Model, None) => format!("paper (Table 12, average; not one of its models): {figures}"),
+        }
+    }
+
+    /// The paper's ratio for `instances` on each GPU (see [`paper::ratio_cell`]); none when
+    /// Tables 4–7 have no such row.
+    fn paper_ratios(&self, instances: u32) -> Option<Vec<String>> {
+        GPUS.iter().map(|&g| paper::ratio_cell(self.paper_model(), g, instances)).collect()
     }
 
     /// The terminal summary; its last line is `F-measure: <value>`.
@@ -111,27 +135,46 @@ impl EvalReport {
                 c.f_measure()
             );
         }
-        let (pf, what) = self.paper_f();
         let _ = writeln!(
             s,
-            "LOD selection: recall {:.4}, precision {:.4} (pooled pixels: {:.4}, {:.4}, F {:.4}); mean |Δdepth| {}; paper: F {pf} ({what}), {PAPER_F_AVERAGE} (average)",
+            "LOD selection: recall {:.4}, precision {:.4} (pooled pixels: {:.4}, {:.4}, F {:.4}); mean |Δdepth| {}; {}",
             o.mean_recall,
             o.mean_precision,
             o.lod.recall(),
             o.lod.precision(),
             o.lod.f_measure(),
-            fmt_opt(o.depth.mean())
+            fmt_opt(o.depth.mean()),
+            self.paper_coverage_text()
         );
+        let source = self.paper_model().map_or("range over its 5 models", PaperModel::name);
         for row in &self.instances {
+            let n2 = row.n * row.n;
+            let theirs = match self.paper_ratios(n2) {
+                Some(cells) => {
+                    let cells: Vec<String> =
+                        GPUS.iter().zip(cells).map(|(g, c)| format!("{} {c}", g.name())).collect();
+                    format!("paper ({source}): {}", cells.join(", "))
+                }
+                None => {
+                    format!("paper: no row for {n2} instances (Tables 4–7: {:?})", paper::INSTANCE_COUNTS)
+                }
+            };
             let _ = writeln!(
                 s,
-                "instances {:>5} ({}×{}): without LOD {:.2} ms, with LOD {:.2} ms, ratio {:.2} (paper: not available, see docs/evaluation.md)",
-                row.n * row.n,
+                "instances {n2:>5} ({}×{}): without LOD {:.2} ms, with LOD {:.2} ms, ratio {:.2}; {theirs}",
                 row.n,
                 row.n,
                 row.ms_full,
                 row.ms_lod,
                 row.ratio()
+            );
+        }
+        if !self.instances.is_empty() {
+            let _ = writeln!(
+                s,
+                "paper's ratio: FPS with / without LOD (Tables 4–7, display capped at {} FPS); ≥: with LOD at \
+                 the cap (a lower bound), ≤: without LOD at the cap (an upper bound), capped: both (no ratio)",
+                paper::FPS_CAP
             );
         }
         if let Some(n) = &self.instances_note {
@@ -146,15 +189,17 @@ impl EvalReport {
     #[must_use]
     pub fn markdown(&self, fmeasure_png: &str, frametime_png: Option<&str>, extra: &str) -> String {
         let o = self.overall();
-        let (pf, what) = self.paper_f();
+        let model = self.paper_model();
         let mut s = String::new();
         let _ = writeln!(s, "# LOD evaluation: {}\n", self.tileset);
         let _ = writeln!(
             s,
-            "A {} tileset, rendered headless on **{}**. The full-detail geometry and the client's LOD \
+            "A {} tileset (source `{}`{}), rendered headless on **{}**. The full-detail geometry and the client's LOD \
              selection (threshold {} px, fov {}°, {}×{} px) are rendered from {} cameras and their \
              coverage masks compared pixel by pixel (the first paper, section 4.6).\n",
             self.subject.name(),
+            self.source_file,
+            model.map_or_else(String::new, |m| format!(", the paper's {}", m.name())),
             self.adapter,
             self.threshold_px,
             self.plan.fov_deg,
@@ -176,8 +221,26 @@ impl EvalReport {
             o.lod.precision(),
             o.lod.f_measure()
         );
-        let _ = writeln!(s, "| the paper, {what} | | | {pf} |");
-        let _ = writeln!(s, "| the paper, average | 0.952 | 0.944 | {PAPER_F_AVERAGE} |\n");
+        let paper_row = |s: &mut String, what: &str, c: paper::Coverage| {
+            let _ = writeln!(
+                s,
+                "| the paper, {what} | {:.3} | {:.3} | {:.3} |",
+                c.recall, c.precision, c.f_measure
+            );
+        };
+        match (self.subject, model) {
+            (Subject::Terrain, _) => {
+                let _ = writeln!(
+                    s,
+                    "| the paper, large terrain (1,681 tiles, 5 levels) | | | {} |",
+                    paper::LARGE_TERRAIN_F
+                );
+            }
+            (Subject::Model, Some(m)) => paper_row(&mut s, &format!("Table 12, {}", m.name()), m.table_12()),
+            (Subject::Model, None) => {}
+        }
+        paper_row(&mut s, "Table 12, average of its 5 models", paper::TABLE_12_AVERAGE);
+        s.push('\n');
         let _ = writeln!(
             s,
             "Mean absolute depth difference on pixels covered in both frames: {} world units \
@@ -261,13 +324,17 @@ impl EvalReport {
         if !self.instances.is_empty() {
             let _ = writeln!(
                 s,
-                "| N² | without LOD (ms) | with LOD (ms) | ratio | paper's ratio | triangles without | triangles with | points with | instances per level |"
+                "| N² | without LOD (ms) | with LOD (ms) | ratio | paper, {} | paper, {} | triangles without | triangles with | points with | instances per level |",
+                GPUS[0].name(),
+                GPUS[1].name()
             );
-            let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+            let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
             for r in &self.instances {
+                let theirs =
+                    self.paper_ratios(r.n * r.n).map_or_else(|| "no row | no row".into(), |c| c.join(" | "));
                 let _ = writeln!(
                     s,
-                    "| {} | {:.2} | {:.2} | {:.2} | n/a | {} | {} | {} | {:?} |",
+                    "| {} | {:.2} | {:.2} | {:.2} | {theirs} | {} | {} | {} | {:?} |",
                     r.n * r.n,
                     r.ms_full,
                     r.ms_lod,
@@ -278,10 +345,26 @@ impl EvalReport {
                     r.per_level
                 );
             }
+            let whose = model.map_or_else(
+                || {
+                    format!(
+                        "the range (lowest–highest) over its five models, `{}` being none of them; models \
+                         whose two cells are both at the cap are left out and named in brackets",
+                        self.source_file
+                    )
+                },
+                |m| format!("the {}'s, with its FPS with / without LOD in brackets", m.name()),
+            );
             let _ = writeln!(
                 s,
-                "\nThe paper's Tables 4–7 ratios are not reproduced here: they are not listed in \
-                 the project's design notes or the issue (see docs/evaluation.md in the repository).\n"
+                "\nThe paper's ratios are its Tables 4–7, FPS with LOD / FPS without on its hardware: \
+                 {whose}. Ours is frame time without LOD / with, the same speed-up; compare ratios, not \
+                 frame rates. The paper's display was capped at {cap} FPS: ≥ marks a ratio whose with-LOD \
+                 FPS sat at the cap (the true ratio is at least that), ≤ one whose without-LOD FPS did (at \
+                 most that), and *capped* a pair both at the cap (no ratio). The tables have rows for {:?} \
+                 instances only.\n",
+                paper::INSTANCE_COUNTS,
+                cap = paper::FPS_CAP
             );
         }
         if !self.grid_skipped.is_empty() {

@@ -212,6 +212,7 @@ fn grid_is_centred_and_its_camera_sees_every_instance() {
 fn report_ends_with_the_f_measure_line() {
     let rep = EvalReport {
         tileset: "t".into(),
+        source_file: "bun_zipper.ply".into(),
         subject: Subject::Model,
         adapter: "a".into(),
         plan: plan(),
@@ -241,6 +242,98 @@ fn report_ends_with_the_f_measure_line() {
     assert!(md.contains("| 121 | 10.00 | 2.50 | 4.00 |"));
     assert!(md.contains("N = [81]"));
     assert!(md.trim_end().ends_with("F-measure: 0.9800"));
+}
+
+fn paper_report(source: &str, subject: Subject, sides: &[u32]) -> EvalReport {
+    let row = |n| InstanceRow {
+        n,
+        ms_full: 10.0,
+        ms_lod: 2.5,
+        per_level: vec![],
+        triangles_full: 1,
+        triangles_lod: 0,
+        points_lod: 5,
+    };
+    EvalReport {
+        tileset: "t".into(),
+        source_file: source.into(),
+        subject,
+        adapter: "a".into(),
+        plan: plan(),
+        threshold_px: 1.0,
+        levels: vec![],
+        reference_points: 1,
+        reference_triangles: 1,
+        results: vec![result(1.0, Confusion { tp: 98, fp: 2, fn_: 2 })],
+        instances: sides.iter().map(|&n| row(n)).collect(),
+        instances_note: None,
+        grid_skipped: vec![],
+    }
+}
+
+#[test]
+fn report_prints_the_papers_figures_for_its_model() {
+    let rep = paper_report("bun_zipper.ply", Subject::Model, &[11, 41, 3]);
+    assert_eq!(rep.paper_model(), Some(paper::PaperModel::StanfordBunny));
+    let t = rep.text();
+    let line = |start: &str| t.lines().find(|l| l.starts_with(start)).unwrap().to_owned();
+    assert!(
+        line("instances  1681").ends_with(
+            "ratio 4.00; paper (Stanford Bunny): GTX 750 ≥1.62 (120/74 FPS), GTX 1080 Ti capped (120/120 FPS)"
+        ),
+        "{t}"
+    );
+    assert!(
+        line("instances   121").ends_with("GTX 750 capped (120/120 FPS), GTX 1080 Ti capped (120/120 FPS)")
+    );
+    assert!(
+        line("instances     9")
+            .ends_with("paper: no row for 9 instances (Tables 4–7: [121, 441, 961, 1681, 5041, 6561])")
+    );
+    assert!(
+        line("LOD selection")
+            .ends_with("paper (Table 12, Stanford Bunny): recall 0.950, precision 0.981, F 0.965")
+    );
+    assert_eq!(t.lines().last().unwrap(), "F-measure: 0.9800");
+    let md = rep.markdown("f.png", None, "");
+    assert!(md.contains("| the paper, Table 12, Stanford Bunny | 0.950 | 0.981 | 0.965 |"), "{md}");
+    assert!(md.contains("| the paper, Table 12, average of its 5 models | 0.952 | 0.944 | 0.947 |"));
+    assert!(
+        md.contains("| 1681 | 10.00 | 2.50 | 4.00 | ≥1.62 (120/74 FPS) | capped (120/120 FPS) |"),
+        "{md}"
+    );
+    assert!(md.contains("| 9 | 10.00 | 2.50 | 4.00 | no row | no row |"));
+    assert!(md.contains("the Stanford Bunny's"));
+    assert!(!md.contains("not reproduced") && !t.contains("not available"));
+}
+
+#[test]
+fn report_prints_the_papers_range_for_other_models_and_terrain_f() {
+    let rep = paper_report("spot.obj", Subject::Model, &[11]);
+    assert_eq!(rep.paper_model(), None);
+    let t = rep.text();
+    assert!(
+        t.contains(
+            "ratio 4.00; paper (range over its 5 models): GTX 750 1.27–2.40 (Bunny capped), \
+             GTX 1080 Ti ≥1.20–≥1.54 (Buddha, Dragon, Bunny capped)"
+        ),
+        "{t}"
+    );
+    assert!(t.contains(
+        "paper (Table 12, average; not one of its models): recall 0.952, precision 0.944, F 0.947"
+    ));
+    let md = rep.markdown("f.png", None, "");
+    assert!(md.contains("| 121 | 10.00 | 2.50 | 4.00 | 1.27–2.40 (Bunny capped) |"), "{md}");
+    assert!(!md.contains("Table 12, Stanford Bunny"));
+
+    // A terrain named like a model is still terrain: the large-terrain F, no model.
+    let rep = paper_report("bunny.png", Subject::Terrain, &[]);
+    assert_eq!(rep.paper_model(), None);
+    let t = rep.text();
+    assert!(t.contains("paper: F 0.972 (large terrain), Table 12 average: recall 0.952"), "{t}");
+    assert!(!t.contains("paper's ratio"));
+    let md = rep.markdown("f.png", None, "");
+    assert!(md.contains("| the paper, large terrain (1,681 tiles, 5 levels) | | | 0.972 |"), "{md}");
 }
 
 #[test]
