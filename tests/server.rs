@@ -8,6 +8,8 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::float_cmp, clippy::panic)]
 #![allow(clippy::large_futures, clippy::duration_suboptimal_units, clippy::format_push_string)]
 
+mod common;
+
 use std::net::{IpAddr, SocketAddr};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -24,7 +26,10 @@ use terrastream::store::Store;
 /// quadtree but outside the data.
 const WIDTH: u32 = 257;
 const HEIGHT: u32 = 193;
-const OPTS: BakeOptions = BakeOptions { tile_size: 64, max_error: 2.0, levels: 2 };
+/// An exact TIN (`max_error` 0) over the smooth test raster keeps enough vertices that both
+/// point levels pay in every node (checked by `point_levels_that_do_not_pay_are_404`), so the
+/// tests below may request any level.
+const OPTS: BakeOptions = BakeOptions { tile_size: 64, max_error: 0.0, levels: 2 };
 
 #[derive(Debug)]
 struct Resp {
@@ -666,7 +671,7 @@ fn on_demand_store(side: u32) -> (tempfile::TempDir, PathBuf, String) {
     write_raster(&tif, (side, side), 11);
     let store = tmp.path().join("store");
     std::fs::create_dir_all(&store).unwrap();
-    let spec = format!("od={},tile_size=256,max_error=2,levels=2", tif.display());
+    let spec = format!("od={},tile_size=256,max_error=0,levels=2", tif.display());
     (tmp, store, spec)
 }
 
@@ -1285,5 +1290,57 @@ async fn staging_leftovers_are_removed_at_startup() {
         assert!(store.join(k).exists(), "{k} removed");
     }
     assert_eq!(get(srv.addr, "/tilesets/t/tiles/0/0/0/0").await.status, 200);
+    srv.stop().await;
+}
+
+/// Issue 13: every node of the fixture stores every level (what the tests above rely on); and a
+/// level that did not pay is `404` with the reason, while the node's index entry lists what it
+/// has, and levels that are stored are served.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn point_levels_that_do_not_pay_are_404() {
+    let (_tmp, store, _tif) = baked_store();
+    let fixture = store.join("t");
+    let (nodes, stored, left_out) = common::assert_levels_pay(&fixture);
+    assert_eq!((stored, left_out), (nodes * 3, 0), "the fixture must store every level");
+
+    // The same raster with a 2 m TIN: level 1 costs more than the mesh nearly everywhere.
+    let tmp = tempfile::tempdir().unwrap();
+    let tif = tmp.path().join("t.tif");
+    write_raster(&tif, (WIDTH, HEIGHT), 7);
+    let s2 = tmp.path().join("store");
+    let r = raster::load(&tif, &LoadOptions::default()).unwrap();
+    let opts = BakeOptions { max_error: 2.0, ..OPTS };
+    terrastream::bake::bake_terrain(
+        &r,
+        "t.tif",
+        &opts,
+        &terrastream::lod::PointBaker::Cpu,
+        &Store::new(&s2.join("t")),
+        &NoProgress,
+    )
+    .unwrap();
+    let (_, _, left_out) = common::assert_levels_pay(&s2.join("t"));
+    assert!(left_out > 0);
+    let srv = Running::start(store_config(&s2)).await;
+    let st = Store::new(&s2.join("t"));
+    let m = st.manifest().unwrap();
+    let pyramid = terrastream::tiling::Pyramid::new(m.source.width, m.source.height, m.tile_size).unwrap();
+    let (mut missing, mut served) = (0, 0);
+    for key in pyramid.nodes() {
+        let node = st.node(key).unwrap().unwrap();
+        for level in 0..=2u8 {
+            let r = get(srv.addr, &format!("/tilesets/t/tiles/{}/{}/{}/{level}", key.z, key.x, key.y)).await;
+            if node.level(level).is_some() {
+                assert_eq!(r.status, 200, "{key}/{level}");
+                served += 1;
+            } else {
+                r.assert_problem(404);
+                let body = String::from_utf8_lossy(&r.body).into_owned();
+                assert!(body.contains("did not pay") && body.contains(&key.to_string()), "{body}");
+                missing += 1;
+            }
+        }
+    }
+    assert!(missing > 0 && served > 0, "{missing} missing, {served} served");
     srv.stop().await;
 }

@@ -526,13 +526,51 @@ mod tests {
         assert_eq!(m.tileset.depth, 0);
         // The generic reader and the index see the one node.
         assert_eq!(store.manifest().unwrap().totals.len(), 4);
+        // Every point level has more points than the tetrahedron's 4 vertices: none pays, so
+        // the node stores its mesh alone and each point level has its `unpaid` marker.
         let node = store.node(MODEL_TILE).unwrap().unwrap();
-        assert_eq!(node.levels.len(), 4);
-        for (l, info) in s.levels.iter().enumerate() {
-            let blob = codec::decode(&store.read_blob(MODEL_TILE, l as u8).unwrap().unwrap()).unwrap();
-            assert_eq!(blob.header.vertex_count, info.count);
-            assert_eq!(blob.header.errors, info.errors);
+        assert_eq!(node.levels.iter().map(|l| l.level).collect::<Vec<_>>(), vec![0]);
+        assert!(s.levels[0].stored && s.levels[1..].iter().all(|l| !l.stored && l.count > 4));
+        for info in &s.levels {
+            match store.read_blob(MODEL_TILE, info.level).unwrap() {
+                Some(bytes) => {
+                    let blob = codec::decode(&bytes).unwrap();
+                    assert_eq!(blob.header.vertex_count, info.count);
+                    assert_eq!(blob.header.errors, info.errors);
+                }
+                None => assert!(!info.stored && store.is_unpaid(MODEL_TILE, info.level), "{info:?}"),
+            }
         }
+        assert_eq!(store.manifest().unwrap().totals[1].tiles, 0);
+    }
+
+    /// Which levels pay: each kept level is cheaper in both primitives and bytes than every
+    /// finer kept one; a level as dear as a finer one in either measure is left out, and a
+    /// cheaper level after one left out is judged against the kept ones only.
+    #[test]
+    fn levels_pay_only_when_cheaper_in_primitives_and_bytes() {
+        let l = |count: u32, bytes: u64| NodeLevel {
+            level: 0,
+            errors: Errors::default(),
+            count,
+            triangles: 0,
+            bytes,
+            checksum: 0,
+        };
+        let pays = crate::store::levels_that_pay;
+        assert_eq!(pays(&[l(100, 1000)]), vec![true]);
+        assert_eq!(pays(&[l(100, 1000), l(50, 500), l(20, 200)]), vec![true; 3]);
+        // More points than the mesh has vertices; fewer points but more bytes; equal cost.
+        assert_eq!(
+            pays(&[l(100, 1000), l(150, 900), l(90, 1100), l(100, 1000)]),
+            vec![true, false, false, false]
+        );
+        // Judged against the kept levels: 60 < 100 although the left-out 150 is dearer still.
+        assert_eq!(
+            pays(&[l(100, 1000), l(150, 1500), l(60, 600), l(70, 500)]),
+            vec![true, false, true, false]
+        );
+        assert!(pays(&[]).is_empty());
     }
 
     #[test]

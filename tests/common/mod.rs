@@ -92,7 +92,6 @@ pub fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
 /// each further level with fewer primitives *and* fewer bytes than every finer level the node
 /// stores; the index's figures match the blobs; and every level of the ladder a node does not
 /// store has its `unpaid` marker and no blob. Returns (nodes, levels stored, levels left out).
-#[allow(dead_code)]
 pub fn assert_levels_pay(dir: &Path) -> (usize, usize, usize) {
     use terrastream::store::{Store, TilesetKind};
     let store = Store::new(dir);
@@ -110,7 +109,10 @@ pub fn assert_levels_pay(dir: &Path) -> (usize, usize, usize) {
     for n in &nodes {
         assert_eq!(n.levels.first().map(|l| l.level), Some(0), "{}: no mesh", n.key);
         for (i, l) in n.levels.iter().enumerate() {
-            let bytes = store.read_blob(n.key, l.level).unwrap().expect("stored level has a blob");
+            let bytes = store
+                .read_blob(n.key, l.level)
+                .unwrap()
+                .unwrap_or_else(|| panic!("{} level {}: listed in the index, no blob", n.key, l.level));
             let h = terrastream::codec::decode(&bytes).unwrap().header;
             assert_eq!(
                 (h.level, h.vertex_count, bytes.len() as u64),

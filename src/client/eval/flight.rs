@@ -232,7 +232,16 @@ mod tests {
         .unwrap();
         // The rule before costs were compared draws the dearer point levels.
         let c = coarsest_first(&dear).unwrap();
-        let before = flight_cost(std::path::Path::new("orbit.json"), &c, &bounds, &orbit(), (640, 360, 60.0), 1.0, 2.0).unwrap();
+        let before = flight_cost(
+            std::path::Path::new("orbit.json"),
+            &c,
+            &bounds,
+            &orbit(),
+            (640, 360, 60.0),
+            1.0,
+            2.0,
+        )
+        .unwrap();
         let sum = |f: &FlightCost| f.frames.iter().map(|x| x.primitives).sum::<u64>();
         assert!(sum(&before) > 0 && sum(&d) < sum(&before) / 2, "{} vs {}", sum(&d), sum(&before));
         assert!(d.frames.iter().all(|f| f.primitives == u64::from(f.draws) * 100), "{:?}", d.frames[0]);
