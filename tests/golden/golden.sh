@@ -96,6 +96,7 @@ request blob-cors GET "$blob" -H 'Origin: https://example.com'
 request preflight OPTIONS "$blob" -H 'Origin: https://example.com' -H 'Access-Control-Request-Method: GET'
 request missing-tileset GET /tilesets/nope
 request missing-level GET /tilesets/demo/tiles/1/0/1/9
+request unpaid-level GET /tilesets/demo/tiles/2/3/3/1
 request out-of-range-key GET /tilesets/demo/tiles/1/5/0/0
 request too-deep GET /tilesets/demo/tiles/9/0/0/0
 request bad-key GET /tilesets/demo/tiles/x/0/0/0
