@@ -106,11 +106,16 @@ pub fn run(a: &EvalArgs) -> Result<()> {
         } else {
             client::tree::TileTree::load(&store)?
         };
-        let tree = if a.flight_rule == "coarsest" { evaluate::flight::coarsest_first(&tree)? } else { tree };
         let f = client::stream::flight::Flight::load(flight)?;
+        let rule = if a.flight_rule == "coarsest" {
+            evaluate::flight::Rule::Coarsest
+        } else {
+            evaluate::flight::Rule::Cheapest
+        };
         let cost = evaluate::flight::flight_cost(
             flight,
             &tree,
+            rule,
             &manifest.bounds,
             &f,
             (a.width, a.height, a.fov),

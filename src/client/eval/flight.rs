@@ -38,6 +38,7 @@ pub struct FrameCost {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FlightCost {
     pub flight: String,
+    pub rule: Rule,
     pub fps: f64,
     pub threshold_px: f64,
     pub width: u32,
@@ -47,6 +48,8 @@ pub struct FlightCost {
     /// large enough cache streams.
     pub streamed_bytes: u64,
     pub streamed_blobs: u64,
+    /// Draws per level id, summed over the frames.
+    pub draws_per_level: Vec<u64>,
     /// Frames where some visible node drew a level over the threshold other than a leaf's
     /// finest (which cannot do better): 0 means every view was under the threshold.
     pub frames_over_threshold: u32,
@@ -76,9 +79,10 @@ impl FlightCost {
         let (mp, mb) = self.mean_per_frame();
         let (pp, pb) = self.peak_per_frame();
         format!(
-            "flight {}: {} frames at {} fps, threshold {} px, {}×{}: per frame {:.0} primitives ({pp} peak), \
+            "flight {} ({:?} level under the threshold): {} frames at {} fps, threshold {} px, {}×{}: per frame {:.0} primitives ({pp} peak), \
              {:.0} bytes ({pb} peak) drawn; streamed {} bytes in {} blobs; frames over the threshold: {}",
             self.flight,
+            self.rule,
             self.frames.len(),
             self.fps,
             self.threshold_px,
@@ -93,11 +97,25 @@ impl FlightCost {
     }
 }
 
-/// Replays `flight` (read from `flight_path`, for errors; in world coordinates once `bounds` places a normalized one) at `fps` over
-/// `tree` with everything resident and no fades, as the client's selection would draw it.
+/// Which level the replay's selection draws among those under the threshold.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Rule {
+    /// The cheapest (the client's rule).
+    Cheapest,
+    /// The coarsest (the rule before levels were compared by cost), for before/after
+    /// comparisons; costs are still counted from the index.
+    Coarsest,
+}
+
+/// Replays `flight` (read from `flight_path`, named in errors; placed by `bounds` when its
+/// frame is normalized) at `fps` over `tree` with everything resident and no fades, as the
+/// client's selection would draw it by `rule`.
+#[allow(clippy::too_many_arguments)]
 pub fn flight_cost(
     flight_path: &std::path::Path,
     tree: &TileTree,
+    rule: Rule,
     bounds: &Bounds,
     flight: &Flight,
     (width, height, fov_deg): (u32, u32, f64),
@@ -113,20 +131,35 @@ pub fn flight_cost(
     let wanted = (duration * fps).floor() + 1.0;
     let n =
         if wanted.is_finite() { (wanted as usize).clamp(1, MAX_FLIGHT_FRAMES) } else { MAX_FLIGHT_FRAMES };
+    let ranked;
+    let select_tree = match rule {
+        Rule::Cheapest => tree,
+        Rule::Coarsest => {
+            ranked = coarsest_first(tree)?;
+            &ranked
+        }
+    };
     let mut selector =
         Selector::new(SelectParams { threshold_px, fade_seconds: 0.0, ..SelectParams::default() })?;
     let mut seen: HashSet<(TileKey, u8)> = HashSet::new();
     let (mut streamed_bytes, mut over) = (0u64, 0u32);
+    let mut draws_per_level: Vec<u64> = Vec::new();
     let mut frames = Vec::with_capacity(n);
     for i in 0..n {
         let t = if n == 1 { world.start() } else { world.start() + duration * i as f64 / (n - 1) as f64 };
         let camera = Camera::new(&world.pose_at(t), width, height, fov_deg);
-        let sel = selector.select(tree, &camera, &AllResident, t)?;
+        // Node ids are the same in both trees (the same nodes inserted in the same order).
+        let sel = selector.select(select_tree, &camera, &AllResident, t)?;
         let mut f = FrameCost { t, draws: 0, primitives: 0, bytes: 0, max_error_px: 0.0 };
         let mut frame_over = false;
         for d in sel.draws.iter().filter(|d| !d.retiring) {
             let cost = tree.level_costs(d.node)[usize::from(d.level)];
             f.draws += 1;
+            let l = usize::from(d.level);
+            if draws_per_level.len() <= l {
+                draws_per_level.resize(l + 1, 0);
+            }
+            draws_per_level[l] += 1;
             f.primitives += u64::from(cost.primitives);
             f.bytes += cost.bytes;
             f.max_error_px = f.max_error_px.max(d.error_px);
@@ -141,6 +174,7 @@ pub fn flight_cost(
     }
     Ok(FlightCost {
         flight: world.name.clone().unwrap_or_else(|| "unnamed".into()),
+        rule,
         fps,
         threshold_px,
         width,
@@ -148,6 +182,7 @@ pub fn flight_cost(
         frames,
         streamed_bytes,
         streamed_blobs: seen.len() as u64,
+        draws_per_level,
         frames_over_threshold: over,
     })
 }
