@@ -113,7 +113,7 @@ fn drawn_errors_px(session: &Session, store: &Store, camera: &Camera) -> Vec<f64
         .filter(|d| !d.retiring)
         .map(|d| {
             let node = store.node(d.key).unwrap().unwrap();
-            let e = node.level(d.level).expect("drawn level is stored").errors.geometric();
+            let e = node.level(d.level).unwrap().errors.geometric();
             let c = node.bounds.center();
             let dist = ((c[0] - camera.eye[0]).powi(2)
                 + (c[1] - camera.eye[1]).powi(2)

@@ -721,6 +721,48 @@ fn tempfile_in(dir: &Path, path: &Path) -> Result<(PathBuf, fs::File), StoreErro
 mod tests {
     use super::*;
 
+    /// Index entries: level ids as written, numbered by position when an older index has none,
+    /// and refused (naming the node) when mixed, out of order or without the mesh.
+    #[test]
+    fn node_entries_read_level_ids_or_number_them() {
+        let level = |id: Option<u8>| {
+            let mut v = serde_json::json!({
+                "errors": {"max": 1.0, "rms": 0.5, "gap": 0.0}, "count": 3, "triangles": 1, "bytes": 10, "checksum": 7
+            });
+            if let Some(id) = id {
+                v["level"] = id.into();
+            }
+            v
+        };
+        let entry = |levels: Vec<serde_json::Value>| {
+            serde_json::json!({
+                "key": {"z": 1, "x": 0, "y": 1},
+                "bounds": {"min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 1.0]},
+                "levels": levels,
+            })
+        };
+        let parse = |v: serde_json::Value| serde_json::from_value::<NodeEntry>(v);
+        let ids = |e: &NodeEntry| e.levels.iter().map(|l| l.level).collect::<Vec<_>>();
+        let e = parse(entry(vec![level(Some(0)), level(Some(3)), level(Some(4))])).unwrap();
+        assert_eq!(ids(&e), vec![0, 3, 4]);
+        assert!(e.level(3).is_some() && e.level(1).is_none());
+        assert_eq!(e.level_mask(), 0b11001);
+        let old = parse(entry(vec![level(None), level(None), level(None)])).unwrap();
+        assert_eq!(ids(&old), vec![0, 1, 2]);
+        for (bad, why) in [
+            (entry(vec![level(Some(0)), level(None)]), "some levels have"),
+            (entry(vec![level(Some(0)), level(Some(2)), level(Some(2))]), "must increase"),
+            (entry(vec![level(Some(1))]), "must be level 0"),
+            (entry(vec![]), "must be level 0"),
+        ] {
+            let err = parse(bad).unwrap_err().to_string();
+            assert!(err.contains(why) && err.contains("1/0/1"), "{err}");
+        }
+        // Written and read back, an entry is unchanged (what the store_json fuzz target holds).
+        let text = serde_json::to_string(&e).unwrap();
+        assert_eq!(serde_json::from_str::<NodeEntry>(&text).unwrap(), e);
+    }
+
     #[test]
     fn chunk_roots() {
         assert_eq!(chunk_root(TileKey::new(0, 0, 0)), TileKey::new(0, 0, 0));

@@ -228,6 +228,7 @@ mod tests {
         let c = flight_cost(
             std::path::Path::new("orbit.json"),
             &tree,
+            Rule::Cheapest,
             &bounds,
             &orbit(),
             (640, 360, 60.0),
@@ -258,6 +259,7 @@ mod tests {
         let d = flight_cost(
             std::path::Path::new("orbit.json"),
             &dear,
+            Rule::Cheapest,
             &bounds,
             &orbit(),
             (640, 360, 60.0),
@@ -266,10 +268,10 @@ mod tests {
         )
         .unwrap();
         // The rule before costs were compared draws the dearer point levels.
-        let c = coarsest_first(&dear).unwrap();
         let before = flight_cost(
             std::path::Path::new("orbit.json"),
-            &c,
+            &dear,
+            Rule::Coarsest,
             &bounds,
             &orbit(),
             (640, 360, 60.0),
@@ -292,6 +294,7 @@ mod tests {
                 flight_cost(
                     std::path::Path::new("orbit.json"),
                     &tree,
+                    Rule::Cheapest,
                     &b,
                     &orbit(),
                     (64, 64, 60.0),

@@ -62,7 +62,8 @@ impl TerrainFrames {
         factors.sort_by(f64::total_cmp);
         factors.dedup();
         for f in factors {
-            let rows: Vec<&FrameRow> = self.rows.iter().filter(|r| r.distance_factor == f).collect();
+            let rows: Vec<&FrameRow> =
+                self.rows.iter().filter(|r| r.distance_factor.total_cmp(&f).is_eq()).collect();
             let med = |g: &dyn Fn(&FrameRow) -> f64| {
                 analysis::median(&rows.iter().map(|r| g(r)).collect::<Vec<_>>())
             };
