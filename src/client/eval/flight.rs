@@ -256,6 +256,7 @@ mod tests {
                 .collect();
             dear.insert_levels(n.key, n.bounds, &levels).unwrap();
         }
+        // A threshold loose enough that point levels qualify.
         let d = flight_cost(
             std::path::Path::new("orbit.json"),
             &dear,
@@ -263,7 +264,7 @@ mod tests {
             &bounds,
             &orbit(),
             (640, 360, 60.0),
-            1.0,
+            16.0,
             2.0,
         )
         .unwrap();
@@ -275,10 +276,12 @@ mod tests {
             &bounds,
             &orbit(),
             (640, 360, 60.0),
-            1.0,
+            16.0,
             2.0,
         )
         .unwrap();
+        assert!(before.draws_per_level.iter().skip(1).sum::<u64>() > 0, "{:?}", before.draws_per_level);
+        assert_eq!(d.draws_per_level.iter().skip(1).sum::<u64>(), 0, "{:?}", d.draws_per_level);
         let sum = |f: &FlightCost| f.frames.iter().map(|x| x.primitives).sum::<u64>();
         assert!(sum(&before) > 0 && sum(&d) < sum(&before) / 2, "{} vs {}", sum(&d), sum(&before));
         assert!(d.frames.iter().all(|f| f.primitives == u64::from(f.draws) * 100), "{:?}", d.frames[0]);
