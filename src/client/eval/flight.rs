@@ -225,17 +225,20 @@ mod tests {
         let spec = Synthetic { width: 1025, height: 1025, tile_size: 128, ..Synthetic::with_nodes(1) };
         let tree = TileTree::synthetic(&spec).unwrap();
         let bounds = tree.bounds().unwrap();
-        let c = flight_cost(
-            std::path::Path::new("orbit.json"),
-            &tree,
-            Rule::Cheapest,
-            &bounds,
-            &orbit(),
-            (640, 360, 60.0),
-            1.0,
-            2.0,
-        )
-        .unwrap();
+        let replay = |t: &TileTree, rule: Rule, threshold: f64| {
+            flight_cost(
+                std::path::Path::new("orbit.json"),
+                t,
+                rule,
+                &bounds,
+                &orbit(),
+                (640, 360, 60.0),
+                threshold,
+                2.0,
+            )
+            .unwrap()
+        };
+        let c = replay(&tree, Rule::Cheapest, 1.0);
         assert_eq!(c.frames.len(), 49);
         assert!(c.frames.iter().all(|f| f.draws > 0 && f.primitives > 0));
         let total: u64 = c.frames.iter().map(|f| f.bytes).sum();
@@ -257,29 +260,9 @@ mod tests {
             dear.insert_levels(n.key, n.bounds, &levels).unwrap();
         }
         // A threshold loose enough that point levels qualify.
-        let d = flight_cost(
-            std::path::Path::new("orbit.json"),
-            &dear,
-            Rule::Cheapest,
-            &bounds,
-            &orbit(),
-            (640, 360, 60.0),
-            16.0,
-            2.0,
-        )
-        .unwrap();
+        let d = replay(&dear, Rule::Cheapest, 16.0);
         // The rule before costs were compared draws the dearer point levels.
-        let before = flight_cost(
-            std::path::Path::new("orbit.json"),
-            &dear,
-            Rule::Coarsest,
-            &bounds,
-            &orbit(),
-            (640, 360, 60.0),
-            16.0,
-            2.0,
-        )
-        .unwrap();
+        let before = replay(&dear, Rule::Coarsest, 16.0);
         assert!(before.draws_per_level.iter().skip(1).sum::<u64>() > 0, "{:?}", before.draws_per_level);
         assert_eq!(d.draws_per_level.iter().skip(1).sum::<u64>(), 0, "{:?}", d.draws_per_level);
         let sum = |f: &FlightCost| f.frames.iter().map(|x| x.primitives).sum::<u64>();

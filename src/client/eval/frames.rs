@@ -10,7 +10,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::EvalError;
-use super::analysis::{self, CameraPlan, Subject};
+use super::analysis::{self, Subject};
 use super::run::{EvalOptions, Tileset, item};
 use crate::client::render::Renderer;
 use crate::client::select::{AllResident, DrawItem, SelectParams, Selector};
@@ -102,22 +102,7 @@ pub fn terrain_frames(
     if ts.subject != Subject::Terrain {
         return Err(EvalError::NotTerrain(dir.to_owned()));
     }
-    let plan = CameraPlan {
-        width: opts.width,
-        height: opts.height,
-        fov_deg: opts.fov_deg,
-        distances: if opts.distances.is_empty() {
-            analysis::DEFAULT_DISTANCES.to_vec()
-        } else {
-            opts.distances.clone()
-        },
-        azimuths: opts.azimuths,
-        elevations: if opts.elevations.is_empty() {
-            ts.subject.default_elevations()
-        } else {
-            opts.elevations.clone()
-        },
-    };
+    let plan = opts.plan(ts.subject);
     let cams = analysis::cameras(&ts.bounds, ts.subject, &plan)?;
     let gpu = crate::gpu::open()?;
     let origin = ts.bounds.min;

@@ -71,6 +71,29 @@ impl Default for EvalOptions {
     }
 }
 
+impl EvalOptions {
+    /// The camera plan of these options for `subject` (empty lists: the defaults).
+    #[must_use]
+    pub fn plan(&self, subject: Subject) -> CameraPlan {
+        CameraPlan {
+            width: self.width,
+            height: self.height,
+            fov_deg: self.fov_deg,
+            distances: if self.distances.is_empty() {
+                analysis::DEFAULT_DISTANCES.to_vec()
+            } else {
+                self.distances.clone()
+            },
+            azimuths: self.azimuths,
+            elevations: if self.elevations.is_empty() {
+                subject.default_elevations()
+            } else {
+                self.elevations.clone()
+            },
+        }
+    }
+}
+
 /// The tileset as the evaluation reads it.
 pub(super) struct Tileset {
     store: Store,
@@ -239,22 +262,7 @@ pub fn run(
         return Err(EvalError::Threshold(opts.threshold_px));
     }
     let mut ts = Tileset::open(dir)?;
-    let plan = CameraPlan {
-        width: opts.width,
-        height: opts.height,
-        fov_deg: opts.fov_deg,
-        distances: if opts.distances.is_empty() {
-            analysis::DEFAULT_DISTANCES.to_vec()
-        } else {
-            opts.distances.clone()
-        },
-        azimuths: opts.azimuths,
-        elevations: if opts.elevations.is_empty() {
-            ts.subject.default_elevations()
-        } else {
-            opts.elevations.clone()
-        },
-    };
+    let plan = opts.plan(ts.subject);
     let cams = analysis::cameras(&ts.bounds, ts.subject, &plan)?;
     let gpu = crate::gpu::open()?;
     let adapter = gpu.adapter.clone();
