@@ -127,7 +127,7 @@ pub fn node_mesh(
     let step = pyramid.step(key.z);
     let grid = pyramid.grid(key);
     let mut heights = Vec::new();
-    reader.read_window(&grid.cols, &grid.rows, &mut heights);
+    reader.read_window(&grid.cols, &grid.rows, &mut heights)?;
     let node_error = opts.max_error * f64::from(step);
     let t = tin::build(&grid, &heights, node_error).map_err(|source| BakeError::Tin { key, source })?;
 
@@ -181,20 +181,29 @@ pub fn node_mesh(
     // is — its neighbour stores the same border vertex — and the box grows to hold it.
     let bounds = codec::quantized_bounds(&bounds, &mesh.positions, mesh_q);
 
-    // Measured against every full-resolution sample the node covers, in sample coordinates.
+    // Measured against every full-resolution sample the node covers, in sample coordinates,
+    // read in strips of rows (one strip up to `tin::MEASURE_STRIP_SAMPLES` samples).
     let cols: Vec<u32> = (span.col0..=span.col1).collect();
-    let rows: Vec<u32> = (span.row0..=span.row1).collect();
-    let mut full = Vec::new();
-    reader.read_window(&cols, &rows, &mut full);
     let sample_space: Vec<[f64; 3]> = mesh
         .positions
         .iter()
         .map(|p| [(p[0] - georef.x0) / georef.dx, (p[1] - georef.y0) / georef.dy, p[2]])
         .map(|p| [p[0].round(), p[1].round(), p[2]])
         .collect();
-    let mesh_errors = tin::measure_vertical(&sample_space, &mesh.triangles, span, &full)
-        .map_err(|source| BakeError::Tin { key, source })?;
-    drop(full);
+    let mesh_errors = tin::measure_vertical_strips(
+        &sample_space,
+        &mesh.triangles,
+        span,
+        tin::MEASURE_STRIP_SAMPLES,
+        |r0, r1, out| {
+            let rows: Vec<u32> = (r0..=r1).collect();
+            reader.read_window(&cols, &rows, out)
+        },
+    )
+    .map_err(|e| match e {
+        tin::StripError::Tin(source) => BakeError::Tin { key, source },
+        tin::StripError::Read(e) => BakeError::Raster(e),
+    })?;
 
     Ok(NodeMesh {
         key,
@@ -354,6 +363,7 @@ mod one_node_tests {
             },
             georef: Georef { dx: 10.0, dy: -10.0, ..Georef::default() },
             nodata_filled: 0,
+            nodata_fallback: 0,
             format: "test".into(),
         };
         let opts = BakeOptions { tile_size: 32, max_error: 2.0, levels: 2 };

@@ -19,7 +19,7 @@ use crate::geom::Bounds;
 #[cfg(feature = "gpu")]
 use crate::geom::PointCloud;
 use crate::lod::{self, PointBaker};
-use crate::raster::LoadedRaster;
+use crate::raster::{Georef, LoadedRaster, WindowReader};
 use crate::store::{
     IndexChunk, LevelSpec, LevelTable, LevelTotals, MANIFEST_FORMAT, MANIFEST_VERSION, Manifest, NodeEntry,
     SUBTREE_LEVELS, SourceInfo, Store, chunk_root, content_version,
@@ -85,6 +85,9 @@ pub enum BakeError {
     Cancelled(String),
     #[error("bake: {0}")]
     Baker(#[from] lod::BakerError),
+    /// Reading the dataset's samples failed (a file changed or became unreadable mid-bake).
+    #[error("bake: {0}")]
+    Raster(#[from] crate::raster::RasterError),
 }
 
 /// Progress of a bake, reported as nodes complete (from any worker thread).
@@ -212,6 +215,49 @@ pub fn level_specs(opts: &BakeOptions) -> Vec<LevelSpec> {
     out
 }
 
+/// What a terrain bake reads: the samples (through a window reader: an in-memory raster or a
+/// dataset read in blocks), their frame, and what the source was.
+pub struct TerrainInput<'a> {
+    pub reader: &'a dyn WindowReader,
+    pub georef: Georef,
+    /// Short format name of the source ("geotiff", "hgt", …).
+    pub format: String,
+    pub nodata_filled: u64,
+    /// Of the filled samples, those beyond the fill's reach (set from the fallback grid).
+    pub nodata_fallback: u64,
+    /// CRC-32 of every filled height, row-major, little-endian f32.
+    pub crc32: String,
+}
+
+impl<'a> TerrainInput<'a> {
+    /// The input of an in-memory raster (its checksum computed here).
+    #[must_use]
+    pub fn of(raster: &'a LoadedRaster) -> Self {
+        Self {
+            reader: &raster.heights,
+            georef: raster.georef,
+            format: raster.format.clone(),
+            nodata_filled: raster.nodata_filled,
+            nodata_fallback: raster.nodata_fallback,
+            crc32: heights_crc(&raster.heights.data),
+        }
+    }
+
+    /// The input of a dataset opened in blocks.
+    #[must_use]
+    pub fn of_dataset(ds: &'a crate::raster::dataset::Dataset) -> Self {
+        let s = ds.summary();
+        Self {
+            reader: ds,
+            georef: *ds.georef(),
+            format: s.format.clone(),
+            nodata_filled: s.nodata_filled,
+            nodata_fallback: s.nodata_fallback,
+            crc32: s.crc32.clone(),
+        }
+    }
+}
+
 /// Bakes `raster` into `store`, point levels by `baker`. Resumes a bake with the same options,
 /// keeping complete nodes.
 pub fn bake_terrain(
@@ -222,11 +268,24 @@ pub fn bake_terrain(
     store: &Store,
     progress: &dyn Progress,
 ) -> Result<BakeSummary, BakeError> {
+    bake_input(&TerrainInput::of(raster), source_name, opts, baker, store, progress)
+}
+
+/// [`bake_terrain`] for any [`TerrainInput`]: the same bytes for the same heights, whether they
+/// are held in memory or read in blocks.
+pub fn bake_input(
+    input: &TerrainInput<'_>,
+    source_name: &str,
+    opts: &BakeOptions,
+    baker: &PointBaker,
+    store: &Store,
+    progress: &dyn Progress,
+) -> Result<BakeSummary, BakeError> {
     check_options(opts)?;
     let t0 = Instant::now();
-    let hf = &raster.heights;
-    let pyramid = Pyramid::new(hf.width, hf.height, opts.tile_size)?;
-    let options_json = options_record(raster, source_name, opts);
+    let (width, height) = input.reader.size();
+    let pyramid = Pyramid::new(width, height, opts.tile_size)?;
+    let options_json = options_record_of(input, source_name, opts);
     store.begin_bake(&options_json)?;
 
     // Larger nodes first: parents measure against more full-resolution samples, so starting them
@@ -240,11 +299,11 @@ pub fn bake_terrain(
     #[allow(unused_mut)]
     let mut gpu_report: Option<[u64; 4]> = None;
     let entries: Vec<NodeEntry> = match baker {
-        PointBaker::Cpu => bake_nodes_cpu(&pyramid, raster, opts, &nodes, resumed, store, progress)?,
+        PointBaker::Cpu => bake_nodes_cpu(&pyramid, input, opts, &nodes, resumed, store, progress)?,
         #[cfg(feature = "gpu")]
         PointBaker::Gpu(gpu) => {
             let (entries, report) =
-                bake_nodes_gpu(gpu, &pyramid, raster, opts, &nodes, resumed, store, progress)?;
+                bake_nodes_gpu(gpu, &pyramid, input, opts, &nodes, resumed, store, progress)?;
             gpu_report =
                 Some([report.batches, report.peak_batch_bytes, report.budget_bytes, report.cpu_jobs]);
             entries
@@ -274,12 +333,12 @@ pub fn bake_terrain(
         content_version: content_version(entries.iter().flat_map(|e| &e.levels)),
         source: SourceInfo {
             file: source_name.into(),
-            format: raster.format.clone(),
-            width: hf.width,
-            height: hf.height,
-            nodata_filled: raster.nodata_filled,
+            format: input.format.clone(),
+            width,
+            height,
+            nodata_filled: input.nodata_filled,
         },
-        frame: raster.georef,
+        frame: input.georef,
         tile_size: opts.tile_size,
         depth: pyramid.depth,
         subtree_levels: SUBTREE_LEVELS,
@@ -293,8 +352,8 @@ pub fn bake_terrain(
     Ok(BakeSummary {
         nodes: nodes.len() as u64,
         nodes_resumed: resumed_count,
-        samples: u64::from(hf.width) * u64::from(hf.height),
-        nodata_filled: raster.nodata_filled,
+        samples: u64::from(width) * u64::from(height),
+        nodata_filled: input.nodata_filled,
         totals,
         seconds: t0.elapsed().as_secs_f64(),
         point_baker: baker.describe(),
@@ -308,14 +367,13 @@ pub fn bake_terrain(
 /// The CPU path: every node on its own, in parallel.
 fn bake_nodes_cpu(
     pyramid: &Pyramid,
-    raster: &LoadedRaster,
+    input: &TerrainInput<'_>,
     opts: &BakeOptions,
     nodes: &[TileKey],
     resumed: Vec<Option<NodeEntry>>,
     store: &Store,
     progress: &dyn Progress,
 ) -> Result<Vec<NodeEntry>, BakeError> {
-    let hf = &raster.heights;
     // The first failure stops the others (nodes already in flight finish) and is what the bake
     // reports.
     let first_error: Mutex<Option<BakeError>> = Mutex::new(None);
@@ -338,7 +396,7 @@ fn bake_nodes_cpu(
                 fail(BakeError::Cancelled(why));
                 return None;
             }
-            let r = bake_node_in(pyramid, hf, &raster.georef, key, opts, &PointBaker::Cpu, store);
+            let r = bake_node_in(pyramid, input.reader, &input.georef, key, opts, &PointBaker::Cpu, store);
             progress.node_done();
             r.map_err(fail).ok()
         })
@@ -364,7 +422,7 @@ pub const GPU_ROUND_NODES: usize = 32;
 fn bake_nodes_gpu(
     gpu: &lod::gpu::GpuBaker,
     pyramid: &Pyramid,
-    raster: &LoadedRaster,
+    input: &TerrainInput<'_>,
     opts: &BakeOptions,
     nodes: &[TileKey],
     resumed: Vec<Option<NodeEntry>>,
@@ -375,7 +433,6 @@ fn bake_nodes_gpu(
     type Round = (Vec<usize>, Vec<NodeMesh>);
     type Baked = (Vec<usize>, Vec<NodeMesh>, Vec<PointCloud>, lod::gpu::BatchReport);
 
-    let hf = &raster.heights;
     let pending: Vec<usize> = (0..nodes.len()).filter(|&i| resumed[i].is_none()).collect();
     let mut entries = resumed;
     let mut report = lod::gpu::BatchReport { budget_bytes: gpu.budget_bytes(), ..Default::default() };
@@ -438,7 +495,7 @@ fn bake_nodes_gpu(
             }
             let meshes: Vec<NodeMesh> = round
                 .par_iter()
-                .map(|&i| node_mesh(pyramid, hf, &raster.georef, nodes[i], opts))
+                .map(|&i| node_mesh(pyramid, input.reader, &input.georef, nodes[i], opts))
                 .collect::<Result<_, _>>()?;
             if to_gpu.send((round.to_vec(), meshes)).is_err() {
                 return Err(BakeError::GpuWorkerStopped);
@@ -481,15 +538,35 @@ fn heights_crc(data: &[f32]) -> String {
 /// later `terrastream bake` of the same source resumes the tiles it baked, and vice versa.
 #[must_use]
 pub fn options_record(raster: &LoadedRaster, source_name: &str, opts: &BakeOptions) -> serde_json::Value {
-    let hf = &raster.heights;
-    serde_json::json!({
+    options_record_of(&TerrainInput::of(raster), source_name, opts)
+}
+
+/// [`options_record`] of any input. Two rules newer than the record's first form are written
+/// only where they change the result, so every earlier tileset they do not affect keeps its
+/// record (and resumes): `fill` when samples lie beyond the no-data fill's reach (the fallback
+/// grid set them), `measure_strip_samples` when the raster is larger than one measuring strip
+/// (the rms of the widest nodes is summed per strip).
+#[must_use]
+pub fn options_record_of(input: &TerrainInput<'_>, source_name: &str, opts: &BakeOptions) -> serde_json::Value {
+    let (width, height) = input.reader.size();
+    let mut record = serde_json::json!({
         "tile_size": opts.tile_size,
         "max_error": opts.max_error,
         "levels": opts.levels,
-        "frame": raster.georef,
-        "source": { "file": source_name, "width": hf.width, "height": hf.height, "crc32": heights_crc(&hf.data) },
+        "frame": input.georef,
+        "source": { "file": source_name, "width": width, "height": height, "crc32": input.crc32 },
         "format_version": codec::FORMAT_VERSION,
-    })
+    });
+    if input.nodata_fallback > 0 {
+        record["fill"] = serde_json::json!({
+            "reach": crate::raster::dataset::FILL_REACH,
+            "fallback_block": crate::raster::dataset::BLOCK,
+        });
+    }
+    if u64::from(width) * u64::from(height) > tin::MEASURE_STRIP_SAMPLES as u64 {
+        record["measure_strip_samples"] = serde_json::json!(tin::MEASURE_STRIP_SAMPLES);
+    }
+    record
 }
 
 /// D1: every blob's positions lie inside the bounds its header states, for random tiles, flat
@@ -563,6 +640,7 @@ mod bounds_tests {
                 heights: crate::raster::Heightfield { width: w, height: h, data },
                 georef: Georef { dx: cell, dy: -cell, ..Georef::default() },
                 nodata_filled: 0,
+                nodata_fallback: 0,
                 format: "test".into(),
             };
             let dir = tempfile::tempdir().unwrap();

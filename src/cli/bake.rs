@@ -6,6 +6,7 @@ use std::time::{Duration, Instant};
 use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use terrastream::bake::{self, BakeOptions, BakeSummary};
+use terrastream::raster::dataset::{Dataset, DatasetOptions};
 use terrastream::raster::{self, HeightEncoding, Limits, LoadOptions, Overrides};
 use terrastream::store::Store;
 use terrastream::tiling;
@@ -15,8 +16,11 @@ use super::progress::{Bar, peak_rss_mib};
 
 #[derive(clap::Args)]
 pub struct BakeArgs {
-    /// Input raster: OpenEXR, 16-bit PNG, terrain-RGB/Terrarium PNG, GeoTIFF or SRTM .hgt.
-    pub input: PathBuf,
+    /// Input rasters forming one dataset: files (OpenEXR, 16-bit PNG, terrain-RGB/Terrarium PNG,
+    /// GeoTIFF/COG/BigTIFF, SRTM .hgt), directories (their raster files, sorted by name) or
+    /// patterns like 'tiles/*.tif'. Several files are placed on one grid by their georeference.
+    #[arg(required = true, num_args = 1..)]
+    pub inputs: Vec<PathBuf>,
     /// Output tileset directory (created; must be empty or an earlier bake of the same input).
     #[arg(long)]
     pub out: PathBuf,
@@ -47,10 +51,16 @@ pub struct BakeArgs {
     /// Add this to heights after scaling.
     #[arg(long, allow_hyphen_values = true)]
     pub z_offset: Option<f64>,
-    /// Refuse rasters with a side longer than this many samples.
+    /// Memory for the block caches, in MiB: the dataset is read in blocks and never held whole.
+    #[arg(long, default_value_t = raster::dataset::DEFAULT_CACHE_BYTES >> 20)]
+    pub cache_mib: u64,
+    /// Largest accepted distortion of the metric frame over a geographic dataset, in percent.
+    #[arg(long, default_value_t = raster::dataset::DEFAULT_MAX_DISTORTION * 100.0)]
+    pub max_distortion: f64,
+    /// Refuse files decoded whole (PNG, OpenEXR) with a side longer than this many samples.
     #[arg(long, default_value_t = raster::DEFAULT_MAX_SIDE)]
     pub max_side: u32,
-    /// Refuse rasters whose decoded heights exceed this many bytes.
+    /// Refuse files decoded whole (PNG, OpenEXR) whose heights exceed this many bytes.
     #[arg(long, default_value_t = raster::DEFAULT_MAX_BYTES)]
     pub max_bytes: u64,
     #[command(flatten)]
@@ -88,19 +98,32 @@ pub fn run(a: &BakeArgs) -> Result<()> {
             z_offset: a.z_offset,
         },
     };
-    let raster = raster::load(&a.input, &load)?;
-    let name =
-        a.input.file_name().map_or_else(|| a.input.display().to_string(), |n| n.to_string_lossy().into());
+    let files = raster::dataset::expand_inputs(&a.inputs)?;
+    let ds_opts = DatasetOptions {
+        load,
+        cache_bytes: a.cache_mib.saturating_mul(1 << 20),
+        max_distortion: a.max_distortion / 100.0,
+    };
+    let scan_bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(0) };
+    scan_bar.set_style(
+        ProgressStyle::with_template("{msg:>16} {bar:40} {pos}/{len} block rows  ETA {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let dataset = Dataset::open(&files, &ds_opts, &|what, done, total| {
+        scan_bar.set_message(what.to_owned());
+        scan_bar.set_length(total);
+        scan_bar.set_position(done);
+    });
+    scan_bar.finish_and_clear();
+    let dataset = dataset?;
+    let file_name = |p: &std::path::Path| p.file_name().map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into());
+    let name = match files.as_slice() {
+        [one] => file_name(one),
+        [first, rest @ ..] => format!("{} + {} more files", file_name(first), rest.len()),
+        [] => String::new(),
+    };
     if !a.quiet {
-        eprintln!(
-            "{name}: {}×{} {} samples, cell {:.3} × {:.3}, {} no-data filled",
-            raster.heights.width,
-            raster.heights.height,
-            raster.format,
-            raster.georef.dx.abs(),
-            raster.georef.dy.abs(),
-            raster.nodata_filled
-        );
+        eprintln!("{}", describe(&dataset, &ds_opts));
     }
     let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(0) };
     bar.set_style(
@@ -110,7 +133,8 @@ pub fn run(a: &BakeArgs) -> Result<()> {
     bar.enable_steady_tick(Duration::from_millis(200));
     let progress = Bar(bar, a.time_limit.map(|s| (Instant::now(), Duration::from_secs_f64(s))));
     let baker = a.baker.open()?;
-    let summary = bake::bake_terrain(&raster, &name, &opts, &baker, &Store::new(&a.out), &progress);
+    let input = bake::TerrainInput::of_dataset(&dataset);
+    let summary = bake::bake_input(&input, &name, &opts, &baker, &Store::new(&a.out), &progress);
     let summary = summary.inspect_err(|_| progress.0.finish_and_clear())?;
     progress.0.finish_and_clear();
     print_summary(&summary, &a.out);
@@ -119,4 +143,44 @@ pub fn run(a: &BakeArgs) -> Result<()> {
 
 fn print_summary(s: &BakeSummary, out: &std::path::Path) {
     outln!("{}", bake::BakeReport { summary: s, out, peak_rss_mib: peak_rss_mib() });
+}
+
+/// The dataset summary printed before the bake: files, grid, extent, CRS kind, no-data, distortion.
+fn describe(ds: &Dataset, opts: &DatasetOptions) -> String {
+    let s = ds.summary();
+    let g = ds.georef();
+    let files = match s.files.as_slice() {
+        [one] => one.display().to_string(),
+        many => format!("{} files ({} … {})", many.len(), many[0].display(), many[many.len() - 1].display()),
+    };
+    let unit = if s.crs == "geographic" { "°" } else { "" };
+    let mut out = format!(
+        "{files}: {}×{} {} samples, {} CRS, extent x {:.6}{unit}..{:.6}{unit}, y {:.6}{unit}..{:.6}{unit}, cell {:.3} × {:.3} m, {} no-data filled",
+        s.width,
+        s.height,
+        s.format,
+        s.crs,
+        s.extent[0],
+        s.extent[2],
+        s.extent[1],
+        s.extent[3],
+        g.dx.abs(),
+        g.dy.abs(),
+        s.nodata_filled,
+    );
+    if s.nodata_fallback > 0 {
+        out += &format!(
+            " ({} beyond the fill's reach of {} cells, set from the block-mean fallback)",
+            s.nodata_fallback,
+            raster::dataset::FILL_REACH
+        );
+    }
+    if let Some(d) = s.distortion {
+        out += &format!(
+            "\nmetric frame: east-west scale of the central latitude, off by {:.3} % at the extent's edges (accepted: {:.2} %)",
+            d * 100.0,
+            opts.max_distortion * 100.0
+        );
+    }
+    out
 }

@@ -25,7 +25,7 @@ const MODEL_PROJECTED: u16 = 1;
 const MODEL_GEOGRAPHIC: u16 = 2;
 const RASTER_PIXEL_IS_POINT: u16 = 2;
 
-fn map_err(path: &Path, e: TiffError) -> RasterError {
+pub(super) fn map_err(path: &Path, e: TiffError) -> RasterError {
     match e {
         TiffError::FormatError(TiffFormatError::InvalidDimensions(w, h)) if w == 0 || h == 0 => {
             RasterError::ZeroSize { path: path.to_owned(), width: w.into(), height: h.into() }
@@ -137,16 +137,31 @@ fn to_values<T: Copy>(samples: &[T], nodata: Option<f64>, exact: impl Fn(T) -> f
         .collect()
 }
 
-/// Decodes a TIFF file whose signature was already checked.
-pub(super) fn decode(path: &Path, reader: impl Read + Seek, limits: Limits) -> Result<Decoded, RasterError> {
+/// What a TIFF's first image says about itself, checked: size, no-data value, georeference.
+pub(super) struct Header {
+    pub width: u32,
+    pub height: u32,
+    pub nodata: Option<f64>,
+    pub georef: FileGeoref,
+}
+
+/// Opens a TIFF whose signature was already checked and reads its header: one band of a
+/// supported sample type, a usable georeference. `buffer_bytes` bounds what one decode may
+/// allocate (the whole image, or one chunk).
+pub(super) fn open<R: Read + Seek>(
+    path: &Path,
+    reader: R,
+    buffer_bytes: u64,
+) -> Result<(Decoder<R>, Header), RasterError> {
     let dec = Decoder::new(reader).map_err(|e| map_err(path, e))?;
     let mut tiff_limits = tiff::decoder::Limits::default();
-    tiff_limits.decoding_buffer_size = usize::try_from(limits.decoder_bytes()).unwrap_or(usize::MAX);
+    tiff_limits.decoding_buffer_size = usize::try_from(buffer_bytes).unwrap_or(usize::MAX);
     let mut dec = dec.with_limits(tiff_limits);
 
     let (width, height) = dec.dimensions().map_err(|e| map_err(path, e))?;
-    check_size(path, width.into(), height.into(), limits)?;
-
+    if width == 0 || height == 0 {
+        return Err(RasterError::ZeroSize { path: path.to_owned(), width: width.into(), height: height.into() });
+    }
     let bands: u16 = dec.find_tag_unsigned(Tag::SamplesPerPixel).map_err(|e| map_err(path, e))?.unwrap_or(1);
     if bands != 1 {
         return Err(RasterError::unsupported(
@@ -203,8 +218,12 @@ pub(super) fn decode(path: &Path, reader: impl Read + Seek, limits: Limits) -> R
     };
 
     check_extent(path, georef, width, height)?;
+    Ok((dec, Header { width, height, nodata, georef }))
+}
 
-    let values = match dec.read_image().map_err(|e| map_err(path, e))? {
+/// Converts one decoded image or chunk to f32 values, no-data as NaN.
+pub(super) fn values_of(result: DecodingResult, nodata: Option<f64>) -> Vec<f32> {
+    match result {
         DecodingResult::U8(v) => to_values(&v, nodata, f64::from, false),
         DecodingResult::U16(v) => to_values(&v, nodata, f64::from, false),
         DecodingResult::U32(v) => to_values(&v, nodata, f64::from, false),
@@ -216,8 +235,15 @@ pub(super) fn decode(path: &Path, reader: impl Read + Seek, limits: Limits) -> R
         DecodingResult::F16(v) => to_values(&v, nodata, f64::from, true),
         DecodingResult::F32(v) => to_values(&v, nodata, f64::from, true),
         DecodingResult::F64(v) => to_values(&v, nodata, |s| s, true),
-    };
-    Ok(Decoded { width, height, values, georef, format: "geotiff" })
+    }
+}
+
+/// Decodes a TIFF file whose signature was already checked.
+pub(super) fn decode(path: &Path, reader: impl Read + Seek, limits: Limits) -> Result<Decoded, RasterError> {
+    let (mut dec, h) = open(path, reader, limits.decoder_bytes())?;
+    check_size(path, h.width.into(), h.height.into(), limits)?;
+    let values = values_of(dec.read_image().map_err(|e| map_err(path, e))?, h.nodata);
+    Ok(Decoded { width: h.width, height: h.height, values, georef: h.georef, format: "geotiff" })
 }
 
 /// Rejects a georeference whose far corner cannot be represented: finite origin and steps can
@@ -279,6 +305,139 @@ pub fn encode_f32(
     e.write_tag(Tag::GeoKeyDirectoryTag, &[1u16, 1, 0, 2, 1024, 0, 1, 1, 1025, 0, 1, 2][..])?;
     img.write_data(data)?;
     Ok(buf.into_inner())
+}
+
+/// The model of a written GeoTIFF: projected (metres) or geographic (degrees).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Model {
+    Projected,
+    Geographic,
+}
+
+/// Writes a single-band float32 GeoTIFF in `tile`² tiles, uncompressed, PixelIsPoint, sample
+/// (0, 0) at `origin` with steps `step` (dy < 0 for north-up), optionally with a `GDAL_NODATA`
+/// value; BigTIFF when `big` (needed past 4 GiB). Samples come from `sample(col, row)`, one tile
+/// at a time, so a raster larger than memory can be written. Used for generated test and
+/// benchmark terrain (the `synth` command); the layout is header, tiles, then the directory.
+#[allow(clippy::too_many_arguments)]
+pub fn write_tiled_f32<W: std::io::Write + Seek>(
+    out: &mut W,
+    (width, height): (u32, u32),
+    tile: u32,
+    model: Model,
+    origin: (f64, f64),
+    step: (f64, f64),
+    nodata: Option<f64>,
+    big: bool,
+    mut sample: impl FnMut(u32, u32) -> f32,
+) -> std::io::Result<()> {
+    use std::io::{Error, ErrorKind, SeekFrom};
+    if tile == 0 || tile % 16 != 0 || width == 0 || height == 0 {
+        return Err(Error::new(ErrorKind::InvalidInput, "tile side must be a positive multiple of 16, size non-zero"));
+    }
+    let (across, down) = (width.div_ceil(tile), height.div_ceil(tile));
+    let tile_bytes = u64::from(tile) * u64::from(tile) * 4;
+    let data_start: u64 = if big { 16 } else { 8 };
+    let data_end = data_start + u64::from(across) * u64::from(down) * tile_bytes;
+    if !big && data_end + (1 << 20) > u64::from(u32::MAX) {
+        return Err(Error::new(ErrorKind::InvalidInput, "larger than 4 GiB: write it as BigTIFF"));
+    }
+    out.seek(SeekFrom::Start(0))?;
+    out.write_all(if big { b"II+\0\x08\0\0\0\0\0\0\0\0\0\0\0" } else { b"II*\0\0\0\0\0" })?;
+    let mut buf = Vec::with_capacity(tile_bytes as usize);
+    for ty in 0..down {
+        for tx in 0..across {
+            buf.clear();
+            for r in ty * tile..(ty + 1) * tile {
+                for c in tx * tile..(tx + 1) * tile {
+                    let v = if r < height && c < width { sample(c, r) } else { 0.0 };
+                    buf.extend_from_slice(&v.to_le_bytes());
+                }
+            }
+            out.write_all(&buf)?;
+        }
+    }
+    // (tag, type, count, payload bytes), sorted by tag.
+    let n = u64::from(across) * u64::from(down);
+    let u16s = |v: &[u16]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+    let offsets: Vec<u64> = (0..n).map(|k| data_start + k * tile_bytes).collect();
+    let longs = |v: &[u64]| -> Vec<u8> {
+        if big { v.iter().flat_map(|x| x.to_le_bytes()).collect() } else { v.iter().flat_map(|&x| (x as u32).to_le_bytes()).collect() }
+    };
+    let (long_type, long_count) = (if big { 16u16 } else { 4u16 }, n);
+    let f64s = |v: &[f64]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+    let model_key = if model == Model::Geographic { 2 } else { 1 };
+    let mut entries: Vec<(u16, u16, u64, Vec<u8>)> = vec![
+        (256, 4, 1, width.to_le_bytes().to_vec()),
+        (257, 4, 1, height.to_le_bytes().to_vec()),
+        (258, 3, 1, u16s(&[32])),
+        (259, 3, 1, u16s(&[1])),
+        (262, 3, 1, u16s(&[1])),
+        (277, 3, 1, u16s(&[1])),
+        (284, 3, 1, u16s(&[1])),
+        (322, 4, 1, tile.to_le_bytes().to_vec()),
+        (323, 4, 1, tile.to_le_bytes().to_vec()),
+        (324, long_type, long_count, longs(&offsets)),
+        (325, long_type, long_count, longs(&vec![tile_bytes; n as usize])),
+        (339, 3, 1, u16s(&[3])),
+        (33550, 12, 3, f64s(&[step.0.abs(), -step.1, 0.0])),
+        (33922, 12, 6, f64s(&[0.0, 0.0, 0.0, origin.0, origin.1, 0.0])),
+        (34735, 3, 12, u16s(&[1, 1, 0, 2, 1024, 0, 1, model_key, 1025, 0, 1, 2])),
+    ];
+    if let Some(nd) = nodata {
+        let mut text = format!("{nd}").into_bytes();
+        text.push(0);
+        entries.push((42113, 2, text.len() as u64, text));
+    }
+    // External payloads after the data, then the directory.
+    let slot = if big { 8 } else { 4 };
+    let mut pos = data_end;
+    let mut external = Vec::new();
+    let mut placed = Vec::with_capacity(entries.len());
+    for (tag, ty, count, payload) in &entries {
+        if payload.len() <= slot {
+            let mut v = payload.clone();
+            v.resize(slot, 0);
+            placed.push((*tag, *ty, *count, v));
+        } else {
+            let at = pos + external.len() as u64;
+            external.extend_from_slice(payload);
+            if external.len() % 2 == 1 {
+                external.push(0);
+            }
+            let v = if big { at.to_le_bytes().to_vec() } else { (at as u32).to_le_bytes().to_vec() };
+            placed.push((*tag, *ty, *count, v));
+        }
+    }
+    out.write_all(&external)?;
+    pos += external.len() as u64;
+    let ifd = pos;
+    let mut dir = Vec::new();
+    if big {
+        dir.extend_from_slice(&(placed.len() as u64).to_le_bytes());
+    } else {
+        dir.extend_from_slice(&(placed.len() as u16).to_le_bytes());
+    }
+    for (tag, ty, count, v) in &placed {
+        dir.extend_from_slice(&tag.to_le_bytes());
+        dir.extend_from_slice(&ty.to_le_bytes());
+        if big {
+            dir.extend_from_slice(&count.to_le_bytes());
+        } else {
+            dir.extend_from_slice(&(*count as u32).to_le_bytes());
+        }
+        dir.extend_from_slice(v);
+    }
+    dir.extend_from_slice(&vec![0u8; slot]);
+    out.write_all(&dir)?;
+    out.seek(SeekFrom::Start(if big { 8 } else { 4 }))?;
+    if big {
+        out.write_all(&ifd.to_le_bytes())?;
+    } else {
+        out.write_all(&(ifd as u32).to_le_bytes())?;
+    }
+    out.seek(SeekFrom::End(0))?;
+    out.flush()
 }
 
 #[cfg(test)]

@@ -103,24 +103,36 @@ fn decode_side(
     Ok(samples(bytes, side, south, west))
 }
 
-/// The samples of a `side²` tile whose south-west corner is (`south`, `west`) degrees.
-fn samples(bytes: &[u8], side: u32, south: i32, west: i32) -> Decoded {
-    let values = bytes
+/// Samples (voids as NaN) of big-endian i16 bytes.
+pub(super) fn values(bytes: &[u8]) -> Vec<f32> {
+    bytes
         .chunks_exact(2)
         .map(|c| match i16::from_be_bytes([c[0], c[1]]) {
             VOID => f32::NAN,
             v => f32::from(v),
         })
-        .collect();
+        .collect()
+}
 
+/// The georeference of a `side²` tile whose south-west corner is (`south`, `west`) degrees.
+fn georef(side: u32, south: i32, west: i32) -> FileGeoref {
     let step = 1.0 / f64::from(side - 1);
-    let georef = FileGeoref::Geographic {
-        lon0: f64::from(west),
-        lat0: f64::from(south) + 1.0,
-        dlon: step,
-        dlat: -step,
-    };
-    Decoded { width: side, height: side, values, georef, format: "hgt" }
+    FileGeoref::Geographic { lon0: f64::from(west), lat0: f64::from(south) + 1.0, dlon: step, dlat: -step }
+}
+
+/// A tile's side and georeference from its name and length, without reading it.
+pub(super) fn header(path: &Path) -> Result<(u32, FileGeoref), RasterError> {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let (south, west) = corner_from_name(&name)
+        .ok_or_else(|| RasterError::HgtName { path: path.to_owned(), name: name.clone() })?;
+    let len = std::fs::metadata(path).map_err(|e| RasterError::io(path, e))?.len();
+    let side = side_for_len(len).ok_or(RasterError::HgtLength { path: path.to_owned(), len })?;
+    Ok((side, georef(side, south, west)))
+}
+
+/// The samples of a `side²` tile whose south-west corner is (`south`, `west`) degrees.
+fn samples(bytes: &[u8], side: u32, south: i32, west: i32) -> Decoded {
+    Decoded { width: side, height: side, values: values(bytes), georef: georef(side, south, west), format: "hgt" }
 }
 
 #[cfg(test)]

@@ -7,6 +7,7 @@
 //! frame, and applies the user's [`Overrides`]. Every failure is a [`RasterError`] whose message
 //! starts with the file path.
 
+pub mod dataset;
 mod from_bytes;
 pub mod geotiff;
 mod hgt;
@@ -52,20 +53,22 @@ pub trait WindowReader: Sync {
     fn size(&self) -> (u32, u32);
     /// Fills `out` (cleared first) with the samples at every (col, row) of `cols × rows`,
     /// row-major over `rows`.
-    fn read_window(&self, cols: &[u32], rows: &[u32], out: &mut Vec<f32>);
+    /// Errors: a reader backed by files reports what it could not read.
+    fn read_window(&self, cols: &[u32], rows: &[u32], out: &mut Vec<f32>) -> Result<(), RasterError>;
 }
 
 impl WindowReader for Heightfield {
     fn size(&self) -> (u32, u32) {
         (self.width, self.height)
     }
-    fn read_window(&self, cols: &[u32], rows: &[u32], out: &mut Vec<f32>) {
+    fn read_window(&self, cols: &[u32], rows: &[u32], out: &mut Vec<f32>) -> Result<(), RasterError> {
         out.clear();
         out.reserve(cols.len() * rows.len());
         for &r in rows {
             let base = r as usize * self.width as usize;
             out.extend(cols.iter().map(|&c| self.data[base + c as usize]));
         }
+        Ok(())
     }
 }
 
@@ -200,6 +203,8 @@ pub struct LoadedRaster {
     pub georef: Georef,
     /// Samples that were no-data and filled from neighbours.
     pub nodata_filled: u64,
+    /// Of those, the ones farther than the fill's reach, set from the fallback grid.
+    pub nodata_fallback: u64,
     /// Short format name, e.g. "png-terrain-rgb", "geotiff", "exr", "hgt".
     pub format: String,
 }
@@ -275,6 +280,10 @@ pub enum RasterError {
     /// [`MAX_RELIEF_CELLS`]); checked right after loading, before any bake work.
     #[error("{}: {message}", path.display())]
     OutOfLimits { path: PathBuf, message: String },
+    /// An input that cannot join the dataset (no georeference, another CRS kind or cell size,
+    /// off the grid, overlapping another file), or a dataset that cannot be read in blocks.
+    #[error("{}: {message}", path.display())]
+    Dataset { path: PathBuf, message: String },
     /// The z scale/offset pushed heights beyond the f32 range.
     #[error(
         "{}: heights overflow f32 after z scale {dz} and offset {z0} (raw range {min}..{max})",
@@ -299,7 +308,7 @@ impl RasterError {
 
 /// Georeference as the file states it, before the metric mapping and the overrides.
 #[derive(Debug, Clone, Copy, PartialEq)]
-enum FileGeoref {
+pub(crate) enum FileGeoref {
     /// No georeference: unit cells at the origin.
     None,
     /// Sample (0, 0) centre at (x0, y0), steps dx, dy in the file's (metric) units.
@@ -311,7 +320,7 @@ enum FileGeoref {
 /// What a format decoder hands back: raw sample values (no-data already turned into NaN) and
 /// the file's georeference.
 #[derive(Debug)]
-struct Decoded {
+pub(crate) struct Decoded {
     width: u32,
     height: u32,
     values: Vec<f32>,
@@ -345,7 +354,7 @@ const EXR_MAGIC: &[u8] = &[0x76, 0x2f, 0x31, 0x01];
 const TIFF_MAGICS: [&[u8]; 4] = [b"II*\0", b"MM\0*", b"II+\0", b"MM\0+"];
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Format {
+pub(crate) enum Format {
     Png,
     Tiff,
     Exr,
@@ -353,7 +362,7 @@ enum Format {
 }
 
 /// Magic bytes decide; the `.hgt` extension is the fallback because SRTM files have no header.
-fn detect(path: &Path, head: &[u8]) -> Result<Format, RasterError> {
+pub(crate) fn detect(path: &Path, head: &[u8]) -> Result<Format, RasterError> {
     if head.starts_with(PNG_MAGIC) {
         return Ok(Format::Png);
     }
@@ -429,7 +438,7 @@ fn finish(path: &Path, decoded: Decoded, overrides: &Overrides) -> Result<Loaded
             format!("decoded {} samples for a {width}×{height} raster", values.len()),
         ));
     }
-    let nodata_filled = nodata::fill_nodata(width as usize, height as usize, &mut values)
+    let (nodata_filled, nodata_fallback) = nodata::fill_local(width as usize, height as usize, &mut values)
         .ok_or_else(|| RasterError::AllNoData { path: path.to_owned(), samples: values.len() as u64 })?;
 
     let mut frame = base_georef(path, georef, height)?;
@@ -442,11 +451,12 @@ fn finish(path: &Path, decoded: Decoded, overrides: &Overrides) -> Result<Loaded
         heights: Heightfield { width, height, data: values },
         georef: frame,
         nodata_filled,
+        nodata_fallback,
         format: format.to_owned(),
     })
 }
 
-fn base_georef(path: &Path, georef: FileGeoref, rows: u32) -> Result<Georef, RasterError> {
+pub(crate) fn base_georef(path: &Path, georef: FileGeoref, rows: u32) -> Result<Georef, RasterError> {
     let bad = |message: String| RasterError::BadGeoref { path: path.to_owned(), message };
     let usable_step = |s: f64| s.is_finite() && s != 0.0;
     match georef {
@@ -481,7 +491,7 @@ fn base_georef(path: &Path, georef: FileGeoref, rows: u32) -> Result<Georef, Ras
 /// The world frame within the limits: cell sizes in [`MIN_CELL_SIZE`]..=[`MAX_CELL_SIZE`] and
 /// every sample's x, y within ±[`MAX_COORDINATE`]. Messages say whether a value came from the
 /// file or from an option.
-fn check_frame(path: &Path, g: &Georef, o: &Overrides, width: u32, height: u32) -> Result<(), RasterError> {
+pub(crate) fn check_frame(path: &Path, g: &Georef, o: &Overrides, width: u32, height: u32) -> Result<(), RasterError> {
     let limit = |message: String| RasterError::OutOfLimits { path: path.to_owned(), message };
     let from = |overridden: bool| if overridden { "--cell-size" } else { "the file's georeference" };
     for (axis, d) in [("x", g.dx), ("y", g.dy)] {
@@ -543,7 +553,7 @@ fn check_heights(path: &Path, values: &[f32], width: u32, g: &Georef) -> Result<
     Ok(())
 }
 
-fn validate_overrides(path: &Path, o: &Overrides) -> Result<(), RasterError> {
+pub(crate) fn validate_overrides(path: &Path, o: &Overrides) -> Result<(), RasterError> {
     let bad = |what, value, requirement| RasterError::BadOverride {
         path: path.to_owned(),
         what,
@@ -584,7 +594,7 @@ fn validate_overrides(path: &Path, o: &Overrides) -> Result<(), RasterError> {
     Ok(())
 }
 
-fn apply_overrides(g: &mut Georef, o: &Overrides) {
+pub(crate) fn apply_overrides(g: &mut Georef, o: &Overrides) {
     if let Some(c) = o.cell_size {
         g.dx = c.copysign(g.dx);
         g.dy = c.copysign(g.dy);

@@ -76,6 +76,114 @@ pub(super) fn fill_nodata(width: usize, height: usize, data: &mut [f32]) -> Opti
     Some(missing as u64)
 }
 
+/// How far (in cells, Chebyshev distance) the wavefront fill reaches from the nearest valid
+/// sample. Within it the fill is exactly the unbounded wavefront's; a cell's value depends only on
+/// the cells within this distance, so a block read with a halo this wide fills on its own.
+pub const FILL_REACH: usize = 64;
+
+/// Side of the blocks whose means make the fallback grid (in cells, from sample (0, 0)).
+pub const FALLBACK_BLOCK: usize = 256;
+
+/// The wavefront of [`fill_nodata`], stopped after `reach` passes: cells farther than `reach`
+/// from every valid cell stay non-finite. Returns how many cells it filled.
+pub(super) fn fill_within(width: usize, height: usize, data: &mut [f32], reach: usize) -> u64 {
+    debug_assert_eq!(data.len(), width * height);
+    if data.iter().all(|v| v.is_finite()) || data.iter().all(|v| !v.is_finite()) {
+        return 0;
+    }
+    let mut state: Vec<u8> = data.iter().map(|v| if v.is_finite() { VALID } else { MISSING }).collect();
+    let mut front: Vec<usize> = (0..data.len())
+        .filter(|&i| state[i] == MISSING && neighbours(i, width, height).any(|j| state[j] == VALID))
+        .collect();
+    for &i in &front {
+        state[i] = QUEUED;
+    }
+    let (mut fresh, mut next, mut filled) = (Vec::new(), Vec::new(), 0u64);
+    for _ in 0..reach {
+        if front.is_empty() {
+            break;
+        }
+        fresh.clear();
+        fresh.extend(front.iter().map(|&i| {
+            let (sum, n) = neighbours(i, width, height)
+                .filter(|&j| state[j] == VALID)
+                .fold((0.0_f64, 0_u32), |(s, n), j| (s + f64::from(data[j]), n + 1));
+            (sum / f64::from(n.max(1))) as f32
+        }));
+        for (&i, &v) in front.iter().zip(&fresh) {
+            data[i] = v;
+            state[i] = VALID;
+        }
+        filled += front.len() as u64;
+        next.clear();
+        for &i in &front {
+            for j in neighbours(i, width, height) {
+                if state[j] == MISSING {
+                    state[j] = QUEUED;
+                    next.push(j);
+                }
+            }
+        }
+        std::mem::swap(&mut front, &mut next);
+    }
+    filled
+}
+
+/// Mean of the finite values of one fallback block (row-major sum in f64), NaN when it has none.
+pub(super) fn block_mean(values: impl Iterator<Item = f32>) -> f32 {
+    let (sum, n) = values.filter(|v| v.is_finite()).fold((0.0f64, 0u64), |(s, n), v| (s + f64::from(v), n + 1));
+    if n == 0 { f32::NAN } else { (sum / n as f64) as f32 }
+}
+
+/// The fallback grid: one mean per [`FALLBACK_BLOCK`]² block (`cols × rows` blocks), blocks
+/// without a valid sample filled by the unbounded wavefront. `None` when no block has one.
+pub(super) fn fallback_grid(cols: usize, rows: usize, mut means: Vec<f32>) -> Option<Vec<f32>> {
+    fill_nodata(cols, rows, &mut means)?;
+    Some(means)
+}
+
+/// The fallback height at sample (col, row): the fallback grid interpolated bilinearly between
+/// block centres (clamped at the edges), for cells beyond [`FILL_REACH`].
+pub(super) fn fallback_at(grid: &[f32], cols: usize, rows: usize, col: u64, row: u64) -> f32 {
+    let b = FALLBACK_BLOCK as f64;
+    let coord = |v: u64, n: usize| ((v as f64 + 0.5) / b - 0.5).clamp(0.0, (n.max(1) - 1) as f64);
+    let (u, v) = (coord(col, cols), coord(row, rows));
+    let (i0, j0) = (u.floor() as usize, v.floor() as usize);
+    let (i1, j1) = ((i0 + 1).min(cols - 1), (j0 + 1).min(rows - 1));
+    let (tu, tv) = (u - i0 as f64, v - j0 as f64);
+    let g = |i: usize, j: usize| f64::from(grid[j * cols + i]);
+    let top = g(i0, j0) * (1.0 - tu) + g(i1, j0) * tu;
+    let bottom = g(i0, j1) * (1.0 - tu) + g(i1, j1) * tu;
+    (top * (1.0 - tv) + bottom * tv) as f32
+}
+
+/// The bake's fill of a whole in-memory raster: the wavefront within [`FILL_REACH`], the
+/// fallback grid beyond it; the same values a block-by-block fill of a dataset gives. Returns
+/// (filled, of which beyond the reach), `None` when no sample is valid.
+pub(super) fn fill_local(width: usize, height: usize, data: &mut [f32]) -> Option<(u64, u64)> {
+    if data.iter().all(|v| v.is_finite()) {
+        return Some((0, 0));
+    }
+    let missing = data.iter().filter(|v| !v.is_finite()).count() as u64;
+    let (bc, br) = (width.div_ceil(FALLBACK_BLOCK), height.div_ceil(FALLBACK_BLOCK));
+    let mut means = Vec::with_capacity(bc * br);
+    for by in 0..br {
+        for bx in 0..bc {
+            let (c0, c1) = (bx * FALLBACK_BLOCK, ((bx + 1) * FALLBACK_BLOCK).min(width));
+            let (r0, r1) = (by * FALLBACK_BLOCK, ((by + 1) * FALLBACK_BLOCK).min(height));
+            means.push(block_mean((r0..r1).flat_map(|r| data[r * width + c0..r * width + c1].iter().copied())));
+        }
+    }
+    let grid = fallback_grid(bc, br, means)?;
+    let within = fill_within(width, height, data, FILL_REACH);
+    for (i, v) in data.iter_mut().enumerate() {
+        if !v.is_finite() {
+            *v = fallback_at(&grid, bc, br, (i % width) as u64, (i / width) as u64);
+        }
+    }
+    Some((missing, missing - within))
+}
+
 #[cfg(test)]
 // A failed unwrap is the test failing; exact float comparisons are of exactly representable values.
 #[allow(clippy::unwrap_used, clippy::float_cmp)]

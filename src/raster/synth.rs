@@ -6,19 +6,26 @@
 #[must_use]
 pub fn terrain(width: u32, height: u32, seed: u64) -> Vec<f32> {
     let mut out = Vec::with_capacity(width as usize * height as usize);
-    // Features scale with the raster so any size shows mountains, valleys and fine detail.
-    let scale = 1.0 / f64::from(width.max(height).max(2) - 1);
     for r in 0..height {
         for c in 0..width {
-            let (x, y) = (f64::from(c) * scale, f64::from(r) * scale);
-            let wx = x + 0.15 * fbm(x * 3.0, y * 3.0, seed ^ 0xA5A5, 3);
-            let wy = y + 0.15 * fbm(x * 3.0 + 5.2, y * 3.0 + 1.3, seed ^ 0x5A5A, 3);
-            let ridges = ridged(wx * 4.0, wy * 4.0, seed, 7);
-            let base = 0.5 + 0.5 * fbm(x * 1.5, y * 1.5, seed ^ 0x1234, 2);
-            out.push((2500.0 * base * ridges) as f32);
+            out.push(height_at(width, height, seed, c, r));
         }
     }
     out
+}
+
+/// Sample (`col`, `row`) of [`terrain`]`(width, height, seed)`, alone: what lets a generator
+/// write a raster larger than memory tile by tile.
+#[must_use]
+pub fn height_at(width: u32, height: u32, seed: u64, col: u32, row: u32) -> f32 {
+    // Features scale with the raster so any size shows mountains, valleys and fine detail.
+    let scale = 1.0 / f64::from(width.max(height).max(2) - 1);
+    let (x, y) = (f64::from(col) * scale, f64::from(row) * scale);
+    let wx = x + 0.15 * fbm(x * 3.0, y * 3.0, seed ^ 0xA5A5, 3);
+    let wy = y + 0.15 * fbm(x * 3.0 + 5.2, y * 3.0 + 1.3, seed ^ 0x5A5A, 3);
+    let ridges = ridged(wx * 4.0, wy * 4.0, seed, 7);
+    let base = 0.5 + 0.5 * fbm(x * 1.5, y * 1.5, seed ^ 0x1234, 2);
+    (2500.0 * base * ridges) as f32
 }
 
 fn hash(ix: i64, iy: i64, seed: u64) -> f64 {

@@ -386,7 +386,7 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
     // (`Axis::at` without its branch), and each row is one slice of the node's heights.
     let scan = |p: [[f64; 3]; 3], hint: u32| {
         let (mut worst, mut sample) = (max_error, u32::MAX);
-        scan_spans(p, &ax, &ay, true, SMALL_BOX_SAMPLES, |s| {
+        scan_spans(p, &ax, &ay, true, SMALL_BOX_SAMPLES, 0..usize::MAX, |s| {
             let base = (r.j0 + s.j) * node.nc + r.i0;
             for (i, &hv) in (s.i0..s.i1).zip(&node.heights[base + s.i0..base + s.i1]) {
                 let e = (f64::from(hv) - s.z(ax.start + i as f64 * ax.step)).abs();
@@ -571,7 +571,24 @@ pub fn scan_triangle(
     inner: bool,
     mut f: impl FnMut(usize, usize, f64),
 ) {
-    scan_spans(p, xs, ys, inner, SMALL_BOX_SAMPLES, |s| {
+    scan_spans(p, xs, ys, inner, SMALL_BOX_SAMPLES, 0..usize::MAX, |s| {
+        for i in s.i0..s.i1 {
+            f(i, s.j, s.z(xs.at(i)));
+        }
+    });
+}
+
+/// [`scan_triangle`] restricted to the rows `rows` of `ys`: the same samples with the same
+/// heights as the whole scan gives on those rows (the scan method is chosen from the whole
+/// triangle's box, so a strip sees exactly what the whole scan would).
+pub fn scan_triangle_rows(
+    p: [[f64; 3]; 3],
+    xs: &Axis,
+    ys: &Axis,
+    rows: std::ops::Range<usize>,
+    mut f: impl FnMut(usize, usize, f64),
+) {
+    scan_spans(p, xs, ys, false, SMALL_BOX_SAMPLES, rows, |s| {
         for i in s.i0..s.i1 {
             f(i, s.j, s.z(xs.at(i)));
         }
@@ -589,6 +606,7 @@ fn scan_spans(
     ys: &Axis,
     inner: bool,
     box_limit: usize,
+    rows: std::ops::Range<usize>,
     mut f: impl FnMut(RowSpan),
 ) {
     const EPS: f64 = 1e-9;
@@ -620,7 +638,12 @@ fn scan_spans(
     if i1 <= i0 {
         return;
     }
-    if (j1 - j0) * (i1 - i0) <= box_limit {
+    let small = (j1 - j0) * (i1 - i0) <= box_limit;
+    let (j0, j1) = (j0.max(rows.start), j1.min(rows.end));
+    if j1 <= j0 {
+        return;
+    }
+    if small {
         let s = det.signum();
         let edge = |u: [f64; 3], v: [f64; 3]| {
             let (ex, ey) = ((v[0] - u[0]) * s, (v[1] - u[1]) * s);
@@ -690,26 +713,93 @@ pub fn measure_vertical(
     if heights.len() != nc * nr {
         return Err(TinError::SizeMismatch { heights: heights.len(), cols: nc, rows: nr });
     }
+    measure_vertical_strips(positions, triangles, span, usize::MAX, |r0, r1, out| {
+        out.clear();
+        out.extend_from_slice(&heights[(r0 - span.row0) as usize * nc..=(r1 - span.row0) as usize * nc + nc - 1]);
+        Ok::<(), std::convert::Infallible>(())
+    })
+    .map_err(|e| match e {
+        StripError::Tin(t) => t,
+        StripError::Read(never) => match never {},
+    })
+}
+
+/// Samples per strip of [`measure_vertical_strips`] as the bake uses it: a span of at most
+/// this many samples is measured in one strip, exactly as [`measure_vertical`] does.
+pub const MEASURE_STRIP_SAMPLES: usize = 2049 * 2049;
+
+/// What stops a streamed measurement: the mesh or the reader.
+#[derive(Debug)]
+pub enum StripError<E> {
+    Tin(TinError),
+    Read(E),
+}
+
+/// [`measure_vertical`] over a span read in strips of rows, so a span larger than memory can be
+/// measured: `read(row0, row1, out)` fills `out` with rows `row0..=row1` of the span's columns.
+/// Strips hold `max(1, strip_samples / cols)` rows from the span's first row, so the strips (and
+/// the order of the float sums: triangle order within a strip, strips in row order) depend only
+/// on the span; a span of at most `strip_samples` samples is one strip and gives exactly what
+/// [`measure_vertical`] gives. The maximum is the same whatever the strips.
+pub fn measure_vertical_strips<E>(
+    positions: &[[f64; 3]],
+    triangles: &[[u32; 3]],
+    span: Span,
+    strip_samples: usize,
+    mut read: impl FnMut(u32, u32, &mut Vec<f32>) -> Result<(), E>,
+) -> Result<Errors, StripError<E>> {
+    let (nc, nr) = (span.cols() as usize, span.rows() as usize);
+    let strip_rows = (strip_samples / nc.max(1)).clamp(1, nr.max(1));
     let xs = Axis { start: f64::from(span.col0), step: 1.0, n: nc, last: f64::from(span.col1) };
     let ys = Axis { start: f64::from(span.row0), step: 1.0, n: nr, last: f64::from(span.row1) };
-    let mut seen = vec![false; nc * nr];
+    let tris: Vec<[[f64; 3]; 3]> = triangles
+        .iter()
+        .map(|t| t.map(|k| positions.get(k as usize).copied().unwrap_or([f64::NAN; 3])))
+        .collect();
+    // Each triangle's row range (in span rows), to skip it in strips it cannot touch.
+    let row_range: Vec<(f64, f64)> = tris
+        .iter()
+        .map(|p| {
+            let lo = p[0][1].min(p[1][1]).min(p[2][1]) - f64::from(span.row0) - 1.0;
+            let hi = p[0][1].max(p[1][1]).max(p[2][1]) - f64::from(span.row0) + 1.0;
+            (lo, hi)
+        })
+        .collect();
     let (mut max, mut sum2, mut count) = (0.0f64, 0.0f64, 0u64);
-    for t in triangles {
-        let p = t.map(|k| positions.get(k as usize).copied().unwrap_or([f64::NAN; 3]));
-        scan_triangle(p, &xs, &ys, false, |i, j, z| {
-            let k = j * nc + i;
-            if !seen[k] {
-                seen[k] = true;
-                let e = (f64::from(heights[k]) - z).abs();
-                max = max.max(e);
-                sum2 += e * e;
-                count += 1;
+    let mut heights = Vec::new();
+    let mut seen = Vec::new();
+    let mut j0 = 0usize;
+    while j0 < nr {
+        let j1 = (j0 + strip_rows).min(nr);
+        read(span.row0 + j0 as u32, span.row0 + j1 as u32 - 1, &mut heights).map_err(StripError::Read)?;
+        if heights.len() != (j1 - j0) * nc {
+            return Err(StripError::Tin(TinError::SizeMismatch { heights: heights.len(), cols: nc, rows: j1 - j0 }));
+        }
+        seen.clear();
+        seen.resize((j1 - j0) * nc, false);
+        let mut strip_sum = 0.0f64;
+        for (p, &(lo, hi)) in tris.iter().zip(&row_range) {
+            // NaN ranges (a missing vertex) still go to the scan, which skips them.
+            if hi < j0 as f64 || lo > j1 as f64 {
+                continue;
             }
-        });
+            scan_triangle_rows(*p, &xs, &ys, j0..j1, |i, j, z| {
+                let k = (j - j0) * nc + i;
+                if !seen[k] {
+                    seen[k] = true;
+                    let e = (f64::from(heights[k]) - z).abs();
+                    max = max.max(e);
+                    strip_sum += e * e;
+                    count += 1;
+                }
+            });
+        }
+        sum2 += strip_sum;
+        j0 = j1;
     }
     let total = (nc * nr) as u64;
     if count != total {
-        return Err(TinError::Uncovered { missing: total - count, total });
+        return Err(StripError::Tin(TinError::Uncovered { missing: total - count, total }));
     }
     Ok(Errors { max, rms: (sum2 / total as f64).sqrt(), gap: 0.0 })
 }
@@ -748,6 +838,37 @@ mod tests {
                 [f64::from(g.cols[i as usize]), f64::from(g.rows[j as usize]), f64::from(z)]
             })
             .collect()
+    }
+
+    #[test]
+    fn strips_measure_what_the_whole_span_measures() {
+        for (w, h, e) in [(65, 65, 0.5), (100, 37, 2.0), (33, 2, 0.1), (129, 97, 1.0)] {
+            let hs = terrain(w, h, 3);
+            let g = grid(w, h);
+            let tin = build(&g, &hs, e).unwrap();
+            let span = Span { col0: 0, col1: w - 1, row0: 0, row1: h - 1 };
+            let pos = positions(&g, &hs, &tin);
+            let whole = measure_vertical(&pos, &tin.triangles, span, &hs).unwrap();
+            for strip in [1usize, 7 * w as usize, 10 * w as usize + 3, usize::MAX] {
+                let mut reads = Vec::new();
+                let s = measure_vertical_strips(&pos, &tin.triangles, span, strip, |r0, r1, out| {
+                    reads.push((r0, r1));
+                    out.clear();
+                    out.extend_from_slice(&hs[(r0 * w) as usize..((r1 + 1) * w) as usize]);
+                    Ok::<(), ()>(())
+                })
+                .unwrap();
+                // Every row read exactly once, in order.
+                assert_eq!(reads.first().unwrap().0, 0);
+                assert_eq!(reads.last().unwrap().1, h - 1);
+                assert!(reads.windows(2).all(|p| p[1].0 == p[0].1 + 1));
+                assert_eq!(s.max.to_bits(), whole.max.to_bits(), "{w}×{h} strip {strip}");
+                assert!((s.rms - whole.rms).abs() <= 1e-12 * whole.rms.max(1e-300), "{w}×{h} strip {strip}");
+                if strip == usize::MAX {
+                    assert_eq!(s.rms.to_bits(), whole.rms.to_bits());
+                }
+            }
+        }
     }
 
     #[test]
@@ -910,7 +1031,7 @@ mod tests {
             });
             let collect = |limit| {
                 let mut out = Vec::new();
-                scan_spans(p, &xs, &ys, inner, limit, |s| {
+                scan_spans(p, &xs, &ys, inner, limit, 0..usize::MAX, |s| {
                     out.extend((s.i0..s.i1).map(|i| (i, s.j, s.z(xs.at(i)))));
                 });
                 out

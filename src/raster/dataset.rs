@@ -1,0 +1,873 @@
+//! Datasets: one heightfield made of one or many raster files, read in blocks through a bounded
+//! cache, so a bake never holds the whole raster in memory.
+//!
+//! [`Dataset::open`] places every file on one grid — GeoTIFF/COG by its georeference, SRTM
+//! `.hgt` by its name, a single file of any format at the origin — after checking that all of
+//! them share the CRS kind, the cell size and the grid alignment (an error names the file that
+//! does not fit). Gaps between files are no-data. Files may share an edge of one sample (SRTM and
+//! Copernicus tiles repeat their border rows and columns); there the first file in input order
+//! with a valid sample gives it. Any wider overlap is refused, naming both files.
+//!
+//! Samples are read per file block (a TIFF tile or strip, 256 rows of an `.hgt`, 256² of a file
+//! decoded whole) into a least-recently-used cache of bounded size, and served per dataset block
+//! of [`BLOCK`]² samples, filled and with the z scale applied, from a second cache. No-data
+//! filling is local: the wavefront of [`super::nodata`] reaches [`FILL_REACH`] cells from the
+//! nearest valid sample, so a block filled with a halo that wide gets exactly the values a
+//! whole-raster fill gives; a cell farther from every valid sample takes the fallback grid (the
+//! means of the valid samples of each 256² block, interpolated bilinearly between block
+//! centres). The in-memory [`super::load`] fills by the same rule, so both give the same heights.
+//!
+//! Opening makes one streaming pass over the dataset (two when it has no-data): it counts no-data,
+//! builds the fallback grid, checks heights against the limits and computes the checksum the bake
+//! records, with progress reported per block row.
+
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, PoisonError};
+
+use rayon::prelude::*;
+use serde::Serialize;
+use tiff::decoder::{ChunkType, Decoder};
+
+use super::nodata::{self, FALLBACK_BLOCK};
+use super::{
+    FileGeoref, Format, Georef, LoadOptions, MAX_HEIGHT, MAX_RELIEF_CELLS, RasterError, WindowReader,
+    geotiff, hgt,
+};
+
+pub use super::nodata::FILL_REACH;
+
+/// Side of a dataset block in samples (the unit of the filled-block cache and of the fill).
+pub const BLOCK: u32 = FALLBACK_BLOCK as u32;
+/// Largest dataset side, in samples.
+pub const MAX_DATASET_SIDE: u32 = 1 << 20;
+/// Default block cache budget (both caches together), in bytes.
+pub const DEFAULT_CACHE_BYTES: u64 = 512 << 20;
+/// Smallest block cache budget accepted, in bytes.
+pub const MIN_CACHE_BYTES: u64 = 4 << 20;
+/// Default largest distortion of the metric frame over a geographic dataset's extent.
+pub const DEFAULT_MAX_DISTORTION: f64 = 0.05;
+
+/// What opening a dataset needs besides its files.
+#[derive(Debug, Clone)]
+pub struct DatasetOptions {
+    /// PNG encoding, EXR channel, per-file decode limits (files decoded whole) and overrides.
+    pub load: LoadOptions,
+    /// Budget of the block caches, in bytes.
+    pub cache_bytes: u64,
+    /// Largest accepted relative error of the metric frame's east-west scale over the extent of a
+    /// geographic dataset (0.05 = 5 %).
+    pub max_distortion: f64,
+}
+
+impl Default for DatasetOptions {
+    fn default() -> Self {
+        Self { load: LoadOptions::default(), cache_bytes: DEFAULT_CACHE_BYTES, max_distortion: DEFAULT_MAX_DISTORTION }
+    }
+}
+
+/// What a dataset is made of, for the bake's summary and manifest.
+#[derive(Debug, Clone, Serialize)]
+pub struct DatasetSummary {
+    pub files: Vec<PathBuf>,
+    /// The files' format ("geotiff", "hgt", …; "mixed" when they differ).
+    pub format: String,
+    pub width: u32,
+    pub height: u32,
+    /// "projected", "geographic" or "none" (no georeference).
+    pub crs: &'static str,
+    /// Extent of the sample centres in the files' own units: [x_min, y_min, x_max, y_max].
+    pub extent: [f64; 4],
+    pub nodata_filled: u64,
+    /// Of the filled samples, those beyond [`FILL_REACH`] (set from the fallback grid).
+    pub nodata_fallback: u64,
+    /// Geographic datasets: the largest relative error of the metric frame's east-west scale
+    /// over the extent (the frame uses the scale at the central latitude).
+    pub distortion: Option<f64>,
+    /// CRC-32 of every filled height, row-major, little-endian f32 (the bake's source checksum).
+    pub crc32: String,
+}
+
+/// Reads one file's samples in blocks: values as stored, no-data as NaN.
+trait BlockSource: Send + Sync {
+    /// (width, height) of a block; blocks at the right and bottom edges are clipped.
+    fn block_size(&self) -> (u32, u32);
+    /// The clipped block (bx, by), row-major.
+    fn read_block(&self, path: &Path, bx: u32, by: u32) -> Result<Vec<f32>, RasterError>;
+}
+
+/// A TIFF read chunk by chunk (tiles or strips), with a pool of decoders so threads read in
+/// parallel.
+struct TiffSource {
+    pool: Mutex<Vec<Decoder<BufReader<File>>>>,
+    chunk: (u32, u32),
+    tiles_across: u32,
+    nodata: Option<f64>,
+    buffer_bytes: u64,
+}
+
+impl BlockSource for TiffSource {
+    fn block_size(&self) -> (u32, u32) {
+        self.chunk
+    }
+    fn read_block(&self, path: &Path, bx: u32, by: u32) -> Result<Vec<f32>, RasterError> {
+        let pooled = self.pool.lock().unwrap_or_else(PoisonError::into_inner).pop();
+        let mut dec = match pooled {
+            Some(d) => d,
+            None => {
+                let file = File::open(path).map_err(|e| RasterError::io(path, e))?;
+                geotiff::open(path, BufReader::new(file), self.buffer_bytes)?.0
+            }
+        };
+        let index = by * self.tiles_across + bx;
+        let values = super::guard_decoder(path, "TIFF", || {
+            dec.read_chunk(index).map(|r| geotiff::values_of(r, self.nodata)).map_err(|e| geotiff::map_err(path, e))
+        })?;
+        self.pool.lock().unwrap_or_else(PoisonError::into_inner).push(dec);
+        Ok(values)
+    }
+}
+
+/// Rows of an SRTM tile per block.
+const HGT_BLOCK_ROWS: u32 = 256;
+
+/// An SRTM tile read by rows.
+struct HgtSource {
+    file: Mutex<File>,
+    side: u32,
+}
+
+impl BlockSource for HgtSource {
+    fn block_size(&self) -> (u32, u32) {
+        (self.side, HGT_BLOCK_ROWS)
+    }
+    fn read_block(&self, path: &Path, _bx: u32, by: u32) -> Result<Vec<f32>, RasterError> {
+        let r0 = by * HGT_BLOCK_ROWS;
+        let rows = HGT_BLOCK_ROWS.min(self.side - r0);
+        let mut bytes = vec![0u8; rows as usize * self.side as usize * 2];
+        let mut f = self.file.lock().unwrap_or_else(PoisonError::into_inner);
+        f.seek(SeekFrom::Start(u64::from(r0) * u64::from(self.side) * 2)).map_err(|e| RasterError::io(path, e))?;
+        f.read_exact(&mut bytes).map_err(|e| {
+            if e.kind() == std::io::ErrorKind::UnexpectedEof {
+                RasterError::corrupt(path, "SRTM .hgt", "file shrank while being read")
+            } else {
+                RasterError::io(path, e)
+            }
+        })?;
+        Ok(hgt::values(&bytes))
+    }
+}
+
+/// A file decoded whole (PNG, OpenEXR), served in blocks.
+struct MemorySource {
+    width: u32,
+    height: u32,
+    values: Vec<f32>,
+}
+
+impl BlockSource for MemorySource {
+    fn block_size(&self) -> (u32, u32) {
+        (BLOCK, BLOCK)
+    }
+    fn read_block(&self, _path: &Path, bx: u32, by: u32) -> Result<Vec<f32>, RasterError> {
+        let (c0, r0) = (bx * BLOCK, by * BLOCK);
+        let (c1, r1) = ((c0 + BLOCK).min(self.width), (r0 + BLOCK).min(self.height));
+        let w = self.width as usize;
+        Ok((r0..r1).flat_map(|r| &self.values[r as usize * w + c0 as usize..r as usize * w + c1 as usize]).copied().collect())
+    }
+}
+
+/// One file placed on the dataset grid.
+struct Part {
+    path: PathBuf,
+    source: Box<dyn BlockSource>,
+    format: &'static str,
+    /// Offset of its sample (0, 0) on the dataset grid, and its size.
+    col: u32,
+    row: u32,
+    width: u32,
+    height: u32,
+}
+
+type Key = (u32, u32, u32);
+
+/// A least-recently-used cache of blocks, bounded in bytes.
+struct Cache {
+    budget: u64,
+    inner: Mutex<CacheInner>,
+}
+
+#[derive(Default)]
+struct CacheInner {
+    map: HashMap<Key, (Arc<Vec<f32>>, u64)>,
+    order: BTreeMap<u64, Key>,
+    tick: u64,
+    bytes: u64,
+}
+
+impl Cache {
+    fn new(budget: u64) -> Self {
+        Self { budget, inner: Mutex::new(CacheInner::default()) }
+    }
+
+    fn get_or_load(
+        &self,
+        key: Key,
+        load: impl FnOnce() -> Result<Vec<f32>, RasterError>,
+    ) -> Result<Arc<Vec<f32>>, RasterError> {
+        {
+            let mut c = self.inner.lock().unwrap_or_else(PoisonError::into_inner);
+            c.tick += 1;
+            let tick = c.tick;
+            if let Some((block, old)) = c.map.get_mut(&key) {
+                let (block, old_tick) = (Arc::clone(block), *old);
+                *old = tick;
+                c.order.remove(&old_tick);
+                c.order.insert(tick, key);
+                return Ok(block);
+            }
+        }
+        // Loaded outside the lock: two threads may load the same block; both get equal data.
+        let block = Arc::new(load()?);
+        let size = block.len() as u64 * 4;
+        let mut c = self.inner.lock().unwrap_or_else(PoisonError::into_inner);
+        c.tick += 1;
+        let tick = c.tick;
+        if let Some((_, old)) = c.map.insert(key, (Arc::clone(&block), tick)) {
+            c.order.remove(&old);
+            c.bytes -= size;
+        }
+        c.order.insert(tick, key);
+        c.bytes += size;
+        while c.bytes > self.budget {
+            let Some((_, oldest)) = c.order.pop_first() else { break };
+            if let Some((b, _)) = c.map.remove(&oldest) {
+                c.bytes -= b.len() as u64 * 4;
+            }
+        }
+        Ok(block)
+    }
+}
+
+/// The fallback grid of a dataset with no-data: (values, block columns, block rows).
+struct Fallback {
+    grid: Vec<f32>,
+    cols: usize,
+    rows: usize,
+}
+
+/// A dataset opened and scanned: a [`WindowReader`] over its filled heights.
+pub struct Dataset {
+    width: u32,
+    height: u32,
+    georef: Georef,
+    parts: Vec<Part>,
+    raw: Cache,
+    filled: Cache,
+    fallback: Option<Fallback>,
+    summary: DatasetSummary,
+}
+
+/// An input that names no file of a supported kind, or a dataset that cannot be assembled.
+fn dataset_error(path: &Path, message: impl Into<String>) -> RasterError {
+    RasterError::Dataset { path: path.to_owned(), message: message.into() }
+}
+
+/// Opens one file as a block source, with its georeference and size.
+fn open_part(path: &Path, opts: &DatasetOptions) -> Result<(Part, FileGeoref), RasterError> {
+    let mut file = File::open(path).map_err(|e| RasterError::io(path, e))?;
+    let mut head = Vec::with_capacity(8);
+    (&mut file).take(8).read_to_end(&mut head).map_err(|e| RasterError::io(path, e))?;
+    let format = super::detect(path, &head)?;
+    file.seek(SeekFrom::Start(0)).map_err(|e| RasterError::io(path, e))?;
+    let part = |source: Box<dyn BlockSource>, format, width, height| Part {
+        path: path.to_owned(),
+        source,
+        format,
+        col: 0,
+        row: 0,
+        width,
+        height,
+    };
+    match format {
+        Format::Tiff => {
+            // One chunk may take at most a quarter of the cache (and never more than 1 GiB).
+            let buffer_bytes = (opts.cache_bytes / 4).clamp(1 << 20, 1 << 30);
+            let (dec, h) = geotiff::open(path, BufReader::new(file), buffer_bytes)?;
+            let chunk = dec.chunk_dimensions();
+            let tiles_across = match dec.get_chunk_type() {
+                ChunkType::Tile => h.width.div_ceil(chunk.0.max(1)),
+                ChunkType::Strip => 1,
+            };
+            let chunk_bytes = u64::from(chunk.0) * u64::from(chunk.1) * 8;
+            if chunk.0 == 0 || chunk.1 == 0 || chunk_bytes > buffer_bytes {
+                return Err(dataset_error(
+                    path,
+                    format!(
+                        "its {} of {}×{} samples is larger than a quarter of the block cache ({} MiB); rewrite \
+                         it tiled (gdal_translate -co TILED=YES) or raise --cache-mib",
+                        if tiles_across > 1 || dec.get_chunk_type() == ChunkType::Tile { "tile" } else { "strip" },
+                        chunk.0,
+                        chunk.1,
+                        opts.cache_bytes >> 20
+                    ),
+                ));
+            }
+            let source =
+                TiffSource { pool: Mutex::new(vec![dec]), chunk, tiles_across, nodata: h.nodata, buffer_bytes };
+            Ok((part(Box::new(source), "geotiff", h.width, h.height), h.georef))
+        }
+        Format::Hgt => {
+            let (side, georef) = hgt::header(path)?;
+            Ok((part(Box::new(HgtSource { file: Mutex::new(file), side }), "hgt", side, side), georef))
+        }
+        Format::Png | Format::Exr => {
+            let reader = BufReader::new(file);
+            let d = if format == Format::Png {
+                super::png::decode(path, reader, &opts.load)?
+            } else {
+                super::openexr::decode(path, reader, &opts.load)?
+            };
+            if d.values.len() as u64 != u64::from(d.width) * u64::from(d.height) {
+                return Err(RasterError::corrupt(path, d.format, "decoded sample count does not match the size"));
+            }
+            let src = MemorySource { width: d.width, height: d.height, values: d.values };
+            Ok((part(Box::new(src), d.format, d.width, d.height), d.georef))
+        }
+    }
+}
+
+/// (kind name, x0, y0, dx, dy) of a file georeference.
+fn frame_of(g: FileGeoref) -> (&'static str, f64, f64, f64, f64) {
+    match g {
+        FileGeoref::None => ("none", 0.0, 0.0, 1.0, 1.0),
+        FileGeoref::Projected { x0, y0, dx, dy } => ("projected", x0, y0, dx, dy),
+        FileGeoref::Geographic { lon0, lat0, dlon, dlat } => ("geographic", lon0, lat0, dlon, dlat),
+    }
+}
+
+/// Cell sizes agree when within this relative difference (text-printed tags round).
+const CELL_TOLERANCE: f64 = 1e-9;
+/// Files are aligned when their offset is within this many cells of a whole number.
+const ALIGN_TOLERANCE: f64 = 1e-6;
+
+impl Dataset {
+    /// Opens the files of one dataset (in the order given: it decides shared edges), places them
+    /// on one grid and scans it. `progress(done, total)` is called per block row of each pass.
+    pub fn open(
+        paths: &[PathBuf],
+        opts: &DatasetOptions,
+        progress: &(dyn Fn(&str, u64, u64) + Sync),
+    ) -> Result<Self, RasterError> {
+        let Some(first_path) = paths.first() else {
+            return Err(dataset_error(Path::new("bake"), "no input files"));
+        };
+        super::validate_overrides(first_path, &opts.load.overrides)?;
+        if !(opts.max_distortion.is_finite() && opts.max_distortion >= 0.0) {
+            return Err(dataset_error(
+                first_path,
+                format!("--max-distortion must be a finite percentage ≥ 0, got {}", opts.max_distortion * 100.0),
+            ));
+        }
+        if opts.cache_bytes < MIN_CACHE_BYTES {
+            return Err(dataset_error(
+                first_path,
+                format!("block cache of {} bytes is below the minimum of {MIN_CACHE_BYTES}", opts.cache_bytes),
+            ));
+        }
+        let mut parts = Vec::with_capacity(paths.len());
+        let mut georefs = Vec::with_capacity(paths.len());
+        for p in paths {
+            let (part, g) = open_part(p, opts)?;
+            parts.push(part);
+            georefs.push(g);
+        }
+        let (width, height, file_georef) = place(&mut parts, &georefs)?;
+        let mut georef = super::base_georef(first_path, file_georef, height)?;
+        super::apply_overrides(&mut georef, &opts.load.overrides);
+        super::check_frame(first_path, &georef, &opts.load.overrides, width, height)?;
+
+        let (kind, x0, y0, dx, dy) = frame_of(file_georef);
+        let far = |o: f64, d: f64, n: u32| o + d * f64::from(n - 1);
+        let (xa, xb, ya, yb) = (x0, far(x0, dx, width), y0, far(y0, dy, height));
+        let extent = [xa.min(xb), ya.min(yb), xa.max(xb), ya.max(yb)];
+        let distortion = (kind == "geographic").then(|| {
+            let centre = (ya + yb) / 2.0;
+            let m = |lat: f64| super::metres_per_degree(lat).0;
+            [ya, yb].iter().map(|&lat| (m(lat) / m(centre) - 1.0).abs()).fold(0.0, f64::max)
+        });
+        if let Some(d) = distortion
+            && d > opts.max_distortion
+        {
+            return Err(dataset_error(
+                first_path,
+                format!(
+                    "the geographic dataset spans latitudes {:.4}°..{:.4}°: the metric frame (scale of the central \
+                     latitude) is off by {:.2} % at its edges, more than the accepted {:.2} %; bake it in parts, \
+                     reproject it to a metric CRS, or raise --max-distortion",
+                    extent[1],
+                    extent[3],
+                    d * 100.0,
+                    opts.max_distortion * 100.0
+                ),
+            ));
+        }
+        let formats: Vec<&str> = parts.iter().map(|p| p.format).collect();
+        let format = if formats.iter().all(|f| *f == formats[0]) { formats[0] } else { "mixed" };
+        // Half to the files' blocks, half to the filled dataset blocks.
+        let mut ds = Self {
+            width,
+            height,
+            georef,
+            parts,
+            raw: Cache::new(opts.cache_bytes / 2),
+            filled: Cache::new(opts.cache_bytes / 2),
+            fallback: None,
+            summary: DatasetSummary {
+                files: paths.to_vec(),
+                format: format.to_owned(),
+                width,
+                height,
+                crs: kind,
+                extent,
+                nodata_filled: 0,
+                nodata_fallback: 0,
+                distortion,
+                crc32: String::new(),
+            },
+        };
+        ds.scan(progress)?;
+        Ok(ds)
+    }
+
+    #[must_use]
+    pub fn georef(&self) -> &Georef {
+        &self.georef
+    }
+
+    #[must_use]
+    pub fn summary(&self) -> &DatasetSummary {
+        &self.summary
+    }
+
+    /// The file holding dataset sample (col, row), for messages (the first one placed there).
+    fn file_at(&self, col: u32, row: u32) -> &Path {
+        self.parts
+            .iter()
+            .find(|p| (p.col..p.col + p.width).contains(&col) && (p.row..p.row + p.height).contains(&row))
+            .map_or_else(|| self.parts[0].path.as_path(), |p| p.path.as_path())
+    }
+
+    /// Raw samples (no-data NaN, no z scale) of the window at (c0, r0) of `w × h` samples.
+    fn raw_window(&self, c0: u32, r0: u32, w: u32, h: u32) -> Result<Vec<f32>, RasterError> {
+        let mut out = vec![f32::NAN; w as usize * h as usize];
+        for (pi, part) in self.parts.iter().enumerate() {
+            // The intersection in dataset coordinates.
+            let (x0, x1) = (c0.max(part.col), (c0 + w).min(part.col + part.width));
+            let (y0, y1) = (r0.max(part.row), (r0 + h).min(part.row + part.height));
+            if x0 >= x1 || y0 >= y1 {
+                continue;
+            }
+            let (bw, bh) = part.source.block_size();
+            let (lx0, lx1, ly0, ly1) = (x0 - part.col, x1 - part.col, y0 - part.row, y1 - part.row);
+            for by in ly0 / bh..=(ly1 - 1) / bh {
+                for bx in lx0 / bw..=(lx1 - 1) / bw {
+                    let key = (pi as u32, bx, by);
+                    let block = self.raw.get_or_load(key, || part.source.read_block(&part.path, bx, by))?;
+                    let cw = bw.min(part.width - bx * bw);
+                    let ch = bh.min(part.height - by * bh);
+                    if block.len() != cw as usize * ch as usize {
+                        return Err(RasterError::corrupt(
+                            &part.path,
+                            part.format,
+                            format!("block ({bx}, {by}) holds {} samples, expected {cw}×{ch}", block.len()),
+                        ));
+                    }
+                    let (bc0, br0) = (bx * bw, by * bh);
+                    for ly in ly0.max(br0)..ly1.min(br0 + ch) {
+                        let src = &block[((ly - br0) * cw) as usize..][..cw as usize];
+                        let orow = (ly + part.row - r0) as usize * w as usize;
+                        for lx in lx0.max(bc0)..lx1.min(bc0 + cw) {
+                            let o = &mut out[orow + (lx + part.col - c0) as usize];
+                            if o.is_nan() {
+                                *o = src[(lx - bc0) as usize];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// (c0, r0, w, h) of dataset block (bx, by).
+    fn block_rect(&self, bx: u32, by: u32) -> (u32, u32, u32, u32) {
+        let (c0, r0) = (bx * BLOCK, by * BLOCK);
+        (c0, r0, BLOCK.min(self.width - c0), BLOCK.min(self.height - r0))
+    }
+
+    /// Dataset block (bx, by): filled and with the z scale applied.
+    fn filled_block(&self, bx: u32, by: u32) -> Result<Arc<Vec<f32>>, RasterError> {
+        self.filled.get_or_load((u32::MAX, bx, by), || {
+            let (c0, r0, w, h) = self.block_rect(bx, by);
+            let mut v = self.raw_window(c0, r0, w, h)?;
+            if v.iter().any(|x| !x.is_finite()) {
+                self.fill_block(c0, r0, w, h, &mut v)?;
+            }
+            let g = &self.georef;
+            for x in &mut v {
+                *x = (g.z0 + f64::from(*x) * g.dz) as f32;
+            }
+            Ok(v)
+        })
+    }
+
+    /// Fills the no-data of one block (`v`, raw) from a window with a halo of [`FILL_REACH`],
+    /// then from the fallback grid.
+    fn fill_block(&self, c0: u32, r0: u32, w: u32, h: u32, v: &mut [f32]) -> Result<(), RasterError> {
+        let reach = FILL_REACH as u32;
+        let (hc0, hr0) = (c0.saturating_sub(reach), r0.saturating_sub(reach));
+        let (hc1, hr1) = ((c0 + w + reach).min(self.width), (r0 + h + reach).min(self.height));
+        let (hw, hh) = (hc1 - hc0, hr1 - hr0);
+        let mut win = self.raw_window(hc0, hr0, hw, hh)?;
+        nodata::fill_within(hw as usize, hh as usize, &mut win, FILL_REACH);
+        for r in 0..h {
+            for c in 0..w {
+                let x = win[((r + r0 - hr0) * hw + (c + c0 - hc0)) as usize];
+                let cell = &mut v[(r * w + c) as usize];
+                *cell = if x.is_finite() {
+                    x
+                } else if let Some(f) = &self.fallback {
+                    nodata::fallback_at(&f.grid, f.cols, f.rows, u64::from(c0 + c), u64::from(r0 + r))
+                } else {
+                    x
+                };
+            }
+        }
+        Ok(())
+    }
+
+    /// The opening scan: no-data count, fallback grid, height limits, checksum.
+    fn scan(&mut self, progress: &(dyn Fn(&str, u64, u64) + Sync)) -> Result<(), RasterError> {
+        let (bc, br) = (self.width.div_ceil(BLOCK), self.height.div_ceil(BLOCK));
+        let g = self.georef;
+        let mut means = Vec::with_capacity(bc as usize * br as usize);
+        let (mut nodata, mut min, mut max) = (0u64, f32::INFINITY, f32::NEG_INFINITY);
+        let mut crc = crc32fast::Hasher::new();
+        // Per block: (no-data count, mean, min z, max z), or the first bad sample.
+        type Stats = (u64, f32, f32, f32);
+        for by in 0..br {
+            let blocks: Vec<(Vec<f32>, Stats)> = (0..bc)
+                .into_par_iter()
+                .map(|bx| {
+                    let (c0, r0, w, h) = self.block_rect(bx, by);
+                    let mut v = self.raw_window(c0, r0, w, h)?;
+                    let missing = v.iter().filter(|x| !x.is_finite()).count() as u64;
+                    let mean = nodata::block_mean(v.iter().copied());
+                    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+                    for (i, x) in v.iter_mut().enumerate() {
+                        if !x.is_finite() {
+                            continue;
+                        }
+                        let z = (g.z0 + f64::from(*x) * g.dz) as f32;
+                        if !z.is_finite() || f64::from(z).abs() > MAX_HEIGHT {
+                            let (c, r) = (c0 + i as u32 % w, r0 + i as u32 / w);
+                            return Err(RasterError::OutOfLimits {
+                                path: self.file_at(c, r).to_owned(),
+                                message: format!(
+                                    "dataset sample at column {c}, row {r} has height {z:?} (raw {x:?}, z scale {:?}, \
+                                     offset {:?}), beyond the supported ±{MAX_HEIGHT:e}; is it an undeclared no-data \
+                                     value?",
+                                    g.dz, g.z0
+                                ),
+                            });
+                        }
+                        lo = lo.min(z);
+                        hi = hi.max(z);
+                        *x = z;
+                    }
+                    Ok((v, (missing, mean, lo, hi)))
+                })
+                .collect::<Result<_, RasterError>>()?;
+            for (_, (missing, mean, lo, hi)) in &blocks {
+                nodata += missing;
+                means.push(*mean);
+                min = min.min(*lo);
+                max = max.max(*hi);
+            }
+            if nodata == 0 {
+                hash_rows(&mut crc, &blocks.iter().map(|(v, _)| v.as_slice()).collect::<Vec<_>>(), self.width);
+            }
+            progress("scanning", u64::from(by) + 1, u64::from(br));
+        }
+        if nodata == u64::from(self.width) * u64::from(self.height) {
+            return Err(RasterError::AllNoData { path: self.parts[0].path.clone(), samples: nodata });
+        }
+        let cell = g.dx.abs().min(g.dy.abs());
+        let relief = f64::from(max) - f64::from(min);
+        if relief > MAX_RELIEF_CELLS * cell {
+            return Err(RasterError::OutOfLimits {
+                path: self.parts[0].path.clone(),
+                message: format!(
+                    "heights span {min:?}..{max:?} ({relief:?} world units), more than {MAX_RELIEF_CELLS} cells of \
+                     {cell:?}; check the cell size and the z scale (heights and cells must be in the same units)"
+                ),
+            });
+        }
+        self.summary.nodata_filled = nodata;
+        if nodata > 0 {
+            let grid = nodata::fallback_grid(bc as usize, br as usize, means)
+                .ok_or_else(|| RasterError::AllNoData { path: self.parts[0].path.clone(), samples: nodata })?;
+            self.fallback = Some(Fallback { grid, cols: bc as usize, rows: br as usize });
+            crc = crc32fast::Hasher::new();
+            let mut beyond = 0u64;
+            for by in 0..br {
+                let blocks: Vec<(Arc<Vec<f32>>, u64)> = (0..bc)
+                    .into_par_iter()
+                    .map(|bx| {
+                        let (c0, r0, w, h) = self.block_rect(bx, by);
+                        let filled = self.filled_block(bx, by)?;
+                        // Count the cells the reach did not get to (the fill is recomputed here
+                        // only for blocks with no-data).
+                        let raw = self.raw_window(c0, r0, w, h)?;
+                        let mut n = 0;
+                        if raw.iter().any(|x| !x.is_finite()) {
+                            let reach = FILL_REACH as u32;
+                            let (hc0, hr0) = (c0.saturating_sub(reach), r0.saturating_sub(reach));
+                            let (hc1, hr1) = ((c0 + w + reach).min(self.width), (r0 + h + reach).min(self.height));
+                            let mut win = self.raw_window(hc0, hr0, hc1 - hc0, hr1 - hr0)?;
+                            nodata::fill_within((hc1 - hc0) as usize, (hr1 - hr0) as usize, &mut win, FILL_REACH);
+                            for r in r0..r0 + h {
+                                for c in c0..c0 + w {
+                                    n += u64::from(!win[((r - hr0) * (hc1 - hc0) + (c - hc0)) as usize].is_finite());
+                                }
+                            }
+                        }
+                        Ok((filled, n))
+                    })
+                    .collect::<Result<_, RasterError>>()?;
+                beyond += blocks.iter().map(|b| b.1).sum::<u64>();
+                hash_rows(&mut crc, &blocks.iter().map(|(v, _)| v.as_slice()).collect::<Vec<_>>(), self.width);
+                progress("filling no-data", u64::from(by) + 1, u64::from(br));
+            }
+            self.summary.nodata_fallback = beyond;
+        }
+        self.summary.crc32 = format!("{:08x}", crc.finalize());
+        Ok(())
+    }
+}
+
+/// Feeds the rows of one block row (its blocks left to right) to the checksum, row-major.
+fn hash_rows(crc: &mut crc32fast::Hasher, blocks: &[&[f32]], width: u32) {
+    let Some(first) = blocks.first() else { return };
+    let bw0 = BLOCK.min(width) as usize;
+    let rows = first.len() / bw0.max(1);
+    let mut bytes = Vec::with_capacity(width as usize * 4);
+    for r in 0..rows {
+        bytes.clear();
+        for (bx, b) in blocks.iter().enumerate() {
+            let w = (BLOCK.min(width - bx as u32 * BLOCK)) as usize;
+            bytes.extend(b[r * w..(r + 1) * w].iter().flat_map(|v| v.to_le_bytes()));
+        }
+        crc.update(&bytes);
+    }
+}
+
+/// Places the parts on one grid: checks CRS kind, cell size, alignment and overlaps; returns
+/// the dataset size and its georeference (that of sample (0, 0)).
+fn place(parts: &mut [Part], georefs: &[FileGeoref]) -> Result<(u32, u32, FileGeoref), RasterError> {
+    let (kind, _, _, dx, dy) = frame_of(georefs[0]);
+    if parts.len() > 1 {
+        for (p, &g) in parts.iter().zip(georefs) {
+            let (k, _, _, pdx, pdy) = frame_of(g);
+            if k == "none" {
+                return Err(dataset_error(
+                    &p.path,
+                    "has no georeference; every file of a mosaic must say where it lies (GeoTIFF tags or an SRTM name)",
+                ));
+            }
+            if k != kind {
+                return Err(dataset_error(
+                    &p.path,
+                    format!("is {k} but {} is {kind}; a dataset's files must share the CRS kind", parts[0].path.display()),
+                ));
+            }
+            let close = |a: f64, b: f64| (a - b).abs() <= CELL_TOLERANCE * a.abs().max(b.abs());
+            if !(close(pdx, dx) && close(pdy, dy)) {
+                return Err(dataset_error(
+                    &p.path,
+                    format!(
+                        "has cells of {pdx:?} × {pdy:?} but {} has {dx:?} × {dy:?}; a dataset's files must share the \
+                         cell size",
+                        parts[0].path.display()
+                    ),
+                ));
+            }
+        }
+    }
+    // The dataset's sample (0, 0): the smallest offset along each axis's direction.
+    let (_, mut ox, mut oy, _, _) = frame_of(georefs[0]);
+    for &g in georefs {
+        let (_, x, y, _, _) = frame_of(g);
+        if (x - ox) / dx < 0.0 {
+            ox = x;
+        }
+        if (y - oy) / dy < 0.0 {
+            oy = y;
+        }
+    }
+    let (mut width, mut height) = (0u64, 0u64);
+    let first_name = parts[0].path.display().to_string();
+    for (p, &g) in parts.iter_mut().zip(georefs) {
+        let (_, x, y, _, _) = frame_of(g);
+        let (fc, fr) = ((x - ox) / dx, (y - oy) / dy);
+        let (c, r) = (fc.round(), fr.round());
+        if (fc - c).abs() > ALIGN_TOLERANCE || (fr - r).abs() > ALIGN_TOLERANCE {
+            return Err(dataset_error(
+                &p.path,
+                format!(
+                    "is not aligned with the grid of {}: its first sample lies {fc:.6} columns, {fr:.6} rows from the \
+                     dataset's; files must share the grid (resample it first)",
+                    first_name
+                ),
+            ));
+        }
+        if c + f64::from(p.width) > f64::from(MAX_DATASET_SIDE) || r + f64::from(p.height) > f64::from(MAX_DATASET_SIDE)
+        {
+            return Err(dataset_error(
+                &p.path,
+                format!("lies {c} columns, {r} rows into the dataset, beyond {MAX_DATASET_SIDE} samples per side"),
+            ));
+        }
+        p.col = c as u32;
+        p.row = r as u32;
+        width = width.max(u64::from(p.col) + u64::from(p.width));
+        height = height.max(u64::from(p.row) + u64::from(p.height));
+    }
+    for (i, a) in parts.iter().enumerate() {
+        for b in &parts[..i] {
+            let iw = (a.col + a.width).min(b.col + b.width).saturating_sub(a.col.max(b.col));
+            let ih = (a.row + a.height).min(b.row + b.height).saturating_sub(a.row.max(b.row));
+            if iw > 1 && ih > 1 {
+                return Err(dataset_error(
+                    &a.path,
+                    format!(
+                        "overlaps {} by {iw}×{ih} samples; files may share an edge of one sample, not more",
+                        b.path.display()
+                    ),
+                ));
+            }
+        }
+    }
+    let file_georef = match georefs[0] {
+        FileGeoref::None => FileGeoref::None,
+        FileGeoref::Projected { .. } => FileGeoref::Projected { x0: ox, y0: oy, dx, dy },
+        FileGeoref::Geographic { .. } => FileGeoref::Geographic { lon0: ox, lat0: oy, dlon: dx, dlat: dy },
+    };
+    Ok((width as u32, height as u32, file_georef))
+}
+
+impl WindowReader for Dataset {
+    fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    fn read_window(&self, cols: &[u32], rows: &[u32], out: &mut Vec<f32>) -> Result<(), RasterError> {
+        out.clear();
+        out.reserve(cols.len() * rows.len());
+        // The distinct block columns, and each column's (block index, column within it).
+        let mut bxs: Vec<u32> = cols.iter().map(|&c| c / BLOCK).collect();
+        bxs.sort_unstable();
+        bxs.dedup();
+        let at: Vec<(usize, usize)> = cols
+            .iter()
+            .map(|&c| (bxs.partition_point(|&b| b < c / BLOCK), (c % BLOCK) as usize))
+            .collect();
+        let mut i = 0;
+        while i < rows.len() {
+            let by = rows[i] / BLOCK;
+            let end = rows[i..].iter().position(|&r| r / BLOCK != by).map_or(rows.len(), |p| i + p);
+            let blocks: Vec<(Arc<Vec<f32>>, usize)> = bxs
+                .iter()
+                .map(|&bx| Ok((self.filled_block(bx, by)?, self.block_rect(bx, by).2 as usize)))
+                .collect::<Result<_, RasterError>>()?;
+            for &r in &rows[i..end] {
+                let lr = (r % BLOCK) as usize;
+                out.extend(at.iter().map(|&(b, lc)| {
+                    let (block, w) = &blocks[b];
+                    block[lr * w + lc]
+                }));
+            }
+            i = end;
+        }
+        Ok(())
+    }
+}
+
+/// The files an input names: a file itself; a directory's raster files (`.tif`, `.tiff`, `.hgt`,
+/// `.png`, `.exr`; not recursive); or a pattern whose last component holds `*` or `?`. Directory
+/// and pattern matches are sorted by name.
+pub fn expand_inputs(inputs: &[PathBuf]) -> Result<Vec<PathBuf>, RasterError> {
+    const EXTS: [&str; 5] = ["tif", "tiff", "hgt", "png", "exr"];
+    let mut out = Vec::new();
+    for input in inputs {
+        let name = input.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let list_dir = |dir: &Path, keep: &dyn Fn(&Path) -> bool| -> Result<Vec<PathBuf>, RasterError> {
+            let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+                .map_err(|e| RasterError::io(dir, e))?
+                .filter_map(Result::ok)
+                .map(|e| e.path())
+                .filter(|p| p.is_file() && keep(p))
+                .collect();
+            v.sort();
+            Ok(v)
+        };
+        if name.contains(['*', '?']) {
+            let dir = input.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+            let found = list_dir(dir, &|p: &Path| {
+                p.file_name().is_some_and(|n| glob_match(name.as_bytes(), n.to_string_lossy().as_bytes()))
+            })?;
+            if found.is_empty() {
+                return Err(dataset_error(input, "the pattern matches no file"));
+            }
+            out.extend(found);
+        } else if input.is_dir() {
+            let found = list_dir(input, &|p: &Path| {
+                p.extension().is_some_and(|e| EXTS.iter().any(|x| e.eq_ignore_ascii_case(x)))
+            })?;
+            if found.is_empty() {
+                return Err(dataset_error(input, "the directory holds no .tif, .tiff, .hgt, .png or .exr file"));
+            }
+            out.extend(found);
+        } else {
+            out.push(input.clone());
+        }
+    }
+    Ok(out)
+}
+
+/// `*` (any run) and `?` (one character) against a file name.
+fn glob_match(pat: &[u8], name: &[u8]) -> bool {
+    // Iterative with one backtrack point: linear in practice, bounded by |pat|·|name|.
+    let (mut p, mut n, mut star, mut mark) = (0, 0, None, 0);
+    while n < name.len() {
+        if p < pat.len() && (pat[p] == b'?' || pat[p] == name[n]) {
+            p += 1;
+            n += 1;
+        } else if p < pat.len() && pat[p] == b'*' {
+            star = Some(p);
+            mark = n;
+            p += 1;
+        } else if let Some(s) = star {
+            p = s + 1;
+            mark += 1;
+            n = mark;
+        } else {
+            return false;
+        }
+    }
+    pat[p..].iter().all(|&c| c == b'*')
+}
+
