@@ -3,7 +3,7 @@
 //! cache, and the local no-data fill.
 
 // Helpers outside `#[test]` functions unwrap too: a failure there is a test failure.
-#![allow(clippy::unwrap_used, clippy::float_cmp)]
+#![allow(clippy::unwrap_used, clippy::float_cmp, clippy::cast_lossless, clippy::type_complexity)]
 
 mod common;
 use common::{bin, data, fails, ok, tree};
@@ -34,8 +34,10 @@ fn tiled(
 ) {
     let mut file = std::fs::File::create(path).unwrap();
     let origin = (f64::from(c0) * cell, 1000.0 - f64::from(r0) * cell);
-    write_tiled_f32(&mut file, (w, h), 32, model, origin, (cell, -cell), nodata, false, |c, r| f(c + c0, r + r0))
-        .unwrap();
+    write_tiled_f32(&mut file, (w, h), 32, model, origin, (cell, -cell), nodata, false, |c, r| {
+        f(c + c0, r + r0)
+    })
+    .unwrap();
 }
 
 fn terrain(c: u32, r: u32) -> f32 {
@@ -48,8 +50,15 @@ fn open(paths: &[PathBuf], cache: u64) -> Result<Dataset, raster::RasterError> {
 }
 
 fn bake_dataset(ds: &Dataset, name: &str, out: &Path) {
-    bake::bake_input(&TerrainInput::of_dataset(ds), name, &OPTS, &PointBaker::Cpu, &Store::new(out), &NoProgress)
-        .unwrap();
+    bake::bake_input(
+        &TerrainInput::of_dataset(ds),
+        name,
+        &OPTS,
+        &PointBaker::Cpu,
+        &Store::new(out),
+        &NoProgress,
+    )
+    .unwrap();
 }
 
 fn bake_memory(raster: &raster::LoadedRaster, name: &str, out: &Path) {
@@ -131,8 +140,18 @@ fn hgt_mosaic_bakes_as_one_geographic_file() {
     let whole = d.join("whole.tif");
     let mut file = std::fs::File::create(&whole).unwrap();
     let step = 1.0 / 1200.0;
-    write_tiled_f32(&mut file, (2401, 1201), 256, Model::Geographic, (138.0, 36.0), (step, -step), None, false, f)
-        .unwrap();
+    write_tiled_f32(
+        &mut file,
+        (2401, 1201),
+        256,
+        Model::Geographic,
+        (138.0, 36.0),
+        (step, -step),
+        None,
+        false,
+        f,
+    )
+    .unwrap();
     drop(file);
     let opts = BakeOptions { tile_size: 256, max_error: 4.0, levels: 1 };
     let (a, b) = (d.join("a"), d.join("b"));
@@ -141,8 +160,15 @@ fn hgt_mosaic_bakes_as_one_geographic_file() {
         assert_eq!((ds.summary().width, ds.summary().height, ds.summary().crs), (2401, 1201, "geographic"));
         let dist = ds.summary().distortion.unwrap();
         assert!(dist > 0.005 && dist < 0.02, "distortion {dist}");
-        bake::bake_input(&TerrainInput::of_dataset(&ds), "x", &opts, &PointBaker::Cpu, &Store::new(out), &NoProgress)
-            .unwrap();
+        bake::bake_input(
+            &TerrainInput::of_dataset(&ds),
+            "x",
+            &opts,
+            &PointBaker::Cpu,
+            &Store::new(out),
+            &NoProgress,
+        )
+        .unwrap();
     }
     assert_same_tileset(&a, &b);
 }
@@ -158,22 +184,50 @@ fn mosaics_that_do_not_fit_are_refused_naming_the_file() {
             "misaligned.tif",
             Box::new(|p: &Path| {
                 let mut f = std::fs::File::create(p).unwrap();
-                write_tiled_f32(&mut f, (50, 40), 32, Model::Projected, (495.5, 1000.0), (10.0, -10.0), None, false, terrain)
-                    .unwrap();
+                write_tiled_f32(
+                    &mut f,
+                    (50, 40),
+                    32,
+                    Model::Projected,
+                    (495.5, 1000.0),
+                    (10.0, -10.0),
+                    None,
+                    false,
+                    terrain,
+                )
+                .unwrap();
             }),
             "not aligned",
         ),
-        ("coarser.tif", Box::new(|p: &Path| tiled(p, (50, 40), (49, 0), 20.0, Model::Projected, None, &terrain)), "cell size"),
+        (
+            "coarser.tif",
+            Box::new(|p: &Path| tiled(p, (50, 40), (49, 0), 20.0, Model::Projected, None, &terrain)),
+            "cell size",
+        ),
         (
             "degrees.tif",
             Box::new(|p: &Path| {
                 let mut f = std::fs::File::create(p).unwrap();
-                write_tiled_f32(&mut f, (50, 40), 32, Model::Geographic, (10.0, 50.0), (0.001, -0.001), None, false, terrain)
-                    .unwrap();
+                write_tiled_f32(
+                    &mut f,
+                    (50, 40),
+                    32,
+                    Model::Geographic,
+                    (10.0, 50.0),
+                    (0.001, -0.001),
+                    None,
+                    false,
+                    terrain,
+                )
+                .unwrap();
             }),
             "CRS kind",
         ),
-        ("overlap.tif", Box::new(|p: &Path| tiled(p, (50, 40), (45, 0), 10.0, Model::Projected, None, &terrain)), "overlaps"),
+        (
+            "overlap.tif",
+            Box::new(|p: &Path| tiled(p, (50, 40), (45, 0), 10.0, Model::Projected, None, &terrain)),
+            "overlaps",
+        ),
     ];
     for (name, make, what) in cases {
         let p = d.join(name);
@@ -247,7 +301,8 @@ fn out_of_core_with_no_data_matches_in_memory_under_a_small_cache() {
     bake_dataset(&ds, "holey.tif", &b);
     assert_eq!(tree(&a), tree(&b));
     // The record says the fill rule beyond the reach was used.
-    let options: serde_json::Value = serde_json::from_slice(&std::fs::read(b.join("bake-options.json")).unwrap()).unwrap();
+    let options: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(b.join("bake-options.json")).unwrap()).unwrap();
     assert_eq!(options["fill"]["reach"], 64);
 }
 

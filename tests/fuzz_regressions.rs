@@ -131,7 +131,7 @@ fn tile_key_at_z_64_is_a_client_error() {
         heights: Heightfield { width: 17, height: 17, data: terrastream::raster::synth::terrain(17, 17, 1) },
         georef: Georef::default(),
         nodata_filled: 0,
-            nodata_fallback: 0,
+        nodata_fallback: 0,
         format: "synthetic".into(),
     };
     let opts = BakeOptions { tile_size: 16, max_error: 1.0, levels: 1 };

@@ -547,7 +547,11 @@ pub fn options_record(raster: &LoadedRaster, source_name: &str, opts: &BakeOptio
 /// grid set them), `measure_strip_samples` when the raster is larger than one measuring strip
 /// (the rms of the widest nodes is summed per strip).
 #[must_use]
-pub fn options_record_of(input: &TerrainInput<'_>, source_name: &str, opts: &BakeOptions) -> serde_json::Value {
+pub fn options_record_of(
+    input: &TerrainInput<'_>,
+    source_name: &str,
+    opts: &BakeOptions,
+) -> serde_json::Value {
     let (width, height) = input.reader.size();
     let mut record = serde_json::json!({
         "tile_size": opts.tile_size,

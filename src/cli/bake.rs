@@ -116,7 +116,9 @@ pub fn run(a: &BakeArgs) -> Result<()> {
     });
     scan_bar.finish_and_clear();
     let dataset = dataset?;
-    let file_name = |p: &std::path::Path| p.file_name().map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into());
+    let file_name = |p: &std::path::Path| {
+        p.file_name().map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into())
+    };
     let name = match files.as_slice() {
         [one] => file_name(one),
         [first, rest @ ..] => format!("{} + {} more files", file_name(first), rest.len()),
@@ -147,6 +149,7 @@ fn print_summary(s: &BakeSummary, out: &std::path::Path) {
 
 /// The dataset summary printed before the bake: files, grid, extent, CRS kind, no-data, distortion.
 fn describe(ds: &Dataset, opts: &DatasetOptions) -> String {
+    use std::fmt::Write;
     let s = ds.summary();
     let g = ds.georef();
     let files = match s.files.as_slice() {
@@ -169,14 +172,16 @@ fn describe(ds: &Dataset, opts: &DatasetOptions) -> String {
         s.nodata_filled,
     );
     if s.nodata_fallback > 0 {
-        out += &format!(
+        let _ = write!(
+            out,
             " ({} beyond the fill's reach of {} cells, set from the block-mean fallback)",
             s.nodata_fallback,
             raster::dataset::FILL_REACH
         );
     }
     if let Some(d) = s.distortion {
-        out += &format!(
+        let _ = write!(
+            out,
             "\nmetric frame: east-west scale of the central latitude, off by {:.3} % at the extent's edges (accepted: {:.2} %)",
             d * 100.0,
             opts.max_distortion * 100.0

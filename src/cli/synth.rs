@@ -48,7 +48,14 @@ pub fn run(a: &SynthArgs) -> Result<()> {
 }
 
 /// `synth --tiled`: a tiled (Big)TIFF written through a temporary file, renamed when complete.
-fn write_tiled(out: &std::path::Path, width: u32, height: u32, cell_size: f64, seed: u64, tile: u32) -> Result<()> {
+fn write_tiled(
+    out: &std::path::Path,
+    width: u32,
+    height: u32,
+    cell_size: f64,
+    seed: u64,
+    tile: u32,
+) -> Result<()> {
     use rayon::prelude::*;
     if width < 2 || height < 2 || width > 1 << 20 || height > 1 << 20 {
         bail!("--width/--height must be 2 to 2^20 samples");
@@ -56,7 +63,7 @@ fn write_tiled(out: &std::path::Path, width: u32, height: u32, cell_size: f64, s
     if !(cell_size.is_finite() && cell_size > 0.0) {
         bail!("--cell-size must be a positive number");
     }
-    if tile == 0 || tile % 16 != 0 || tile > 4096 {
+    if tile == 0 || !tile.is_multiple_of(16) || tile > 4096 {
         bail!("--tiled must be a multiple of 16, at most 4096");
     }
     let big = u64::from(width) * u64::from(height) * 4 > 3 << 30;
@@ -81,14 +88,18 @@ fn write_tiled(out: &std::path::Path, width: u32, height: u32, cell_size: f64, s
                 band = (
                     b,
                     rows.par_iter()
-                        .flat_map_iter(|&r| (0..width).map(move |c| raster::synth::height_at(width, height, seed, c, r)))
+                        .flat_map_iter(|&r| {
+                            (0..width).map(move |c| raster::synth::height_at(width, height, seed, c, r))
+                        })
                         .collect(),
                 );
             }
             band.1[((r - b * tile) * width + c) as usize]
         },
     );
-    let done = r.and_then(|()| w.into_inner().map_err(std::io::IntoInnerError::into_error)).and_then(|f| f.sync_all());
+    let done = r
+        .and_then(|()| w.into_inner().map_err(std::io::IntoInnerError::into_error))
+        .and_then(|f| f.sync_all());
     if let Err(e) = done {
         let _ = std::fs::remove_file(&tmp);
         bail!("{}: writing the tiled GeoTIFF: {e}", out.display());

@@ -64,7 +64,11 @@ pub struct DatasetOptions {
 
 impl Default for DatasetOptions {
     fn default() -> Self {
-        Self { load: LoadOptions::default(), cache_bytes: DEFAULT_CACHE_BYTES, max_distortion: DEFAULT_MAX_DISTORTION }
+        Self {
+            load: LoadOptions::default(),
+            cache_bytes: DEFAULT_CACHE_BYTES,
+            max_distortion: DEFAULT_MAX_DISTORTION,
+        }
     }
 }
 
@@ -114,16 +118,17 @@ impl BlockSource for TiffSource {
     }
     fn read_block(&self, path: &Path, bx: u32, by: u32) -> Result<Vec<f32>, RasterError> {
         let pooled = self.pool.lock().unwrap_or_else(PoisonError::into_inner).pop();
-        let mut dec = match pooled {
-            Some(d) => d,
-            None => {
-                let file = File::open(path).map_err(|e| RasterError::io(path, e))?;
-                geotiff::open(path, BufReader::new(file), self.buffer_bytes)?.0
-            }
+        let mut dec = if let Some(d) = pooled {
+            d
+        } else {
+            let file = File::open(path).map_err(|e| RasterError::io(path, e))?;
+            geotiff::open(path, BufReader::new(file), self.buffer_bytes)?.0
         };
         let index = by * self.tiles_across + bx;
         let values = super::guard_decoder(path, "TIFF", || {
-            dec.read_chunk(index).map(|r| geotiff::values_of(r, self.nodata)).map_err(|e| geotiff::map_err(path, e))
+            dec.read_chunk(index)
+                .map(|r| geotiff::values_of(r, self.nodata))
+                .map_err(|e| geotiff::map_err(path, e))
         })?;
         self.pool.lock().unwrap_or_else(PoisonError::into_inner).push(dec);
         Ok(values)
@@ -148,7 +153,8 @@ impl BlockSource for HgtSource {
         let rows = HGT_BLOCK_ROWS.min(self.side - r0);
         let mut bytes = vec![0u8; rows as usize * self.side as usize * 2];
         let mut f = self.file.lock().unwrap_or_else(PoisonError::into_inner);
-        f.seek(SeekFrom::Start(u64::from(r0) * u64::from(self.side) * 2)).map_err(|e| RasterError::io(path, e))?;
+        f.seek(SeekFrom::Start(u64::from(r0) * u64::from(self.side) * 2))
+            .map_err(|e| RasterError::io(path, e))?;
         f.read_exact(&mut bytes).map_err(|e| {
             if e.kind() == std::io::ErrorKind::UnexpectedEof {
                 RasterError::corrupt(path, "SRTM .hgt", "file shrank while being read")
@@ -175,7 +181,10 @@ impl BlockSource for MemorySource {
         let (c0, r0) = (bx * BLOCK, by * BLOCK);
         let (c1, r1) = ((c0 + BLOCK).min(self.width), (r0 + BLOCK).min(self.height));
         let w = self.width as usize;
-        Ok((r0..r1).flat_map(|r| &self.values[r as usize * w + c0 as usize..r as usize * w + c1 as usize]).copied().collect())
+        Ok((r0..r1)
+            .flat_map(|r| &self.values[r as usize * w + c0 as usize..r as usize * w + c1 as usize])
+            .copied()
+            .collect())
     }
 }
 
@@ -308,15 +317,24 @@ fn open_part(path: &Path, opts: &DatasetOptions) -> Result<(Part, FileGeoref), R
                     format!(
                         "its {} of {}×{} samples is larger than a quarter of the block cache ({} MiB); rewrite \
                          it tiled (gdal_translate -co TILED=YES) or raise --cache-mib",
-                        if tiles_across > 1 || dec.get_chunk_type() == ChunkType::Tile { "tile" } else { "strip" },
+                        if tiles_across > 1 || dec.get_chunk_type() == ChunkType::Tile {
+                            "tile"
+                        } else {
+                            "strip"
+                        },
                         chunk.0,
                         chunk.1,
                         opts.cache_bytes >> 20
                     ),
                 ));
             }
-            let source =
-                TiffSource { pool: Mutex::new(vec![dec]), chunk, tiles_across, nodata: h.nodata, buffer_bytes };
+            let source = TiffSource {
+                pool: Mutex::new(vec![dec]),
+                chunk,
+                tiles_across,
+                nodata: h.nodata,
+                buffer_bytes,
+            };
             Ok((part(Box::new(source), "geotiff", h.width, h.height), h.georef))
         }
         Format::Hgt => {
@@ -331,7 +349,11 @@ fn open_part(path: &Path, opts: &DatasetOptions) -> Result<(Part, FileGeoref), R
                 super::openexr::decode(path, reader, &opts.load)?
             };
             if d.values.len() as u64 != u64::from(d.width) * u64::from(d.height) {
-                return Err(RasterError::corrupt(path, d.format, "decoded sample count does not match the size"));
+                return Err(RasterError::corrupt(
+                    path,
+                    d.format,
+                    "decoded sample count does not match the size",
+                ));
             }
             let src = MemorySource { width: d.width, height: d.height, values: d.values };
             Ok((part(Box::new(src), d.format, d.width, d.height), d.georef))
@@ -368,13 +390,19 @@ impl Dataset {
         if !(opts.max_distortion.is_finite() && opts.max_distortion >= 0.0) {
             return Err(dataset_error(
                 first_path,
-                format!("--max-distortion must be a finite percentage ≥ 0, got {}", opts.max_distortion * 100.0),
+                format!(
+                    "--max-distortion must be a finite percentage ≥ 0, got {}",
+                    opts.max_distortion * 100.0
+                ),
             ));
         }
         if opts.cache_bytes < MIN_CACHE_BYTES {
             return Err(dataset_error(
                 first_path,
-                format!("block cache of {} bytes is below the minimum of {MIN_CACHE_BYTES}", opts.cache_bytes),
+                format!(
+                    "block cache of {} bytes is below the minimum of {MIN_CACHE_BYTES}",
+                    opts.cache_bytes
+                ),
             ));
         }
         let mut parts = Vec::with_capacity(paths.len());
@@ -394,7 +422,7 @@ impl Dataset {
         let (xa, xb, ya, yb) = (x0, far(x0, dx, width), y0, far(y0, dy, height));
         let extent = [xa.min(xb), ya.min(yb), xa.max(xb), ya.max(yb)];
         let distortion = (kind == "geographic").then(|| {
-            let centre = (ya + yb) / 2.0;
+            let centre = f64::midpoint(ya, yb);
             let m = |lat: f64| super::metres_per_degree(lat).0;
             [ya, yb].iter().map(|&lat| (m(lat) / m(centre) - 1.0).abs()).fold(0.0, f64::max)
         });
@@ -551,13 +579,13 @@ impl Dataset {
 
     /// The opening scan: no-data count, fallback grid, height limits, checksum.
     fn scan(&mut self, progress: &(dyn Fn(&str, u64, u64) + Sync)) -> Result<(), RasterError> {
+        // Per block: (no-data count, mean, min z, max z).
+        type Stats = (u64, f32, f32, f32);
         let (bc, br) = (self.width.div_ceil(BLOCK), self.height.div_ceil(BLOCK));
         let g = self.georef;
         let mut means = Vec::with_capacity(bc as usize * br as usize);
         let (mut nodata, mut min, mut max) = (0u64, f32::INFINITY, f32::NEG_INFINITY);
         let mut crc = crc32fast::Hasher::new();
-        // Per block: (no-data count, mean, min z, max z), or the first bad sample.
-        type Stats = (u64, f32, f32, f32);
         for by in 0..br {
             let blocks: Vec<(Vec<f32>, Stats)> = (0..bc)
                 .into_par_iter()
@@ -598,7 +626,11 @@ impl Dataset {
                 max = max.max(*hi);
             }
             if nodata == 0 {
-                hash_rows(&mut crc, &blocks.iter().map(|(v, _)| v.as_slice()).collect::<Vec<_>>(), self.width);
+                hash_rows(
+                    &mut crc,
+                    &blocks.iter().map(|(v, _)| v.as_slice()).collect::<Vec<_>>(),
+                    self.width,
+                );
             }
             progress("scanning", u64::from(by) + 1, u64::from(br));
         }
@@ -618,8 +650,9 @@ impl Dataset {
         }
         self.summary.nodata_filled = nodata;
         if nodata > 0 {
-            let grid = nodata::fallback_grid(bc as usize, br as usize, means)
-                .ok_or_else(|| RasterError::AllNoData { path: self.parts[0].path.clone(), samples: nodata })?;
+            let grid = nodata::fallback_grid(bc as usize, br as usize, means).ok_or_else(|| {
+                RasterError::AllNoData { path: self.parts[0].path.clone(), samples: nodata }
+            })?;
             self.fallback = Some(Fallback { grid, cols: bc as usize, rows: br as usize });
             crc = crc32fast::Hasher::new();
             let mut beyond = 0u64;
@@ -636,12 +669,20 @@ impl Dataset {
                         if raw.iter().any(|x| !x.is_finite()) {
                             let reach = FILL_REACH as u32;
                             let (hc0, hr0) = (c0.saturating_sub(reach), r0.saturating_sub(reach));
-                            let (hc1, hr1) = ((c0 + w + reach).min(self.width), (r0 + h + reach).min(self.height));
+                            let (hc1, hr1) =
+                                ((c0 + w + reach).min(self.width), (r0 + h + reach).min(self.height));
                             let mut win = self.raw_window(hc0, hr0, hc1 - hc0, hr1 - hr0)?;
-                            nodata::fill_within((hc1 - hc0) as usize, (hr1 - hr0) as usize, &mut win, FILL_REACH);
+                            nodata::fill_within(
+                                (hc1 - hc0) as usize,
+                                (hr1 - hr0) as usize,
+                                &mut win,
+                                FILL_REACH,
+                            );
                             for r in r0..r0 + h {
                                 for c in c0..c0 + w {
-                                    n += u64::from(!win[((r - hr0) * (hc1 - hc0) + (c - hc0)) as usize].is_finite());
+                                    n += u64::from(
+                                        !win[((r - hr0) * (hc1 - hc0) + (c - hc0)) as usize].is_finite(),
+                                    );
                                 }
                             }
                         }
@@ -649,7 +690,11 @@ impl Dataset {
                     })
                     .collect::<Result<_, RasterError>>()?;
                 beyond += blocks.iter().map(|b| b.1).sum::<u64>();
-                hash_rows(&mut crc, &blocks.iter().map(|(v, _)| v.as_slice()).collect::<Vec<_>>(), self.width);
+                hash_rows(
+                    &mut crc,
+                    &blocks.iter().map(|(v, _)| v.as_slice()).collect::<Vec<_>>(),
+                    self.width,
+                );
                 progress("filling no-data", u64::from(by) + 1, u64::from(br));
             }
             self.summary.nodata_fallback = beyond;
@@ -691,7 +736,10 @@ fn place(parts: &mut [Part], georefs: &[FileGeoref]) -> Result<(u32, u32, FileGe
             if k != kind {
                 return Err(dataset_error(
                     &p.path,
-                    format!("is {k} but {} is {kind}; a dataset's files must share the CRS kind", parts[0].path.display()),
+                    format!(
+                        "is {k} but {} is {kind}; a dataset's files must share the CRS kind",
+                        parts[0].path.display()
+                    ),
                 ));
             }
             let close = |a: f64, b: f64| (a - b).abs() <= CELL_TOLERANCE * a.abs().max(b.abs());
@@ -728,17 +776,19 @@ fn place(parts: &mut [Part], georefs: &[FileGeoref]) -> Result<(u32, u32, FileGe
             return Err(dataset_error(
                 &p.path,
                 format!(
-                    "is not aligned with the grid of {}: its first sample lies {fc:.6} columns, {fr:.6} rows from the \
-                     dataset's; files must share the grid (resample it first)",
-                    first_name
+                    "is not aligned with the grid of {first_name}: its first sample lies {fc:.6} columns, {fr:.6} rows \
+                     from the dataset's; files must share the grid (resample it first)"
                 ),
             ));
         }
-        if c + f64::from(p.width) > f64::from(MAX_DATASET_SIDE) || r + f64::from(p.height) > f64::from(MAX_DATASET_SIDE)
+        if c + f64::from(p.width) > f64::from(MAX_DATASET_SIDE)
+            || r + f64::from(p.height) > f64::from(MAX_DATASET_SIDE)
         {
             return Err(dataset_error(
                 &p.path,
-                format!("lies {c} columns, {r} rows into the dataset, beyond {MAX_DATASET_SIDE} samples per side"),
+                format!(
+                    "lies {c} columns, {r} rows into the dataset, beyond {MAX_DATASET_SIDE} samples per side"
+                ),
             ));
         }
         p.col = c as u32;
@@ -781,10 +831,8 @@ impl WindowReader for Dataset {
         let mut bxs: Vec<u32> = cols.iter().map(|&c| c / BLOCK).collect();
         bxs.sort_unstable();
         bxs.dedup();
-        let at: Vec<(usize, usize)> = cols
-            .iter()
-            .map(|&c| (bxs.partition_point(|&b| b < c / BLOCK), (c % BLOCK) as usize))
-            .collect();
+        let at: Vec<(usize, usize)> =
+            cols.iter().map(|&c| (bxs.partition_point(|&b| b < c / BLOCK), (c % BLOCK) as usize)).collect();
         let mut i = 0;
         while i < rows.len() {
             let by = rows[i] / BLOCK;
@@ -838,7 +886,10 @@ pub fn expand_inputs(inputs: &[PathBuf]) -> Result<Vec<PathBuf>, RasterError> {
                 p.extension().is_some_and(|e| EXTS.iter().any(|x| e.eq_ignore_ascii_case(x)))
             })?;
             if found.is_empty() {
-                return Err(dataset_error(input, "the directory holds no .tif, .tiff, .hgt, .png or .exr file"));
+                return Err(dataset_error(
+                    input,
+                    "the directory holds no .tif, .tiff, .hgt, .png or .exr file",
+                ));
             }
             out.extend(found);
         } else {
@@ -870,4 +921,3 @@ fn glob_match(pat: &[u8], name: &[u8]) -> bool {
     }
     pat[p..].iter().all(|&c| c == b'*')
 }
-

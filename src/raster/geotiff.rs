@@ -160,7 +160,11 @@ pub(super) fn open<R: Read + Seek>(
 
     let (width, height) = dec.dimensions().map_err(|e| map_err(path, e))?;
     if width == 0 || height == 0 {
-        return Err(RasterError::ZeroSize { path: path.to_owned(), width: width.into(), height: height.into() });
+        return Err(RasterError::ZeroSize {
+            path: path.to_owned(),
+            width: width.into(),
+            height: height.into(),
+        });
     }
     let bands: u16 = dec.find_tag_unsigned(Tag::SamplesPerPixel).map_err(|e| map_err(path, e))?.unwrap_or(1);
     if bands != 1 {
@@ -332,8 +336,11 @@ pub fn write_tiled_f32<W: std::io::Write + Seek>(
     mut sample: impl FnMut(u32, u32) -> f32,
 ) -> std::io::Result<()> {
     use std::io::{Error, ErrorKind, SeekFrom};
-    if tile == 0 || tile % 16 != 0 || width == 0 || height == 0 {
-        return Err(Error::new(ErrorKind::InvalidInput, "tile side must be a positive multiple of 16, size non-zero"));
+    if tile == 0 || !tile.is_multiple_of(16) || width == 0 || height == 0 {
+        return Err(Error::new(
+            ErrorKind::InvalidInput,
+            "tile side must be a positive multiple of 16, size non-zero",
+        ));
     }
     let (across, down) = (width.div_ceil(tile), height.div_ceil(tile));
     let tile_bytes = u64::from(tile) * u64::from(tile) * 4;
@@ -362,7 +369,11 @@ pub fn write_tiled_f32<W: std::io::Write + Seek>(
     let u16s = |v: &[u16]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
     let offsets: Vec<u64> = (0..n).map(|k| data_start + k * tile_bytes).collect();
     let longs = |v: &[u64]| -> Vec<u8> {
-        if big { v.iter().flat_map(|x| x.to_le_bytes()).collect() } else { v.iter().flat_map(|&x| (x as u32).to_le_bytes()).collect() }
+        if big {
+            v.iter().flat_map(|x| x.to_le_bytes()).collect()
+        } else {
+            v.iter().flat_map(|&x| (x as u32).to_le_bytes()).collect()
+        }
     };
     let (long_type, long_count) = (if big { 16u16 } else { 4u16 }, n);
     let f64s = |v: &[f64]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();

@@ -132,7 +132,13 @@ pub(super) fn header(path: &Path) -> Result<(u32, FileGeoref), RasterError> {
 
 /// The samples of a `side²` tile whose south-west corner is (`south`, `west`) degrees.
 fn samples(bytes: &[u8], side: u32, south: i32, west: i32) -> Decoded {
-    Decoded { width: side, height: side, values: values(bytes), georef: georef(side, south, west), format: "hgt" }
+    Decoded {
+        width: side,
+        height: side,
+        values: values(bytes),
+        georef: georef(side, south, west),
+        format: "hgt",
+    }
 }
 
 #[cfg(test)]

@@ -438,8 +438,9 @@ fn finish(path: &Path, decoded: Decoded, overrides: &Overrides) -> Result<Loaded
             format!("decoded {} samples for a {width}×{height} raster", values.len()),
         ));
     }
-    let (nodata_filled, nodata_fallback) = nodata::fill_local(width as usize, height as usize, &mut values)
-        .ok_or_else(|| RasterError::AllNoData { path: path.to_owned(), samples: values.len() as u64 })?;
+    let (nodata_filled, nodata_fallback) =
+        nodata::fill_local(width as usize, height as usize, &mut values)
+            .ok_or_else(|| RasterError::AllNoData { path: path.to_owned(), samples: values.len() as u64 })?;
 
     let mut frame = base_georef(path, georef, height)?;
     apply_overrides(&mut frame, overrides);
@@ -491,7 +492,13 @@ pub(crate) fn base_georef(path: &Path, georef: FileGeoref, rows: u32) -> Result<
 /// The world frame within the limits: cell sizes in [`MIN_CELL_SIZE`]..=[`MAX_CELL_SIZE`] and
 /// every sample's x, y within ±[`MAX_COORDINATE`]. Messages say whether a value came from the
 /// file or from an option.
-pub(crate) fn check_frame(path: &Path, g: &Georef, o: &Overrides, width: u32, height: u32) -> Result<(), RasterError> {
+pub(crate) fn check_frame(
+    path: &Path,
+    g: &Georef,
+    o: &Overrides,
+    width: u32,
+    height: u32,
+) -> Result<(), RasterError> {
     let limit = |message: String| RasterError::OutOfLimits { path: path.to_owned(), message };
     let from = |overridden: bool| if overridden { "--cell-size" } else { "the file's georeference" };
     for (axis, d) in [("x", g.dx), ("y", g.dy)] {

@@ -131,7 +131,8 @@ pub(super) fn fill_within(width: usize, height: usize, data: &mut [f32], reach: 
 
 /// Mean of the finite values of one fallback block (row-major sum in f64), NaN when it has none.
 pub(super) fn block_mean(values: impl Iterator<Item = f32>) -> f32 {
-    let (sum, n) = values.filter(|v| v.is_finite()).fold((0.0f64, 0u64), |(s, n), v| (s + f64::from(v), n + 1));
+    let (sum, n) =
+        values.filter(|v| v.is_finite()).fold((0.0f64, 0u64), |(s, n), v| (s + f64::from(v), n + 1));
     if n == 0 { f32::NAN } else { (sum / n as f64) as f32 }
 }
 
@@ -171,7 +172,9 @@ pub(super) fn fill_local(width: usize, height: usize, data: &mut [f32]) -> Optio
         for bx in 0..bc {
             let (c0, c1) = (bx * FALLBACK_BLOCK, ((bx + 1) * FALLBACK_BLOCK).min(width));
             let (r0, r1) = (by * FALLBACK_BLOCK, ((by + 1) * FALLBACK_BLOCK).min(height));
-            means.push(block_mean((r0..r1).flat_map(|r| data[r * width + c0..r * width + c1].iter().copied())));
+            means.push(block_mean(
+                (r0..r1).flat_map(|r| data[r * width + c0..r * width + c1].iter().copied()),
+            ));
         }
     }
     let grid = fallback_grid(bc, br, means)?;

@@ -715,7 +715,7 @@ pub fn measure_vertical(
     }
     measure_vertical_strips(positions, triangles, span, usize::MAX, |r0, r1, out| {
         out.clear();
-        out.extend_from_slice(&heights[(r0 - span.row0) as usize * nc..=(r1 - span.row0) as usize * nc + nc - 1]);
+        out.extend_from_slice(&heights[(r0 - span.row0) as usize * nc..(r1 - span.row0 + 1) as usize * nc]);
         Ok::<(), std::convert::Infallible>(())
     })
     .map_err(|e| match e {
@@ -773,7 +773,11 @@ pub fn measure_vertical_strips<E>(
         let j1 = (j0 + strip_rows).min(nr);
         read(span.row0 + j0 as u32, span.row0 + j1 as u32 - 1, &mut heights).map_err(StripError::Read)?;
         if heights.len() != (j1 - j0) * nc {
-            return Err(StripError::Tin(TinError::SizeMismatch { heights: heights.len(), cols: nc, rows: j1 - j0 }));
+            return Err(StripError::Tin(TinError::SizeMismatch {
+                heights: heights.len(),
+                cols: nc,
+                rows: j1 - j0,
+            }));
         }
         seen.clear();
         seen.resize((j1 - j0) * nc, false);
