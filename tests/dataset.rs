@@ -354,3 +354,53 @@ fn local_fill_equals_the_unbounded_fill_within_its_reach() {
     }
     assert!(got == want);
 }
+
+#[test]
+fn bigtiff_and_striped_tiff_read_as_the_tiled_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (w, h) = (150u32, 90u32);
+    let mut read = Vec::new();
+    for (name, big) in [("classic.tif", false), ("big.tif", true)] {
+        let p = d.join(name);
+        let mut f = std::fs::File::create(&p).unwrap();
+        write_tiled_f32(&mut f, (w, h), 48, Model::Projected, (0.0, 0.0), (2.0, -2.0), None, big, terrain).unwrap();
+        drop(f);
+        read.push(p);
+    }
+    // Strips of 64 rows, from the strip encoder.
+    let data: Vec<f32> = (0..h).flat_map(|r| (0..w).map(move |c| terrain(c, r))).collect();
+    let strips = d.join("strips.tif");
+    std::fs::write(&strips, raster::geotiff::encode_f32(w, h, &data, (0.0, 0.0), (2.0, -2.0)).unwrap()).unwrap();
+    read.push(strips);
+    let cols: Vec<u32> = (0..w).step_by(7).collect();
+    let rows: Vec<u32> = (0..h).collect();
+    let mut want = Vec::new();
+    raster::Heightfield { width: w, height: h, data }.read_window(&cols, &rows, &mut want).unwrap();
+    for p in read {
+        let ds = open(std::slice::from_ref(&p), MIN_CACHE_BYTES).unwrap();
+        let mut got = Vec::new();
+        ds.read_window(&cols, &rows, &mut got).unwrap();
+        assert!(got == want, "{}", p.display());
+    }
+}
+
+#[test]
+fn a_truncated_tiled_tiff_is_an_error_naming_it_and_nothing_is_baked() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("cut.tif");
+    tiled(&p, (300, 200), (0, 0), 10.0, Model::Projected, None, &terrain);
+    let mut bytes = std::fs::read(&p).unwrap();
+    // The tile offsets are the first array after the 10 × 7 tiles of 32² f32: point tile 5 past
+    // the end of the file, as a truncated download would leave it.
+    let offsets = 8 + 70 * 32 * 32 * 4;
+    let past = (bytes.len() as u32 + 1000).to_le_bytes();
+    bytes[offsets + 5 * 4..offsets + 6 * 4].copy_from_slice(&past);
+    std::fs::write(&p, &bytes).unwrap();
+    let e = open(std::slice::from_ref(&p), MIN_CACHE_BYTES).err().map(|e| e.to_string());
+    let out = dir.path().join("out");
+    let msg = fails(bin().args(["bake", "--quiet", "--out"]).arg(&out).arg(&p));
+    assert!(msg.contains("cut.tif"), "{msg}");
+    assert!(e.is_some_and(|e| e.contains("cut.tif")));
+    assert!(!out.join("tileset.json").exists());
+}
