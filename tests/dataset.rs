@@ -364,14 +364,16 @@ fn bigtiff_and_striped_tiff_read_as_the_tiled_one() {
     for (name, big) in [("classic.tif", false), ("big.tif", true)] {
         let p = d.join(name);
         let mut f = std::fs::File::create(&p).unwrap();
-        write_tiled_f32(&mut f, (w, h), 48, Model::Projected, (0.0, 0.0), (2.0, -2.0), None, big, terrain).unwrap();
+        write_tiled_f32(&mut f, (w, h), 48, Model::Projected, (0.0, 0.0), (2.0, -2.0), None, big, terrain)
+            .unwrap();
         drop(f);
         read.push(p);
     }
     // Strips of 64 rows, from the strip encoder.
     let data: Vec<f32> = (0..h).flat_map(|r| (0..w).map(move |c| terrain(c, r))).collect();
     let strips = d.join("strips.tif");
-    std::fs::write(&strips, raster::geotiff::encode_f32(w, h, &data, (0.0, 0.0), (2.0, -2.0)).unwrap()).unwrap();
+    std::fs::write(&strips, raster::geotiff::encode_f32(w, h, &data, (0.0, 0.0), (2.0, -2.0)).unwrap())
+        .unwrap();
     read.push(strips);
     let cols: Vec<u32> = (0..w).step_by(7).collect();
     let rows: Vec<u32> = (0..h).collect();
