@@ -35,45 +35,11 @@ pub(super) fn fill_nodata(width: usize, height: usize, data: &mut [f32]) -> Opti
     if data.iter().all(|v| v.is_finite()) {
         return Some(0);
     }
-    let mut state: Vec<u8> = data.iter().map(|v| if v.is_finite() { VALID } else { MISSING }).collect();
-    let missing = data.iter().filter(|v| !v.is_finite()).count();
-    if missing == data.len() {
+    if data.iter().all(|v| !v.is_finite()) {
         return None;
     }
-
-    let mut front: Vec<usize> = (0..data.len())
-        .filter(|&i| state[i] == MISSING && neighbours(i, width, height).any(|j| state[j] == VALID))
-        .collect();
-    for &i in &front {
-        state[i] = QUEUED;
-    }
-    let mut fresh = Vec::new();
-    let mut next = Vec::new();
-    while !front.is_empty() {
-        fresh.clear();
-        fresh.extend(front.iter().map(|&i| {
-            let (sum, n) = neighbours(i, width, height)
-                .filter(|&j| state[j] == VALID)
-                .fold((0.0_f64, 0_u32), |(s, n), j| (s + f64::from(data[j]), n + 1));
-            // Every cell in the front has a valid neighbour by construction, so n ≥ 1.
-            (sum / f64::from(n.max(1))) as f32
-        }));
-        for (&i, &v) in front.iter().zip(&fresh) {
-            data[i] = v;
-            state[i] = VALID;
-        }
-        next.clear();
-        for &i in &front {
-            for j in neighbours(i, width, height) {
-                if state[j] == MISSING {
-                    state[j] = QUEUED;
-                    next.push(j);
-                }
-            }
-        }
-        std::mem::swap(&mut front, &mut next);
-    }
-    Some(missing as u64)
+    // Unbounded: the wavefront stops when it has reached every cell.
+    Some(fill_within(width, height, data, usize::MAX))
 }
 
 /// How far (in cells, Chebyshev distance) the wavefront fill reaches from the nearest valid
