@@ -406,3 +406,130 @@ fn a_truncated_tiled_tiff_is_an_error_naming_it_and_nothing_is_baked() {
     assert!(e.is_some_and(|e| e.contains("cut.tif")));
     assert!(!out.join("tileset.json").exists());
 }
+
+/// A VRT over `sources` (file, SrcRect, DstRect as x, y, w, h), on the grid of `tiled`'s files
+/// (cells of 10, sample (0, 0) centred at (0, 1000)).
+fn vrt_text(size: (u32, u32), band_extra: &str, sources: &[(String, [u32; 4], [u32; 4], &str)]) -> String {
+    use std::fmt::Write;
+    let mut s = format!(
+        "<VRTDataset rasterXSize=\"{}\" rasterYSize=\"{}\">\n  <SRS>PROJCS[\"test\",GEOGCS[\"WGS 84\"]]</SRS>\n  \
+         <GeoTransform>-5.0, 10.0, 0.0, 1005.0, 0.0, -10.0</GeoTransform>\n  <VRTRasterBand dataType=\"Float32\" band=\"1\">{band_extra}\n",
+        size.0, size.1
+    );
+    for (file, src, dst, kind) in sources {
+        let _ = writeln!(
+            s,
+            "    <{kind}><SourceFilename relativeToVRT=\"1\">{file}</SourceFilename><SourceBand>1</SourceBand>\
+             <SrcRect xOff=\"{}\" yOff=\"{}\" xSize=\"{}\" ySize=\"{}\"/><DstRect xOff=\"{}\" yOff=\"{}\" xSize=\"{}\" ySize=\"{}\"/>{}</{kind}>",
+            src[0],
+            src[1],
+            src[2],
+            src[3],
+            dst[0],
+            dst[1],
+            dst[2],
+            dst[3],
+            if *kind == "ComplexSource" { "<NODATA>-1</NODATA>" } else { "" }
+        );
+    }
+    s + "  </VRTRasterBand>\n</VRTDataset>\n"
+}
+
+#[test]
+fn vrt_mosaic_equals_the_single_file_and_a_subset_reads_its_window() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let whole = d.join("whole.tif");
+    tiled(&whole, (300, 200), (0, 0), 10.0, Model::Projected, None, &terrain);
+    // Two halves that do not share an edge, one a ComplexSource with a NODATA value.
+    tiled(&d.join("w.tif"), (150, 200), (0, 0), 10.0, Model::Projected, None, &terrain);
+    // The east half is stored with 7 spare columns on its left: the SrcRect skips them.
+    tiled(&d.join("e.tif"), (157, 200), (143, 0), 10.0, Model::Projected, None, &terrain);
+    let mosaic = d.join("mosaic.vrt");
+    let text = vrt_text(
+        (300, 200),
+        "<NoDataValue>-9999</NoDataValue>",
+        &[
+            ("w.tif".into(), [0, 0, 150, 200], [0, 0, 150, 200], "SimpleSource"),
+            ("e.tif".into(), [7, 0, 150, 200], [150, 0, 150, 200], "ComplexSource"),
+        ],
+    );
+    std::fs::write(&mosaic, text).unwrap();
+    let ds = open(std::slice::from_ref(&mosaic), MIN_CACHE_BYTES).unwrap();
+    assert_eq!((ds.summary().width, ds.summary().height, ds.summary().crs), (300, 200, "projected"));
+    let (a, b) = (d.join("a"), d.join("b"));
+    bake_dataset(&ds, "mosaic.vrt", &a);
+    bake_dataset(&open(std::slice::from_ref(&whole), MIN_CACHE_BYTES).unwrap(), "whole.tif", &b);
+    assert_same_tileset(&a, &b);
+    // And through the binary.
+    let c = d.join("c");
+    ok(bin()
+        .args(["bake", "--quiet", "--tile-size", "64", "--max-error", "1", "--levels", "2", "--out"])
+        .arg(&c)
+        .arg(&mosaic));
+    assert_same_tileset(&a, &c);
+
+    // A subset: 150 × 100 samples from (60, 40), in a VRT twice that size (the rest no-data).
+    let subset = d.join("subset.vrt");
+    std::fs::write(
+        &subset,
+        vrt_text(
+            (150, 100),
+            "",
+            &[("whole.tif".into(), [60, 40, 150, 100], [0, 0, 150, 100], "SimpleSource")],
+        ),
+    )
+    .unwrap();
+    let sub = open(std::slice::from_ref(&subset), MIN_CACHE_BYTES).unwrap();
+    assert_eq!((sub.summary().width, sub.summary().height), (150, 100));
+    assert_eq!(sub.summary().extent, [0.0, 1000.0 - 99.0 * 10.0, 1490.0, 1000.0]);
+    let full = open(&[whole], MIN_CACHE_BYTES).unwrap();
+    let (mut x, mut y) = (Vec::new(), Vec::new());
+    sub.read_window(&(0..150).collect::<Vec<_>>(), &(0..100).collect::<Vec<_>>(), &mut x).unwrap();
+    full.read_window(&(60..210).collect::<Vec<_>>(), &(40..140).collect::<Vec<_>>(), &mut y).unwrap();
+    assert_eq!(x, y);
+}
+
+#[test]
+fn vrts_that_resample_or_compute_are_refused_naming_the_element() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    tiled(&d.join("t.tif"), (100, 80), (0, 0), 10.0, Model::Projected, None, &terrain);
+    let src = |s: [u32; 4], t: [u32; 4]| vec![("t.tif".to_owned(), s, t, "SimpleSource")];
+    let cases: Vec<(&str, String, &str)> = vec![
+        ("halved.vrt", vrt_text((50, 40), "", &src([0, 0, 100, 80], [0, 0, 50, 40])), "SimpleSource #1"),
+        (
+            "scaled.vrt",
+            vrt_text(
+                (100, 80),
+                "",
+                &[("t.tif".to_owned(), [0, 0, 100, 80], [0, 0, 100, 80], "ComplexSource")],
+            )
+            .replace("<NODATA>-1</NODATA>", "<ScaleRatio>0.5</ScaleRatio>"),
+            "ScaleRatio",
+        ),
+        (
+            "missing.vrt",
+            vrt_text(
+                (100, 80),
+                "",
+                &[("nope.tif".to_owned(), [0, 0, 100, 80], [0, 0, 100, 80], "SimpleSource")],
+            ),
+            "nope.tif",
+        ),
+        (
+            "averaged.vrt",
+            vrt_text((100, 80), "", &src([0, 0, 100, 80], [0, 0, 100, 80]))
+                .replace("SimpleSource", "AveragedSource"),
+            "AveragedSource",
+        ),
+    ];
+    for (name, text, needle) in cases {
+        let p = d.join(name);
+        std::fs::write(&p, text).unwrap();
+        let out = d.join(format!("out-{name}"));
+        let msg = fails(bin().args(["bake", "--quiet", "--out"]).arg(&out).arg(&p));
+        assert!(msg.contains(name) && msg.contains(needle), "{name}: {msg}");
+        assert!(!out.exists(), "{name}: something was written");
+    }
+}

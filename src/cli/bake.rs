@@ -39,7 +39,8 @@ pub struct BakeArgs {
     /// OpenEXR channel to read (default: the first float channel).
     #[arg(long)]
     pub channel: Option<String>,
-    /// Horizontal cell size in metres (overrides the file's georeference).
+    /// Horizontal cell size in metres (overrides the file's georeference); for LAS/LAZ inputs, the
+    /// grid's cell (required).
     #[arg(long)]
     pub cell_size: Option<f64>,
     /// World position of sample (0, 0) as X,Y (overrides the file's georeference).
@@ -54,6 +55,10 @@ pub struct BakeArgs {
     /// Memory for the block caches, in MiB: the dataset is read in blocks and never held whole.
     #[arg(long, default_value_t = raster::dataset::DEFAULT_CACHE_BYTES >> 20)]
     pub cache_mib: u64,
+    /// Directory for scratch files (LAS/LAZ inputs are gridded there; default: the system's
+    /// temporary directory). The files are unnamed and vanish when the bake ends.
+    #[arg(long)]
+    pub scratch_dir: Option<PathBuf>,
     /// Largest accepted distortion of the metric frame over a geographic dataset, in percent.
     #[arg(long, default_value_t = raster::dataset::DEFAULT_MAX_DISTORTION * 100.0)]
     pub max_distortion: f64,
@@ -103,10 +108,11 @@ pub fn run(a: &BakeArgs) -> Result<()> {
         load,
         cache_bytes: a.cache_mib.saturating_mul(1 << 20),
         max_distortion: a.max_distortion / 100.0,
+        scratch: a.scratch_dir.clone(),
     };
     let scan_bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(0) };
     scan_bar.set_style(
-        ProgressStyle::with_template("{msg:>16} {bar:40} {pos}/{len} block rows  ETA {eta}")
+        ProgressStyle::with_template("{msg:>16} {bar:40} {human_pos}/{human_len}  ETA {eta}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     let dataset = Dataset::open(&files, &ds_opts, &|what, done, total| {
@@ -177,6 +183,25 @@ fn describe(ds: &Dataset, opts: &DatasetOptions) -> String {
             " ({} beyond the fill's reach of {} cells, set from the block-mean fallback)",
             s.nodata_fallback,
             raster::dataset::FILL_REACH
+        );
+    }
+    if let Some(p) = &s.points {
+        let rule = match (p.classified_files, s.files.len()) {
+            (0, _) => "no file is classified: each cell takes its lowest point".to_owned(),
+            (c, n) if c == n => {
+                "every file is classified: each cell takes the mean of its ground (class 2) points".into()
+            }
+            (c, n) => format!(
+                "{c} of {n} files are classified (their cells take the mean of the ground points), the others give                  each cell its lowest point"
+            ),
+        };
+        let _ = write!(
+            out,
+            "\npoints: {} read, {} used; {rule}; {} of {} cells got points, the rest are filled like no-data",
+            p.points,
+            p.used,
+            p.cells_with_points,
+            u64::from(s.width) * u64::from(s.height)
         );
     }
     if let Some(d) = s.distortion {

@@ -36,6 +36,7 @@ use super::{
     FileGeoref, Format, Georef, LoadOptions, MAX_HEIGHT, MAX_RELIEF_CELLS, RasterError, WindowReader,
     geotiff, hgt,
 };
+use super::{las, vrt};
 
 pub use super::nodata::FILL_REACH;
 
@@ -60,6 +61,9 @@ pub struct DatasetOptions {
     /// Largest accepted relative error of the metric frame's east-west scale over the extent of a
     /// geographic dataset (0.05 = 5 %).
     pub max_distortion: f64,
+    /// Directory for scratch files (the gridded point clouds); `None` = the system's temporary
+    /// directory.
+    pub scratch: Option<PathBuf>,
 }
 
 impl Default for DatasetOptions {
@@ -68,6 +72,7 @@ impl Default for DatasetOptions {
             load: LoadOptions::default(),
             cache_bytes: DEFAULT_CACHE_BYTES,
             max_distortion: DEFAULT_MAX_DISTORTION,
+            scratch: None,
         }
     }
 }
@@ -92,6 +97,8 @@ pub struct DatasetSummary {
     pub distortion: Option<f64>,
     /// CRC-32 of every filled height, row-major, little-endian f32 (the bake's source checksum).
     pub crc32: String,
+    /// Point clouds: what the gridding read and used.
+    pub points: Option<las::PointStats>,
 }
 
 /// Reads one file's samples in blocks: values as stored, no-data as NaN.
@@ -193,11 +200,33 @@ struct Part {
     path: PathBuf,
     source: Box<dyn BlockSource>,
     format: &'static str,
-    /// Offset of its sample (0, 0) on the dataset grid, and its size.
+    /// Offset of its window's sample (0, 0) on the dataset grid, and the window's size.
     col: u32,
     row: u32,
     width: u32,
     height: u32,
+    /// The window's offset within the file (a VRT source's `SrcRect`; else 0, 0), and the file's size.
+    win_col: u32,
+    win_row: u32,
+    file_width: u32,
+    file_height: u32,
+    /// Further values that are no-data here (a VRT's `<NoDataValue>` and `<NODATA>`).
+    nodata: Vec<f32>,
+}
+
+/// A gridded point cloud served in blocks.
+struct LasSource {
+    grid: las::Gridded,
+    scratch: PathBuf,
+}
+
+impl BlockSource for LasSource {
+    fn block_size(&self) -> (u32, u32) {
+        (las::BLOCK, las::BLOCK)
+    }
+    fn read_block(&self, _path: &Path, bx: u32, by: u32) -> Result<Vec<f32>, RasterError> {
+        self.grid.read_block(&self.scratch, bx, by)
+    }
 }
 
 type Key = (u32, u32, u32);
@@ -284,14 +313,15 @@ fn dataset_error(path: &Path, message: impl Into<String>) -> RasterError {
     RasterError::Dataset { path: path.to_owned(), message: message.into() }
 }
 
-/// Opens one file as a block source, with its georeference and size.
-fn open_part(path: &Path, opts: &DatasetOptions) -> Result<(Part, FileGeoref), RasterError> {
-    let mut file = File::open(path).map_err(|e| RasterError::io(path, e))?;
-    let mut head = Vec::with_capacity(8);
-    (&mut file).take(8).read_to_end(&mut head).map_err(|e| RasterError::io(path, e))?;
-    let format = super::detect(path, &head)?;
-    file.seek(SeekFrom::Start(0)).map_err(|e| RasterError::io(path, e))?;
-    let part = |source: Box<dyn BlockSource>, format, width, height| Part {
+/// A part that is a whole file.
+fn whole_part(
+    path: &Path,
+    source: Box<dyn BlockSource>,
+    format: &'static str,
+    width: u32,
+    height: u32,
+) -> Part {
+    Part {
         path: path.to_owned(),
         source,
         format,
@@ -299,7 +329,126 @@ fn open_part(path: &Path, opts: &DatasetOptions) -> Result<(Part, FileGeoref), R
         row: 0,
         width,
         height,
-    };
+        win_col: 0,
+        win_row: 0,
+        file_width: width,
+        file_height: height,
+        nodata: Vec::new(),
+    }
+}
+
+/// The format of a file, from its first bytes (and its extension).
+fn format_of(path: &Path) -> Result<(File, Format), RasterError> {
+    let mut file = File::open(path).map_err(|e| RasterError::io(path, e))?;
+    let mut head = Vec::with_capacity(8);
+    (&mut file).take(8).read_to_end(&mut head).map_err(|e| RasterError::io(path, e))?;
+    let format = super::detect(path, &head)?;
+    file.seek(SeekFrom::Start(0)).map_err(|e| RasterError::io(path, e))?;
+    Ok((file, format))
+}
+
+/// `g` moved by (`dc`, `dr`) samples.
+fn shifted(g: FileGeoref, dc: u32, dr: u32) -> FileGeoref {
+    let (dc, dr) = (f64::from(dc), f64::from(dr));
+    match g {
+        FileGeoref::None => FileGeoref::None,
+        FileGeoref::Projected { x0, y0, dx, dy } => {
+            FileGeoref::Projected { x0: x0 + dc * dx, y0: y0 + dr * dy, dx, dy }
+        }
+        FileGeoref::Geographic { lon0, lat0, dlon, dlat } => {
+            FileGeoref::Geographic { lon0: lon0 + dc * dlon, lat0: lat0 + dr * dlat, dlon, dlat }
+        }
+    }
+}
+
+/// Opens one input as parts: a raster file is one part; a VRT is one part per source, and its
+/// extent goes to `frames` (the dataset covers it even where no source paints).
+fn open_input(
+    path: &Path,
+    opts: &DatasetOptions,
+    frames: &mut Vec<(FileGeoref, u32, u32)>,
+) -> Result<Vec<(Part, FileGeoref)>, RasterError> {
+    let (file, format) = format_of(path)?;
+    if format != Format::Vrt {
+        return Ok(vec![open_part(path, file, format, opts)?]);
+    }
+    let len = file.metadata().map_err(|e| RasterError::io(path, e))?.len();
+    if len > vrt::MAX_VRT_BYTES {
+        return Err(RasterError::unsupported(
+            path,
+            "GDAL VRT",
+            format!("the file is {len} bytes, more than the {} MiB a VRT may have", vrt::MAX_VRT_BYTES >> 20),
+        ));
+    }
+    let mut text = String::new();
+    BufReader::new(file).read_to_string(&mut text).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::InvalidData {
+            RasterError::corrupt(path, "GDAL VRT", "the file is not UTF-8 text")
+        } else {
+            RasterError::io(path, e)
+        }
+    })?;
+    let v = vrt::parse(path, &text)?;
+    frames.push((v.georef, v.width, v.height));
+    let mut parts = Vec::with_capacity(v.sources.len());
+    for src in &v.sources {
+        let (file, format) = format_of(&src.file).map_err(|e| in_vrt(path, &src.element, &e))?;
+        if matches!(format, Format::Vrt | Format::Las) {
+            return Err(dataset_error(
+                path,
+                format!(
+                    "the {} reads {}, a {}; a VRT's sources must be raster files",
+                    src.element,
+                    src.file.display(),
+                    if format == Format::Vrt { "VRT (nested VRTs are not read)" } else { "point cloud" }
+                ),
+            ));
+        }
+        let (mut part, _own_georef) =
+            open_part(&src.file, file, format, opts).map_err(|e| in_vrt(path, &src.element, &e))?;
+        if let Some((w, h)) = src.whole_file
+            && (w, h) != (part.file_width, part.file_height)
+        {
+            return Err(RasterError::unsupported(
+                path,
+                "GDAL VRT",
+                format!(
+                    "the {} has no SrcRect, so it maps all of {} ({}×{}) onto a {w}×{h} DstRect, which needs                      resampling",
+                    src.element,
+                    src.file.display(),
+                    part.file_width,
+                    part.file_height
+                ),
+            ));
+        }
+        let (sx, sy, w, h) = src.src;
+        if sx >= part.file_width || sy >= part.file_height {
+            continue; // the window lies past the file's end: GDAL paints nothing
+        }
+        part.win_col = sx;
+        part.win_row = sy;
+        part.width = w.min(part.file_width - sx);
+        part.height = h.min(part.file_height - sy);
+        part.nodata = src.nodata.iter().filter(|v| !v.is_nan()).map(|&v| v as f32).collect();
+        parts.push((part, shifted(v.georef, src.dst.0, src.dst.1)));
+    }
+    Ok(parts)
+}
+
+/// An error opening a VRT's source, with the VRT and the element named.
+fn in_vrt(vrt_path: &Path, element: &str, e: &RasterError) -> RasterError {
+    dataset_error(vrt_path, format!("its {element}: {e}"))
+}
+
+/// Opens one raster file as a block source, with its georeference and size.
+fn open_part(
+    path: &Path,
+    file: File,
+    format: Format,
+    opts: &DatasetOptions,
+) -> Result<(Part, FileGeoref), RasterError> {
+    let part =
+        |source: Box<dyn BlockSource>, format, width, height| whole_part(path, source, format, width, height);
     match format {
         Format::Tiff => {
             // One chunk may take at most a quarter of the cache (and never more than 1 GiB).
@@ -358,6 +507,7 @@ fn open_part(path: &Path, opts: &DatasetOptions) -> Result<(Part, FileGeoref), R
             let src = MemorySource { width: d.width, height: d.height, values: d.values };
             Ok((part(Box::new(src), d.format, d.width, d.height), d.georef))
         }
+        Format::Vrt | Format::Las => Err(dataset_error(path, "a VRT or point cloud is not one raster file")),
     }
 }
 
@@ -407,12 +557,45 @@ impl Dataset {
         }
         let mut parts = Vec::with_capacity(paths.len());
         let mut georefs = Vec::with_capacity(paths.len());
-        for p in paths {
-            let (part, g) = open_part(p, opts)?;
-            parts.push(part);
+        let mut frames = Vec::new();
+        let mut points = None;
+        let las_files: Vec<&PathBuf> =
+            paths.iter().filter(|p| format_of(p).is_ok_and(|(_, f)| f == Format::Las)).collect();
+        if las_files.is_empty() {
+            for p in paths {
+                for (part, g) in open_input(p, opts, &mut frames)? {
+                    parts.push(part);
+                    georefs.push(g);
+                }
+            }
+        } else {
+            if let Some(other) = paths.iter().find(|p| !las_files.contains(p)) {
+                return Err(dataset_error(
+                    other,
+                    format!(
+                        "is a raster but {} is a point cloud; bake point clouds and rasters separately",
+                        las_files[0].display()
+                    ),
+                ));
+            }
+            let cell = opts.load.overrides.cell_size.unwrap_or(f64::NAN);
+            let scratch = opts.scratch.clone().unwrap_or_else(std::env::temp_dir);
+            let grid = las::grid(paths, cell, &scratch, progress)?;
+            let format = match grid.stats.compressed_files {
+                0 => "las",
+                n if n == paths.len() => "laz",
+                _ => "las+laz",
+            };
+            let (w, h, g) = (grid.width, grid.height, grid.georef);
+            points = Some(grid.stats.clone());
+            let source = LasSource { grid, scratch };
+            parts.push(whole_part(first_path, Box::new(source), format, w, h));
             georefs.push(g);
         }
-        let (width, height, file_georef) = place(&mut parts, &georefs)?;
+        if parts.is_empty() {
+            return Err(dataset_error(first_path, "no source of the VRT lies inside its files"));
+        }
+        let (width, height, file_georef) = place(&mut parts, &georefs, &frames)?;
         let mut georef = super::base_georef(first_path, file_georef, height)?;
         super::apply_overrides(&mut georef, &opts.load.overrides);
         super::check_frame(first_path, &georef, &opts.load.overrides, width, height)?;
@@ -464,6 +647,7 @@ impl Dataset {
                 nodata_fallback: 0,
                 distortion,
                 crc32: String::new(),
+                points,
             },
         };
         ds.scan(progress)?;
@@ -499,13 +683,20 @@ impl Dataset {
                 continue;
             }
             let (bw, bh) = part.source.block_size();
-            let (lx0, lx1, ly0, ly1) = (x0 - part.col, x1 - part.col, y0 - part.row, y1 - part.row);
-            for by in ly0 / bh..=(ly1 - 1) / bh {
-                for bx in lx0 / bw..=(lx1 - 1) / bw {
+            // The intersection in file coordinates.
+            let (fx0, fx1) = (x0 - part.col + part.win_col, x1 - part.col + part.win_col);
+            let (fy0, fy1) = (y0 - part.row + part.win_row, y1 - part.row + part.win_row);
+            // Dataset column of file column fx: fx + shift_x (as i64: a window may start inside).
+            let (shift_x, shift_y) = (
+                i64::from(part.col) - i64::from(part.win_col),
+                i64::from(part.row) - i64::from(part.win_row),
+            );
+            for by in fy0 / bh..=(fy1 - 1) / bh {
+                for bx in fx0 / bw..=(fx1 - 1) / bw {
                     let key = (pi as u32, bx, by);
                     let block = self.raw.get_or_load(key, || part.source.read_block(&part.path, bx, by))?;
-                    let cw = bw.min(part.width - bx * bw);
-                    let ch = bh.min(part.height - by * bh);
+                    let cw = bw.min(part.file_width - bx * bw);
+                    let ch = bh.min(part.file_height - by * bh);
                     if block.len() != cw as usize * ch as usize {
                         return Err(RasterError::corrupt(
                             &part.path,
@@ -514,13 +705,14 @@ impl Dataset {
                         ));
                     }
                     let (bc0, br0) = (bx * bw, by * bh);
-                    for ly in ly0.max(br0)..ly1.min(br0 + ch) {
-                        let src = &block[((ly - br0) * cw) as usize..][..cw as usize];
-                        let orow = (ly + part.row - r0) as usize * w as usize;
-                        for lx in lx0.max(bc0)..lx1.min(bc0 + cw) {
-                            let o = &mut out[orow + (lx + part.col - c0) as usize];
-                            if o.is_nan() {
-                                *o = src[(lx - bc0) as usize];
+                    for fy in fy0.max(br0)..fy1.min(br0 + ch) {
+                        let src = &block[((fy - br0) * cw) as usize..][..cw as usize];
+                        let orow = (i64::from(fy) + shift_y - i64::from(r0)) as usize * w as usize;
+                        for fx in fx0.max(bc0)..fx1.min(bc0 + cw) {
+                            let o = &mut out[orow + (i64::from(fx) + shift_x - i64::from(c0)) as usize];
+                            let v = src[(fx - bc0) as usize];
+                            if o.is_nan() && !part.nodata.contains(&v) {
+                                *o = v;
                             }
                         }
                     }
@@ -722,7 +914,11 @@ fn hash_rows(crc: &mut crc32fast::Hasher, blocks: &[&[f32]], width: u32) {
 
 /// Places the parts on one grid: checks CRS kind, cell size, alignment and overlaps; returns
 /// the dataset size and its georeference (that of sample (0, 0)).
-fn place(parts: &mut [Part], georefs: &[FileGeoref]) -> Result<(u32, u32, FileGeoref), RasterError> {
+fn place(
+    parts: &mut [Part],
+    georefs: &[FileGeoref],
+    frames: &[(FileGeoref, u32, u32)],
+) -> Result<(u32, u32, FileGeoref), RasterError> {
     let (kind, _, _, dx, dy) = frame_of(georefs[0]);
     if parts.len() > 1 {
         for (p, &g) in parts.iter().zip(georefs) {
@@ -757,7 +953,7 @@ fn place(parts: &mut [Part], georefs: &[FileGeoref]) -> Result<(u32, u32, FileGe
     }
     // The dataset's sample (0, 0): the smallest offset along each axis's direction.
     let (_, mut ox, mut oy, _, _) = frame_of(georefs[0]);
-    for &g in georefs {
+    for &g in georefs.iter().chain(frames.iter().map(|f| &f.0)) {
         let (_, x, y, _, _) = frame_of(g);
         if (x - ox) / dx < 0.0 {
             ox = x;
@@ -795,6 +991,19 @@ fn place(parts: &mut [Part], georefs: &[FileGeoref]) -> Result<(u32, u32, FileGe
         p.row = r as u32;
         width = width.max(u64::from(p.col) + u64::from(p.width));
         height = height.max(u64::from(p.row) + u64::from(p.height));
+    }
+    // A VRT covers its whole extent (its own grid is its sources', so it is aligned).
+    for &(g, w, h) in frames {
+        let (_, x, y, _, _) = frame_of(g);
+        let (c, r) = (((x - ox) / dx).round(), ((y - oy) / dy).round());
+        width = width.max((c + f64::from(w)) as u64);
+        height = height.max((r + f64::from(h)) as u64);
+    }
+    if width > u64::from(MAX_DATASET_SIDE) || height > u64::from(MAX_DATASET_SIDE) {
+        return Err(dataset_error(
+            &parts[0].path,
+            format!("the dataset is {width}×{height} samples, beyond {MAX_DATASET_SIDE} per side"),
+        ));
     }
     for (i, a) in parts.iter().enumerate() {
         for b in &parts[..i] {
@@ -854,11 +1063,11 @@ impl WindowReader for Dataset {
     }
 }
 
-/// The files an input names: a file itself; a directory's raster files (`.tif`, `.tiff`, `.hgt`,
-/// `.png`, `.exr`; not recursive); or a pattern whose last component holds `*` or `?`. Directory
+/// The files an input names: a file itself; a directory's raster and point-cloud files (`.tif`,
+/// `.tiff`, `.hgt`, `.png`, `.exr`, `.vrt`, `.las`, `.laz`; not recursive); or a pattern whose last component holds `*` or `?`. Directory
 /// and pattern matches are sorted by name.
 pub fn expand_inputs(inputs: &[PathBuf]) -> Result<Vec<PathBuf>, RasterError> {
-    const EXTS: [&str; 5] = ["tif", "tiff", "hgt", "png", "exr"];
+    const EXTS: [&str; 8] = ["tif", "tiff", "hgt", "png", "exr", "vrt", "las", "laz"];
     let mut out = Vec::new();
     for input in inputs {
         let name = input.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
@@ -888,7 +1097,7 @@ pub fn expand_inputs(inputs: &[PathBuf]) -> Result<Vec<PathBuf>, RasterError> {
             if found.is_empty() {
                 return Err(dataset_error(
                     input,
-                    "the directory holds no .tif, .tiff, .hgt, .png or .exr file",
+                    "the directory holds no .tif, .tiff, .hgt, .png, .exr, .vrt, .las or .laz file",
                 ));
             }
             out.extend(found);

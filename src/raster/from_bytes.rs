@@ -19,6 +19,7 @@ pub fn load_bytes(name: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<Loade
         Format::Tiff => geotiff::decode(name, reader, opts.limits)?,
         Format::Exr => openexr::decode(name, reader, opts)?,
         Format::Hgt => hgt::decode_bytes(name, bytes, opts.limits)?,
+        Format::Vrt | Format::Las => return Err(super::not_in_memory(name, format)),
     };
     finish(name, decoded, &opts.overrides)
 }

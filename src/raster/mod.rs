@@ -11,10 +11,12 @@ pub mod dataset;
 mod from_bytes;
 pub mod geotiff;
 mod hgt;
+pub mod las;
 mod nodata;
 mod openexr;
 mod png;
 pub mod synth;
+pub mod vrt;
 
 use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
@@ -217,7 +219,7 @@ pub enum RasterError {
     Io { path: PathBuf, source: std::io::Error },
     /// Neither the magic bytes nor the extension name a supported format.
     #[error(
-        "{}: unrecognized raster format ({reason}); expected PNG, TIFF/GeoTIFF, OpenEXR or SRTM .hgt",
+        "{}: unrecognized raster format ({reason}); expected PNG, TIFF/GeoTIFF, OpenEXR, SRTM .hgt, GDAL VRT or LAS/LAZ",
         path.display()
     )]
     UnknownFormat { path: PathBuf, reason: String },
@@ -359,6 +361,10 @@ pub(crate) enum Format {
     Tiff,
     Exr,
     Hgt,
+    /// A GDAL VRT mosaic (read by [`dataset`] only).
+    Vrt,
+    /// A LAS/LAZ point cloud (gridded by [`dataset`] only).
+    Las,
 }
 
 /// Magic bytes decide; the `.hgt` extension is the fallback because SRTM files have no header.
@@ -372,7 +378,14 @@ pub(crate) fn detect(path: &Path, head: &[u8]) -> Result<Format, RasterError> {
     if TIFF_MAGICS.iter().any(|m| head.starts_with(m)) {
         return Ok(Format::Tiff);
     }
-    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("hgt")) {
+    if head.starts_with(b"LASF") {
+        return Ok(Format::Las);
+    }
+    let ext = |x: &str| path.extension().is_some_and(|e| e.eq_ignore_ascii_case(x));
+    if head.starts_with(b"<VRTData") || ext("vrt") {
+        return Ok(Format::Vrt);
+    }
+    if ext("hgt") {
         return Ok(Format::Hgt);
     }
     let reason = if head.is_empty() {
@@ -422,8 +435,19 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<LoadedRaster, RasterError
         Format::Tiff => geotiff::decode(path, reader, opts.limits)?,
         Format::Exr => openexr::decode(path, reader, opts)?,
         Format::Hgt => hgt::decode(path, reader, opts.limits)?,
+        Format::Vrt | Format::Las => return Err(not_in_memory(path, format)),
     };
     finish(path, decoded, &opts.overrides)
+}
+
+/// A VRT or a point cloud given to the in-memory loader (the server's `--source`, the demo).
+pub(crate) fn not_in_memory(path: &Path, format: Format) -> RasterError {
+    let what = if format == Format::Vrt { "GDAL VRT" } else { "LAS/LAZ" };
+    RasterError::unsupported(
+        path,
+        what,
+        "this command loads one raster file into memory; `terrastream bake` reads VRT mosaics and LAS/LAZ point clouds",
+    )
 }
 
 /// Shared tail of every format: fill no-data, build the world frame, apply z.
