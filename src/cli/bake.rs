@@ -192,7 +192,7 @@ fn describe(ds: &Dataset, opts: &DatasetOptions) -> String {
                 "every file is classified: each cell takes the mean of its ground (class 2) points".into()
             }
             (c, n) => format!(
-                "{c} of {n} files are classified (their cells take the mean of the ground points), the others give                  each cell its lowest point"
+                "{c} of {n} files are classified (their cells take the mean of the ground points), the others give each cell its lowest point"
             ),
         };
         let _ = write!(

@@ -413,7 +413,7 @@ fn open_input(
                 path,
                 "GDAL VRT",
                 format!(
-                    "the {} has no SrcRect, so it maps all of {} ({}×{}) onto a {w}×{h} DstRect, which needs                      resampling",
+                    "the {} has no SrcRect, so it maps all of {} ({}×{}) onto a {w}×{h} DstRect, which needs resampling",
                     src.element,
                     src.file.display(),
                     part.file_width,
