@@ -53,11 +53,18 @@ fn main() {
                 } else {
                     (ground, Classification::Ground)
                 };
-                wr.write_point(las::Point { x, y, z, classification, gps_time: Some(0.0), ..las::Point::default() })
-                    .unwrap();
+                wr.write_point(las::Point {
+                    x,
+                    y,
+                    z,
+                    classification,
+                    gps_time: Some(0.0),
+                    ..las::Point::default()
+                })
+                .unwrap();
             }
             wr.close().unwrap();
-            let bytes = std::fs::metadata(&out).map(|m| m.len()).unwrap_or(0);
+            let bytes = std::fs::metadata(&out).map_or(0, |m| m.len());
             println!(
                 "wrote {} ({n} points, {:.1} MB) in {:.1} s",
                 out.display(),
@@ -68,11 +75,20 @@ fn main() {
         Some("grid") if args.len() == 4 => {
             let path = PathBuf::from(&args[2]);
             let cell: f64 = args[3].parse().expect("CELL");
-            let load =
-                LoadOptions { overrides: Overrides { cell_size: Some(cell), ..Overrides::default() }, ..LoadOptions::default() };
+            let load = LoadOptions {
+                overrides: Overrides { cell_size: Some(cell), ..Overrides::default() },
+                ..LoadOptions::default()
+            };
             let t = Instant::now();
-            let ds = Dataset::open(&[path.clone()], &DatasetOptions { load, ..DatasetOptions::default() }, &|_, _, _| {})
-                .unwrap_or_else(|e| panic!("{e}"));
+            let ds = Dataset::open(
+                std::slice::from_ref(&path),
+                &DatasetOptions { load, ..DatasetOptions::default() },
+                &|_, _, _| {},
+            )
+            .unwrap_or_else(|e| {
+                eprintln!("{e}");
+                std::process::exit(1)
+            });
             let secs = t.elapsed().as_secs_f64();
             let s = ds.summary();
             let p = s.points.clone().unwrap_or_default();
