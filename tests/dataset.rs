@@ -6,9 +6,8 @@
 #![allow(clippy::unwrap_used, clippy::float_cmp, clippy::cast_lossless, clippy::type_complexity)]
 
 mod common;
-use common::{bin, data, fails, ok, tree};
+use common::{bin, blobs_and_index, data, fails, ok, tree};
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use terrastream::bake::{self, BakeOptions, NoProgress, TerrainInput};
@@ -63,11 +62,6 @@ fn bake_dataset(ds: &Dataset, name: &str, out: &Path) {
 
 fn bake_memory(raster: &raster::LoadedRaster, name: &str, out: &Path) {
     bake::bake_terrain(raster, name, &OPTS, &PointBaker::Cpu, &Store::new(out), &NoProgress).unwrap();
-}
-
-/// Blobs and index of two tilesets (everything but the files that name the sources).
-fn blobs_and_index(dir: &Path) -> BTreeMap<String, Vec<u8>> {
-    tree(dir).into_iter().filter(|(k, _)| k.starts_with("tiles/") || k.starts_with("index/")).collect()
 }
 
 fn assert_same_tileset(a: &Path, b: &Path) {
