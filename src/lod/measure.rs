@@ -105,7 +105,9 @@ impl std::hash::Hash for GridKey {
 /// one sort instead of one allocation per cell.
 struct HashGrid {
     origin: V3,
-    h: f64,
+    /// Cell edge per axis: a cube, or for a heightfield columns one layer tall (see
+    /// [`cell_edges`]).
+    h: V3,
     /// Cell → range in `items`.
     cells: FastMap<GridKey, (u32, u32)>,
     /// The same ranges as a dense array over the occupied box, when that box is small enough
@@ -119,12 +121,12 @@ struct HashGrid {
 
 impl HashGrid {
     #[inline]
-    fn coord(origin: V3, h: f64, p: V3) -> [f64; 3] {
-        [floor((p[0] - origin[0]) / h), floor((p[1] - origin[1]) / h), floor((p[2] - origin[2]) / h)]
+    fn coord(origin: V3, h: V3, p: V3) -> [f64; 3] {
+        [floor((p[0] - origin[0]) / h[0]), floor((p[1] - origin[1]) / h[1]), floor((p[2] - origin[2]) / h[2])]
     }
 
     /// Builds from (item, inclusive index box) pairs.
-    fn build(origin: V3, h: f64, boxes: impl Iterator<Item = (u32, [i64; 3], [i64; 3])>) -> Self {
+    fn build(origin: V3, h: V3, boxes: impl Iterator<Item = (u32, [i64; 3], [i64; 3])>) -> Self {
         let boxes: Vec<(u32, [i64; 3], [i64; 3])> = boxes.collect();
         let mut lo = [i64::MAX; 3];
         let mut hi = [i64::MIN; 3];
@@ -200,15 +202,16 @@ impl HashGrid {
 
     /// Smallest `q.distance_squared(item)` over all items, found by ring search, and the item. Returns
     /// early, with some value ≤ `stop2`, as soon as an item within `sqrt(stop2)` is found (pass
-    /// 0 for the exact nearest). `dist2` measures one item; `all` is the item count, for the
-    /// linear fallback. The item is `u32::MAX` when there are none.
-    fn nearest2(&self, q: V3, stop2: f64, all: u32, dist2: impl Fn(u32) -> f64) -> (f64, u32) {
+    /// 0 for the exact nearest). `dist2(item, best)` measures one item, and may return any value
+    /// ≥ `best` for an item it can tell is no nearer than `best` (a cheap bound first); `all` is
+    /// the item count, for the linear fallback. The item is `u32::MAX` when there are none.
+    fn nearest2(&self, q: V3, stop2: f64, all: u32, dist2: impl Fn(u32, f64) -> f64) -> (f64, u32) {
         let mut best = (f64::INFINITY, u32::MAX);
         if self.is_empty() {
             return best;
         }
         let consider = |best: &mut (f64, u32), item: u32| {
-            let d = dist2(item);
+            let d = dist2(item, best.0);
             if d < best.0 {
                 *best = (d, item);
             }
@@ -218,10 +221,12 @@ impl HashGrid {
             (0..all).for_each(|item| consider(&mut best, item));
             return best;
         }
-        let c = [c[0] as i64, c[1] as i64, c[2] as i64];
-        // Rings closer than the occupied box are empty: start at the first that reaches it.
-        let r0 = (0..3).map(|d| (self.lo[d] - c[d]).max(c[d] - self.hi[d]).max(0)).max().unwrap_or(0);
-        let mut r = r0;
+        // Rings are centred on the occupied cell nearest the query: rings around any centre
+        // partition the cells, and the bound below holds for any centre, so this only saves
+        // the empty rings between a query outside the box and the box (and keeps a query above
+        // a one-layer grid on its layer).
+        let c: [i64; 3] = std::array::from_fn(|d| (c[d] as i64).clamp(self.lo[d], self.hi[d]));
+        let mut r = 0;
         loop {
             self.visit_ring(c, r, |item| consider(&mut best, item));
             if best.0 <= stop2 {
@@ -234,11 +239,11 @@ impl HashGrid {
             for d in 0..3 {
                 if c[d] - r > self.lo[d] {
                     covered = false;
-                    bound = bound.min(q[d] - (self.origin[d] + (c[d] - r) as f64 * self.h));
+                    bound = bound.min(q[d] - (self.origin[d] + (c[d] - r) as f64 * self.h[d]));
                 }
                 if c[d] + r < self.hi[d] {
                     covered = false;
-                    bound = bound.min(self.origin[d] + (c[d] + r + 1) as f64 * self.h - q[d]);
+                    bound = bound.min(self.origin[d] + (c[d] + r + 1) as f64 * self.h[d] - q[d]);
                 }
             }
             if covered {
@@ -382,6 +387,39 @@ fn sample_triangle(t: &[V3; 3], owned: [bool; 3], s: f64, mut f: impl FnMut(V3))
     }
 }
 
+/// Most triangles, as a fraction, that may face against the rest for a mesh to be measured
+/// as a heightfield.
+const HEIGHTFIELD_AGAINST: f64 = 0.01;
+
+/// The grids' layer height when `tris` form a heightfield (a terrain TIN: all triangles face
+/// one way along z, give or take [`HEIGHTFIELD_AGAINST`]; vertical ones, such as skirts, face
+/// neither): the whole z extent, so each grid cell is a column over the surface, holding the
+/// few triangles (or points) there. A cubic grid would spread such a surface over many
+/// layers, and a query would search them all in every ring it visits. `None` otherwise
+/// (models). Either grid gives the same distances; this only decides how fast.
+fn heightfield_layer(tris: &[([V3; 3], [bool; 3])], bounds: &Bounds) -> Option<f64> {
+    let (mut up, mut down) = (0usize, 0usize);
+    for ([a, b, c], _) in tris {
+        let n = (*b - *a).cross(*c - *a);
+        let tol = 1e-9 * n.length();
+        if n.z > tol {
+            up += 1;
+        } else if n.z < -tol {
+            down += 1;
+        }
+    }
+    let extent = bounds.size().z;
+    (up.min(down) as f64 <= HEIGHTFIELD_AGAINST * tris.len() as f64 && extent.is_finite()).then_some(extent)
+}
+
+/// Grid cell edges for a horizontal edge `h`: cubes, or columns of the layer height `column`.
+fn cell_edges(h: f64, column: Option<f64>) -> V3 {
+    match column {
+        Some(z) => DVec3::new(h, h, z.max(h)),
+        None => DVec3::splat(h),
+    }
+}
+
 /// See [`super::cpu::measure_points`].
 pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_half: f64) -> Errors {
     let tris = valid_triangles(mesh);
@@ -408,22 +446,26 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_hal
     } else {
         1.0
     };
-    let mut h = base;
     let origin = bounds.min;
-    let tri_box = |t: &[V3; 3], h: f64| {
-        let b = Bounds::of_points(&t.map(|v| v.to_array()));
-        let a = HashGrid::coord(origin, h, b.min);
-        let c = HashGrid::coord(origin, h, b.max);
+    let column = heightfield_layer(&tris, &bounds);
+    let tri_bounds: Vec<(V3, V3)> =
+        tris.iter().map(|([a, b, c], _)| (a.min(*b).min(*c), a.max(*b).max(*c))).collect();
+    let tri_box = |(lo, hi): &(V3, V3), h: V3| {
+        let a = HashGrid::coord(origin, h, *lo);
+        let c = HashGrid::coord(origin, h, *hi);
         ([a[0] as i64, a[1] as i64, a[2] as i64], [c[0] as i64, c[1] as i64, c[2] as i64])
     };
     let budget = (GRID_BUDGET_PER_ITEM * (tris.len() + pts.len()) as f64).max(GRID_BUDGET_MIN);
-    // Bounded: h doubles each round, so 2,100 rounds pass the f64 range whatever the input (a
-    // NaN count would otherwise never satisfy the test).
+    // Cells of the level's size, coarsened until the triangle boxes fit the budget. Bounded:
+    // h doubles each round, so 2,100 rounds pass the f64 range whatever the input (a NaN count
+    // would otherwise never satisfy the test).
+    let mut h = base;
     for _ in 0..2100 {
-        let cells: f64 = tris
+        let edges = cell_edges(h, column);
+        let cells: f64 = tri_bounds
             .iter()
             .map(|t| {
-                let (a, b) = tri_box(&t.0, h);
+                let (a, b) = tri_box(t, edges);
                 (0..3).map(|d| (b[d] - a[d] + 1) as f64).product::<f64>()
             })
             .sum();
@@ -432,12 +474,13 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_hal
         }
         h *= 2.0;
     }
+    let h = cell_edges(h, column);
 
     let tri_grid = HashGrid::build(
         origin,
         h,
-        tris.iter().enumerate().map(|(i, t)| {
-            let (a, b) = tri_box(&t.0, h);
+        tri_bounds.iter().enumerate().map(|(i, t)| {
+            let (a, b) = tri_box(t, h);
             (i as u32, a, b)
         }),
     );
@@ -455,7 +498,18 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_hal
     let mut max2 = 0.0f64;
     let mut sum2 = 0.0f64;
     let dist2 = |q: V3| {
-        tri_grid.nearest2(q, 0.0, tris.len() as u32, |i| point_triangle_dist2(q, &tris[i as usize].0)).0
+        tri_grid
+            .nearest2(q, 0.0, tris.len() as u32, |i, best| {
+                // The distance to the triangle's box bounds its own from below, at a fraction
+                // of the cost: most triangles in the visited cells are ruled out by it.
+                let (lo, hi) = tri_bounds[i as usize];
+                let outside = (lo - q).max(q - hi).max(DVec3::ZERO);
+                if outside.length_squared() >= best {
+                    return f64::INFINITY;
+                }
+                point_triangle_dist2(q, &tris[i as usize].0)
+            })
+            .0
     };
     let mut corners = Vec::with_capacity(12);
     for (i, &p) in points.positions.iter().enumerate() {
@@ -497,7 +551,8 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_hal
         if pts.get(last as usize).is_some_and(|&p| q.distance_squared(p) <= gap2) {
             return;
         }
-        let (d2, item) = pt_grid.nearest2(q, gap2, pts.len() as u32, |i| q.distance_squared(pts[i as usize]));
+        let (d2, item) =
+            pt_grid.nearest2(q, gap2, pts.len() as u32, |i, _| q.distance_squared(pts[i as usize]));
         gap2 = gap2.max(d2);
         last = item;
     };
