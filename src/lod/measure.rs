@@ -2,6 +2,8 @@
 //! [`super::cpu::measure_points`] for the definitions). Uniform hash grids of triangles and of
 //! points make the nearest-item queries local: each query visits rings of grid cells around
 //! itself, nearest first, and stops as soon as nothing outside the visited box can be closer.
+//! A heightfield (a terrain TIN) is gridded in columns rather than cubes, and each triangle is
+//! bounded by its box before its exact distance is taken; neither changes a result.
 
 use glam::DVec3;
 
