@@ -613,6 +613,86 @@ mod tests {
         assert!((point_triangle_dist2(DVec3::new(1.0, 1.0, 3.0), &dot3) - 4.0).abs() < 1e-12);
     }
 
+    /// Errors by brute force: every query against every triangle, every gap sample against
+    /// every point.
+    fn brute(mesh: &Mesh, pc: &PointCloud, cell: f64, half: f64) -> Errors {
+        let tris = valid_triangles(mesh);
+        let near = |q: V3| tris.iter().map(|(t, _)| point_triangle_dist2(q, t)).fold(f64::INFINITY, f64::min);
+        let (mut max2, mut sum2) = (0.0f64, 0.0f64);
+        let mut corners = Vec::new();
+        for (p, n) in pc.positions.iter().zip(&pc.normals) {
+            let p = DVec3::from_array(*p);
+            let d2 = near(p);
+            max2 = max2.max(d2);
+            sum2 += d2;
+            let n = DVec3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]));
+            super::super::footprint::footprint_corners(p, n, half * cell, &mut corners);
+            for &q in &corners {
+                max2 = max2.max(near(q));
+            }
+        }
+        let pts: Vec<V3> = pc.positions.iter().map(|p| DVec3::from_array(*p)).collect();
+        let mut gap2 = 0.0f64;
+        let mut sample = |q: V3| {
+            gap2 = gap2.max(pts.iter().map(|p| p.distance_squared(q)).fold(f64::INFINITY, f64::min));
+        };
+        for v in &mesh.positions {
+            sample(DVec3::from_array(*v));
+        }
+        for (t, owned) in &tris {
+            sample_triangle(t, *owned, cell / 4.0, &mut sample);
+        }
+        Errors { max: max2.sqrt(), rms: (sum2 / pts.len() as f64).sqrt(), gap: gap2.sqrt() }
+    }
+
+    #[test]
+    fn grid_search_matches_brute_force_on_heightfields_and_not() {
+        // A rough 12×12 heightfield (relief ten times its cell) and points scattered in and far
+        // beyond its box, above and below: the column grid (all triangles up), then the cubic
+        // grid (every third triangle flipped, so the mesh is no longer one-sided; the distances
+        // are the same), each against brute force.
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut rnd = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let n = 12u32;
+        let mut mesh = Mesh::default();
+        for j in 0..n {
+            for i in 0..n {
+                mesh.positions.push([f64::from(i), f64::from(j), 10.0 * rnd()]);
+            }
+        }
+        for j in 0..n - 1 {
+            for i in 0..n - 1 {
+                let v = j * n + i;
+                mesh.triangles.push([v, v + 1, v + n + 1]);
+                mesh.triangles.push([v, v + n + 1, v + n]);
+            }
+        }
+        let mut pc = PointCloud::default();
+        for _ in 0..300 {
+            pc.positions.push([40.0 * rnd() - 14.0, 40.0 * rnd() - 14.0, 60.0 * rnd() - 25.0]);
+            let nz = rnd() as f32;
+            pc.normals.push([rnd() as f32 - 0.5, rnd() as f32 - 0.5, nz]);
+        }
+        let cell = 2.0;
+        let tris = valid_triangles(&mesh);
+        let bounds = Bounds::of_points(&mesh.positions);
+        assert!(heightfield_layer(&tris, &bounds).is_some());
+        let want = brute(&mesh, &pc, cell, 0.9);
+        let got = measure(&mesh, &pc, cell, 0.9);
+        assert_eq!(got, want);
+        for t in mesh.triangles.iter_mut().step_by(3) {
+            t.swap(1, 2);
+        }
+        assert!(heightfield_layer(&valid_triangles(&mesh), &bounds).is_none());
+        assert_eq!(measure(&mesh, &pc, cell, 0.9), brute(&mesh, &pc, cell, 0.9));
+        assert_eq!(measure(&mesh, &pc, cell, 0.9), want);
+    }
+
     #[test]
     fn samples_cover_a_sliver_within_spacing() {
         let t = [[0.0, 0.0, 0.0], [100.0, 0.0, 0.0], [50.0, 0.3, 0.0]].map(DVec3::from_array);
