@@ -206,10 +206,20 @@ impl HashGrid {
     /// early, with some value ≤ `stop2`, as soon as an item within `sqrt(stop2)` is found (pass
     /// 0 for the exact nearest). `dist2(item, best)` measures one item, and may return any value
     /// ≥ `best` for an item it can tell is no nearer than `best` (a cheap bound first); `all` is
-    /// the item count, for the linear fallback. The item is `u32::MAX` when there are none.
-    fn nearest2(&self, q: V3, stop2: f64, all: u32, dist2: impl Fn(u32, f64) -> f64) -> (f64, u32) {
-        let mut best = (f64::INFINITY, u32::MAX);
-        if self.is_empty() {
+    /// the item count, for the linear fallback. `init` is a known (distance², item) pair to
+    /// start from, such as the answer for a nearby query (`(f64::INFINITY, u32::MAX)` for
+    /// none): the search then only looks for something nearer, and returns `init` when
+    /// nothing is. The item is `u32::MAX` when there are none.
+    fn nearest2(
+        &self,
+        q: V3,
+        stop2: f64,
+        all: u32,
+        init: (f64, u32),
+        dist2: impl Fn(u32, f64) -> f64,
+    ) -> (f64, u32) {
+        let mut best = init;
+        if self.is_empty() || best.0 <= stop2 {
             return best;
         }
         let consider = |best: &mut (f64, u32), item: u32| {
@@ -497,39 +507,57 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_hal
         }),
     );
 
+    // The exact distance of every point (the rms needs each), each search starting from the
+    // triangle that answered the point before: level points come in cell order, so that
+    // triangle is usually near, and its distance lets the box bound rule out the rest early.
+    let nearest = |q: V3, stop2: f64, init: (f64, u32)| {
+        tri_grid.nearest2(q, stop2, tris.len() as u32, init, |i, best| {
+            // The distance to the triangle's box bounds its own from below, at a fraction
+            // of the cost: most triangles in the visited cells are ruled out by it.
+            let (lo, hi) = tri_bounds[i as usize];
+            let outside = (lo - q).max(q - hi).max(DVec3::ZERO);
+            if outside.length_squared() >= best {
+                return f64::INFINITY;
+            }
+            point_triangle_dist2(q, &tris[i as usize].0)
+        })
+    };
+    let from = |q: V3, tri: u32| match tris.get(tri as usize) {
+        Some((t, _)) => (point_triangle_dist2(q, t), tri),
+        None => (f64::INFINITY, u32::MAX),
+    };
     let mut max2 = 0.0f64;
     let mut sum2 = 0.0f64;
-    let dist2 = |q: V3| {
-        tri_grid
-            .nearest2(q, 0.0, tris.len() as u32, |i, best| {
-                // The distance to the triangle's box bounds its own from below, at a fraction
-                // of the cost: most triangles in the visited cells are ruled out by it.
-                let (lo, hi) = tri_bounds[i as usize];
-                let outside = (lo - q).max(q - hi).max(DVec3::ZERO);
-                if outside.length_squared() >= best {
-                    return f64::INFINITY;
-                }
-                point_triangle_dist2(q, &tris[i as usize].0)
-            })
-            .0
-    };
+    let mut answer = vec![u32::MAX; points.positions.len()];
+    let mut last = u32::MAX;
+    for (i, &p) in points.positions.iter().enumerate() {
+        let p = DVec3::from_array(p);
+        if !p.is_finite() {
+            continue;
+        }
+        let (d2, tri) = nearest(p, 0.0, from(p, last));
+        max2 = max2.max(d2);
+        sum2 += d2;
+        answer[i] = tri;
+        last = tri;
+    }
+    // The level as drawn: the footprint's corners reach farthest from the point. They only
+    // count toward the max, so a corner with any triangle within the max found so far cannot
+    // raise it: its point's triangle is tried first, and a search stops at the first such
+    // triangle. The max comes out the same as taking every corner's exact distance.
     let mut corners = Vec::with_capacity(12);
     for (i, &p) in points.positions.iter().enumerate() {
         let p = DVec3::from_array(p);
         if !p.is_finite() {
             continue;
         }
-        let d2 = dist2(p);
-        max2 = max2.max(d2);
-        sum2 += d2;
-        // The level as drawn: the footprint's corners reach farthest from the point.
         let n = points
             .normals
             .get(i)
             .map_or(DVec3::Z, |n| DVec3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2])));
         super::footprint::footprint_corners(p, n, footprint_half * base, &mut corners);
         for &q in &corners {
-            max2 = max2.max(dist2(q));
+            max2 = max2.max(nearest(q, max2, from(q, answer[i])).0);
         }
     }
 
@@ -546,15 +574,15 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_hal
         }
     }
     // Consecutive samples are close together, so the point that answered the last query very
-    // often lies within the gap of the next one too: checking it first skips most searches, and
-    // the result is the same (a sample with a point within the gap cannot raise it).
+    // often lies within the gap of the next one too: each search starts from it, which skips
+    // most searches, and the result is the same (a sample with a point within the gap cannot
+    // raise it).
     let mut last = u32::MAX;
     let mut gap_sample = |q: V3| {
-        if pts.get(last as usize).is_some_and(|&p| q.distance_squared(p) <= gap2) {
-            return;
-        }
+        let init =
+            pts.get(last as usize).map_or((f64::INFINITY, u32::MAX), |&p| (q.distance_squared(p), last));
         let (d2, item) =
-            pt_grid.nearest2(q, gap2, pts.len() as u32, |i, _| q.distance_squared(pts[i as usize]));
+            pt_grid.nearest2(q, gap2, pts.len() as u32, init, |i, _| q.distance_squared(pts[i as usize]));
         gap2 = gap2.max(d2);
         last = item;
     };
