@@ -11,5 +11,5 @@ mod terrain;
 
 pub mod model;
 
-pub use node::{NodeBake, NodeMesh, bake_node, node_from_blobs, node_mesh};
+pub use node::{NodeMesh, bake_node, node_from_blobs, node_mesh};
 pub use terrain::*;

@@ -48,8 +48,7 @@ pub(super) fn bake_node_in(
     let nm = node_mesh(pyramid, reader, georef, key, opts)?;
     let grids: Vec<([f64; 3], f64)> = (1..=opts.levels).map(|l| nm.level_grid(l)).collect();
     let clouds = baker.bake_levels(&nm.mesh, &grids)?.0;
-    let (nb, quants) = finish_node(nm, clouds);
-    write_node(&nb, &quants, store)
+    write_node(&nm, clouds, store)
 }
 
 /// The world frame of a node sample grid.
@@ -64,15 +63,6 @@ impl GridFrame<'_> {
     fn cell(&self) -> f64 {
         self.g.dx.abs().max(self.g.dy.abs())
     }
-}
-
-/// Everything one node's bake produces, before it is written.
-pub struct NodeBake {
-    pub key: TileKey,
-    pub bounds: Bounds,
-    pub mesh: Mesh,
-    pub mesh_errors: Errors,
-    pub points: Vec<(PointCloud, Errors)>,
 }
 
 /// A node's level 0: its quantized TIN with measured errors, what its point levels are baked
@@ -98,7 +88,15 @@ impl NodeMesh {
 
     /// Quantizes a baked cloud of `level` as its blob stores it and measures its errors.
     #[must_use]
-    pub fn finish_level(&self, level: u8, mut pc: PointCloud) -> (PointCloud, Errors, Quantization) {
+    pub fn finish_level(&self, level: u8, pc: PointCloud) -> (PointCloud, Errors, Quantization) {
+        let (pc, q) = self.quantize_level(level, pc);
+        let errors = self.measure_level(level, &pc);
+        (pc, errors, q)
+    }
+
+    /// A baked cloud of `level` on its blob's quantization grid, and that grid.
+    #[must_use]
+    pub fn quantize_level(&self, level: u8, mut pc: PointCloud) -> (PointCloud, Quantization) {
         let (_, cell) = self.level_grid(level);
         let q = Quantization {
             xy_step: cell / f64::from(POINT_STEPS_PER_CELL),
@@ -109,8 +107,14 @@ impl NodeMesh {
         // bounds are unusable the encoder reports it.
         pc.positions = codec::snap_positions(&pc.positions, &self.bounds, q)
             .unwrap_or_else(|_| codec::quantize_positions(&pc.positions, &self.bounds, q));
-        let errors = lod::cpu::measure_points(&self.mesh, &pc, cell, lod::TERRAIN_FOOTPRINT_HALF);
-        (pc, errors, q)
+        (pc, q)
+    }
+
+    /// The errors of a quantized cloud of `level` against this node's mesh.
+    #[must_use]
+    pub fn measure_level(&self, level: u8, pc: &PointCloud) -> Errors {
+        let (_, cell) = self.level_grid(level);
+        lod::cpu::measure_points(&self.mesh, pc, cell, lod::TERRAIN_FOOTPRINT_HALF)
     }
 }
 
@@ -215,63 +219,55 @@ pub fn node_mesh(
     })
 }
 
-/// Quantizes and measures a node's baked clouds (levels 1, 2, …).
-pub(super) fn finish_node(nm: NodeMesh, clouds: Vec<PointCloud>) -> (NodeBake, Vec<Quantization>) {
-    let mut quants = vec![nm.quantization];
-    let mut points = Vec::with_capacity(clouds.len());
-    for (k, pc) in clouds.into_iter().enumerate() {
-        let (pc, errors, q) = nm.finish_level(k as u8 + 1, pc);
-        quants.push(q);
-        points.push((pc, errors));
-    }
-    let nb = NodeBake { key: nm.key, bounds: nm.bounds, mesh: nm.mesh, mesh_errors: nm.mesh_errors, points };
-    (nb, quants)
-}
-
-/// Encodes one baked node's levels, keeps those that pay ([`store::levels_that_pay`]) and
-/// writes their blobs (the others get an `unpaid` marker); returns its index entry.
-pub(super) fn write_node(
-    nb: &NodeBake,
-    quants: &[Quantization],
-    store: &Store,
-) -> Result<NodeEntry, BakeError> {
-    let key = nb.key;
+/// Encodes a node's levels (`clouds` are its baked point levels 1, 2, …), keeps those that pay
+/// ([`store::levels_that_pay`]) and writes their blobs (the others get an `unpaid` marker);
+/// returns its index entry. The pay rule looks at counts and bytes only, so a point level is
+/// measured only once it is known to be kept: the blobs are those of measuring every level.
+pub(super) fn write_node(nm: &NodeMesh, clouds: Vec<PointCloud>, store: &Store) -> Result<NodeEntry, BakeError> {
+    let key = nm.key;
     let codec_err = |level: u8| move |source| BakeError::Codec { key, level, source };
-    let mesh_blob =
-        codec::encode_mesh(key, 0, &nb.bounds, quants[0], &nb.mesh, nb.mesh_errors).map_err(codec_err(0))?;
-    let mut blobs = vec![(
-        NodeLevel {
-            level: 0,
-            errors: nb.mesh_errors,
-            count: nb.mesh.positions.len() as u32,
-            triangles: nb.mesh.triangles.len() as u32,
-            bytes: mesh_blob.len() as u64,
-            checksum: codec::decode_header(&mesh_blob).map_err(codec_err(0))?.checksum,
-        },
-        mesh_blob,
-    )];
-    for (k, (pc, errors)) in nb.points.iter().enumerate() {
+    let mesh_blob = codec::encode_mesh(key, 0, &nm.bounds, nm.quantization, &nm.mesh, nm.mesh_errors)
+        .map_err(codec_err(0))?;
+    let mesh_level = NodeLevel {
+        level: 0,
+        errors: nm.mesh_errors,
+        count: nm.mesh.positions.len() as u32,
+        triangles: nm.mesh.triangles.len() as u32,
+        bytes: mesh_blob.len() as u64,
+        checksum: codec::decode_header(&mesh_blob).map_err(codec_err(0))?.checksum,
+    };
+    let mut payer = store::Payer::default();
+    payer.keep(mesh_level.count, mesh_level.bytes);
+    let mut levels = vec![(mesh_level.level, Some((mesh_level, mesh_blob)))];
+    for (k, pc) in clouds.into_iter().enumerate() {
         let level = k as u8 + 1;
-        let blob = codec::encode_points(key, level, &nb.bounds, quants[k + 1], pc, *errors)
-            .map_err(codec_err(level))?;
-        let info = NodeLevel {
-            level,
-            errors: *errors,
-            count: pc.positions.len() as u32,
-            triangles: 0,
-            bytes: blob.len() as u64,
-            checksum: codec::decode_header(&blob).map_err(codec_err(level))?.checksum,
-        };
-        blobs.push((info, blob));
+        let (pc, q) = nm.quantize_level(level, pc);
+        let count = pc.positions.len() as u32;
+        let mut kept = None;
+        if payer.may_pay(count) {
+            let draft = codec::draft_points(key, level, &nm.bounds, q, &pc).map_err(codec_err(level))?;
+            if payer.keep(count, draft.len() as u64) {
+                let errors = nm.measure_level(level, &pc);
+                let blob = draft.finish(errors).map_err(codec_err(level))?;
+                let info = NodeLevel {
+                    level,
+                    errors,
+                    count,
+                    triangles: 0,
+                    bytes: blob.len() as u64,
+                    checksum: codec::decode_header(&blob).map_err(codec_err(level))?.checksum,
+                };
+                kept = Some((info, blob));
+            }
+        }
+        levels.push((level, kept));
     }
-    let levels = write_paying(store, key, blobs)?;
-    Ok(NodeEntry { key, bounds: nb.bounds, levels })
+    let levels = write_levels(store, key, levels)?;
+    Ok(NodeEntry { key, bounds: nm.bounds, levels })
 }
 
-/// Writes the blobs of one node's levels that pay and the `unpaid` markers of the others,
-/// coarsest first and the mesh (level 0) last: a node counts as complete on resume only once its
-/// mesh blob exists, and then every other level has its blob or its marker. Returns the kept
-/// levels, finest first. Shared by terrain nodes and model tilesets.
+/// Writes the blobs of one node's levels that pay and the `unpaid` markers of the others;
+/// returns the kept levels, finest first. Shared by terrain nodes and model tilesets.
 pub(crate) fn write_paying(
     store: &Store,
     key: TileKey,
@@ -279,13 +275,26 @@ pub(crate) fn write_paying(
 ) -> Result<Vec<NodeLevel>, store::StoreError> {
     let infos: Vec<NodeLevel> = blobs.iter().map(|(l, _)| *l).collect();
     let pays = store::levels_that_pay(&infos);
-    let mut kept = Vec::with_capacity(blobs.len());
-    for ((info, bytes), pays) in blobs.into_iter().zip(pays).rev() {
-        if pays {
-            store.write_blob(key, info.level, &bytes)?;
+    let levels = blobs.into_iter().zip(pays).map(|((info, bytes), pays)| (info.level, pays.then_some((info, bytes))));
+    write_levels(store, key, levels.collect())
+}
+
+/// Writes one node's kept levels (`Some`: their blobs) and the `unpaid` markers of the others
+/// (`None`), coarsest first and the mesh (level 0) last: a node counts as complete on resume
+/// only once its mesh blob exists, and then every other level has its blob or its marker.
+/// Returns the kept levels, finest first.
+fn write_levels(
+    store: &Store,
+    key: TileKey,
+    levels: Vec<(u8, Option<(NodeLevel, Vec<u8>)>)>,
+) -> Result<Vec<NodeLevel>, store::StoreError> {
+    let mut kept = Vec::with_capacity(levels.len());
+    for (level, blob) in levels.into_iter().rev() {
+        if let Some((info, bytes)) = blob {
+            store.write_blob(key, level, &bytes)?;
             kept.push(info);
         } else {
-            store.write_unpaid(key, info.level)?;
+            store.write_unpaid(key, level)?;
         }
     }
     kept.reverse();

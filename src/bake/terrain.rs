@@ -28,7 +28,7 @@ use crate::tiling::{Pyramid, TileKey};
 use crate::tin;
 
 #[cfg(feature = "gpu")]
-use super::node::{NodeMesh, finish_node, node_mesh, write_node};
+use super::node::{NodeMesh, node_mesh, write_node};
 use super::node::{bake_node_in, node_from_blobs};
 
 /// Default TIN error bound for leaf tiles, in metres.
@@ -476,8 +476,7 @@ fn bake_nodes_gpu(
             let done: Vec<(usize, NodeEntry)> = work
                 .into_par_iter()
                 .map(|(i, nm, clouds)| {
-                    let (nb, quants) = finish_node(nm, clouds);
-                    let e = write_node(&nb, &quants, store);
+                    let e = write_node(&nm, clouds, store);
                     progress.node_done();
                     e.map(|e| (i, e))
                 })

@@ -538,12 +538,60 @@ pub fn encode_points(
     errors: Errors,
 ) -> Result<Vec<u8>, CodecError> {
     QuantGrid::new(bounds, q)?;
-    let bounds = &quantized_bounds(bounds, &points.positions, q);
-    let frame = QuantGrid::new(bounds, q)?;
     check_errors(errors)?;
-    let n = check_count("points", points.positions.len())?;
+    draft_points(key, level, bounds, q, points)?.finish(errors)
+}
+
+/// A point blob encoded but for its measured errors: the header's errors are fixed-size fields,
+/// so its length is known before they are (a baker decides whether a level pays from its length
+/// and measures only the levels it keeps). [`PointsDraft::finish`] gives exactly the bytes
+/// [`encode_points`] gives for the same input.
+#[derive(Debug, Clone)]
+pub struct PointsDraft {
+    key: TileKey,
+    level: u8,
+    bounds: Bounds,
+    q: Quantization,
+    count: u32,
+    packed: stream::Packed,
+}
+
+/// [`encode_points`] without the errors: the payload, packed. Errors: as [`encode_points`]
+/// except those about the errors.
+pub fn draft_points(
+    key: TileKey,
+    level: u8,
+    bounds: &Bounds,
+    q: Quantization,
+    points: &PointCloud,
+) -> Result<PointsDraft, CodecError> {
+    QuantGrid::new(bounds, q)?;
+    let bounds = quantized_bounds(bounds, &points.positions, q);
+    let frame = QuantGrid::new(&bounds, q)?;
+    let count = check_count("points", points.positions.len())?;
     let packed = points::encode(&frame, points)?;
-    assemble(Kind::Points, key, level, bounds, q, n, 0, errors, &packed)
+    Ok(PointsDraft { key, level, bounds, q, count, packed })
+}
+
+impl PointsDraft {
+    /// Length of the finished blob, in bytes.
+    #[must_use]
+    pub fn len(&self) -> usize {
+        PREFIX_LEN + self.packed.payload.len()
+    }
+
+    /// Never true: a blob has at least its header.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+
+    /// The blob with `errors` in its header. Errors: errors that are not finite and
+    /// non-negative, a payload over the size limit.
+    pub fn finish(&self, errors: Errors) -> Result<Vec<u8>, CodecError> {
+        check_errors(errors)?;
+        assemble(Kind::Points, self.key, self.level, &self.bounds, self.q, self.count, 0, errors, &self.packed)
+    }
 }
 
 /// Reads and validates the header from the first [`PREFIX_LEN`] bytes (more may follow and are

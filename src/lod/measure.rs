@@ -564,7 +564,6 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_hal
     // Only samples farther than the current gap can raise it, so each query may stop at the
     // first point within the gap found so far.
     let s = base / 4.0;
-    let mut gap2 = 0.0f64;
     let mut used = vec![false; mesh.positions.len()];
     for t in &mesh.triangles {
         for &v in t {
@@ -577,21 +576,28 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_hal
     // often lies within the gap of the next one too: each search starts from it, which skips
     // most searches, and the result is the same (a sample with a point within the gap cannot
     // raise it).
-    let mut last = u32::MAX;
-    let mut gap_sample = |q: V3| {
-        let init =
-            pts.get(last as usize).map_or((f64::INFINITY, u32::MAX), |&p| (q.distance_squared(p), last));
-        let (d2, item) =
-            pt_grid.nearest2(q, gap2, pts.len() as u32, init, |i, _| q.distance_squared(pts[i as usize]));
-        gap2 = gap2.max(d2);
-        last = item;
+    // (gap², the point that answered the last sample)
+    let mut state = (0.0f64, u32::MAX);
+    let gap_sample = |(gap2, last): &mut (f64, u32), q: V3| {
+        let init = pts.get(*last as usize).map_or((f64::INFINITY, u32::MAX), |&p| (q.distance_squared(p), *last));
+        let (d2, item) = pt_grid.nearest2(q, *gap2, pts.len() as u32, init, |i, _| q.distance_squared(pts[i as usize]));
+        *gap2 = gap2.max(d2);
+        *last = item;
     };
     for (q, _) in mesh.positions.iter().zip(&used).filter(|(p, u)| **u && p.iter().all(|c| c.is_finite())) {
-        gap_sample(DVec3::from_array(*q));
+        gap_sample(&mut state, DVec3::from_array(*q));
     }
     for (t, owned) in &tris {
-        sample_triangle(t, *owned, s, &mut gap_sample);
+        // Distance to a point is convex, so a triangle whose vertices all lie within the gap
+        // of one point has every sample within it too: none can raise the gap, and the
+        // triangle is skipped whole (with a margin far above the samples' rounding).
+        let (gap2, last) = state;
+        if pts.get(last as usize).is_some_and(|&p| t.iter().all(|v| v.distance_squared(p) <= gap2 * (1.0 - 1e-9))) {
+            continue;
+        }
+        sample_triangle(t, *owned, s, |q| gap_sample(&mut state, q));
     }
+    let gap2 = state.0;
 
     Errors { max: max2.sqrt(), rms: (sum2 / pts.len() as f64).sqrt(), gap: gap2.sqrt() }
 }

@@ -206,17 +206,35 @@ impl TryFrom<RawNodeEntry> for NodeEntry {
 /// parallel to it.
 #[must_use]
 pub fn levels_that_pay(levels: &[NodeLevel]) -> Vec<bool> {
-    let mut keep = Vec::with_capacity(levels.len());
-    // Cheapest kept so far: every finer kept level costs at least this much in both measures.
-    let mut cheapest: Option<(u32, u64)> = None;
-    for l in levels {
-        let pays = cheapest.is_none_or(|(count, bytes)| l.count < count && l.bytes < bytes);
-        if pays {
-            cheapest = Some((l.count, l.bytes));
-        }
-        keep.push(pays);
+    let mut pay = Payer::default();
+    levels.iter().map(|l| pay.keep(l.count, l.bytes)).collect()
+}
+
+/// [`levels_that_pay`] one level at a time, finest first, for a baker that decides before it
+/// has finished a level: the rule looks at primitives and bytes only, so [`Payer::may_pay`]
+/// tells from the count alone whether encoding can help, and the measured errors are needed
+/// only for the levels kept.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Payer {
+    /// Cheapest kept so far: every finer kept level costs at least this much in both measures.
+    cheapest: Option<(u32, u64)>,
+}
+
+impl Payer {
+    /// False when a level of `count` primitives cannot pay whatever its bytes.
+    #[must_use]
+    pub fn may_pay(&self, count: u32) -> bool {
+        self.cheapest.is_none_or(|(c, _)| count < c)
     }
-    keep
+
+    /// Whether the next level (finer ones already seen) pays; if so it is kept.
+    pub fn keep(&mut self, count: u32, bytes: u64) -> bool {
+        let pays = self.cheapest.is_none_or(|(c, b)| count < c && bytes < b);
+        if pays {
+            self.cheapest = Some((count, bytes));
+        }
+        pays
+    }
 }
 
 /// One index chunk: the nodes of the subtree rooted at `root`, `SUBTREE_LEVELS` deep.
