@@ -223,7 +223,11 @@ pub fn node_mesh(
 /// ([`store::levels_that_pay`]) and writes their blobs (the others get an `unpaid` marker);
 /// returns its index entry. The pay rule looks at counts and bytes only, so a point level is
 /// measured only once it is known to be kept: the blobs are those of measuring every level.
-pub(super) fn write_node(nm: &NodeMesh, clouds: Vec<PointCloud>, store: &Store) -> Result<NodeEntry, BakeError> {
+pub(super) fn write_node(
+    nm: &NodeMesh,
+    clouds: Vec<PointCloud>,
+    store: &Store,
+) -> Result<NodeEntry, BakeError> {
     let key = nm.key;
     let codec_err = |level: u8| move |source| BakeError::Codec { key, level, source };
     let mesh_blob = codec::encode_mesh(key, 0, &nm.bounds, nm.quantization, &nm.mesh, nm.mesh_errors)
@@ -275,7 +279,8 @@ pub(crate) fn write_paying(
 ) -> Result<Vec<NodeLevel>, store::StoreError> {
     let infos: Vec<NodeLevel> = blobs.iter().map(|(l, _)| *l).collect();
     let pays = store::levels_that_pay(&infos);
-    let levels = blobs.into_iter().zip(pays).map(|((info, bytes), pays)| (info.level, pays.then_some((info, bytes))));
+    let levels =
+        blobs.into_iter().zip(pays).map(|((info, bytes), pays)| (info.level, pays.then_some((info, bytes))));
     write_levels(store, key, levels.collect())
 }
 

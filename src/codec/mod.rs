@@ -590,7 +590,17 @@ impl PointsDraft {
     /// non-negative, a payload over the size limit.
     pub fn finish(&self, errors: Errors) -> Result<Vec<u8>, CodecError> {
         check_errors(errors)?;
-        assemble(Kind::Points, self.key, self.level, &self.bounds, self.q, self.count, 0, errors, &self.packed)
+        assemble(
+            Kind::Points,
+            self.key,
+            self.level,
+            &self.bounds,
+            self.q,
+            self.count,
+            0,
+            errors,
+            &self.packed,
+        )
     }
 }
 

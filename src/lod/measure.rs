@@ -579,8 +579,10 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_hal
     // (gap², the point that answered the last sample)
     let mut state = (0.0f64, u32::MAX);
     let gap_sample = |(gap2, last): &mut (f64, u32), q: V3| {
-        let init = pts.get(*last as usize).map_or((f64::INFINITY, u32::MAX), |&p| (q.distance_squared(p), *last));
-        let (d2, item) = pt_grid.nearest2(q, *gap2, pts.len() as u32, init, |i, _| q.distance_squared(pts[i as usize]));
+        let init =
+            pts.get(*last as usize).map_or((f64::INFINITY, u32::MAX), |&p| (q.distance_squared(p), *last));
+        let (d2, item) =
+            pt_grid.nearest2(q, *gap2, pts.len() as u32, init, |i, _| q.distance_squared(pts[i as usize]));
         *gap2 = gap2.max(d2);
         *last = item;
     };
@@ -592,7 +594,10 @@ pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_hal
         // of one point has every sample within it too: none can raise the gap, and the
         // triangle is skipped whole (with a margin far above the samples' rounding).
         let (gap2, last) = state;
-        if pts.get(last as usize).is_some_and(|&p| t.iter().all(|v| v.distance_squared(p) <= gap2 * (1.0 - 1e-9))) {
+        if pts
+            .get(last as usize)
+            .is_some_and(|&p| t.iter().all(|v| v.distance_squared(p) <= gap2 * (1.0 - 1e-9)))
+        {
             continue;
         }
         sample_triangle(t, *owned, s, |q| gap_sample(&mut state, q));
