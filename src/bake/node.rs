@@ -284,6 +284,9 @@ pub(crate) fn write_paying(
     write_levels(store, key, levels.collect())
 }
 
+/// One level of a node to write: its id, and its index entry and blob if it is kept.
+type LevelToWrite = (u8, Option<(NodeLevel, Vec<u8>)>);
+
 /// Writes one node's kept levels (`Some`: their blobs) and the `unpaid` markers of the others
 /// (`None`), coarsest first and the mesh (level 0) last: a node counts as complete on resume
 /// only once its mesh blob exists, and then every other level has its blob or its marker.
@@ -291,7 +294,7 @@ pub(crate) fn write_paying(
 fn write_levels(
     store: &Store,
     key: TileKey,
-    levels: Vec<(u8, Option<(NodeLevel, Vec<u8>)>)>,
+    levels: Vec<LevelToWrite>,
 ) -> Result<Vec<NodeLevel>, store::StoreError> {
     let mut kept = Vec::with_capacity(levels.len());
     for (level, blob) in levels.into_iter().rev() {
