@@ -411,3 +411,96 @@ mod one_node_tests {
         assert!(bake_node(&raster, TileKey::new(1, 2, 0), &opts, &PointBaker::Cpu, &one_store).is_err());
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::path::{Path, PathBuf};
+
+    use super::*;
+    use crate::raster::Heightfield;
+
+    /// Every level measured and encoded, then the pay rule: what `write_node` did before it
+    /// measured only the levels it keeps.
+    fn write_node_measuring_every_level(
+        nm: &NodeMesh,
+        clouds: Vec<PointCloud>,
+        store: &Store,
+    ) -> Vec<NodeLevel> {
+        let key = nm.key;
+        let mesh_blob =
+            codec::encode_mesh(key, 0, &nm.bounds, nm.quantization, &nm.mesh, nm.mesh_errors).unwrap();
+        let info = |level, errors, count, triangles, blob: &Vec<u8>| NodeLevel {
+            level,
+            errors,
+            count,
+            triangles,
+            bytes: blob.len() as u64,
+            checksum: codec::decode_header(blob).unwrap().checksum,
+        };
+        let n = nm.mesh.positions.len() as u32;
+        let mut blobs =
+            vec![(info(0, nm.mesh_errors, n, nm.mesh.triangles.len() as u32, &mesh_blob), mesh_blob)];
+        for (k, pc) in clouds.into_iter().enumerate() {
+            let level = k as u8 + 1;
+            let (pc, errors, q) = nm.finish_level(level, pc);
+            let blob = codec::encode_points(key, level, &nm.bounds, q, &pc, errors).unwrap();
+            blobs.push((info(level, errors, pc.positions.len() as u32, 0, &blob), blob));
+        }
+        write_paying(store, key, blobs).unwrap()
+    }
+
+    /// Every file under `dir`, relative path and bytes, sorted.
+    fn files(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+        let mut out = Vec::new();
+        let mut todo = vec![dir.to_path_buf()];
+        while let Some(d) = todo.pop() {
+            for e in std::fs::read_dir(&d).unwrap() {
+                let p = e.unwrap().path();
+                if p.is_dir() {
+                    todo.push(p);
+                } else {
+                    out.push((p.strip_prefix(dir).unwrap().to_path_buf(), std::fs::read(&p).unwrap()));
+                }
+            }
+        }
+        out.sort();
+        out
+    }
+
+    #[test]
+    fn measuring_only_the_kept_levels_writes_what_measuring_every_level_writes() {
+        let (mut kept_points, mut left_out) = (0, 0);
+        // Smooth ground (a TIN cheaper than most point levels) and rough ground with an exact
+        // TIN (point levels pay), at several tile sizes.
+        for (w, h, seed, roughness, max_error, tile_size) in
+            [(97, 81, 3, 0.0, 1.0, 32), (65, 65, 8, 25.0, 0.0, 32), (129, 100, 5, 4.0, 0.5, 64)]
+        {
+            let data: Vec<f32> = crate::raster::synth::terrain(w, h, seed)
+                .into_iter()
+                .enumerate()
+                .map(|(i, z)| {
+                    z + roughness * (((i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 40) % 7) as f32
+                })
+                .collect();
+            let hf = Heightfield { width: w, height: h, data };
+            let georef = Georef { dx: 10.0, dy: -10.0, ..Georef::default() };
+            let opts = BakeOptions { tile_size, max_error, levels: 4 };
+            let pyramid = Pyramid::new(w, h, tile_size).unwrap();
+            let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+            let (sa, sb) = (Store::new(a.path()), Store::new(b.path()));
+            for key in pyramid.nodes() {
+                let nm = node_mesh(&pyramid, &hf, &georef, key, &opts).unwrap();
+                let grids: Vec<_> = (1..=opts.levels).map(|l| nm.level_grid(l)).collect();
+                let clouds = PointBaker::Cpu.bake_levels(&nm.mesh, &grids).unwrap().0;
+                let entry = write_node(&nm, clouds.clone(), &sa).unwrap();
+                let every = write_node_measuring_every_level(&nm, clouds, &sb);
+                assert_eq!(entry.levels, every, "{key}");
+                kept_points += every.iter().filter(|l| l.level > 0).count();
+                left_out += usize::from(opts.levels) + 1 - every.len();
+            }
+            assert_eq!(files(a.path()), files(b.path()));
+        }
+        // Both paths of the rule were taken.
+        assert!(kept_points > 0 && left_out > 0, "kept {kept_points}, left out {left_out}");
+    }
+}

@@ -161,6 +161,26 @@ fn points_blob_round_trip() {
     assert_eq!(got, want);
 }
 
+/// A draft's length is the finished blob's whatever the errors, and finishing it gives exactly
+/// what `encode_points` gives; bad errors are refused at `finish`.
+#[test]
+fn points_draft_length_is_known_before_the_errors() {
+    let (pc, b, q, _) = points_blob();
+    let draft = draft_points(KEY, 2, &b, q, &pc).unwrap();
+    for e in [
+        Errors::default(),
+        Errors { max: 3.0, rms: 1.0, gap: 40.0 },
+        Errors { max: 1e300, rms: 0.5, gap: 7.25 },
+    ] {
+        let blob = draft.finish(e).unwrap();
+        assert_eq!(blob.len(), draft.len());
+        assert_eq!(blob, encode_points(KEY, 2, &b, q, &pc, e).unwrap());
+        assert_eq!(decode_header(&blob).unwrap().errors, e);
+    }
+    assert!(draft.finish(Errors { max: f64::NAN, rms: 0.0, gap: 0.0 }).is_err());
+    assert!(draft.finish(Errors { max: 1.0, rms: -1.0, gap: 0.0 }).is_err());
+}
+
 #[test]
 fn empty_geometry_is_allowed() {
     let b = Bounds::new([0.0; 3], [10.0; 3]);
