@@ -105,8 +105,9 @@ pub struct DatasetSummary {
 trait BlockSource: Send + Sync {
     /// (width, height) of a block; blocks at the right and bottom edges are clipped.
     fn block_size(&self) -> (u32, u32);
-    /// The clipped block (bx, by), row-major.
-    fn read_block(&self, path: &Path, bx: u32, by: u32) -> Result<Vec<f32>, RasterError>;
+    /// The clipped block (bx, by), row-major, appended to `out` (empty: a buffer the cache
+    /// reuses).
+    fn read_block(&self, path: &Path, bx: u32, by: u32, out: &mut Vec<f32>) -> Result<(), RasterError>;
 }
 
 /// A TIFF read chunk by chunk (tiles or strips), with a pool of decoders so threads read in
@@ -123,7 +124,7 @@ impl BlockSource for TiffSource {
     fn block_size(&self) -> (u32, u32) {
         self.chunk
     }
-    fn read_block(&self, path: &Path, bx: u32, by: u32) -> Result<Vec<f32>, RasterError> {
+    fn read_block(&self, path: &Path, bx: u32, by: u32, out: &mut Vec<f32>) -> Result<(), RasterError> {
         let pooled = self.pool.lock().unwrap_or_else(PoisonError::into_inner).pop();
         let mut dec = if let Some(d) = pooled {
             d
@@ -132,13 +133,13 @@ impl BlockSource for TiffSource {
             geotiff::open(path, BufReader::new(file), self.buffer_bytes)?.0
         };
         let index = by * self.tiles_across + bx;
-        let values = super::guard_decoder(path, "TIFF", || {
+        super::guard_decoder(path, "TIFF", || {
             dec.read_chunk(index)
-                .map(|r| geotiff::values_of(r, self.nodata))
+                .map(|r| geotiff::extend_values_of(&r, self.nodata, out))
                 .map_err(|e| geotiff::map_err(path, e))
         })?;
         self.pool.lock().unwrap_or_else(PoisonError::into_inner).push(dec);
-        Ok(values)
+        Ok(())
     }
 }
 
@@ -155,7 +156,7 @@ impl BlockSource for HgtSource {
     fn block_size(&self) -> (u32, u32) {
         (self.side, HGT_BLOCK_ROWS)
     }
-    fn read_block(&self, path: &Path, _bx: u32, by: u32) -> Result<Vec<f32>, RasterError> {
+    fn read_block(&self, path: &Path, _bx: u32, by: u32, out: &mut Vec<f32>) -> Result<(), RasterError> {
         let r0 = by * HGT_BLOCK_ROWS;
         let rows = HGT_BLOCK_ROWS.min(self.side - r0);
         let mut bytes = vec![0u8; rows as usize * self.side as usize * 2];
@@ -169,7 +170,8 @@ impl BlockSource for HgtSource {
                 RasterError::io(path, e)
             }
         })?;
-        Ok(hgt::values(&bytes))
+        hgt::extend_values(&bytes, out);
+        Ok(())
     }
 }
 
@@ -184,14 +186,14 @@ impl BlockSource for MemorySource {
     fn block_size(&self) -> (u32, u32) {
         (BLOCK, BLOCK)
     }
-    fn read_block(&self, _path: &Path, bx: u32, by: u32) -> Result<Vec<f32>, RasterError> {
+    fn read_block(&self, _path: &Path, bx: u32, by: u32, out: &mut Vec<f32>) -> Result<(), RasterError> {
         let (c0, r0) = (bx * BLOCK, by * BLOCK);
         let (c1, r1) = ((c0 + BLOCK).min(self.width), (r0 + BLOCK).min(self.height));
         let w = self.width as usize;
-        Ok((r0..r1)
-            .flat_map(|r| &self.values[r as usize * w + c0 as usize..r as usize * w + c1 as usize])
-            .copied()
-            .collect())
+        for r in r0..r1 {
+            out.extend_from_slice(&self.values[r as usize * w + c0 as usize..r as usize * w + c1 as usize]);
+        }
+        Ok(())
     }
 }
 
@@ -224,18 +226,28 @@ impl BlockSource for LasSource {
     fn block_size(&self) -> (u32, u32) {
         (las::BLOCK, las::BLOCK)
     }
-    fn read_block(&self, _path: &Path, bx: u32, by: u32) -> Result<Vec<f32>, RasterError> {
-        self.grid.read_block(&self.scratch, bx, by)
+    fn read_block(&self, _path: &Path, bx: u32, by: u32, out: &mut Vec<f32>) -> Result<(), RasterError> {
+        self.grid.read_block(&self.scratch, bx, by, out)
     }
 }
 
 type Key = (u32, u32, u32);
 
 /// A least-recently-used cache of blocks, bounded in bytes.
+///
+/// Evicted blocks are not freed but kept (up to [`SPARE_BUFFERS`]) for the next load to fill:
+/// blocks are loaded on one thread and evicted on another, and with glibc a freed block goes
+/// back to the arena of the thread that allocated it, so freeing them let every thread's arena
+/// grow towards the whole budget (peak RSS grew with the raster; see docs/benchmarks.md). With
+/// the buffers reused, the blocks' memory stays at the budget.
 struct Cache {
     budget: u64,
     inner: Mutex<CacheInner>,
 }
+
+/// Evicted block buffers a cache keeps for reuse (loads take one each; evictions give one
+/// back, so a few cover the threads loading at once).
+const SPARE_BUFFERS: usize = 16;
 
 #[derive(Default)]
 struct CacheInner {
@@ -243,6 +255,7 @@ struct CacheInner {
     order: BTreeMap<u64, Key>,
     tick: u64,
     bytes: u64,
+    spare: Vec<Vec<f32>>,
 }
 
 impl Cache {
@@ -250,12 +263,14 @@ impl Cache {
         Self { budget, inner: Mutex::new(CacheInner::default()) }
     }
 
+    /// The block `key`, loaded by `load` (which appends it to the empty buffer it is given)
+    /// when it is not cached.
     fn get_or_load(
         &self,
         key: Key,
-        load: impl FnOnce() -> Result<Vec<f32>, RasterError>,
+        load: impl FnOnce(&mut Vec<f32>) -> Result<(), RasterError>,
     ) -> Result<Arc<Vec<f32>>, RasterError> {
-        {
+        let mut buffer = {
             let mut c = self.inner.lock().unwrap_or_else(PoisonError::into_inner);
             c.tick += 1;
             let tick = c.tick;
@@ -266,9 +281,15 @@ impl Cache {
                 c.order.insert(tick, key);
                 return Ok(block);
             }
-        }
+            c.spare.pop().unwrap_or_default()
+        };
         // Loaded outside the lock: two threads may load the same block; both get equal data.
-        let block = Arc::new(load()?);
+        buffer.clear();
+        if let Err(e) = load(&mut buffer) {
+            self.give_back(buffer);
+            return Err(e);
+        }
+        let block = Arc::new(buffer);
         let size = block.len() as u64 * 4;
         let mut c = self.inner.lock().unwrap_or_else(PoisonError::into_inner);
         c.tick += 1;
@@ -283,9 +304,23 @@ impl Cache {
             let Some((_, oldest)) = c.order.pop_first() else { break };
             if let Some((b, _)) = c.map.remove(&oldest) {
                 c.bytes -= b.len() as u64 * 4;
+                // A block a reader still holds is freed when it lets go.
+                if let Ok(b) = Arc::try_unwrap(b)
+                    && c.spare.len() < SPARE_BUFFERS
+                {
+                    c.spare.push(b);
+                }
             }
         }
         Ok(block)
+    }
+
+    /// Keeps a buffer a failed load was given.
+    fn give_back(&self, buffer: Vec<f32>) {
+        let mut c = self.inner.lock().unwrap_or_else(PoisonError::into_inner);
+        if c.spare.len() < SPARE_BUFFERS {
+            c.spare.push(buffer);
+        }
     }
 }
 
@@ -674,7 +709,22 @@ impl Dataset {
 
     /// Raw samples (no-data NaN, no z scale) of the window at (c0, r0) of `w × h` samples.
     fn raw_window(&self, c0: u32, r0: u32, w: u32, h: u32) -> Result<Vec<f32>, RasterError> {
-        let mut out = vec![f32::NAN; w as usize * h as usize];
+        let mut out = Vec::new();
+        self.raw_window_into(c0, r0, w, h, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`Self::raw_window`] written to `out`, which is resized to the window.
+    fn raw_window_into(
+        &self,
+        c0: u32,
+        r0: u32,
+        w: u32,
+        h: u32,
+        out: &mut Vec<f32>,
+    ) -> Result<(), RasterError> {
+        out.clear();
+        out.resize(w as usize * h as usize, f32::NAN);
         for (pi, part) in self.parts.iter().enumerate() {
             // The intersection in dataset coordinates.
             let (x0, x1) = (c0.max(part.col), (c0 + w).min(part.col + part.width));
@@ -694,7 +744,8 @@ impl Dataset {
             for by in fy0 / bh..=(fy1 - 1) / bh {
                 for bx in fx0 / bw..=(fx1 - 1) / bw {
                     let key = (pi as u32, bx, by);
-                    let block = self.raw.get_or_load(key, || part.source.read_block(&part.path, bx, by))?;
+                    let block =
+                        self.raw.get_or_load(key, |out| part.source.read_block(&part.path, bx, by, out))?;
                     let cw = bw.min(part.file_width - bx * bw);
                     let ch = bh.min(part.file_height - by * bh);
                     if block.len() != cw as usize * ch as usize {
@@ -719,7 +770,7 @@ impl Dataset {
                 }
             }
         }
-        Ok(out)
+        Ok(())
     }
 
     /// (c0, r0, w, h) of dataset block (bx, by).
@@ -730,17 +781,17 @@ impl Dataset {
 
     /// Dataset block (bx, by): filled and with the z scale applied.
     fn filled_block(&self, bx: u32, by: u32) -> Result<Arc<Vec<f32>>, RasterError> {
-        self.filled.get_or_load((u32::MAX, bx, by), || {
+        self.filled.get_or_load((u32::MAX, bx, by), |v| {
             let (c0, r0, w, h) = self.block_rect(bx, by);
-            let mut v = self.raw_window(c0, r0, w, h)?;
+            self.raw_window_into(c0, r0, w, h, v)?;
             if v.iter().any(|x| !x.is_finite()) {
-                self.fill_block(c0, r0, w, h, &mut v)?;
+                self.fill_block(c0, r0, w, h, v)?;
             }
             let g = &self.georef;
-            for x in &mut v {
+            for x in v.iter_mut() {
                 *x = (g.z0 + f64::from(*x) * g.dz) as f32;
             }
-            Ok(v)
+            Ok(())
         })
     }
 
@@ -1129,4 +1180,55 @@ fn glob_match(pat: &[u8], name: &[u8]) -> bool {
         }
     }
     pat[p..].iter().all(|&c| c == b'*')
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn block(seed: u32, len: usize) -> Vec<f32> {
+        (0..len).map(|i| (seed * 1000 + i as u32) as f32).collect()
+    }
+
+    /// The cache stays within its budget, gives every block its own values whatever buffer it
+    /// was loaded into (a reused one is emptied first), and reuses evicted buffers instead of
+    /// allocating: after warming up, a load's buffer already has the capacity of a block.
+    #[test]
+    fn cache_reuses_evicted_buffers_and_keeps_values_and_budget() {
+        let len = 1000;
+        let cache = Cache::new(4 * len as u64 * 4);
+        let mut fresh = 0;
+        for round in 0..3u32 {
+            for k in 0..10u32 {
+                let got = cache
+                    .get_or_load((0, k, 0), |out| {
+                        assert!(out.is_empty());
+                        fresh += usize::from(out.capacity() == 0);
+                        out.extend(block(k, len));
+                        Ok(())
+                    })
+                    .unwrap();
+                assert_eq!(*got, block(k, len), "round {round}, block {k}");
+                let c = cache.inner.lock().unwrap();
+                assert!(c.bytes <= cache.budget);
+                assert!(c.spare.len() <= SPARE_BUFFERS);
+            }
+        }
+        // 30 loads (10 blocks, 4 cached, cycled three times): a fresh buffer for the first five
+        // only (the fifth load is the first to evict), the rest reuse.
+        assert_eq!(fresh, 5);
+        // A failed load is an error and its buffer goes back for the next load.
+        let spare_before = cache.inner.lock().unwrap().spare.len();
+        let e = cache.get_or_load((0, 99, 0), |out| {
+            out.push(1.0);
+            Err(RasterError::corrupt(Path::new("x.tif"), "TIFF", "bad block"))
+        });
+        assert!(e.is_err());
+        assert_eq!(cache.inner.lock().unwrap().spare.len(), spare_before.max(1));
+        let got = cache.get_or_load((0, 99, 0), |out| {
+            out.extend(block(99, 3));
+            Ok(())
+        });
+        assert_eq!(*got.unwrap(), block(99, 3));
+    }
 }

@@ -123,18 +123,28 @@ fn nodata<R: Read + Seek>(path: &Path, dec: &mut Decoder<R>) -> Result<Option<f6
 /// Converts samples to f32, turning the no-data value into NaN. Integers compare exactly; floats
 /// also compare after rounding both to f32, because the nodata text (e.g. "-3.4028235e+38")
 /// is often a rounded print of the stored f32.
-#[allow(clippy::float_cmp)] // the no-data marker is an exact value by definition
 fn to_values<T: Copy>(samples: &[T], nodata: Option<f64>, exact: impl Fn(T) -> f64, float: bool) -> Vec<f32> {
+    let mut out = Vec::with_capacity(samples.len());
+    extend_values(samples, nodata, exact, float, &mut out);
+    out
+}
+
+/// [`to_values`] appended to `out` (a block reader's reused buffer).
+#[allow(clippy::float_cmp)] // the no-data marker is an exact value by definition
+fn extend_values<T: Copy>(
+    samples: &[T],
+    nodata: Option<f64>,
+    exact: impl Fn(T) -> f64,
+    float: bool,
+    out: &mut Vec<f32>,
+) {
     let nd32 = nodata.map(|n| n as f32);
-    samples
-        .iter()
-        .map(|&s| {
-            let v = exact(s);
-            let f = v as f32;
-            let is_nodata = nodata.is_some_and(|n| v == n || (float && Some(f) == nd32));
-            if is_nodata { f32::NAN } else { f }
-        })
-        .collect()
+    out.extend(samples.iter().map(|&s| {
+        let v = exact(s);
+        let f = v as f32;
+        let is_nodata = nodata.is_some_and(|n| v == n || (float && Some(f) == nd32));
+        if is_nodata { f32::NAN } else { f }
+    }));
 }
 
 /// What a TIFF's first image says about itself, checked: size, no-data value, georeference.
@@ -239,6 +249,23 @@ pub(super) fn values_of(result: DecodingResult, nodata: Option<f64>) -> Vec<f32>
         DecodingResult::F16(v) => to_values(&v, nodata, f64::from, true),
         DecodingResult::F32(v) => to_values(&v, nodata, f64::from, true),
         DecodingResult::F64(v) => to_values(&v, nodata, |s| s, true),
+    }
+}
+
+/// [`values_of`] appended to `out`.
+pub(super) fn extend_values_of(result: &DecodingResult, nodata: Option<f64>, out: &mut Vec<f32>) {
+    match result {
+        DecodingResult::U8(v) => extend_values(v, nodata, f64::from, false, out),
+        DecodingResult::U16(v) => extend_values(v, nodata, f64::from, false, out),
+        DecodingResult::U32(v) => extend_values(v, nodata, f64::from, false, out),
+        DecodingResult::U64(v) => extend_values(v, nodata, |s| s as f64, false, out),
+        DecodingResult::I8(v) => extend_values(v, nodata, f64::from, false, out),
+        DecodingResult::I16(v) => extend_values(v, nodata, f64::from, false, out),
+        DecodingResult::I32(v) => extend_values(v, nodata, f64::from, false, out),
+        DecodingResult::I64(v) => extend_values(v, nodata, |s| s as f64, false, out),
+        DecodingResult::F16(v) => extend_values(v, nodata, f64::from, true, out),
+        DecodingResult::F32(v) => extend_values(v, nodata, f64::from, true, out),
+        DecodingResult::F64(v) => extend_values(v, nodata, |s| s, true, out),
     }
 }
 

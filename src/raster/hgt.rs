@@ -105,13 +105,17 @@ fn decode_side(
 
 /// Samples (voids as NaN) of big-endian i16 bytes.
 pub(super) fn values(bytes: &[u8]) -> Vec<f32> {
-    bytes
-        .chunks_exact(2)
-        .map(|c| match i16::from_be_bytes([c[0], c[1]]) {
-            VOID => f32::NAN,
-            v => f32::from(v),
-        })
-        .collect()
+    let mut out = Vec::with_capacity(bytes.len() / 2);
+    extend_values(bytes, &mut out);
+    out
+}
+
+/// [`values`] appended to `out` (a block reader's reused buffer).
+pub(super) fn extend_values(bytes: &[u8], out: &mut Vec<f32>) {
+    out.extend(bytes.chunks_exact(2).map(|c| match i16::from_be_bytes([c[0], c[1]]) {
+        VOID => f32::NAN,
+        v => f32::from(v),
+    }));
 }
 
 /// The georeference of a `side²` tile whose south-west corner is (`south`, `west`) degrees.

@@ -399,8 +399,9 @@ pub fn grid(
 }
 
 impl Gridded {
-    /// Block (bx, by) of the grid, clipped at the right and bottom edges; no-data as NaN.
-    pub fn read_block(&self, scratch: &Path, bx: u32, by: u32) -> Result<Vec<f32>, RasterError> {
+    /// Block (bx, by) of the grid, clipped at the right and bottom edges; no-data as NaN;
+    /// appended to `v`.
+    pub fn read_block(&self, scratch: &Path, bx: u32, by: u32, v: &mut Vec<f32>) -> Result<(), RasterError> {
         let bc = u64::from(self.width.div_ceil(BLOCK));
         let block_len = u64::from(BLOCK) * u64::from(BLOCK);
         let mut bytes = vec![0u8; block_len as usize * 4];
@@ -412,11 +413,11 @@ impl Gridded {
         }
         let (cw, ch) =
             (BLOCK.min(self.width - bx * BLOCK) as usize, BLOCK.min(self.height - by * BLOCK) as usize);
-        let mut v = Vec::with_capacity(cw * ch);
+        v.reserve(cw * ch);
         for r in 0..ch {
             let row = &bytes[r * BLOCK as usize * 4..][..cw * 4];
             v.extend(row.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])));
         }
-        Ok(v)
+        Ok(())
     }
 }
