@@ -41,6 +41,9 @@ pub struct Tin {
 #[derive(Debug, Clone, Copy)]
 struct Vertex {
     pos: Point2<f64>,
+    /// The sample's height: scans read a face's corners from spade's vertices, which the
+    /// insertion has just touched, instead of from a separate (cold) array.
+    z: f64,
     i: u32,
     j: u32,
 }
@@ -70,19 +73,30 @@ impl Candidate {
     fn sample(self) -> u32 {
         !(self.rank as u32)
     }
-    fn beats(&self, o: &Self) -> bool {
-        self.rank > o.rank
-    }
 }
 
 /// A max-heap of faces keyed by each face's candidate, with O(log n) update and removal of any
 /// face: an insertion changes exactly the faces of the new vertex's star, and those are re-keyed
-/// in place, so the heap never holds stale entries. Keys live inline in the heap array so that
-/// sifting compares without chasing indices.
+/// in place, so the heap never holds stale entries. Keys live inline in the heap array (16-byte
+/// entries) so that sifting compares without chasing indices; sifts move a hole instead of
+/// swapping, which makes the same comparisons and so leaves the same order.
 #[derive(Debug, Default)]
 struct FaceHeap {
-    heap: Vec<(Candidate, u32)>,
+    heap: Vec<HeapEntry>,
     pos: Vec<u32>,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct HeapEntry {
+    rank: u64,
+    hint: u32,
+    face: u32,
+}
+
+impl HeapEntry {
+    fn new(c: Candidate, face: u32) -> Self {
+        Self { rank: c.rank, hint: c.hint, face }
+    }
 }
 
 impl FaceHeap {
@@ -95,13 +109,13 @@ impl FaceHeap {
         let p = self.pos[face];
         match (cand, p) {
             (Some(c), Self::NONE) => {
-                self.heap.push((c, face as u32));
-                self.pos[face] = (self.heap.len() - 1) as u32;
-                self.up(self.heap.len() - 1);
+                self.heap.push(HeapEntry::new(c, face as u32));
+                let last = self.heap.len() - 1;
+                self.up(last);
             }
             (Some(c), p) => {
-                self.heap[p as usize].0 = c;
-                let p = self.up(p as usize);
+                let e = HeapEntry::new(c, face as u32);
+                let p = self.up_with(p as usize, e);
                 self.down(p);
             }
             (None, Self::NONE) => {}
@@ -110,14 +124,14 @@ impl FaceHeap {
     }
 
     fn peek(&self) -> Option<Candidate> {
-        self.heap.first().map(|e| e.0)
+        self.heap.first().map(|e| Candidate { rank: e.rank, hint: e.hint })
     }
 
     fn remove_at(&mut self, p: usize) {
         let last = self.heap.len() - 1;
         self.swap(p, last);
-        if let Some((_, f)) = self.heap.pop() {
-            self.pos[f as usize] = Self::NONE;
+        if let Some(e) = self.heap.pop() {
+            self.pos[e.face as usize] = Self::NONE;
         }
         if p < self.heap.len() {
             let p = self.up(p);
@@ -125,44 +139,57 @@ impl FaceHeap {
         }
     }
 
-    fn better(&self, a: usize, b: usize) -> bool {
-        self.heap[a].0.beats(&self.heap[b].0)
-    }
-
     fn swap(&mut self, a: usize, b: usize) {
         self.heap.swap(a, b);
-        self.pos[self.heap[a].1 as usize] = a as u32;
-        self.pos[self.heap[b].1 as usize] = b as u32;
+        self.pos[self.heap[a].face as usize] = a as u32;
+        self.pos[self.heap[b].face as usize] = b as u32;
     }
 
-    fn up(&mut self, mut p: usize) -> usize {
+    fn place(&mut self, p: usize, e: HeapEntry) {
+        self.heap[p] = e;
+        self.pos[e.face as usize] = p as u32;
+    }
+
+    fn up(&mut self, p: usize) -> usize {
+        let e = self.heap[p];
+        self.up_with(p, e)
+    }
+
+    /// Sifts `e` up from the hole at `p` and stores it; returns where it landed.
+    fn up_with(&mut self, mut p: usize, e: HeapEntry) -> usize {
         while p > 0 {
             let parent = (p - 1) / 2;
-            if !self.better(p, parent) {
+            let q = self.heap[parent];
+            if e.rank <= q.rank {
                 break;
             }
-            self.swap(p, parent);
+            self.place(p, q);
             p = parent;
         }
+        self.place(p, e);
         p
     }
 
     fn down(&mut self, mut p: usize) {
+        let e = self.heap[p];
+        let n = self.heap.len();
         loop {
             let (l, r) = (2 * p + 1, 2 * p + 2);
-            let mut best = p;
-            if l < self.heap.len() && self.better(l, best) {
-                best = l;
+            let (mut best, mut key) = (p, e.rank);
+            if l < n && self.heap[l].rank > key {
+                (best, key) = (l, self.heap[l].rank);
             }
-            if r < self.heap.len() && self.better(r, best) {
+            if r < n && self.heap[r].rank > key {
                 best = r;
             }
             if best == p {
-                return;
+                break;
             }
-            self.swap(p, best);
+            let c = self.heap[best];
+            self.place(p, c);
             p = best;
         }
+        self.place(p, e);
     }
 }
 
@@ -358,7 +385,7 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
 
     let mut tri: DelaunayTriangulation<Vertex> = DelaunayTriangulation::new();
     let insert = |tri: &mut DelaunayTriangulation<Vertex>, i: usize, j: usize| {
-        tri.insert(Vertex { pos: Point2::new(xs[i], ys[j]), i: i as u32, j: j as u32 })
+        tri.insert(Vertex { pos: Point2::new(xs[i], ys[j]), z: h(i, j), i: i as u32, j: j as u32 })
             .map_err(TinError::Insertion)
     };
     // Borders: bottom and top rows, left and right columns; corners appear twice, and spade
@@ -374,12 +401,7 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
         }
     }
 
-    // Positions by spade's vertex index (indices are handed out in insertion order), so scans
-    // read one flat array instead of chasing vertex handles.
-    let mut vpos: Vec<[f64; 3]> = tri
-        .vertices()
-        .map(|v| [v.position().x, v.position().y, h(v.data().i as usize, v.data().j as usize)])
-        .collect();
+    let corner = |v: &Vertex| [v.pos.x, v.pos.y, v.z];
     // The first sample (in row-major order) of the largest error over the bound wins, so one
     // comparison per sample decides.
     // Inner spans never reach the last column, so a sample's x is `start + i·step` there
@@ -388,12 +410,38 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
         let (mut worst, mut sample) = (max_error, u32::MAX);
         scan_spans(p, &ax, &ay, true, SMALL_BOX_SAMPLES, 0..usize::MAX, |s| {
             let base = (r.j0 + s.j) * node.nc + r.i0;
-            for (i, &hv) in (s.i0..s.i1).zip(&node.heights[base + s.i0..base + s.i1]) {
-                let e = (f64::from(hv) - s.z(ax.start + i as f64 * ax.step)).abs();
+            // Sample positions are integers (u32 grid coordinates), so stepping x by `step` is
+            // exact: the same x, and so the same plane height, as `start + i·step`.
+            let row = &node.heights[base + s.i0..base + s.i1];
+            let first = s.j * nc + s.i0;
+            let mut x = ax.start + s.i0 as i64 as f64 * ax.step;
+            // Four samples at a time without branches; a block with an error over the current
+            // worst is redone one by one, so the winner is the same as a plain sequential scan
+            // (`max` skips NaN, so the block test is exactly "some error > worst").
+            let mut blocks = row.chunks_exact(4);
+            let mut k = 0;
+            for b in &mut blocks {
+                let xq = [x, x + ax.step, x + 2.0 * ax.step, x + 3.0 * ax.step];
+                let e: [f64; 4] = std::array::from_fn(|q| (f64::from(b[q]) - s.z(xq[q])).abs());
+                if e[0].max(e[1]).max(e[2].max(e[3])) > worst {
+                    for (q, &eq) in e.iter().enumerate() {
+                        if eq > worst {
+                            worst = eq;
+                            sample = (first + k + q) as u32;
+                        }
+                    }
+                }
+                x += 4.0 * ax.step;
+                k += 4;
+            }
+            for &hv in blocks.remainder() {
+                let e = (f64::from(hv) - s.z(x)).abs();
                 if e > worst {
                     worst = e;
-                    sample = (s.j * nc + i) as u32;
+                    sample = (first + k) as u32;
                 }
+                x += ax.step;
+                k += 1;
             }
         });
         (sample != u32::MAX).then(|| Candidate::new(worst, sample, hint))
@@ -401,32 +449,33 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
 
     let mut heap = FaceHeap::default();
     for face in tri.fixed_inner_faces() {
-        let vs = tri.face(face).vertices().map(|v| v.fix().index());
-        heap.set(face.index(), scan(vs.map(|k| vpos[k]), vs[0] as u32));
+        let vs = tri.face(face).vertices();
+        heap.set(face.index(), scan(vs.map(|v| corner(v.data())), vs[0].fix().index() as u32));
     }
-    let mut star: Vec<(usize, [usize; 3])> = Vec::new();
     while let Some(c) = heap.peek() {
         let hint = FixedVertexHandle::from_index(c.hint as usize);
         let (ci, cj) = (c.sample() % nc as u32, c.sample() / nc as u32);
         let v = tri
             .insert_with_hint(
-                Vertex { pos: Point2::new(xs[ci as usize], ys[cj as usize]), i: ci, j: cj },
+                Vertex {
+                    pos: Point2::new(xs[ci as usize], ys[cj as usize]),
+                    z: h(ci as usize, cj as usize),
+                    i: ci,
+                    j: cj,
+                },
                 hint,
             )
             .map_err(TinError::Insertion)?;
-        if v.index() == vpos.len() {
-            vpos.push([xs[ci as usize], ys[cj as usize], h(ci as usize, cj as usize)]);
-        }
         // Every face an insertion creates (by splitting or by the flips that follow) is incident
         // to the new vertex, so its star is all that needs a new scan. The face left of the
         // out-edge v→w is (v, w, next(w)).
-        star.clear();
-        star.extend(tri.vertex(v).out_edges().filter_map(|e| {
-            let f = e.face().as_inner()?;
-            Some((f.fix().index(), [v.index(), e.to().fix().index(), e.next().to().fix().index()]))
-        }));
-        for &(f, vs) in &star {
-            heap.set(f, scan(vs.map(|k| vpos[k]), vs[0] as u32));
+        let vh = tri.vertex(v);
+        let pv = corner(vh.data());
+        for e in vh.out_edges() {
+            if let Some(f) = e.face().as_inner() {
+                let p = [pv, corner(e.to().data()), corner(e.next().to().data())];
+                heap.set(f.fix().index(), scan(p, v.index() as u32));
+            }
         }
         // The popped face is always in the star (the new vertex lies in it), so it was re-keyed.
     }
@@ -478,6 +527,8 @@ pub struct Axis {
     step: f64,
     n: usize,
     last: f64,
+    /// `step == 1`.
+    unit: bool,
 }
 
 impl Axis {
@@ -488,7 +539,7 @@ impl Axis {
         let start = positions.first().map_or(0.0, |&p| f64::from(p));
         let step = if n >= 2 { f64::from(positions[1]) - start } else { 1.0 };
         let last = positions.last().map_or(0.0, |&p| f64::from(p));
-        Self { start, step, n, last }
+        Self { start, step, n, last, unit: step.to_bits() == 1f64.to_bits() }
     }
 
     #[must_use]
@@ -503,7 +554,15 @@ impl Axis {
 
     #[must_use]
     pub fn at(&self, i: usize) -> f64 {
-        if i + 1 == self.n { self.last } else { self.start + i as f64 * self.step }
+        // Through i64: one instruction, where usize → f64 takes several (indices are < 2⁶³).
+        if i + 1 == self.n { self.last } else { self.start + i as i64 as f64 * self.step }
+    }
+
+    /// `d / step`, without the division on a unit axis (where it is exact anyway): scans look
+    /// indices up several times per triangle row.
+    #[inline]
+    fn steps(&self, d: f64) -> f64 {
+        if self.unit { d } else { d / self.step }
     }
 
     /// Index of the first position ≥ `v` (`len()` if none).
@@ -511,10 +570,11 @@ impl Axis {
         if self.n == 0 || v <= self.start {
             return 0;
         }
-        // v > start here, so the quotient is positive and truncation is floor (no libm call).
-        let q = (v - self.start) / self.step;
-        let t = q as usize;
-        let k = if (t as f64) < q { t + 1 } else { t };
+        // v > start here, so the quotient is positive and truncation is floor (no libm call);
+        // i64 ↔ f64 are single instructions, unlike usize ↔ f64.
+        let q = self.steps(v - self.start);
+        let t = q as i64;
+        let k = if (t as f64) < q { t.saturating_add(1) } else { t } as usize;
         if k < self.n - 1 {
             k
         } else if v <= self.last {
@@ -532,7 +592,7 @@ impl Axis {
         if v >= self.last {
             return self.n;
         }
-        let k = ((v - self.start) / self.step) as usize + 1;
+        let k = self.steps(v - self.start) as i64 as usize + 1;
         k.min(self.n - 1)
     }
 }
@@ -750,8 +810,8 @@ pub fn measure_vertical_strips<E>(
 ) -> Result<Errors, StripError<E>> {
     let (nc, nr) = (span.cols() as usize, span.rows() as usize);
     let strip_rows = (strip_samples / nc.max(1)).clamp(1, nr.max(1));
-    let xs = Axis { start: f64::from(span.col0), step: 1.0, n: nc, last: f64::from(span.col1) };
-    let ys = Axis { start: f64::from(span.row0), step: 1.0, n: nr, last: f64::from(span.row1) };
+    let xs = Axis { start: f64::from(span.col0), step: 1.0, n: nc, last: f64::from(span.col1), unit: true };
+    let ys = Axis { start: f64::from(span.row0), step: 1.0, n: nr, last: f64::from(span.row1), unit: true };
     let tris: Vec<[[f64; 3]; 3]> = triangles
         .iter()
         .map(|t| t.map(|k| positions.get(k as usize).copied().unwrap_or([f64::NAN; 3])))
