@@ -246,8 +246,10 @@ struct Cache {
 }
 
 /// Evicted block buffers a cache keeps for reuse (loads take one each; evictions give one
-/// back, so a few cover the threads loading at once).
+/// back, so a few cover the threads loading at once), and at most 1/[`SPARE_BUDGET_SHARE`] of
+/// its budget in them (an `.hgt` block is a whole 256-row strip of the file).
 const SPARE_BUFFERS: usize = 16;
+const SPARE_BUDGET_SHARE: u64 = 8;
 
 #[derive(Default)]
 struct CacheInner {
@@ -256,6 +258,18 @@ struct CacheInner {
     tick: u64,
     bytes: u64,
     spare: Vec<Vec<f32>>,
+}
+
+impl CacheInner {
+    /// Keeps `buffer` for the next load if the spares stay within their bounds.
+    fn keep_spare(&mut self, buffer: Vec<f32>, budget: u64) {
+        let held: u64 = self.spare.iter().map(|b| b.capacity() as u64 * 4).sum();
+        if self.spare.len() < SPARE_BUFFERS
+            && held + buffer.capacity() as u64 * 4 <= budget / SPARE_BUDGET_SHARE
+        {
+            self.spare.push(buffer);
+        }
+    }
 }
 
 impl Cache {
@@ -305,10 +319,8 @@ impl Cache {
             if let Some((b, _)) = c.map.remove(&oldest) {
                 c.bytes -= b.len() as u64 * 4;
                 // A block a reader still holds is freed when it lets go.
-                if let Ok(b) = Arc::try_unwrap(b)
-                    && c.spare.len() < SPARE_BUFFERS
-                {
-                    c.spare.push(b);
+                if let Ok(b) = Arc::try_unwrap(b) {
+                    c.keep_spare(b, self.budget);
                 }
             }
         }
@@ -317,10 +329,7 @@ impl Cache {
 
     /// Keeps a buffer a failed load was given.
     fn give_back(&self, buffer: Vec<f32>) {
-        let mut c = self.inner.lock().unwrap_or_else(PoisonError::into_inner);
-        if c.spare.len() < SPARE_BUFFERS {
-            c.spare.push(buffer);
-        }
+        self.inner.lock().unwrap_or_else(PoisonError::into_inner).keep_spare(buffer, self.budget);
     }
 }
 
@@ -1196,10 +1205,10 @@ mod tests {
     #[test]
     fn cache_reuses_evicted_buffers_and_keeps_values_and_budget() {
         let len = 1000;
-        let cache = Cache::new(4 * len as u64 * 4);
+        let cache = Cache::new(16 * len as u64 * 4);
         let mut fresh = 0;
         for round in 0..3u32 {
-            for k in 0..10u32 {
+            for k in 0..40u32 {
                 let got = cache
                     .get_or_load((0, k, 0), |out| {
                         assert!(out.is_empty());
@@ -1212,11 +1221,13 @@ mod tests {
                 let c = cache.inner.lock().unwrap();
                 assert!(c.bytes <= cache.budget);
                 assert!(c.spare.len() <= SPARE_BUFFERS);
+                let held: usize = c.spare.iter().map(Vec::capacity).sum();
+                assert!(held as u64 * 4 <= cache.budget / SPARE_BUDGET_SHARE);
             }
         }
-        // 30 loads (10 blocks, 4 cached, cycled three times): a fresh buffer for the first five
-        // only (the fifth load is the first to evict), the rest reuse.
-        assert_eq!(fresh, 5);
+        // 120 loads (40 blocks, 16 cached, cycled three times): a fresh buffer for the first 17
+        // only (the 17th load is the first to evict), the rest reuse.
+        assert_eq!(fresh, 17);
         // A failed load is an error and its buffer goes back for the next load.
         let spare_before = cache.inner.lock().unwrap().spare.len();
         let e = cache.get_or_load((0, 99, 0), |out| {
