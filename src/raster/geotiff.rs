@@ -120,16 +120,9 @@ fn nodata<R: Read + Seek>(path: &Path, dec: &mut Decoder<R>) -> Result<Option<f6
     })
 }
 
-/// Converts samples to f32, turning the no-data value into NaN. Integers compare exactly; floats
-/// also compare after rounding both to f32, because the nodata text (e.g. "-3.4028235e+38")
-/// is often a rounded print of the stored f32.
-fn to_values<T: Copy>(samples: &[T], nodata: Option<f64>, exact: impl Fn(T) -> f64, float: bool) -> Vec<f32> {
-    let mut out = Vec::with_capacity(samples.len());
-    extend_values(samples, nodata, exact, float, &mut out);
-    out
-}
-
-/// [`to_values`] appended to `out` (a block reader's reused buffer).
+/// Converts samples to f32, turning the no-data value into NaN, appended to `out`. Integers
+/// compare exactly; floats also compare after rounding both to f32, because the nodata text
+/// (e.g. "-3.4028235e+38") is often a rounded print of the stored f32.
 #[allow(clippy::float_cmp)] // the no-data marker is an exact value by definition
 fn extend_values<T: Copy>(
     samples: &[T],
@@ -236,20 +229,10 @@ pub(super) fn open<R: Read + Seek>(
 }
 
 /// Converts one decoded image or chunk to f32 values, no-data as NaN.
-pub(super) fn values_of(result: DecodingResult, nodata: Option<f64>) -> Vec<f32> {
-    match result {
-        DecodingResult::U8(v) => to_values(&v, nodata, f64::from, false),
-        DecodingResult::U16(v) => to_values(&v, nodata, f64::from, false),
-        DecodingResult::U32(v) => to_values(&v, nodata, f64::from, false),
-        DecodingResult::U64(v) => to_values(&v, nodata, |s| s as f64, false),
-        DecodingResult::I8(v) => to_values(&v, nodata, f64::from, false),
-        DecodingResult::I16(v) => to_values(&v, nodata, f64::from, false),
-        DecodingResult::I32(v) => to_values(&v, nodata, f64::from, false),
-        DecodingResult::I64(v) => to_values(&v, nodata, |s| s as f64, false),
-        DecodingResult::F16(v) => to_values(&v, nodata, f64::from, true),
-        DecodingResult::F32(v) => to_values(&v, nodata, f64::from, true),
-        DecodingResult::F64(v) => to_values(&v, nodata, |s| s, true),
-    }
+pub(super) fn values_of(result: &DecodingResult, nodata: Option<f64>) -> Vec<f32> {
+    let mut out = Vec::new();
+    extend_values_of(result, nodata, &mut out);
+    out
 }
 
 /// [`values_of`] appended to `out`.
@@ -273,7 +256,7 @@ pub(super) fn extend_values_of(result: &DecodingResult, nodata: Option<f64>, out
 pub(super) fn decode(path: &Path, reader: impl Read + Seek, limits: Limits) -> Result<Decoded, RasterError> {
     let (mut dec, h) = open(path, reader, limits.decoder_bytes())?;
     check_size(path, h.width.into(), h.height.into(), limits)?;
-    let values = values_of(dec.read_image().map_err(|e| map_err(path, e))?, h.nodata);
+    let values = values_of(&dec.read_image().map_err(|e| map_err(path, e))?, h.nodata);
     Ok(Decoded { width: h.width, height: h.height, values, georef: h.georef, format: "geotiff" })
 }
 
