@@ -19,6 +19,7 @@ pub mod raster;
 pub mod server;
 pub mod store;
 pub mod tiling;
+pub mod tiles3d;
 pub mod tin;
 
 pub use error::{Error, Result};

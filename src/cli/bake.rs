@@ -9,6 +9,7 @@ use terrastream::bake::{self, BakeOptions, BakeSummary};
 use terrastream::raster::dataset::{Dataset, DatasetOptions};
 use terrastream::raster::{self, HeightEncoding, Limits, LoadOptions, Overrides};
 use terrastream::store::Store;
+use terrastream::tiles3d::Anchor;
 use terrastream::tiling;
 
 use super::parse_pair;
@@ -74,9 +75,20 @@ pub struct BakeArgs {
     /// resumes it). Default: no limit.
     #[arg(long, value_name = "SECONDS", value_parser = parse_time_limit)]
     pub time_limit: Option<f64>,
+    /// Where the tileset sits on the globe in 3D Tiles, as LON,LAT[,HEIGHT] (WGS84 degrees,
+    /// ellipsoidal metres): the centre of the data, at height 0, is placed there. Geographic
+    /// sources know it (the centre of their data); other sources without it are placed at
+    /// 0°, 0°, 0 m and their 3D Tiles say so. Recorded in DIR/placement.json (no re-bake needed
+    /// to change it).
+    #[arg(long, value_parser = parse_anchor, allow_hyphen_values = true)]
+    pub anchor: Option<Anchor>,
     /// No progress bar.
     #[arg(long, short)]
     pub quiet: bool,
+}
+
+pub fn parse_anchor(s: &str) -> Result<Anchor, String> {
+    Anchor::parse(s)
 }
 
 fn parse_time_limit(s: &str) -> Result<f64, String> {
@@ -145,6 +157,9 @@ pub fn run(a: &BakeArgs) -> Result<()> {
     let summary = bake::bake_input(&input, &name, &opts, &baker, &Store::new(&a.out), &progress);
     let summary = summary.inspect_err(|_| progress.0.finish_and_clear())?;
     progress.0.finish_and_clear();
+    if let Some(anchor) = a.anchor {
+        terrastream::store::export::write_anchor(&Store::new(&a.out), anchor)?;
+    }
     print_summary(&summary, &a.out);
     Ok(())
 }

@@ -27,6 +27,10 @@ pub struct BakeModelArgs {
     /// Read the file as this format instead of going by its extension or content.
     #[arg(long = "format", value_enum)]
     pub file_type: Option<FileType>,
+    /// Where the model sits on the globe in 3D Tiles, as LON,LAT[,HEIGHT]: the centre of its
+    /// base is placed there, its +y up (default 0°, 0°, 0 m, stated in the tileset JSON).
+    #[arg(long, value_parser = super::bake::parse_anchor, allow_hyphen_values = true)]
+    pub anchor: Option<terrastream::tiles3d::Anchor>,
     #[command(flatten)]
     pub baker: super::BakerArgs,
 }
@@ -44,6 +48,9 @@ pub fn run(a: &BakeModelArgs) -> Result<()> {
     let file = bake_model::read_model_file(&a.model, opts.file_type)?;
     let baker = a.baker.open()?;
     let s = bake_model::bake_model(&file, &opts, &baker, &Store::new(&a.out))?;
+    if let Some(anchor) = a.anchor {
+        terrastream::store::export::write_anchor(&Store::new(&a.out), anchor)?;
+    }
     outln!("{}", bake_model::ModelBakeReport { summary: &s, out: &a.out });
     // The paper's figures live with the evaluation (`client` feature).
     #[cfg(feature = "client")]

@@ -1,29 +1,98 @@
-//! `terrastream export`: one (tile, level) decoded to PLY or OBJ in world coordinates.
+//! `terrastream export`: one (tile, level) decoded to PLY or OBJ in world coordinates, or a
+//! whole tileset as static 3D Tiles 1.1 (`--format 3dtiles`).
 
 use std::path::PathBuf;
+use std::time::{Duration, Instant};
 
-use anyhow::Result;
+use anyhow::{Result, bail};
+use indicatif::{ProgressBar, ProgressStyle};
 use terrastream::store::{Store, export};
+use terrastream::tiles3d::Anchor;
 use terrastream::tiling::TileKey;
 
 use super::parse_key;
+
+/// What `export` writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ExportFormat {
+    /// One (tile, level) as binary little-endian PLY: positions as doubles, normals as floats.
+    Ply,
+    /// One (tile, level) as Wavefront OBJ text: `v`, `vn` (points) and `f` (mesh) lines.
+    Obj,
+    /// The whole tileset as OGC 3D Tiles 1.1 for static hosting (tileset.json, external
+    /// tilesets per index chunk, one GLB per stored tile and level) into the folder --out.
+    #[value(name = "3dtiles")]
+    Tiles3d,
+}
 
 #[derive(clap::Args)]
 pub struct ExportArgs {
     /// Tileset directory.
     pub dir: PathBuf,
-    #[arg(long, value_parser = parse_key)]
-    pub tile: TileKey,
-    #[arg(long)]
-    pub level: u8,
-    #[arg(long, value_enum, default_value_t = export::Format::Ply)]
-    pub format: export::Format,
+    /// The tile to export (PLY, OBJ).
+    #[arg(long, value_parser = parse_key, required_unless_present = "format")]
+    pub tile: Option<TileKey>,
+    /// The level to export (PLY, OBJ).
+    #[arg(long, required_unless_present = "format")]
+    pub level: Option<u8>,
+    #[arg(long, value_enum, default_value_t = ExportFormat::Ply)]
+    pub format: ExportFormat,
+    /// The output file (PLY, OBJ), or folder (3dtiles: created; must not exist or be empty).
     #[arg(long)]
     pub out: PathBuf,
+    /// 3dtiles: place the tileset at LON,LAT[,HEIGHT] (overrides the tileset's own anchor).
+    #[arg(long, value_parser = super::bake::parse_anchor, allow_hyphen_values = true)]
+    pub anchor: Option<Anchor>,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
 }
 
 pub fn run(a: &ExportArgs) -> Result<()> {
-    let n = export::export_tile(&Store::new(&a.dir), a.tile, a.level, a.format, &a.out)?;
-    outln!("wrote {} ({n} {})", a.out.display(), if a.level == 0 { "vertices" } else { "points" });
+    let store = Store::new(&a.dir);
+    let format = match a.format {
+        ExportFormat::Ply => export::Format::Ply,
+        ExportFormat::Obj => export::Format::Obj,
+        ExportFormat::Tiles3d => return run_3dtiles(a, &store),
+    };
+    let (Some(tile), Some(level)) = (a.tile, a.level) else {
+        bail!("export --format {:?}: --tile Z/X/Y and --level N name the tile to export", a.format);
+    };
+    if a.anchor.is_some() {
+        bail!("export: --anchor places 3D Tiles only (--format 3dtiles); PLY and OBJ keep world coordinates");
+    }
+    let n = export::export_tile(&store, tile, level, format, &a.out)?;
+    outln!("wrote {} ({n} {})", a.out.display(), if level == 0 { "vertices" } else { "points" });
+    Ok(())
+}
+
+fn run_3dtiles(a: &ExportArgs, store: &Store) -> Result<()> {
+    if a.tile.is_some() || a.level.is_some() {
+        bail!("export --format 3dtiles writes the whole tileset: drop --tile and --level");
+    }
+    let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(0) };
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} GLBs  {per_sec}  ETA {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.enable_steady_tick(Duration::from_millis(200));
+    let t0 = Instant::now();
+    let r = export::export_3dtiles(store, &a.out, a.anchor, &|done, total| {
+        bar.set_length(total);
+        bar.set_position(done);
+    });
+    bar.finish_and_clear();
+    let r = r?;
+    outln!(
+        "wrote {} in {:.2} s: {} tileset JSON files, {} GLBs, {} bytes ({:.2}× the {} bytes of their blobs); open {}/tileset.json in any 3D Tiles client",
+        a.out.display(),
+        t0.elapsed().as_secs_f64(),
+        r.documents,
+        r.glbs,
+        r.glb_bytes,
+        r.glb_bytes as f64 / r.blob_bytes.max(1) as f64,
+        r.blob_bytes,
+        a.out.display()
+    );
     Ok(())
 }

@@ -10,8 +10,14 @@ use bytes::Bytes;
 
 use crate::tiling::TileKey;
 
-/// (tileset generation, tile, level); level `u8::MAX` holds the tile's index chunk.
-pub type CacheKey = (u64, TileKey, u8);
+/// (tileset generation, tile, document): a blob's document is its level; the others are below.
+pub type CacheKey = (u64, TileKey, u16);
+/// The document of a cache key holding the index chunk rooted at the tile.
+pub const INDEX_CHUNK: u16 = u16::MAX;
+/// The document holding the 3D Tiles tileset JSON of the index chunk rooted at the tile.
+pub const TILES3D_CHUNK: u16 = u16::MAX - 1;
+/// The document of a tile level's GLB: this plus the level.
+pub const GLB: u16 = 0x100;
 
 /// A verified response body and its strong entity tag.
 #[derive(Clone)]

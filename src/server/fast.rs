@@ -108,7 +108,7 @@ fn cached_blob(app: &App, req: &Request) -> Option<Response> {
     let ts = http::tileset(app, name).ok()?;
     let key = http::parse_key(&ts, z, x, y).ok()?;
     let level = http::parse_level(&ts, level).ok()?;
-    let entry = app.cache.get(&(ts.generation, key, level))?;
+    let entry = app.cache.get(&(ts.generation, key, u16::from(level)))?;
     app.metrics.cache_hits.fetch_add(1, Ordering::Relaxed);
     let cond = Conditional::from_headers(req.headers());
     let mut resp = conditional::send(

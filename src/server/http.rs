@@ -74,6 +74,10 @@ pub fn router(app: Arc<App>) -> Router {
         .route("/tilesets/{name}/tileset.json", get(manifest))
         .route("/tilesets/{name}/index/{z}/{x}/{file}", get(index_chunk))
         .route(BLOB_ROUTE, get(blob))
+        .route("/tilesets/{name}/3dtiles/tileset.json", get(super::tiles3d::root))
+        .route("/tilesets/{name}/3dtiles/index/{z}/{x}/{file}", get(super::tiles3d::subtree))
+        .route("/tilesets/{name}/3dtiles/tiles/{z}/{x}/{y}/{file}", get(super::tiles3d::glb))
+        .route("/viewer", get(super::tiles3d::viewer))
         .route("/jobs/{id}", get(admin::job).delete(admin::cancel))
         .fallback(fallback)
         .layer(middleware::from_fn_with_state(app.clone(), front))
@@ -339,6 +343,16 @@ async fn index_chunk(
             key.z
         )));
     }
+    let (entry, growing) = chunk_entry(&app, &ts, key).await?;
+    let cache = if growing { NO_CACHE } else { versioned_cache(&ts, query.as_deref()) };
+    Ok(send(&method, &headers, &entry, "application/json", cache))
+}
+
+/// The index chunk rooted at `key` (checked to be a chunk root of the tileset) and whether it
+/// still grows: an on-demand tileset not fully baked lists the nodes baked so far, rebuilt
+/// from their blobs.
+pub(super) async fn chunk_entry(app: &App, ts: &Arc<Tileset>, key: TileKey) -> Result<(Entry, bool), Problem> {
+    let name = &ts.name;
     if let Some(src) = ts.source.clone().filter(|_| !ts.store.manifest_path().exists()) {
         // On-demand and not fully baked: the nodes baked so far, rebuilt from their blobs.
         if !src.pyramid.contains(key) {
@@ -364,15 +378,9 @@ async fn index_chunk(
         .map_err(|_| Problem::internal("index", "building the index chunk failed"))?;
         let body = serde_json::to_vec_pretty(&chunk).unwrap_or_default();
         let etag = etag_value(&super::registry::etag_of(&body));
-        return Ok(send(
-            &method,
-            &headers,
-            &Entry { bytes: Bytes::from(body), etag },
-            "application/json",
-            NO_CACHE,
-        ));
+        return Ok((Entry { bytes: Bytes::from(body), etag }, true));
     }
-    let ck = (ts.generation, key, u8::MAX);
+    let ck = (ts.generation, key, super::cache::INDEX_CHUNK);
     let entry = if let Some(e) = app.cache.get(&ck) {
         e
     } else {
@@ -391,7 +399,7 @@ async fn index_chunk(
         app.cache.insert(ck, e.clone());
         e
     };
-    Ok(send(&method, &headers, &entry, "application/json", versioned_cache(&ts, query.as_deref())))
+    Ok((entry, false))
 }
 
 type BlobPath = (String, String, String, String, String);
@@ -479,8 +487,8 @@ async fn read_verified(path: std::path::PathBuf, key: TileKey, level: u8) -> Res
 /// never sent: it is logged and answered `500` (the stored data is bad — the server's fault,
 /// not the client's, and retrying will not help until it is re-baked); for an on-demand
 /// tileset it is moved aside and baked again.
-async fn load_blob(app: &App, ts: &Arc<Tileset>, key: TileKey, level: u8) -> Result<Entry, Problem> {
-    let ck = (ts.generation, key, level);
+pub(super) async fn load_blob(app: &App, ts: &Arc<Tileset>, key: TileKey, level: u8) -> Result<Entry, Problem> {
+    let ck = (ts.generation, key, u16::from(level));
     if let Some(e) = app.cache.get(&ck) {
         app.metrics.cache_hits.fetch_add(1, Ordering::Relaxed);
         return Ok(e);

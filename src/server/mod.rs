@@ -23,6 +23,7 @@ mod openapi;
 mod problem;
 mod rate_limit;
 mod registry;
+mod tiles3d;
 
 use std::collections::HashMap;
 use std::future::Future;

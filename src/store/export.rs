@@ -168,3 +168,210 @@ pub fn export_tile(
     crate::store::write_atomic(out, &buf)?;
     Ok(count)
 }
+
+/// The file beside a tileset's manifest that places it on the globe (`--anchor` of `bake` and
+/// `bake-model`): `{"anchor": {"lon": …, "lat": …, "height": …}}`. Not part of the baked content
+/// (no blob depends on it), so it can be set or changed without a re-bake.
+pub const PLACEMENT_FILE: &str = "placement.json";
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct PlacementRecord {
+    anchor: crate::tiles3d::Anchor,
+}
+
+/// Records the tileset's anchor ([`PLACEMENT_FILE`]), atomically.
+pub fn write_anchor(store: &crate::store::Store, anchor: crate::tiles3d::Anchor) -> Result<(), crate::store::StoreError> {
+    let path = store.dir().join(PLACEMENT_FILE);
+    let mut bytes = serde_json::to_vec_pretty(&PlacementRecord { anchor })
+        .map_err(|source| crate::store::StoreError::Json { path: path.clone(), source })?;
+    bytes.push(b'\n');
+    crate::store::write_atomic(&path, &bytes)
+}
+
+/// The tileset's recorded anchor; `Ok(None)` when it has none. A record that cannot be read or
+/// holds an anchor out of range is an error naming the file.
+pub fn read_anchor(store: &crate::store::Store) -> Result<Option<crate::tiles3d::Anchor>, crate::store::StoreError> {
+    let path = store.dir().join(PLACEMENT_FILE);
+    let bytes = match std::fs::read(&path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(None),
+        Err(source) => return Err(crate::store::StoreError::Io { path, source }),
+    };
+    let r: PlacementRecord = serde_json::from_slice(&bytes)
+        .map_err(|source| crate::store::StoreError::Json { path: path.clone(), source })?;
+    r.anchor.check().map_err(|message| crate::store::StoreError::Invalid { path, message: format!("anchor: {message}") })?;
+    Ok(Some(r.anchor))
+}
+
+/// The 3D Tiles view of a tileset directory: its manifest, kind and placement, as the server
+/// and `export --format 3dtiles` build it.
+pub fn tiles3d_info(
+    store: &crate::store::Store,
+    name: &str,
+    anchor: Option<crate::tiles3d::Anchor>,
+    query: String,
+) -> Result<crate::tiles3d::TilesetInfo, crate::store::StoreError> {
+    // Checks the format and version; the kind and a model's levels come from the raw JSON.
+    store.manifest()?;
+    let path = store.manifest_path();
+    let bytes = std::fs::read(&path).map_err(|source| crate::store::StoreError::Io { path: path.clone(), source })?;
+    let anchor = match anchor {
+        Some(a) => Some(a),
+        None => read_anchor(store)?,
+    };
+    crate::tiles3d::TilesetInfo::from_manifest_json(name, &bytes, anchor, query)
+        .map_err(|message| crate::store::StoreError::Invalid { path, message })
+}
+
+/// The GLB of one stored (tile, level), from its verified blob.
+pub fn tile_glb(info: &crate::tiles3d::TilesetInfo, blob: &crate::codec::Blob) -> Vec<u8> {
+    let skirt = (info.kind == crate::store::TilesetKind::Terrain && blob.header.kind == crate::codec::Kind::Mesh)
+        .then(|| (crate::tiles3d::mesh_skirt_depth(blob.header.errors.max), Some(&info.manifest.bounds)));
+    crate::tiles3d::glb(blob, &info.place, skirt)
+}
+
+/// What `export --format 3dtiles` wrote.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Tiles3dExport {
+    /// Tileset JSON files (the root and one per index chunk below it).
+    pub documents: u64,
+    pub glbs: u64,
+    pub glb_bytes: u64,
+    /// The blobs the GLBs were made from.
+    pub blob_bytes: u64,
+}
+
+/// Writes a complete tileset as static 3D Tiles 1.1 into `out` (`tileset.json`,
+/// `index/{z}/{x}/{y}.json`, `tiles/{z}/{x}/{y}/{level}.glb`), the same documents the server
+/// gives at `/tilesets/{name}/3dtiles/` without the `?v=` queries. Everything is written into a
+/// staging directory beside `out` and renamed into place when complete, so `out` is never
+/// half-written; `out` must not exist or be empty. Every blob is verified first.
+/// `progress(done, total)` counts GLBs.
+pub fn export_3dtiles(
+    store: &crate::store::Store,
+    out: &std::path::Path,
+    anchor: Option<crate::tiles3d::Anchor>,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<Tiles3dExport, ExportError> {
+    use rayon::prelude::*;
+    use std::sync::atomic::{AtomicU64, Ordering};
+
+    use crate::store::{StoreError, TilesetKind, chunk_root};
+
+    let io_err = |path: &std::path::Path| {
+        let path = path.to_owned();
+        move |source| ExportError::Io { path, source }
+    };
+    if !store.manifest_path().is_file() {
+        return Err(StoreError::Invalid {
+            path: store.dir().to_owned(),
+            message: "no tileset.json: not a complete tileset (finish or resume its bake first)".into(),
+        }
+        .into());
+    }
+    if out.exists() {
+        let empty = out.is_dir() && std::fs::read_dir(out).map_err(io_err(out))?.next().is_none();
+        if !empty {
+            return Err(ExportError::Io {
+                path: out.to_owned(),
+                source: io::Error::new(io::ErrorKind::AlreadyExists, "exists and is not an empty directory; choose another --out"),
+            });
+        }
+    }
+    let name = store.dir().file_name().map_or_else(|| "tileset".to_owned(), |n| n.to_string_lossy().into_owned());
+    let info = tiles3d_info(store, &name, anchor, String::new())?;
+    // The chunks, from the root down (each read once; bounded by the pyramid).
+    let mut chunks = Vec::new();
+    let mut roots = vec![crate::tiling::TileKey::new(0, 0, 0)];
+    while let Some(root) = roots.pop() {
+        let chunk = store.chunk(root)?;
+        if info.kind == TilesetKind::Terrain
+            && let Some(p) = info.pyramid
+        {
+            let last = root.z.saturating_add(crate::store::SUBTREE_LEVELS - 1);
+            for n in &chunk.nodes {
+                if n.key.z == last && chunk_root(n.key) == root {
+                    roots.extend(p.children(n.key).into_iter().filter(|c| p.contains(*c)));
+                }
+            }
+        }
+        chunks.push(chunk);
+    }
+    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+    std::fs::create_dir_all(parent).map_err(io_err(parent))?;
+    let stage = parent.join(format!(
+        ".{}.partial-{}",
+        out.file_name().map_or_else(|| "export".into(), |n| n.to_string_lossy().into_owned()),
+        std::process::id()
+    ));
+    let result = (|| {
+        if stage.exists() {
+            std::fs::remove_dir_all(&stage).map_err(io_err(&stage))?;
+        }
+        let mut docs = 0u64;
+        for c in &chunks {
+            let root = c.root.z == 0;
+            let path = if root {
+                stage.join("tileset.json")
+            } else {
+                stage.join(format!("index/{}/{}/{}.json", c.root.z, c.root.x, c.root.y))
+            };
+            let mut bytes = serde_json::to_vec(&crate::tiles3d::chunk_tileset(&info, c, root)).unwrap_or_default();
+            bytes.push(b'\n');
+            write_file(&path, &bytes).map_err(io_err(&path))?;
+            docs += 1;
+        }
+        let work: Vec<(crate::tiling::TileKey, u8)> =
+            chunks.iter().flat_map(|c| &c.nodes).flat_map(|n| n.levels.iter().map(move |l| (n.key, l.level))).collect();
+        let total = work.len() as u64;
+        let done = AtomicU64::new(0);
+        let glb_bytes = AtomicU64::new(0);
+        let blob_bytes = AtomicU64::new(0);
+        work.par_iter().try_for_each(|&(key, level)| -> Result<(), ExportError> {
+            let path = store.blob_path(key, level);
+            let bytes = store.read_blob(key, level)?.ok_or_else(|| StoreError::NoSuchTile {
+                path: store.dir().to_owned(),
+                key,
+                level,
+            })?;
+            let blob = crate::codec::decode(&bytes).map_err(|source| ExportError::Codec { path: path.clone(), source })?;
+            if blob.header.key != key || blob.header.level != level {
+                return Err(StoreError::Invalid {
+                    path,
+                    message: format!("the blob's header names tile {} level {}", blob.header.key, blob.header.level),
+                }
+                .into());
+            }
+            let glb = tile_glb(&info, &blob);
+            let dest = stage.join(format!("tiles/{}/{}/{}/{level}.glb", key.z, key.x, key.y));
+            write_file(&dest, &glb).map_err(io_err(&dest))?;
+            glb_bytes.fetch_add(glb.len() as u64, Ordering::Relaxed);
+            blob_bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
+            progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
+            Ok(())
+        })?;
+        if out.exists() {
+            std::fs::remove_dir(out).map_err(io_err(out))?;
+        }
+        std::fs::rename(&stage, out).map_err(io_err(out))?;
+        Ok(Tiles3dExport {
+            documents: docs,
+            glbs: total,
+            glb_bytes: glb_bytes.into_inner(),
+            blob_bytes: blob_bytes.into_inner(),
+        })
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(&stage);
+    }
+    result
+}
+
+/// Writes a file of the staging directory (its folders created); the directory as a whole is
+/// what is published atomically.
+fn write_file(path: &std::path::Path, bytes: &[u8]) -> io::Result<()> {
+    if let Some(d) = path.parent() {
+        std::fs::create_dir_all(d)?;
+    }
+    std::fs::write(path, bytes)
+}

@@ -1,0 +1,204 @@
+use super::*;
+use crate::codec::{Quantization, decode, encode_mesh, encode_points};
+use crate::geom::PointCloud;
+use crate::raster::Georef;
+use crate::store::{LevelTotals, SourceInfo};
+
+#[test]
+fn anchors_parse_and_are_range_checked() {
+    assert_eq!(Anchor::parse("138.7,35.3").unwrap(), Anchor { lon: 138.7, lat: 35.3, height: 0.0 });
+    assert_eq!(Anchor::parse(" -70.5 , -33.4 , 520 ").unwrap(), Anchor { lon: -70.5, lat: -33.4, height: 520.0 });
+    for bad in ["200,0", "0,95", "a,b", "1", "1,2,3,4", "0,0,1e300", "NaN,0", "inf,0", ""] {
+        let e = Anchor::parse(bad).unwrap_err();
+        assert!(e.contains("anchor"), "{bad}: {e}");
+    }
+}
+
+#[test]
+fn enu_frame_at_the_anchor() {
+    let m = Anchor { lon: 0.0, lat: 0.0, height: 0.0 }.enu_to_ecef();
+    let close = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-9);
+    assert!(close(&m[0..3], &[0.0, 1.0, 0.0]), "east {:?}", &m[0..3]);
+    assert!(close(&m[4..7], &[0.0, 0.0, 1.0]), "north {:?}", &m[4..7]);
+    assert!(close(&m[8..11], &[1.0, 0.0, 0.0]), "up {:?}", &m[8..11]);
+    assert!(close(&m[12..16], &[6_378_137.0, 0.0, 0.0, 1.0]));
+    let pole = Anchor { lon: 0.0, lat: 90.0, height: 0.0 }.ecef();
+    assert!((pole[2] - 6_356_752.314_245).abs() < 1e-3, "{pole:?}");
+    // 100 m up is 100 m along the up vector.
+    let a = Anchor { lon: 138.7, lat: 35.3, height: 0.0 };
+    let b = Anchor { height: 100.0, ..a };
+    let (pa, pb, up) = (a.ecef(), b.ecef(), &a.enu_to_ecef()[8..11]);
+    for i in 0..3 {
+        assert!((pb[i] - pa[i] - 100.0 * up[i]).abs() < 1e-6);
+    }
+}
+
+fn manifest(frame: Georef, bounds: Bounds) -> Manifest {
+    Manifest {
+        format: crate::store::MANIFEST_FORMAT.into(),
+        version: 1,
+        content_version: "00000000".into(),
+        source: SourceInfo { file: "t".into(), format: "t".into(), width: 33, height: 33, nodata_filled: 0 },
+        frame,
+        tile_size: 32,
+        depth: 0,
+        subtree_levels: SUBTREE_LEVELS,
+        bounds,
+        levels: Vec::new(),
+        totals: vec![LevelTotals::default()],
+        options: Value::Null,
+        point_baker: String::new(),
+    }
+}
+
+/// A 5×5-sample grid mesh (cells `cell`), heights from `h`, CCW in (col, row) space.
+fn grid_mesh(cell: [f64; 2], h: impl Fn(usize, usize) -> f64) -> Mesh {
+    let mut m = Mesh::default();
+    for r in 0..5 {
+        for c in 0..5 {
+            m.positions.push([c as f64 * cell[0], r as f64 * cell[1], h(c, r)]);
+        }
+    }
+    for r in 0..4u32 {
+        for c in 0..4u32 {
+            let i = r * 5 + c;
+            m.triangles.push([i, i + 1, i + 6]);
+            m.triangles.push([i, i + 6, i + 5]);
+        }
+    }
+    m
+}
+
+fn read_positions(glb: &[u8]) -> (Value, Vec<[f64; 3]>) {
+    let jl = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+    let json: Value = serde_json::from_slice(&glb[20..20 + jl]).unwrap();
+    let bin = &glb[28 + jl..];
+    let acc = &json["accessors"][0];
+    let view = &json["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize];
+    let off = view["byteOffset"].as_u64().unwrap() as usize;
+    let stride = view["byteStride"].as_u64().unwrap() as usize;
+    let node = &json["nodes"][0];
+    let t: Vec<f64> = node["translation"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let s: Vec<f64> = node["scale"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let u16s = acc["componentType"] == 5123;
+    let pos = (0..acc["count"].as_u64().unwrap() as usize)
+        .map(|i| {
+            std::array::from_fn(|a| {
+                let o = off + i * stride;
+                let q = if u16s {
+                    f64::from(u16::from_le_bytes([bin[o + 2 * a], bin[o + 2 * a + 1]]))
+                } else {
+                    f64::from(f32::from_le_bytes(bin[o + 4 * a..o + 4 * a + 4].try_into().unwrap()))
+                };
+                t[a] + s[a] * q
+            })
+        })
+        .collect();
+    (json, pos)
+}
+
+#[test]
+fn glb_positions_are_the_blobs_grid_placed_and_triangles_face_up() {
+    // North-up (dy < 0) and image rows (dy > 0); a small z range (16-bit) and a large one (float).
+    for (dy, z_step, relief) in [(-10.0, 0.25, 40.0), (10.0, 0.25, 40.0), (-10.0, 1.0 / 64.0, 3000.0)] {
+        let frame = Georef { dx: 10.0, dy, ..Georef::default() };
+        let mesh = grid_mesh([10.0, dy], |c, r| (c * r) as f64 * relief / 16.0 + 0.3);
+        let bounds = Bounds::of_points(&mesh.positions);
+        let q = Quantization { xy_step: 10.0, z_step };
+        let bytes = encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, Errors::default()).unwrap();
+        let blob = decode(&bytes).unwrap();
+        let m = manifest(frame, bounds);
+        let place = Placement::of(&m, TilesetKind::Terrain, None);
+        let glb = glb(&blob, &place, None);
+        let (json, got) = read_positions(&glb);
+        let big = relief / z_step > 65_535.0;
+        assert_eq!(json["accessors"][0]["componentType"], if big { 5126 } else { 5123 });
+        assert_eq!(json.get("extensionsRequired").is_some(), !big);
+        let Geometry::Mesh(world) = &blob.geometry else { panic!() };
+        for (w, g) in world.positions.iter().zip(&got) {
+            let want = place.gltf_of(*w);
+            for a in 0..3 {
+                assert!((want[a] - g[a]).abs() < 1e-9, "{want:?} vs {g:?}");
+            }
+        }
+        // Indices follow the positions: triangles face up (east, north) = (x, −z) in glTF.
+        let acc = &json["accessors"][1];
+        let view = &json["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize];
+        let jl = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+        let bin = &glb[28 + jl..];
+        let off = view["byteOffset"].as_u64().unwrap() as usize;
+        let idx: Vec<usize> =
+            (0..acc["count"].as_u64().unwrap() as usize).map(|i| usize::from(u16::from_le_bytes([bin[off + 2 * i], bin[off + 2 * i + 1]]))).collect();
+        for t in idx.chunks(3) {
+            let en = |i: usize| [got[i][0], -got[i][2]];
+            let (a, b, c) = (en(t[0]), en(t[1]), en(t[2]));
+            assert!((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]) > 0.0, "dy {dy}: a triangle faces down");
+        }
+    }
+}
+
+#[test]
+fn skirts_hang_on_the_grid_below_inner_borders_only() {
+    let frame = Georef { dx: 10.0, dy: -10.0, ..Georef::default() };
+    let mesh = grid_mesh([10.0, -10.0], |c, _| c as f64);
+    let bounds = Bounds::of_points(&mesh.positions);
+    let q = Quantization { xy_step: 10.0, z_step: 0.125 };
+    let blob = decode(&encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, Errors::default()).unwrap()).unwrap();
+    let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None);
+    let plain = read_positions(&glb(&blob, &place, None)).1;
+    // The dataset is larger than the tile on every side but the west one: no skirt there.
+    let outer = Bounds::new([0.0, -100.0, 0.0], [100.0, 40.0, 10.0]);
+    let (_, skirted) = read_positions(&glb(&blob, &place, Some((0.3, Some(&outer)))));
+    assert_eq!(plain.len(), 25);
+    // 16 border vertices, less the 4 on the west edge that get no wall (the corners stay).
+    assert!(skirted.len() > 25, "{}", skirted.len());
+    for p in &skirted[25..] {
+        // 0.3 rounded up to whole steps of 0.125: 0.375 below a border vertex.
+        let above = plain.iter().find(|q| (q[0] - p[0]).abs() < 1e-9 && (q[2] - p[2]).abs() < 1e-9).unwrap();
+        assert!((above[1] - p[1] - 0.375).abs() < 1e-9, "{p:?} under {above:?}");
+    }
+}
+
+#[test]
+fn point_normals_are_unit_bytes_in_gltf_axes() {
+    let positions = vec![[0.0, 0.0, 1.0], [1.0, 0.0, 2.0], [0.0, 1.0, 3.0], [1.0, 1.0, 4.0]];
+    let normals = vec![[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, -0.6, 0.8], [0.577_350_3, 0.577_350_3, 0.577_350_3]];
+    let pc = PointCloud { positions: positions.clone(), normals: normals.clone() };
+    let bounds = Bounds::of_points(&positions);
+    let q = Quantization { xy_step: 0.01, z_step: 0.01 };
+    let blob = decode(&encode_points(TileKey::new(0, 0, 0), 1, &bounds, q, &pc, Errors::default()).unwrap()).unwrap();
+    let frame = Georef { dx: 1.0, dy: -1.0, ..Georef::default() };
+    let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None);
+    let glb = glb(&blob, &place, None);
+    let jl = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+    let json: Value = serde_json::from_slice(&glb[20..20 + jl]).unwrap();
+    let bin = &glb[28 + jl..];
+    assert_eq!(json["meshes"][0]["primitives"][0]["mode"], 0);
+    let acc = &json["accessors"][1];
+    assert_eq!((acc["componentType"].as_u64(), acc["normalized"].as_bool()), (Some(5120), Some(true)));
+    let off = json["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize]["byteOffset"].as_u64().unwrap() as usize;
+    let Geometry::Points(decoded) = &blob.geometry else { panic!() };
+    for (i, n) in decoded.normals.iter().enumerate() {
+        let g: [f64; 3] = std::array::from_fn(|a| f64::from(bin[off + 4 * i + a] as i8) / 127.0);
+        let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        assert!((len - 1.0).abs() < 0.005, "length {len}");
+        // glTF (x, y, z) = (east, up, −north) = (x, z, −y) for a north-up frame.
+        let want = [f64::from(n[0]), f64::from(n[2]), -f64::from(n[1])];
+        let cos = (g[0] * want[0] + g[1] * want[1] + g[2] * want[2]) / len;
+        assert!(cos > 0.9995, "{g:?} vs {want:?}");
+    }
+}
+
+#[test]
+fn models_stand_on_their_base_at_the_anchor() {
+    let bounds = Bounds::new([-1.0, 2.0, -3.0], [1.0, 6.0, 5.0]);
+    let m = manifest(Georef::default(), bounds);
+    let a = Anchor { lon: 1.0, lat: 2.0, height: 3.0 };
+    let place = Placement::of(&m, TilesetKind::Model, Some(a));
+    assert_eq!((place.from, place.anchor), (AnchorFrom::Option, a));
+    // The base centre is the origin; +y is up, −z is north (glTF's own axes).
+    assert_eq!(place.enu_of([0.0, 2.0, 1.0]), [0.0, 0.0, 0.0]);
+    assert_eq!(place.enu_of([0.0, 5.0, 1.0]), [0.0, 0.0, 3.0]);
+    assert_eq!(place.enu_of([0.0, 2.0, 0.0]), [0.0, 1.0, 0.0]);
+    assert!(!place.mirrored());
+}

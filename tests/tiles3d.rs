@@ -1,0 +1,451 @@
+//! 3D Tiles 1.1 from a baked tileset: `export --format 3dtiles` and the server's `/3dtiles/`
+//! routes give the same documents; every stored (tile, level) is one tile whose GLB holds
+//! exactly the blob's positions placed in the tileset frame; external tilesets per index chunk;
+//! caching semantics as for blobs; on-demand tilesets list what is not baked yet.
+
+mod common;
+
+use std::collections::{BTreeSet, HashMap};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde_json::Value;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+use terrastream::bake::{BakeOptions, NoProgress};
+use terrastream::codec::{self, Geometry};
+use terrastream::raster::{self, LoadOptions};
+use terrastream::server::{PartialConfig, Server};
+use terrastream::store::{Store, export};
+use terrastream::tiles3d::{Anchor, AnchorFrom};
+use terrastream::tiling::TileKey;
+
+/// 257² samples in 16-cell leaves: depth 4, so the root chunk has 256 external tilesets below.
+const SIDE: u32 = 257;
+const OPTS: BakeOptions = BakeOptions { tile_size: 16, max_error: 0.5, levels: 2 };
+
+fn baked(dir: &Path) -> PathBuf {
+    let tif = dir.join("t.tif");
+    let heights = raster::synth::terrain(SIDE, SIDE, 3);
+    let bytes = raster::geotiff::encode_f32(SIDE, SIDE, &heights, (500_000.0, 4_000_000.0), (10.0, -10.0)).unwrap();
+    std::fs::write(&tif, bytes).unwrap();
+    let r = raster::load(&tif, &LoadOptions::default()).unwrap();
+    let out = dir.join("store/t");
+    terrastream::bake::bake_terrain(&r, "t.tif", &OPTS, &terrastream::lod::PointBaker::Cpu, &Store::new(&out), &NoProgress)
+        .unwrap();
+    out
+}
+
+/// A parsed GLB: its JSON and binary chunk.
+struct Glb {
+    json: Value,
+    bin: Vec<u8>,
+}
+
+fn parse_glb(b: &[u8]) -> Glb {
+    assert_eq!(&b[0..4], b"glTF");
+    assert_eq!(u32::from_le_bytes(b[4..8].try_into().unwrap()), 2);
+    assert_eq!(u32::from_le_bytes(b[8..12].try_into().unwrap()) as usize, b.len());
+    let jl = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
+    assert_eq!(&b[16..20], b"JSON");
+    let json = serde_json::from_slice(&b[20..20 + jl]).unwrap();
+    let bl = u32::from_le_bytes(b[20 + jl..24 + jl].try_into().unwrap()) as usize;
+    assert_eq!(&b[24 + jl..28 + jl], b"BIN\0");
+    Glb { json, bin: b[28 + jl..28 + jl + bl].to_vec() }
+}
+
+impl Glb {
+    /// The accessor's elements as f64 (components per element from its type).
+    fn accessor(&self, i: u64) -> Vec<Vec<f64>> {
+        let a = &self.json["accessors"][i as usize];
+        let v = &self.json["bufferViews"][a["bufferView"].as_u64().unwrap() as usize];
+        let n = match a["type"].as_str().unwrap() {
+            "VEC3" => 3,
+            "SCALAR" => 1,
+            t => panic!("type {t}"),
+        };
+        let ct = a["componentType"].as_u64().unwrap();
+        let size = match ct {
+            5120 => 1,
+            5123 => 2,
+            5125 | 5126 => 4,
+            c => panic!("component type {c}"),
+        };
+        let stride = v["byteStride"].as_u64().map_or(n * size, |s| s as usize);
+        let base = v["byteOffset"].as_u64().unwrap_or(0) as usize + a["byteOffset"].as_u64().unwrap_or(0) as usize;
+        (0..a["count"].as_u64().unwrap() as usize)
+            .map(|e| {
+                (0..n)
+                    .map(|c| {
+                        let o = base + e * stride + c * size;
+                        let s = &self.bin[o..o + size];
+                        match ct {
+                            5120 => f64::from(s[0] as i8) / 127.0,
+                            5123 => f64::from(u16::from_le_bytes([s[0], s[1]])),
+                            5125 => f64::from(u32::from_le_bytes(s.try_into().unwrap())),
+                            _ => f64::from(f32::from_le_bytes(s.try_into().unwrap())),
+                        }
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// Positions as the glTF defines them: translation + scale · attribute.
+    fn positions(&self) -> Vec<[f64; 3]> {
+        let node = &self.json["nodes"][0];
+        let t: Vec<f64> = node["translation"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let s: Vec<f64> = node["scale"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let prim = &self.json["meshes"][0]["primitives"][0];
+        self.accessor(prim["attributes"]["POSITION"].as_u64().unwrap())
+            .into_iter()
+            .map(|p| std::array::from_fn(|a| t[a] + s[a] * p[a]))
+            .collect()
+    }
+}
+
+/// Every content tile of a tileset on disk: (key, level) → its tile JSON; external tilesets
+/// are followed (each must be referenced once).
+fn walk(dir: &Path) -> (HashMap<(String, u64), Value>, usize) {
+    let mut tiles = HashMap::new();
+    let mut docs = 0;
+    let mut todo = vec![dir.join("tileset.json")];
+    while let Some(path) = todo.pop() {
+        docs += 1;
+        let doc: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        assert_eq!(doc["asset"]["version"], "1.1");
+        let mut stack = vec![doc["root"].clone()];
+        while let Some(t) = stack.pop() {
+            assert!(t["geometricError"].as_f64().unwrap() >= 0.0);
+            assert_eq!(t["boundingVolume"]["box"].as_array().unwrap().len(), 12);
+            if let Some(uri) = t["content"]["uri"].as_str() {
+                let file = path.parent().unwrap().join(uri);
+                assert!(file.is_file(), "{} referenced from {} is missing", uri, path.display());
+                if uri.ends_with(".json") {
+                    assert!(t.get("children").is_none(), "a tile with an external tileset has no children");
+                    todo.push(file);
+                } else {
+                    let e = &t["extras"]["terrastream"];
+                    let k = (e["key"].as_str().unwrap().to_owned(), e["level"].as_u64().unwrap());
+                    assert!(tiles.insert(k.clone(), t.clone()).is_none(), "{k:?} twice");
+                }
+            }
+            if let Some(c) = t["children"].as_array() {
+                stack.extend(c.iter().cloned());
+            }
+        }
+    }
+    (tiles, docs)
+}
+
+#[test]
+fn export_writes_every_stored_level_as_a_tile_with_the_blobs_positions() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = baked(tmp.path());
+    let store = Store::new(&dir);
+    let anchor = Anchor { lon: 10.5, lat: 47.25, height: 100.0 };
+    export::write_anchor(&store, anchor).unwrap();
+    let out = tmp.path().join("3d");
+    let r = export::export_3dtiles(&store, &out, None, &|_, _| {}).unwrap();
+    let pyramid = terrastream::tiling::Pyramid::new(SIDE, SIDE, OPTS.tile_size).unwrap();
+    let nodes = store.all_nodes(&pyramid).unwrap();
+    let stored: BTreeSet<(String, u64)> =
+        nodes.iter().flat_map(|n| n.levels.iter().map(move |l| (n.key.to_string(), u64::from(l.level)))).collect();
+    let (tiles, docs) = walk(&out);
+    assert_eq!(tiles.keys().cloned().collect::<BTreeSet<_>>(), stored);
+    assert_eq!(r.glbs as usize, stored.len());
+    // The root tileset and one external tileset per chunk below it (z = 4: 256 of them).
+    assert_eq!(docs, 1 + 256);
+    assert_eq!(r.documents as usize, docs);
+
+    let root: Value = serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
+    let transform: Vec<f64> = root["root"]["transform"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert_eq!(transform, anchor.enu_to_ecef().to_vec());
+    assert_eq!(root["asset"]["extras"]["terrastream"]["anchor"]["from"], "option");
+    // A projected GeoTIFF: y is north.
+    assert_eq!(root["asset"]["extras"]["terrastream"]["local_frame"]["north"], "+y");
+
+    let info = export::tiles3d_info(&store, "t", None, String::new()).unwrap();
+    assert_eq!(info.place.from, AnchorFrom::Option);
+    let mut checked = 0;
+    for n in &nodes {
+        for l in &n.levels {
+            let t = &tiles[&(n.key.to_string(), u64::from(l.level))];
+            assert_eq!(t["geometricError"].as_f64().unwrap(), l.errors.geometric());
+            assert_eq!(t["refine"], "REPLACE");
+            // Every few nodes: the GLB's positions are the blob's, placed.
+            if (n.key.x + n.key.y) % 5 != 0 {
+                continue;
+            }
+            let glb = parse_glb(
+                &std::fs::read(out.join(format!("tiles/{}/{}/{}/{}.glb", n.key.z, n.key.x, n.key.y, l.level))).unwrap(),
+            );
+            let blob = codec::decode(&store.read_blob(n.key, l.level).unwrap().unwrap()).unwrap();
+            let world = match &blob.geometry {
+                Geometry::Mesh(m) => m.positions.clone(),
+                Geometry::Points(p) => p.positions.clone(),
+            };
+            let got = glb.positions();
+            // Meshes carry skirts after their own vertices; those hang below the borders.
+            assert!(got.len() >= world.len());
+            for (w, g) in world.iter().zip(&got) {
+                let want = info.place.gltf_of(*w);
+                for a in 0..3 {
+                    assert!((want[a] - g[a]).abs() <= 1e-6, "{} level {}: {want:?} vs {g:?}", n.key, l.level);
+                }
+            }
+            if let Geometry::Mesh(m) = &blob.geometry {
+                // Triangles face up in the tileset frame (east, north, up) = (x, −z, y).
+                let prim = &glb.json["meshes"][0]["primitives"][0];
+                let idx = glb.accessor(prim["indices"].as_u64().unwrap());
+                let mut area = 0.0;
+                for t in idx.chunks(3).take(m.triangles.len()) {
+                    let p: Vec<[f64; 3]> = t.iter().map(|i| got[i[0] as usize]).collect();
+                    let en = |q: [f64; 3]| [q[0], -q[2]];
+                    let (a, b, c) = (en(p[0]), en(p[1]), en(p[2]));
+                    area += (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+                }
+                assert!(area > 0.0, "{}: triangles face down", n.key);
+            }
+            checked += 1;
+        }
+    }
+    assert!(checked > 20);
+
+    // An export never writes into a folder that holds anything; the folder is left alone.
+    let e = export::export_3dtiles(&store, &out, None, &|_, _| {}).unwrap_err();
+    assert!(e.to_string().contains("not an empty directory"), "{e}");
+    assert!(out.join("tileset.json").is_file());
+    // Nothing is left beside it (the staging folder is gone).
+    let names: Vec<String> =
+        std::fs::read_dir(tmp.path()).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    assert!(names.iter().all(|n| !n.contains("partial")), "{names:?}");
+}
+
+#[test]
+fn export_places_geographic_and_unreferenced_sources() {
+    let tmp = tempfile::tempdir().unwrap();
+    // A PNG has no georeference: placed at the default anchor, north = −y (row 0 is north).
+    let png = common::data("fuji.png");
+    let r = raster::load(
+        &png,
+        &LoadOptions {
+            encoding: Some(raster::HeightEncoding::TerrainRgb),
+            overrides: raster::Overrides { cell_size: Some(30.0), ..Default::default() },
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let dir = tmp.path().join("fuji");
+    let o = BakeOptions { tile_size: 256, max_error: 4.0, levels: 1 };
+    terrastream::bake::bake_terrain(&r, "fuji.png", &o, &terrastream::lod::PointBaker::Cpu, &Store::new(&dir), &NoProgress)
+        .unwrap();
+    let info = export::tiles3d_info(&Store::new(&dir), "fuji", None, String::new()).unwrap();
+    assert_eq!(info.place.from, AnchorFrom::Default);
+    assert_eq!(info.place.anchor, terrastream::tiles3d::DEFAULT_ANCHOR);
+    // Row 0 (y = 0) is the north edge.
+    assert!(info.place.enu_of([0.0, 0.0, 0.0])[1] > info.place.enu_of([0.0, 30.0, 0.0])[1]);
+    let out = tmp.path().join("x/3d");
+    export::export_3dtiles(&Store::new(&dir), &out, Some(Anchor { lon: 138.73, lat: 35.36, height: 0.0 }), &|_, _| {})
+        .unwrap();
+    let root: Value = serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
+    assert_eq!(root["asset"]["extras"]["terrastream"]["anchor"]["from"], "option");
+    assert_eq!(root["asset"]["extras"]["terrastream"]["local_frame"]["north"], "-y");
+
+    // A geographic GeoTIFF knows its anchor: the centre of its data.
+    let geo = tmp.path().join("geo.tif");
+    let side = 65;
+    let heights = raster::synth::terrain(side, side, 5);
+    let mut f = std::fs::File::create(&geo).unwrap();
+    raster::geotiff::write_tiled_f32(
+        &mut f,
+        (side, side),
+        32,
+        raster::geotiff::Model::Geographic,
+        (138.5, 35.5),
+        (1.0 / 1200.0, -1.0 / 1200.0),
+        None,
+        false,
+        |c, r| heights[(r * side + c) as usize],
+    )
+    .unwrap();
+    drop(f);
+    let r = raster::load(&geo, &LoadOptions::default()).unwrap();
+    let dir = tmp.path().join("geo");
+    let o = BakeOptions { tile_size: 32, max_error: 1.0, levels: 1 };
+    terrastream::bake::bake_terrain(&r, "geo.tif", &o, &terrastream::lod::PointBaker::Cpu, &Store::new(&dir), &NoProgress)
+        .unwrap();
+    let info = export::tiles3d_info(&Store::new(&dir), "geo", None, String::new()).unwrap();
+    assert_eq!(info.place.from, AnchorFrom::Source);
+    // Sample (0, 0) at 138.5° E, 35.5° N (PixelIsPoint), 64 cells across: the centre is 32 in.
+    assert!((info.place.anchor.lon - (138.5 + 32.0 / 1200.0)).abs() < 1e-9, "{:?}", info.place.anchor);
+    assert!((info.place.anchor.lat - (35.5 - 32.0 / 1200.0)).abs() < 1e-9, "{:?}", info.place.anchor);
+}
+
+async fn get(addr: SocketAddr, path: &str, headers: &[(&str, &str)]) -> (u16, HashMap<String, String>, Vec<u8>) {
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    let mut req = format!("GET {path} HTTP/1.1\r\nHost: t\r\nConnection: close\r\n");
+    for (k, v) in headers {
+        req.push_str(&format!("{k}: {v}\r\n"));
+    }
+    req.push_str("\r\n");
+    s.write_all(req.as_bytes()).await.unwrap();
+    let mut buf = Vec::new();
+    tokio::time::timeout(Duration::from_secs(60), s.read_to_end(&mut buf)).await.unwrap().unwrap();
+    let end = buf.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
+    let head = String::from_utf8_lossy(&buf[..end]).into_owned();
+    let mut lines = head.lines();
+    let status = lines.next().unwrap().split(' ').nth(1).unwrap().parse().unwrap();
+    let h: HashMap<String, String> = lines
+        .filter_map(|l| l.split_once(':'))
+        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_owned()))
+        .collect();
+    let body = buf[end + 4..].to_vec();
+    assert!(!h.contains_key("transfer-encoding"), "chunked answers are not expected here");
+    (status, h, body)
+}
+
+/// The JSON with every `?v=…` query taken off its URIs (the served documents carry them).
+fn strip_queries(v: &mut Value) {
+    match v {
+        Value::String(s) => {
+            if let Some(i) = s.find("?v=") {
+                s.truncate(i);
+            }
+        }
+        Value::Array(a) => a.iter_mut().for_each(strip_queries),
+        Value::Object(o) => o.values_mut().for_each(strip_queries),
+        _ => {}
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn served_3d_tiles_are_the_exported_ones_with_blob_caching() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = baked(tmp.path());
+    let out = tmp.path().join("3d");
+    export::export_3dtiles(&Store::new(&dir), &out, None, &|_, _| {}).unwrap();
+    let cv = Store::new(&dir).manifest().unwrap().content_version;
+    let cfg = PartialConfig {
+        store: Some(tmp.path().join("store")),
+        bind: Some("127.0.0.1:0".into()),
+        ..PartialConfig::default()
+    }
+    .resolve()
+    .unwrap();
+    let server = Server::bind(cfg).await.unwrap();
+    let a = server.local_addr().unwrap();
+    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(server.run(async move {
+        let _ = rx.await;
+    }));
+
+    let (s, h, body) = get(a, "/tilesets/t/3dtiles/tileset.json", &[]).await;
+    assert_eq!(s, 200);
+    assert_eq!(h["cache-control"], "public, max-age=10, must-revalidate");
+    assert_eq!(h["access-control-allow-origin"], "*");
+    let mut served: Value = serde_json::from_slice(&body).unwrap();
+    assert!(body.windows(4 + cv.len()).any(|w| w == format!("?v={cv}").as_bytes()), "URIs name the content version");
+    strip_queries(&mut served);
+    let exported: Value = serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
+    assert_eq!(served, exported);
+    let (s, _, _) = get(a, "/tilesets/t/3dtiles/tileset.json", &[("If-None-Match", &h["etag"])]).await;
+    assert_eq!(s, 304);
+
+    let (s, h, body) = get(a, &format!("/tilesets/t/3dtiles/index/4/3/5.json?v={cv}"), &[]).await;
+    assert_eq!(s, 200);
+    assert_eq!(h["cache-control"], "public, max-age=31536000, immutable");
+    let mut served: Value = serde_json::from_slice(&body).unwrap();
+    strip_queries(&mut served);
+    let exported: Value = serde_json::from_slice(&std::fs::read(out.join("index/4/3/5.json")).unwrap()).unwrap();
+    assert_eq!(served, exported);
+
+    for (key, level) in [("0/0/0", 0), ("0/0/0", 2), ("2/1/3", 0), ("4/15/15", 0)] {
+        let path = format!("/tilesets/t/3dtiles/tiles/{key}/{level}.glb");
+        let file = std::fs::read(out.join(format!("tiles/{key}/{level}.glb"))).ok();
+        let (s, h, body) = get(a, &format!("{path}?v={cv}"), &[]).await;
+        let Some(file) = file else {
+            // A level the node does not store (it did not pay).
+            assert_eq!(s, 404, "{path}");
+            continue;
+        };
+        assert_eq!(s, 200, "{path}: {}", String::from_utf8_lossy(&body));
+        assert_eq!(h["content-type"], "model/gltf-binary");
+        assert_eq!(h["cache-control"], "public, max-age=31536000, immutable");
+        assert_eq!(body, file, "{path}: served and exported GLBs differ");
+        let (s, h2, _) = get(a, &path, &[]).await;
+        assert_eq!((s, h2["cache-control"].as_str()), (200, "public, max-age=60, must-revalidate"));
+        assert_eq!(h2["etag"], h["etag"]);
+        let (s, _, _) = get(a, &path, &[("If-None-Match", &h["etag"])]).await;
+        assert_eq!(s, 304);
+        let (s, h3, part) = get(a, &path, &[("Range", "bytes=0-11")]).await;
+        assert_eq!(s, 206);
+        assert_eq!(part, file[..12].to_vec());
+        assert_eq!(h3["content-range"], format!("bytes 0-11/{}", file.len()));
+    }
+    for (path, status) in [
+        ("/tilesets/t/3dtiles/tiles/0/0/0/9.glb", 404),
+        ("/tilesets/t/3dtiles/tiles/0/0/0/0.tsb", 400),
+        ("/tilesets/t/3dtiles/tiles/9/0/0/0.glb", 404),
+        ("/tilesets/t/3dtiles/index/2/0/0.json", 404),
+        ("/tilesets/t/3dtiles/index/0/0/0.json", 404),
+        ("/tilesets/T/3dtiles/tileset.json", 400),
+        ("/tilesets/nope/3dtiles/tileset.json", 404),
+    ] {
+        let (s, h, body) = get(a, path, &[]).await;
+        assert_eq!(s, status, "{path}: {}", String::from_utf8_lossy(&body));
+        assert_eq!(h["content-type"], "application/problem+json", "{path}");
+    }
+    let (s, h, body) = get(a, "/viewer?tileset=t", &[]).await;
+    assert_eq!(s, 200);
+    assert!(h["content-type"].starts_with("text/html"));
+    assert!(String::from_utf8_lossy(&body).contains("3dtiles/tileset.json"));
+    let _ = tx.send(());
+    tokio::time::timeout(Duration::from_secs(30), task).await.unwrap().unwrap().unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn on_demand_3d_tiles_list_unbaked_nodes_and_bake_them_when_asked() {
+    let tmp = tempfile::tempdir().unwrap();
+    let tif = tmp.path().join("src.tif");
+    let heights = raster::synth::terrain(SIDE, SIDE, 9);
+    let bytes = raster::geotiff::encode_f32(SIDE, SIDE, &heights, (0.0, 0.0), (10.0, -10.0)).unwrap();
+    std::fs::write(&tif, bytes).unwrap();
+    let store = tmp.path().join("store");
+    std::fs::create_dir_all(&store).unwrap();
+    let spec = format!("od={},tile_size=64,max_error=1,levels=1", tif.display());
+    let cfg = PartialConfig {
+        store: Some(store.clone()),
+        bind: Some("127.0.0.1:0".into()),
+        sources: vec![spec.parse().unwrap()],
+        ..PartialConfig::default()
+    }
+    .resolve()
+    .unwrap();
+    let server = Server::bind(cfg).await.unwrap();
+    let a = server.local_addr().unwrap();
+    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(server.run(async move {
+        let _ = rx.await;
+    }));
+    let (s, _, body) = get(a, "/tilesets/od/3dtiles/tileset.json", &[]).await;
+    assert_eq!(s, 200);
+    let doc: Value = serde_json::from_slice(&body).unwrap();
+    assert_eq!(doc["asset"]["extras"]["terrastream"]["on_demand"], true);
+    // Nothing is baked: every node of the quadtree (1 + 4 + 16) is listed with its mesh only.
+    let text = String::from_utf8_lossy(&body).into_owned();
+    assert_eq!(text.matches("\"provisional\":true").count(), 21);
+    assert!(!store.join("od/tiles/2/1/1").exists());
+    let (s, _, glb) = get(a, "/tilesets/od/3dtiles/tiles/2/1/1/0.glb", &[]).await;
+    assert_eq!(s, 200);
+    assert!(!parse_glb(&glb).positions().is_empty());
+    assert!(store.join("od/tiles/2/1/1/0.tsb").is_file());
+    let (_, h, body) = get(a, "/tilesets/od/3dtiles/tileset.json", &[]).await;
+    assert_eq!(h["cache-control"], "public, max-age=10, must-revalidate");
+    // The baked node now has its measured levels.
+    assert_eq!(String::from_utf8_lossy(&body).matches("\"provisional\":true").count(), 20);
+    let _ = tx.send(());
+    tokio::time::timeout(Duration::from_secs(30), task).await.unwrap().unwrap().unwrap();
+    let _ = TileKey::new(0, 0, 0);
+}
