@@ -8,18 +8,23 @@
 #      writes are the same in both): tiles/s and point levels' points/s end to end, and the
 #      GPU memory peak per batch against the --gpu-budget-mib flag.
 # Usage: bench/gpu_vs_cpu.sh [SIZE] [extra bake flags…]   (SIZE defaults to 4097)
+# BIN and LOD_THROUGHPUT name prebuilt binaries (a GPU machine that cannot build), else both are
+# built here.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 size="${1:-4097}"; shift || true
-cargo build --release --quiet --bin terrastream --example lod_throughput
-bin=./target/release/terrastream
+if [ -z "${BIN:-}" ]; then
+  cargo build --release --quiet --bin terrastream --example lod_throughput
+fi
+bin="${BIN:-./target/release/terrastream}"
+lod="${LOD_THROUGHPUT:-./target/release/examples/lod_throughput}"
 tmp="$(mktemp -d)"
 trap 'rm -rf "$tmp"' EXIT
 $bin synth --width "$size" --cell-size 10 --out "$tmp/synth.tif"
-echo "machine: $(nproc) cores, $(awk '/MemTotal/ {printf "%.0f GiB", $2/1048576}' /proc/meminfo), input: generated ${size}x${size} raster, 10 m cells"
+echo "machine: $(nproc) cores, GPU: $(nvidia-smi --query-gpu=name,driver_version --format=csv,noheader 2>/dev/null || echo none), $(awk '/MemTotal/ {printf "%.0f GiB", $2/1048576}' /proc/meminfo), input: generated ${size}x${size} raster, 10 m cells"
 
 echo "== point-level stage alone (same level jobs, both paths)"
-./target/release/examples/lod_throughput "$tmp/synth.tif" "$@"
+$lod "$tmp/synth.tif" "$@"
 
 # Points of the point levels (levels 1..) in a bake summary's level table.
 points_of() { awk '$2 == "points" { n += $4 } END { print n + 0 }' "$1"; }
