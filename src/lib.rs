@@ -18,8 +18,8 @@ pub mod raster;
 #[cfg(feature = "server")]
 pub mod server;
 pub mod store;
-pub mod tiling;
 pub mod tiles3d;
+pub mod tiling;
 pub mod tin;
 
 pub use error::{Error, Result};

@@ -3,6 +3,14 @@
 //! exactly the blob's positions placed in the tileset frame; external tilesets per index chunk;
 //! caching semantics as for blobs; on-demand tilesets list what is not baked yet.
 
+#![allow(
+    clippy::unwrap_used,
+    clippy::float_cmp,
+    clippy::panic,
+    clippy::format_push_string,
+    clippy::large_futures
+)]
+
 mod common;
 
 use std::collections::{BTreeSet, HashMap};
@@ -28,12 +36,20 @@ const OPTS: BakeOptions = BakeOptions { tile_size: 16, max_error: 0.5, levels: 2
 fn baked(dir: &Path) -> PathBuf {
     let tif = dir.join("t.tif");
     let heights = raster::synth::terrain(SIDE, SIDE, 3);
-    let bytes = raster::geotiff::encode_f32(SIDE, SIDE, &heights, (500_000.0, 4_000_000.0), (10.0, -10.0)).unwrap();
+    let bytes =
+        raster::geotiff::encode_f32(SIDE, SIDE, &heights, (500_000.0, 4_000_000.0), (10.0, -10.0)).unwrap();
     std::fs::write(&tif, bytes).unwrap();
     let r = raster::load(&tif, &LoadOptions::default()).unwrap();
     let out = dir.join("store/t");
-    terrastream::bake::bake_terrain(&r, "t.tif", &OPTS, &terrastream::lod::PointBaker::Cpu, &Store::new(&out), &NoProgress)
-        .unwrap();
+    terrastream::bake::bake_terrain(
+        &r,
+        "t.tif",
+        &OPTS,
+        &terrastream::lod::PointBaker::Cpu,
+        &Store::new(&out),
+        &NoProgress,
+    )
+    .unwrap();
     out
 }
 
@@ -73,7 +89,8 @@ impl Glb {
             c => panic!("component type {c}"),
         };
         let stride = v["byteStride"].as_u64().map_or(n * size, |s| s as usize);
-        let base = v["byteOffset"].as_u64().unwrap_or(0) as usize + a["byteOffset"].as_u64().unwrap_or(0) as usize;
+        let base =
+            v["byteOffset"].as_u64().unwrap_or(0) as usize + a["byteOffset"].as_u64().unwrap_or(0) as usize;
         (0..a["count"].as_u64().unwrap() as usize)
             .map(|e| {
                 (0..n)
@@ -95,7 +112,8 @@ impl Glb {
     /// Positions as the glTF defines them: translation + scale · attribute.
     fn positions(&self) -> Vec<[f64; 3]> {
         let node = &self.json["nodes"][0];
-        let t: Vec<f64> = node["translation"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let t: Vec<f64> =
+            node["translation"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
         let s: Vec<f64> = node["scale"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
         let prim = &self.json["meshes"][0]["primitives"][0];
         self.accessor(prim["attributes"]["POSITION"].as_u64().unwrap())
@@ -122,7 +140,7 @@ fn walk(dir: &Path) -> (HashMap<(String, u64), Value>, usize) {
             if let Some(uri) = t["content"]["uri"].as_str() {
                 let file = path.parent().unwrap().join(uri);
                 assert!(file.is_file(), "{} referenced from {} is missing", uri, path.display());
-                if uri.ends_with(".json") {
+                if Path::new(uri).extension().is_some_and(|e| e == "json") {
                     assert!(t.get("children").is_none(), "a tile with an external tileset has no children");
                     todo.push(file);
                 } else {
@@ -150,8 +168,10 @@ fn export_writes_every_stored_level_as_a_tile_with_the_blobs_positions() {
     let r = export::export_3dtiles(&store, &out, None, &|_, _| {}).unwrap();
     let pyramid = terrastream::tiling::Pyramid::new(SIDE, SIDE, OPTS.tile_size).unwrap();
     let nodes = store.all_nodes(&pyramid).unwrap();
-    let stored: BTreeSet<(String, u64)> =
-        nodes.iter().flat_map(|n| n.levels.iter().map(move |l| (n.key.to_string(), u64::from(l.level)))).collect();
+    let stored: BTreeSet<(String, u64)> = nodes
+        .iter()
+        .flat_map(|n| n.levels.iter().map(move |l| (n.key.to_string(), u64::from(l.level))))
+        .collect();
     let (tiles, docs) = walk(&out);
     assert_eq!(tiles.keys().cloned().collect::<BTreeSet<_>>(), stored);
     assert_eq!(r.glbs as usize, stored.len());
@@ -160,7 +180,8 @@ fn export_writes_every_stored_level_as_a_tile_with_the_blobs_positions() {
     assert_eq!(r.documents as usize, docs);
 
     let root: Value = serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
-    let transform: Vec<f64> = root["root"]["transform"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let transform: Vec<f64> =
+        root["root"]["transform"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
     assert_eq!(transform, anchor.enu_to_ecef().to_vec());
     assert_eq!(root["asset"]["extras"]["terrastream"]["anchor"]["from"], "option");
     // A projected GeoTIFF: y is north.
@@ -179,7 +200,10 @@ fn export_writes_every_stored_level_as_a_tile_with_the_blobs_positions() {
                 continue;
             }
             let glb = parse_glb(
-                &std::fs::read(out.join(format!("tiles/{}/{}/{}/{}.glb", n.key.z, n.key.x, n.key.y, l.level))).unwrap(),
+                &std::fs::read(
+                    out.join(format!("tiles/{}/{}/{}/{}.glb", n.key.z, n.key.x, n.key.y, l.level)),
+                )
+                .unwrap(),
             );
             let blob = codec::decode(&store.read_blob(n.key, l.level).unwrap().unwrap()).unwrap();
             let world = match &blob.geometry {
@@ -218,8 +242,10 @@ fn export_writes_every_stored_level_as_a_tile_with_the_blobs_positions() {
     assert!(e.to_string().contains("not an empty directory"), "{e}");
     assert!(out.join("tileset.json").is_file());
     // Nothing is left beside it (the staging folder is gone).
-    let names: Vec<String> =
-        std::fs::read_dir(tmp.path()).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    let names: Vec<String> = std::fs::read_dir(tmp.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
     assert!(names.iter().all(|n| !n.contains("partial")), "{names:?}");
 }
 
@@ -239,16 +265,28 @@ fn export_places_geographic_and_unreferenced_sources() {
     .unwrap();
     let dir = tmp.path().join("fuji");
     let o = BakeOptions { tile_size: 256, max_error: 4.0, levels: 1 };
-    terrastream::bake::bake_terrain(&r, "fuji.png", &o, &terrastream::lod::PointBaker::Cpu, &Store::new(&dir), &NoProgress)
-        .unwrap();
+    terrastream::bake::bake_terrain(
+        &r,
+        "fuji.png",
+        &o,
+        &terrastream::lod::PointBaker::Cpu,
+        &Store::new(&dir),
+        &NoProgress,
+    )
+    .unwrap();
     let info = export::tiles3d_info(&Store::new(&dir), "fuji", None, String::new()).unwrap();
     assert_eq!(info.place.from, AnchorFrom::Default);
     assert_eq!(info.place.anchor, terrastream::tiles3d::DEFAULT_ANCHOR);
     // Row 0 (y = 0) is the north edge.
     assert!(info.place.enu_of([0.0, 0.0, 0.0])[1] > info.place.enu_of([0.0, 30.0, 0.0])[1]);
     let out = tmp.path().join("x/3d");
-    export::export_3dtiles(&Store::new(&dir), &out, Some(Anchor { lon: 138.73, lat: 35.36, height: 0.0 }), &|_, _| {})
-        .unwrap();
+    export::export_3dtiles(
+        &Store::new(&dir),
+        &out,
+        Some(Anchor { lon: 138.73, lat: 35.36, height: 0.0 }),
+        &|_, _| {},
+    )
+    .unwrap();
     let root: Value = serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
     assert_eq!(root["asset"]["extras"]["terrastream"]["anchor"]["from"], "option");
     assert_eq!(root["asset"]["extras"]["terrastream"]["local_frame"]["north"], "-y");
@@ -274,8 +312,15 @@ fn export_places_geographic_and_unreferenced_sources() {
     let r = raster::load(&geo, &LoadOptions::default()).unwrap();
     let dir = tmp.path().join("geo");
     let o = BakeOptions { tile_size: 32, max_error: 1.0, levels: 1 };
-    terrastream::bake::bake_terrain(&r, "geo.tif", &o, &terrastream::lod::PointBaker::Cpu, &Store::new(&dir), &NoProgress)
-        .unwrap();
+    terrastream::bake::bake_terrain(
+        &r,
+        "geo.tif",
+        &o,
+        &terrastream::lod::PointBaker::Cpu,
+        &Store::new(&dir),
+        &NoProgress,
+    )
+    .unwrap();
     let info = export::tiles3d_info(&Store::new(&dir), "geo", None, String::new()).unwrap();
     assert_eq!(info.place.from, AnchorFrom::Source);
     // Sample (0, 0) at 138.5° E, 35.5° N (PixelIsPoint), 64 cells across: the centre is 32 in
@@ -284,7 +329,11 @@ fn export_places_geographic_and_unreferenced_sources() {
     assert!((info.place.anchor.lat - (35.5 - 32.0 / 1200.0)).abs() < 1e-7, "{:?}", info.place.anchor);
 }
 
-async fn get(addr: SocketAddr, path: &str, headers: &[(&str, &str)]) -> (u16, HashMap<String, String>, Vec<u8>) {
+async fn get(
+    addr: SocketAddr,
+    path: &str,
+    headers: &[(&str, &str)],
+) -> (u16, HashMap<String, String>, Vec<u8>) {
     let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
     let mut req = format!("GET {path} HTTP/1.1\r\nHost: t\r\nConnection: close\r\n");
     for (k, v) in headers {
@@ -293,7 +342,7 @@ async fn get(addr: SocketAddr, path: &str, headers: &[(&str, &str)]) -> (u16, Ha
     req.push_str("\r\n");
     s.write_all(req.as_bytes()).await.unwrap();
     let mut buf = Vec::new();
-    tokio::time::timeout(Duration::from_secs(60), s.read_to_end(&mut buf)).await.unwrap().unwrap();
+    tokio::time::timeout(Duration::from_mins(1), s.read_to_end(&mut buf)).await.unwrap().unwrap();
     let end = buf.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
     let head = String::from_utf8_lossy(&buf[..end]).into_owned();
     let mut lines = head.lines();
@@ -347,7 +396,10 @@ async fn served_3d_tiles_are_the_exported_ones_with_blob_caching() {
     assert_eq!(h["cache-control"], "public, max-age=10, must-revalidate");
     assert_eq!(h["access-control-allow-origin"], "*");
     let mut served: Value = serde_json::from_slice(&body).unwrap();
-    assert!(body.windows(3 + cv.len()).any(|w| w == format!("?v={cv}").as_bytes()), "URIs name the content version");
+    assert!(
+        body.windows(3 + cv.len()).any(|w| w == format!("?v={cv}").as_bytes()),
+        "URIs name the content version"
+    );
     strip_queries(&mut served);
     let exported: Value = serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
     assert_eq!(served, exported);
@@ -359,7 +411,8 @@ async fn served_3d_tiles_are_the_exported_ones_with_blob_caching() {
     assert_eq!(h["cache-control"], "public, max-age=31536000, immutable");
     let mut served: Value = serde_json::from_slice(&body).unwrap();
     strip_queries(&mut served);
-    let exported: Value = serde_json::from_slice(&std::fs::read(out.join("index/4/3/5.json")).unwrap()).unwrap();
+    let exported: Value =
+        serde_json::from_slice(&std::fs::read(out.join("index/4/3/5.json")).unwrap()).unwrap();
     assert_eq!(served, exported);
 
     for (key, level) in [("0/0/0", 0), ("0/0/0", 2), ("2/1/3", 0), ("4/15/15", 0)] {

@@ -43,7 +43,9 @@ pub fn print_urls(addr: std::net::SocketAddr, names: &[String]) {
     outln!("serving {} tileset(s) on http://{addr}  (Ctrl-C to stop)", names.len());
     outln!("  http://{addr}/tilesets");
     for n in names.iter().take(3) {
-        outln!("  http://{addr}/tilesets/{n}/3dtiles/tileset.json   (OGC 3D Tiles 1.1: CesiumJS, Unreal, Unity, three.js)");
+        outln!(
+            "  http://{addr}/tilesets/{n}/3dtiles/tileset.json   (OGC 3D Tiles 1.1: CesiumJS, Unreal, Unity, three.js)"
+        );
         outln!("  http://{addr}/tilesets/{n}/tileset.json");
         outln!("  http://{addr}/tilesets/{n}/index/0/0/0.json");
         outln!("  http://{addr}/tilesets/{n}/tiles/0/0/0/0");

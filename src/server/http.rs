@@ -351,7 +351,11 @@ async fn index_chunk(
 /// The index chunk rooted at `key` (checked to be a chunk root of the tileset) and whether it
 /// still grows: an on-demand tileset not fully baked lists the nodes baked so far, rebuilt
 /// from their blobs.
-pub(super) async fn chunk_entry(app: &App, ts: &Arc<Tileset>, key: TileKey) -> Result<(Entry, bool), Problem> {
+pub(super) async fn chunk_entry(
+    app: &App,
+    ts: &Arc<Tileset>,
+    key: TileKey,
+) -> Result<(Entry, bool), Problem> {
     let name = &ts.name;
     if let Some(src) = ts.source.clone().filter(|_| !ts.store.manifest_path().exists()) {
         // On-demand and not fully baked: the nodes baked so far, rebuilt from their blobs.
@@ -487,7 +491,12 @@ async fn read_verified(path: std::path::PathBuf, key: TileKey, level: u8) -> Res
 /// never sent: it is logged and answered `500` (the stored data is bad — the server's fault,
 /// not the client's, and retrying will not help until it is re-baked); for an on-demand
 /// tileset it is moved aside and baked again.
-pub(super) async fn load_blob(app: &App, ts: &Arc<Tileset>, key: TileKey, level: u8) -> Result<Entry, Problem> {
+pub(super) async fn load_blob(
+    app: &App,
+    ts: &Arc<Tileset>,
+    key: TileKey,
+    level: u8,
+) -> Result<Entry, Problem> {
     let ck = (ts.generation, key, u16::from(level));
     if let Some(e) = app.cache.get(&ck) {
         app.metrics.cache_hits.fetch_add(1, Ordering::Relaxed);

@@ -11,12 +11,14 @@ use axum::http::{HeaderValue, Method, header};
 use axum::response::Response;
 use bytes::Bytes;
 
+use super::App;
 use super::cache::{Entry, GLB, TILES3D_CHUNK};
 use super::conditional::{Conditional, etag_value, send};
-use super::http::{NO_CACHE, SHORT, chunk_entry, load_blob, parse_key, parse_level, tileset, versioned_cache};
+use super::http::{
+    NO_CACHE, SHORT, chunk_entry, load_blob, parse_key, parse_level, tileset, versioned_cache,
+};
 use super::problem::Problem;
 use super::registry::{Tileset, etag_of};
-use super::App;
 use crate::store::{IndexChunk, SUBTREE_LEVELS, export};
 use crate::tiles3d::{GLB_TYPE, TilesetInfo, chunk_tileset};
 use crate::tiling::TileKey;
@@ -36,7 +38,10 @@ async fn info(ts: &Arc<Tileset>, with_anchor: bool) -> Result<TilesetInfo, Probl
             .map_err(|_| Problem::internal("placement", "reading the placement failed"))?
             .map_err(|e| {
                 tracing::error!(tileset = %ts.name, error = %e, "cannot read the tileset's placement");
-                Problem::internal("placement", format!("the placement of tileset {:?} cannot be read", ts.name))
+                Problem::internal(
+                    "placement",
+                    format!("the placement of tileset {:?} cannot be read", ts.name),
+                )
             })?
     } else {
         None
@@ -44,7 +49,10 @@ async fn info(ts: &Arc<Tileset>, with_anchor: bool) -> Result<TilesetInfo, Probl
     TilesetInfo::from_manifest_json(&ts.name, &ts.manifest_json, anchor, format!("?v={}", ts.content_version))
         .map_err(|e| {
             tracing::error!(tileset = %ts.name, error = %e, "cannot read the manifest for 3D Tiles");
-            Problem::internal("manifest", format!("the manifest of tileset {:?} cannot be read: {e}", ts.name))
+            Problem::internal(
+                "manifest",
+                format!("the manifest of tileset {:?} cannot be read: {e}", ts.name),
+            )
         })
 }
 
@@ -158,7 +166,10 @@ pub(super) async fn glb(
 
 /// `GET /viewer`: the viewer page (it reads `?tileset=NAME` itself).
 pub(super) async fn viewer(method: Method, headers: Conditional) -> Response {
-    let entry = Entry { etag: etag_value(&etag_of(VIEWER_HTML.as_bytes())), bytes: Bytes::from_static(VIEWER_HTML.as_bytes()) };
+    let entry = Entry {
+        etag: etag_value(&etag_of(VIEWER_HTML.as_bytes())),
+        bytes: Bytes::from_static(VIEWER_HTML.as_bytes()),
+    };
     let mut r = send(&method, &headers, &entry, "text/html; charset=utf-8", SHORT);
     // The page runs only its own inline script and talks only to this server.
     r.headers_mut().insert(

@@ -180,7 +180,10 @@ struct PlacementRecord {
 }
 
 /// Records the tileset's anchor ([`PLACEMENT_FILE`]), atomically.
-pub fn write_anchor(store: &crate::store::Store, anchor: crate::tiles3d::Anchor) -> Result<(), crate::store::StoreError> {
+pub fn write_anchor(
+    store: &crate::store::Store,
+    anchor: crate::tiles3d::Anchor,
+) -> Result<(), crate::store::StoreError> {
     let path = store.dir().join(PLACEMENT_FILE);
     let mut bytes = serde_json::to_vec_pretty(&PlacementRecord { anchor })
         .map_err(|source| crate::store::StoreError::Json { path: path.clone(), source })?;
@@ -190,7 +193,9 @@ pub fn write_anchor(store: &crate::store::Store, anchor: crate::tiles3d::Anchor)
 
 /// The tileset's recorded anchor; `Ok(None)` when it has none. A record that cannot be read or
 /// holds an anchor out of range is an error naming the file.
-pub fn read_anchor(store: &crate::store::Store) -> Result<Option<crate::tiles3d::Anchor>, crate::store::StoreError> {
+pub fn read_anchor(
+    store: &crate::store::Store,
+) -> Result<Option<crate::tiles3d::Anchor>, crate::store::StoreError> {
     let path = store.dir().join(PLACEMENT_FILE);
     let bytes = match std::fs::read(&path) {
         Ok(b) => b,
@@ -199,7 +204,10 @@ pub fn read_anchor(store: &crate::store::Store) -> Result<Option<crate::tiles3d:
     };
     let r: PlacementRecord = serde_json::from_slice(&bytes)
         .map_err(|source| crate::store::StoreError::Json { path: path.clone(), source })?;
-    r.anchor.check().map_err(|message| crate::store::StoreError::Invalid { path, message: format!("anchor: {message}") })?;
+    r.anchor.check().map_err(|message| crate::store::StoreError::Invalid {
+        path,
+        message: format!("anchor: {message}"),
+    })?;
     Ok(Some(r.anchor))
 }
 
@@ -214,7 +222,8 @@ pub fn tiles3d_info(
     // Checks the format and version; the kind and a model's levels come from the raw JSON.
     store.manifest()?;
     let path = store.manifest_path();
-    let bytes = std::fs::read(&path).map_err(|source| crate::store::StoreError::Io { path: path.clone(), source })?;
+    let bytes =
+        std::fs::read(&path).map_err(|source| crate::store::StoreError::Io { path: path.clone(), source })?;
     let anchor = match anchor {
         Some(a) => Some(a),
         None => read_anchor(store)?,
@@ -224,8 +233,10 @@ pub fn tiles3d_info(
 }
 
 /// The GLB of one stored (tile, level), from its verified blob.
+#[must_use]
 pub fn tile_glb(info: &crate::tiles3d::TilesetInfo, blob: &crate::codec::Blob) -> Vec<u8> {
-    let skirt = (info.kind == crate::store::TilesetKind::Terrain && blob.header.kind == crate::codec::Kind::Mesh)
+    let skirt = (info.kind == crate::store::TilesetKind::Terrain
+        && blob.header.kind == crate::codec::Kind::Mesh)
         .then(|| (crate::tiles3d::mesh_skirt_depth(blob.header.errors.max), Some(&info.manifest.bounds)));
     crate::tiles3d::glb(blob, &info.place, skirt)
 }
@@ -274,11 +285,15 @@ pub fn export_3dtiles(
         if !empty {
             return Err(ExportError::Io {
                 path: out.to_owned(),
-                source: io::Error::new(io::ErrorKind::AlreadyExists, "exists and is not an empty directory; choose another --out"),
+                source: io::Error::new(
+                    io::ErrorKind::AlreadyExists,
+                    "exists and is not an empty directory; choose another --out",
+                ),
             });
         }
     }
-    let name = store.dir().file_name().map_or_else(|| "tileset".to_owned(), |n| n.to_string_lossy().into_owned());
+    let name =
+        store.dir().file_name().map_or_else(|| "tileset".to_owned(), |n| n.to_string_lossy().into_owned());
     let info = tiles3d_info(store, &name, anchor, String::new())?;
     // The chunks, from the root down (each read once; bounded by the pyramid).
     let mut chunks = Vec::new();
@@ -316,13 +331,17 @@ pub fn export_3dtiles(
             } else {
                 stage.join(format!("index/{}/{}/{}.json", c.root.z, c.root.x, c.root.y))
             };
-            let mut bytes = serde_json::to_vec(&crate::tiles3d::chunk_tileset(&info, c, root)).unwrap_or_default();
+            let mut bytes =
+                serde_json::to_vec(&crate::tiles3d::chunk_tileset(&info, c, root)).unwrap_or_default();
             bytes.push(b'\n');
             write_file(&path, &bytes).map_err(io_err(&path))?;
             docs += 1;
         }
-        let work: Vec<(crate::tiling::TileKey, u8)> =
-            chunks.iter().flat_map(|c| &c.nodes).flat_map(|n| n.levels.iter().map(move |l| (n.key, l.level))).collect();
+        let work: Vec<(crate::tiling::TileKey, u8)> = chunks
+            .iter()
+            .flat_map(|c| &c.nodes)
+            .flat_map(|n| n.levels.iter().map(move |l| (n.key, l.level)))
+            .collect();
         let total = work.len() as u64;
         let done = AtomicU64::new(0);
         let glb_bytes = AtomicU64::new(0);
@@ -334,11 +353,15 @@ pub fn export_3dtiles(
                 key,
                 level,
             })?;
-            let blob = crate::codec::decode(&bytes).map_err(|source| ExportError::Codec { path: path.clone(), source })?;
+            let blob = crate::codec::decode(&bytes)
+                .map_err(|source| ExportError::Codec { path: path.clone(), source })?;
             if blob.header.key != key || blob.header.level != level {
                 return Err(StoreError::Invalid {
                     path,
-                    message: format!("the blob's header names tile {} level {}", blob.header.key, blob.header.level),
+                    message: format!(
+                        "the blob's header names tile {} level {}",
+                        blob.header.key, blob.header.level
+                    ),
                 }
                 .into());
             }

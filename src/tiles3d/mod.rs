@@ -97,8 +97,8 @@ impl Anchor {
         let up = [phi.cos() * lam.cos(), phi.cos() * lam.sin(), phi.sin()];
         let o = self.ecef();
         [
-            east[0], east[1], east[2], 0.0, north[0], north[1], north[2], 0.0, up[0], up[1], up[2], 0.0, o[0],
-            o[1], o[2], 1.0,
+            east[0], east[1], east[2], 0.0, north[0], north[1], north[2], 0.0, up[0], up[1], up[2], 0.0,
+            o[0], o[1], o[2], 1.0,
         ]
     }
 }
@@ -293,11 +293,8 @@ pub fn glb(blob: &Blob, place: &Placement, skirt: Option<(f64, Option<&Bounds>)>
         Geometry::Points(points) => {
             let pos = Positions::new(&points.positions, min, step, place);
             let map = place.axis_map();
-            let normals: Vec<[i8; 3]> = points
-                .normals
-                .iter()
-                .map(|n| oct_free_i8(map.map(|(a, s)| s * f64::from(n[a]))))
-                .collect();
+            let normals: Vec<[i8; 3]> =
+                points.normals.iter().map(|n| oct_free_i8(map.map(|(a, s)| s * f64::from(n[a])))).collect();
             Gltf::points(&pos, &normals, h.key, h.level).finish()
         }
     }
@@ -363,7 +360,7 @@ impl Positions {
     }
 
     fn fits_u16(&self) -> bool {
-        self.max.iter().all(|&m| m <= u32::from(u16::MAX))
+        self.max.iter().all(|&m| u16::try_from(m).is_ok())
     }
 }
 
@@ -375,8 +372,9 @@ fn oct_free_i8(n: [f64; 3]) -> [i8; 3] {
     let base = u.map(|c| (c * 127.0).round());
     let mut best = (f64::INFINITY, [0i8; 3]);
     for d in 0..27 {
-        let c: [f64; 3] =
-            std::array::from_fn(|a| (base[a] + f64::from((d / 3_i32.pow(a as u32)) % 3 - 1)).clamp(-127.0, 127.0));
+        let c: [f64; 3] = std::array::from_fn(|a| {
+            (base[a] + f64::from((d / 3_i32.pow(a as u32)) % 3 - 1)).clamp(-127.0, 127.0)
+        });
         let l = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt() / 127.0;
         if l == 0.0 {
             continue;
@@ -416,7 +414,8 @@ impl Gltf {
         while !self.bin.len().is_multiple_of(4) {
             self.bin.push(0);
         }
-        let mut v = json!({ "buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len(), "target": target });
+        let mut v =
+            json!({ "buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len(), "target": target });
         if let Some(s) = stride {
             v["byteStride"] = json!(s);
         }
@@ -494,8 +493,7 @@ impl Gltf {
         let idx =
             g.accessor(json!({ "bufferView": view, "componentType": component, "count": tris.len() * 3, "type": "SCALAR" }));
         g.material([0.64, 0.60, 0.50], false);
-        g.json["meshes"] =
-            json!([{ "primitives": [{ "attributes": { "POSITION": pos }, "indices": idx, "mode": 4, "material": 0 }] }]);
+        g.json["meshes"] = json!([{ "primitives": [{ "attributes": { "POSITION": pos }, "indices": idx, "mode": 4, "material": 0 }] }]);
         g
     }
 
@@ -542,15 +540,12 @@ impl Gltf {
 }
 
 fn push(doc: &mut Value, array: &str, v: Value) -> usize {
-    match doc.get_mut(array).and_then(Value::as_array_mut) {
-        Some(a) => {
-            a.push(v);
-            a.len() - 1
-        }
-        None => {
-            doc[array] = json!([v]);
-            0
-        }
+    if let Some(a) = doc.get_mut(array).and_then(Value::as_array_mut) {
+        a.push(v);
+        a.len() - 1
+    } else {
+        doc[array] = json!([v]);
+        0
     }
 }
 
@@ -583,7 +578,9 @@ impl TilesetInfo {
     #[must_use]
     pub fn new(name: &str, kind: TilesetKind, manifest: Manifest, place: Placement, query: String) -> Self {
         let pyramid = match kind {
-            TilesetKind::Terrain => Pyramid::new(manifest.source.width, manifest.source.height, manifest.tile_size).ok(),
+            TilesetKind::Terrain => {
+                Pyramid::new(manifest.source.width, manifest.source.height, manifest.tile_size).ok()
+            }
             TilesetKind::Model => None,
         };
         Self {
@@ -600,11 +597,17 @@ impl TilesetInfo {
 
     /// The info of a tileset from its manifest as JSON (a terrain or model manifest, or an
     /// on-demand tileset's provisional one, which says `"on_demand": true`).
-    pub fn from_manifest_json(name: &str, bytes: &[u8], anchor: Option<Anchor>, query: String) -> Result<Self, String> {
+    pub fn from_manifest_json(
+        name: &str,
+        bytes: &[u8],
+        anchor: Option<Anchor>,
+        query: String,
+    ) -> Result<Self, String> {
         let v: Value = serde_json::from_slice(bytes).map_err(|e| format!("manifest: {e}"))?;
         let kind = match v.get("kind") {
             None => TilesetKind::Terrain,
-            Some(k) => TilesetKind::deserialize(k).map_err(|_| format!("manifest: `kind` is {k}, not terrain or model"))?,
+            Some(k) => TilesetKind::deserialize(k)
+                .map_err(|_| format!("manifest: `kind` is {k}, not terrain or model"))?,
         };
         let manifest = Manifest::deserialize(&v).map_err(|e| format!("manifest: {e}"))?;
         let place = Placement::of(&manifest, kind, anchor);
@@ -613,7 +616,8 @@ impl TilesetInfo {
         if let Some(levels) = v.pointer("/model/levels").and_then(Value::as_array) {
             info.model_cells = vec![None; info.manifest.levels.len().max(levels.len())];
             for l in levels {
-                if let (Some(i), Some(c)) = (l.get("level").and_then(Value::as_u64), l.get("cell").and_then(Value::as_f64))
+                if let (Some(i), Some(c)) =
+                    (l.get("level").and_then(Value::as_u64), l.get("cell").and_then(Value::as_f64))
                     && let Some(slot) = info.model_cells.get_mut(i as usize)
                 {
                     *slot = Some(c);
@@ -647,7 +651,8 @@ impl TilesetInfo {
         if !p.contains(key) {
             return None;
         }
-        let bound = self.manifest.levels.first().and_then(|l| l.max_error).unwrap_or(0.0) * f64::from(p.step(key.z));
+        let bound =
+            self.manifest.levels.first().and_then(|l| l.max_error).unwrap_or(0.0) * f64::from(p.step(key.z));
         Some(NodeEntry {
             key,
             bounds: self.planned_bounds(key),
@@ -686,19 +691,27 @@ fn prefix(root: bool) -> &'static str {
 /// `transform` and the tileset-wide extras); otherwise the external tileset of that chunk.
 #[must_use]
 pub fn chunk_tileset(info: &TilesetInfo, chunk: &IndexChunk, root: bool) -> Value {
-    let nodes: std::collections::HashMap<TileKey, &NodeEntry> = chunk.nodes.iter().map(|n| (n.key, n)).collect();
+    let nodes: std::collections::HashMap<TileKey, &NodeEntry> =
+        chunk.nodes.iter().map(|n| (n.key, n)).collect();
     let pre = prefix(root);
     let mut tile = node_tiles(info, &nodes, chunk.root, chunk.root, pre)
         .unwrap_or_else(|| json!({ "boundingVolume": { "box": info.place.enu_box(&info.manifest.bounds) }, "geometricError": 0.0 }));
     let head_error = tile["geometricError"].as_f64().unwrap_or(0.0);
-    let mut asset = json!({ "version": "1.1", "generator": GENERATOR, "tilesetVersion": info.manifest.content_version });
+    let mut asset =
+        json!({ "version": "1.1", "generator": GENERATOR, "tilesetVersion": info.manifest.content_version });
     let geometric_error = if root {
         tile["transform"] = json!(info.place.anchor.enu_to_ecef());
         let mut extras = info.place.describe();
         extras["tileset"] = json!(info.name);
         extras["kind"] = json!(info.kind);
         extras["content_version"] = json!(info.manifest.content_version);
-        extras["levels"] = json!(info.manifest.levels.iter().map(|l| json!({"level": l.level, "kind": l.kind})).collect::<Vec<_>>());
+        extras["levels"] = json!(
+            info.manifest
+                .levels
+                .iter()
+                .map(|l| json!({"level": l.level, "kind": l.kind}))
+                .collect::<Vec<_>>()
+        );
         if info.provisional {
             extras["on_demand"] = json!(true);
         }
@@ -750,9 +763,20 @@ fn node_tiles(
     head
 }
 
-fn level_tile(info: &TilesetInfo, node: &NodeEntry, l: &NodeLevel, children: Vec<Value>, pre: &str, provisional: bool) -> Value {
+fn level_tile(
+    info: &TilesetInfo,
+    node: &NodeEntry,
+    l: &NodeLevel,
+    children: Vec<Value>,
+    pre: &str,
+    provisional: bool,
+) -> Value {
     let key = node.key;
-    let kind = info.manifest.levels.get(usize::from(l.level)).map_or(if l.level == 0 { Kind::Mesh } else { Kind::Points }, |s| s.kind);
+    let kind = info
+        .manifest
+        .levels
+        .get(usize::from(l.level))
+        .map_or(if l.level == 0 { Kind::Mesh } else { Kind::Points }, |s| s.kind);
     let mut b = node.bounds;
     let skirt = info.kind == TilesetKind::Terrain && kind == Kind::Mesh;
     if kind == Kind::Points {
@@ -782,7 +806,7 @@ fn level_tile(info: &TilesetInfo, node: &NodeEntry, l: &NodeLevel, children: Vec
         "extras": { "terrastream": extras },
     });
     if !children.is_empty() {
-        t["children"] = json!(children);
+        t["children"] = Value::Array(children);
     }
     t
 }

@@ -1,3 +1,5 @@
+#![allow(clippy::float_cmp)] // placements of exact values are exact
+
 use super::*;
 use crate::codec::{Quantization, decode, encode_mesh, encode_points};
 use crate::geom::PointCloud;
@@ -7,7 +9,10 @@ use crate::store::{LevelTotals, SourceInfo};
 #[test]
 fn anchors_parse_and_are_range_checked() {
     assert_eq!(Anchor::parse("138.7,35.3").unwrap(), Anchor { lon: 138.7, lat: 35.3, height: 0.0 });
-    assert_eq!(Anchor::parse(" -70.5 , -33.4 , 520 ").unwrap(), Anchor { lon: -70.5, lat: -33.4, height: 520.0 });
+    assert_eq!(
+        Anchor::parse(" -70.5 , -33.4 , 520 ").unwrap(),
+        Anchor { lon: -70.5, lat: -33.4, height: 520.0 }
+    );
     for bad in ["200,0", "0,95", "a,b", "1", "1,2,3,4", "0,0,1e300", "NaN,0", "inf,0", ""] {
         let e = Anchor::parse(bad).unwrap_err();
         assert!(e.contains("anchor"), "{bad}: {e}");
@@ -127,12 +132,16 @@ fn glb_positions_are_the_blobs_grid_placed_and_triangles_face_up() {
         let jl = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
         let bin = &glb[28 + jl..];
         let off = view["byteOffset"].as_u64().unwrap() as usize;
-        let idx: Vec<usize> =
-            (0..acc["count"].as_u64().unwrap() as usize).map(|i| usize::from(u16::from_le_bytes([bin[off + 2 * i], bin[off + 2 * i + 1]]))).collect();
+        let idx: Vec<usize> = (0..acc["count"].as_u64().unwrap() as usize)
+            .map(|i| usize::from(u16::from_le_bytes([bin[off + 2 * i], bin[off + 2 * i + 1]])))
+            .collect();
         for t in idx.chunks(3) {
             let en = |i: usize| [got[i][0], -got[i][2]];
             let (a, b, c) = (en(t[0]), en(t[1]), en(t[2]));
-            assert!((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]) > 0.0, "dy {dy}: a triangle faces down");
+            assert!(
+                (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]) > 0.0,
+                "dy {dy}: a triangle faces down"
+            );
         }
     }
 }
@@ -143,7 +152,8 @@ fn skirts_hang_on_the_grid_below_inner_borders_only() {
     let mesh = grid_mesh([10.0, -10.0], |c, _| c as f64);
     let bounds = Bounds::of_points(&mesh.positions);
     let q = Quantization { xy_step: 10.0, z_step: 0.125 };
-    let blob = decode(&encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, Errors::default()).unwrap()).unwrap();
+    let blob = decode(&encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, Errors::default()).unwrap())
+        .unwrap();
     let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None);
     let plain = read_positions(&glb(&blob, &place, None)).1;
     // The dataset is larger than the tile on every side but the west one: no skirt there.
@@ -162,11 +172,13 @@ fn skirts_hang_on_the_grid_below_inner_borders_only() {
 #[test]
 fn point_normals_are_unit_bytes_in_gltf_axes() {
     let positions = vec![[0.0, 0.0, 1.0], [1.0, 0.0, 2.0], [0.0, 1.0, 3.0], [1.0, 1.0, 4.0]];
-    let normals = vec![[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, -0.6, 0.8], [0.577_350_3, 0.577_350_3, 0.577_350_3]];
+    let normals =
+        vec![[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, -0.6, 0.8], [0.577_350_3, 0.577_350_3, 0.577_350_3]];
     let pc = PointCloud { positions: positions.clone(), normals: normals.clone() };
     let bounds = Bounds::of_points(&positions);
     let q = Quantization { xy_step: 0.01, z_step: 0.01 };
-    let blob = decode(&encode_points(TileKey::new(0, 0, 0), 1, &bounds, q, &pc, Errors::default()).unwrap()).unwrap();
+    let blob = decode(&encode_points(TileKey::new(0, 0, 0), 1, &bounds, q, &pc, Errors::default()).unwrap())
+        .unwrap();
     let frame = Georef { dx: 1.0, dy: -1.0, ..Georef::default() };
     let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None);
     let glb = glb(&blob, &place, None);
@@ -176,7 +188,9 @@ fn point_normals_are_unit_bytes_in_gltf_axes() {
     assert_eq!(json["meshes"][0]["primitives"][0]["mode"], 0);
     let acc = &json["accessors"][1];
     assert_eq!((acc["componentType"].as_u64(), acc["normalized"].as_bool()), (Some(5120), Some(true)));
-    let off = json["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize]["byteOffset"].as_u64().unwrap() as usize;
+    let off = json["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize]["byteOffset"]
+        .as_u64()
+        .unwrap() as usize;
     let Geometry::Points(decoded) = &blob.geometry else { panic!() };
     for (i, n) in decoded.normals.iter().enumerate() {
         let g: [f64; 3] = std::array::from_fn(|a| f64::from(bin[off + 4 * i + a] as i8) / 127.0);
