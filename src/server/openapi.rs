@@ -156,7 +156,7 @@ pub fn document() -> Value {
                         {"name": "encoding", "in": "query", "schema": {"enum": ["gray16", "terrain-rgb", "terrarium"]}},
                         {"name": "cell_size", "in": "query", "schema": {"type": "number", "minimum": crate::raster::MIN_CELL_SIZE, "maximum": crate::raster::MAX_CELL_SIZE}},
                         {"name": "tile_size", "in": "query", "schema": {"type": "integer", "minimum": 2, "maximum": 65_536}},
-                        {"name": "max_error", "in": "query", "schema": {"type": "number", "minimum": 0, "maximum": 1e300}},
+                        {"name": "max_error", "in": "query", "schema": {"type": "number", "minimum": 0, "maximum": f64::MAX}},
                         {"name": "levels", "in": "query", "schema": {"type": "integer", "minimum": 0, "maximum": crate::bake::MAX_LEVELS}}],
                     "requestBody": {"content": {"application/octet-stream": {}}},
                     "description": "The upload is stored, then baked by a job: a file that is not a raster, or a raster beyond the limits, makes the job fail (GET /jobs/{id} says why), not the upload.",
