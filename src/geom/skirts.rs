@@ -22,6 +22,8 @@ pub struct Skirted {
     pub mesh: Mesh,
     pub first_skirt_vertex: usize,
     pub first_skirt_triangle: usize,
+    /// For each skirt vertex (from `first_skirt_vertex`), the border vertex it hangs below.
+    pub skirt_tops: Vec<u32>,
 }
 
 /// Adds skirts to a tile mesh: every border edge (used by one triangle) gets a vertical wall
@@ -58,6 +60,7 @@ pub fn add_skirts(mesh: &Mesh, depth: f64, outer: Option<&Bounds>) -> Skirted {
     let first_skirt_vertex = out.positions.len();
     let first_skirt_triangle = out.triangles.len();
     let mut skirt_of: HashMap<u32, u32> = HashMap::new();
+    let mut skirt_tops = Vec::new();
     for (a, b, c) in border {
         let (pa, pb, pc) =
             (mesh.positions[a as usize], mesh.positions[b as usize], mesh.positions[c as usize]);
@@ -67,6 +70,7 @@ pub fn add_skirts(mesh: &Mesh, depth: f64, outer: Option<&Bounds>) -> Skirted {
         let mut skirt = |v: u32, p: [f64; 3]| {
             *skirt_of.entry(v).or_insert_with(|| {
                 out.positions.push([p[0], p[1], p[2] - depth]);
+                skirt_tops.push(v);
                 (out.positions.len() - 1) as u32
             })
         };
@@ -83,5 +87,5 @@ pub fn add_skirts(mesh: &Mesh, depth: f64, outer: Option<&Bounds>) -> Skirted {
             out.triangles.push([a, sb, sa]);
         }
     }
-    Skirted { mesh: out, first_skirt_vertex, first_skirt_triangle }
+    Skirted { mesh: out, first_skirt_vertex, first_skirt_triangle, skirt_tops }
 }

@@ -271,24 +271,32 @@ pub fn glb(blob: &Blob, place: &Placement, skirt: Option<(f64, Option<&Bounds>)>
     let min = h.bounds[0];
     match &blob.geometry {
         Geometry::Mesh(mesh) => {
-            let skirted;
-            let mesh: &Mesh = match skirt {
+            // Top triangles must face up (a terrain) or keep their winding (a model, unless the
+            // placement mirrors it); skirt walls are built facing outward in the world frame, so
+            // they turn only where the placement mirrors.
+            let flip_top = turns(mesh, place);
+            let skirted = match skirt {
                 Some((depth, outer)) if !mesh.triangles.is_empty() => {
                     // A whole number of z steps, so skirt vertices stay on the grid.
                     let depth = (depth / step[2]).ceil().max(1.0) * step[2];
-                    skirted = add_skirts(mesh, depth, outer).mesh;
-                    &skirted
+                    Some(add_skirts(mesh, depth, outer))
                 }
-                _ => mesh,
+                _ => None,
             };
-            let pos = Positions::new(&mesh.positions, min, step, place);
-            let mut tris = mesh.triangles.clone();
-            if turns(mesh, place) {
-                for t in &mut tris {
+            let (all, tops, first_wall): (&Mesh, &[u32], usize) = match &skirted {
+                Some(s) => (&s.mesh, &s.skirt_tops, s.first_skirt_triangle),
+                None => (mesh, &[], mesh.triangles.len()),
+            };
+            let mut tris = all.triangles.clone();
+            for (i, t) in tris.iter_mut().enumerate() {
+                let flip = if i < first_wall { flip_top } else { place.mirrored() };
+                if flip {
                     t.swap(1, 2);
                 }
             }
-            Gltf::mesh(&pos, &tris, h.key, h.level).finish()
+            let pos = Positions::new(&all.positions, min, step, place);
+            let normals = mesh_normals(all, &tris[..first_wall], tops, place);
+            Gltf::mesh(&pos, &tris, &normals, h.key, h.level).finish()
         }
         Geometry::Points(points) => {
             let pos = Positions::new(&points.positions, min, step, place);
@@ -318,6 +326,29 @@ fn turns(mesh: &Mesh, place: &Placement) -> bool {
         })
         .sum();
     area < 0.0
+}
+
+/// Smooth vertex normals in glTF axes, as `BYTE` vectors: area-weighted sums over the top
+/// triangles (`top`, already facing the right way); a skirt vertex takes the normal of the
+/// border vertex it hangs below (`tops`, in order from the first skirt vertex), so a wall
+/// shades like the surface above it, as Cesium's quantized-mesh skirts do.
+fn mesh_normals(mesh: &Mesh, top: &[[u32; 3]], tops: &[u32], place: &Placement) -> Vec<[i8; 3]> {
+    let g: Vec<glam::DVec3> =
+        mesh.positions.iter().map(|p| glam::DVec3::from_array(place.gltf_of(*p))).collect();
+    let mut sums = vec![glam::DVec3::ZERO; g.len()];
+    for t in top {
+        let [a, b, c] = t.map(|i| g[i as usize]);
+        let n = (b - a).cross(c - a);
+        for &i in t {
+            sums[i as usize] += n;
+        }
+    }
+    let first_skirt = g.len() - tops.len();
+    for (k, &top) in tops.iter().enumerate() {
+        sums[first_skirt + k] = sums[top as usize];
+    }
+    // A vertex of no triangle (there are none in a decoded mesh) points up.
+    sums.iter().map(|s| oct_free_i8(if s.length() > 0.0 { s.to_array() } else { [0.0, 1.0, 0.0] })).collect()
 }
 
 /// Positions on the blob's grid, per glTF axis: the stored integers, the node's translation
@@ -469,6 +500,17 @@ impl Gltf {
         acc
     }
 
+    /// Unit normals as `BYTE` normalized (`KHR_mesh_quantization`), padded to 4 bytes each.
+    fn normals(&mut self, normals: &[[i8; 3]]) -> usize {
+        let b: Vec<u8> = normals.iter().flat_map(|n| [n[0] as u8, n[1] as u8, n[2] as u8, 0]).collect();
+        let view = self.view(&b, Some(4), ARRAY_BUFFER);
+        self.json["extensionsUsed"] = json!(["KHR_mesh_quantization"]);
+        self.json["extensionsRequired"] = json!(["KHR_mesh_quantization"]);
+        self.accessor(json!({
+            "bufferView": view, "componentType": GLTF_I8, "normalized": true, "count": normals.len(), "type": "VEC3",
+        }))
+    }
+
     fn material(&mut self, rgb: [f64; 3], points: bool) {
         self.json["materials"] = json!([{
             "name": if points { "points" } else { "terrain" },
@@ -480,9 +522,10 @@ impl Gltf {
         }]);
     }
 
-    fn mesh(p: &Positions, tris: &[[u32; 3]], key: TileKey, level: u8) -> Self {
+    fn mesh(p: &Positions, tris: &[[u32; 3]], normals: &[[i8; 3]], key: TileKey, level: u8) -> Self {
         let mut g = Self::new(key, level);
         let pos = g.positions(p);
+        let nrm = g.normals(normals);
         let (view, component) = if p.ints.len() <= MAX_U16_VERTICES {
             let b: Vec<u8> = tris.iter().flatten().flat_map(|&i| (i as u16).to_le_bytes()).collect();
             (g.view(&b, None, ELEMENT_ARRAY_BUFFER), GLTF_U16)
@@ -493,20 +536,14 @@ impl Gltf {
         let idx =
             g.accessor(json!({ "bufferView": view, "componentType": component, "count": tris.len() * 3, "type": "SCALAR" }));
         g.material([0.64, 0.60, 0.50], false);
-        g.json["meshes"] = json!([{ "primitives": [{ "attributes": { "POSITION": pos }, "indices": idx, "mode": 4, "material": 0 }] }]);
+        g.json["meshes"] = json!([{ "primitives": [{ "attributes": { "POSITION": pos, "NORMAL": nrm }, "indices": idx, "mode": 4, "material": 0 }] }]);
         g
     }
 
     fn points(p: &Positions, normals: &[[i8; 3]], key: TileKey, level: u8) -> Self {
         let mut g = Self::new(key, level);
         let pos = g.positions(p);
-        let b: Vec<u8> = normals.iter().flat_map(|n| [n[0] as u8, n[1] as u8, n[2] as u8, 0]).collect();
-        let view = g.view(&b, Some(4), ARRAY_BUFFER);
-        let nrm = g.accessor(json!({
-            "bufferView": view, "componentType": GLTF_I8, "normalized": true, "count": normals.len(), "type": "VEC3",
-        }));
-        g.json["extensionsUsed"] = json!(["KHR_mesh_quantization"]);
-        g.json["extensionsRequired"] = json!(["KHR_mesh_quantization"]);
+        let nrm = g.normals(normals);
         g.material([0.78, 0.70, 0.52], true);
         g.json["meshes"] = json!([{
             "primitives": [{ "attributes": { "POSITION": pos, "NORMAL": nrm }, "mode": 0, "material": 0 }]

@@ -118,7 +118,8 @@ fn glb_positions_are_the_blobs_grid_placed_and_triangles_face_up() {
         let (json, got) = read_positions(&glb);
         let big = relief / z_step > 65_535.0;
         assert_eq!(json["accessors"][0]["componentType"], if big { 5126 } else { 5123 });
-        assert_eq!(json.get("extensionsRequired").is_some(), !big);
+        // Normals are bytes (KHR_mesh_quantization) whatever the positions are.
+        assert_eq!(json["extensionsRequired"], json!(["KHR_mesh_quantization"]));
         let Geometry::Mesh(world) = &blob.geometry else { panic!() };
         for (w, g) in world.positions.iter().zip(&got) {
             let want = place.gltf_of(*w);
@@ -127,7 +128,8 @@ fn glb_positions_are_the_blobs_grid_placed_and_triangles_face_up() {
             }
         }
         // Indices follow the positions: triangles face up (east, north) = (x, −z) in glTF.
-        let acc = &json["accessors"][1];
+        let prim = &json["meshes"][0]["primitives"][0];
+        let acc = &json["accessors"][prim["indices"].as_u64().unwrap() as usize];
         let view = &json["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize];
         let jl = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
         let bin = &glb[28 + jl..];
@@ -166,6 +168,39 @@ fn skirts_hang_on_the_grid_below_inner_borders_only() {
         // 0.3 rounded up to whole steps of 0.125: 0.375 below a border vertex.
         let above = plain.iter().find(|q| (q[0] - p[0]).abs() < 1e-9 && (q[2] - p[2]).abs() < 1e-9).unwrap();
         assert!((above[1] - p[1] - 0.375).abs() < 1e-9, "{p:?} under {above:?}");
+    }
+    // Walls face outward in the tileset frame, for a north-up frame and a mirrored (image) one.
+    for dy in [-10.0, 10.0] {
+        let frame = Georef { dx: 10.0, dy, ..Georef::default() };
+        let mesh = grid_mesh([10.0, dy], |c, _| c as f64);
+        let bounds = Bounds::of_points(&mesh.positions);
+        let blob =
+            decode(&encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, Errors::default()).unwrap())
+                .unwrap();
+        let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None);
+        let g = glb(&blob, &place, Some((0.3, None)));
+        let (json, pos) = read_positions(&g);
+        let jl = u32::from_le_bytes(g[12..16].try_into().unwrap()) as usize;
+        let bin = &g[28 + jl..];
+        let acc =
+            &json["accessors"][json["meshes"][0]["primitives"][0]["indices"].as_u64().unwrap() as usize];
+        let off = json["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize]["byteOffset"]
+            .as_u64()
+            .unwrap() as usize;
+        let idx: Vec<usize> = (0..acc["count"].as_u64().unwrap() as usize)
+            .map(|i| usize::from(u16::from_le_bytes([bin[off + 2 * i], bin[off + 2 * i + 1]])))
+            .collect();
+        let centre = pos[..25]
+            .iter()
+            .fold([0.0; 3], |a, p| [a[0] + p[0] / 25.0, a[1] + p[1] / 25.0, a[2] + p[2] / 25.0]);
+        let walls = idx.chunks(3).skip(32).collect::<Vec<_>>();
+        assert_eq!(walls.len(), 32, "two triangles under each of the 16 border edges");
+        for t in walls {
+            let [a, b, c] = [pos[t[0]], pos[t[1]], pos[t[2]]].map(glam::DVec3::from_array);
+            let n = (b - a).cross(c - a);
+            let out = (a + b + c) / 3.0 - glam::DVec3::from_array(centre);
+            assert!(n.x * out.x + n.z * out.z > 0.0, "dy {dy}: a wall faces inward");
+        }
     }
 }
 
