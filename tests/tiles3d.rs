@@ -503,3 +503,54 @@ async fn on_demand_3d_tiles_list_unbaked_nodes_and_bake_them_when_asked() {
     tokio::time::timeout(Duration::from_secs(30), task).await.unwrap().unwrap().unwrap();
     let _ = TileKey::new(0, 0, 0);
 }
+
+#[test]
+fn cli_anchor_and_export_3dtiles() {
+    use common::{bin, fails, ok};
+    let tmp = tempfile::tempdir().unwrap();
+    let tif = tmp.path().join("t.tif");
+    let heights = raster::synth::terrain(65, 65, 4);
+    std::fs::write(&tif, raster::geotiff::encode_f32(65, 65, &heights, (0.0, 0.0), (10.0, -10.0)).unwrap())
+        .unwrap();
+    let dir = tmp.path().join("t");
+    // A bad anchor is refused before anything is baked, naming the value and the range.
+    let e = fails(
+        bin().arg("bake").arg(&tif).arg("--out").arg(&dir).args(["--anchor", "200,10", "--gpu", "off", "-q"]),
+    );
+    assert!(e.contains("longitude 200") && e.contains("-180..180"), "{e}");
+    assert!(!dir.exists());
+    ok(bin()
+        .arg("bake")
+        .arg(&tif)
+        .arg("--out")
+        .arg(&dir)
+        .args(["--tile-size", "32", "--anchor", "-70.5,-33.4,520"])
+        .args(["--gpu", "off", "-q"]));
+    let p: Value = serde_json::from_slice(&std::fs::read(dir.join("placement.json")).unwrap()).unwrap();
+    assert_eq!(p["anchor"], serde_json::json!({"lon": -70.5, "lat": -33.4, "height": 520.0}));
+    let out = tmp.path().join("3d");
+    let text = ok(bin().arg("export").arg(&dir).args(["--format", "3dtiles", "--out"]).arg(&out).arg("-q"));
+    assert!(text.contains("GLBs") && text.contains("tileset.json"), "{text}");
+    let root: Value = serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
+    assert_eq!(root["asset"]["extras"]["terrastream"]["anchor"]["lat"], -33.4);
+    // Into a folder that holds something: refused, the folder untouched.
+    let e = fails(bin().arg("export").arg(&dir).args(["--format", "3dtiles", "--out"]).arg(&out));
+    assert!(e.contains("not an empty directory"), "{e}");
+    let e = fails(
+        bin()
+            .arg("export")
+            .arg(&dir)
+            .args(["--format", "3dtiles", "--tile", "0/0/0", "--out"])
+            .arg(tmp.path().join("x")),
+    );
+    assert!(e.contains("whole tileset"), "{e}");
+    let e =
+        fails(bin().arg("export").arg(&dir).args(["--format", "obj", "--out"]).arg(tmp.path().join("x.obj")));
+    assert!(e.contains("--tile"), "{e}");
+    // Not a tileset at all.
+    let e = fails(
+        bin().arg("export").arg(tmp.path()).args(["--format", "3dtiles", "--out"]).arg(tmp.path().join("y")),
+    );
+    assert!(e.contains("tileset.json"), "{e}");
+    assert!(!tmp.path().join("y").exists());
+}
