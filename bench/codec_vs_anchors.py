@@ -8,14 +8,26 @@ Bakes fuji.png (terrain-RGB, 30 m cells) with terrastream, then for every tile:
   our quantization step (the same precision), vs our `.tsb` blob (which also carries normals,
   which the LAZ file does not).
 
-    pip install quantized-mesh-encoder 'laspy[lazrs]' numpy
-    python3 bench/codec_vs_anchors.py [--max-error 1] [--levels 4]
+Then the same tileset goes through `terrastream export --format 3dtiles`, and each (tile, level)'s
+GLB (what `GET …/3dtiles/tiles/{z}/{x}/{y}/{level}.glb` serves: the very same bytes) is measured
+against its blob and its anchor: raw, and gzip -9 (what a CDN would send compressed). Bytes per
+item always divide by the blob's vertices or points (a mesh GLB also holds its skirts' vertices,
+counted in the `GLB verts` column). If gltfpack (meshoptimizer's CLI; the npm package is a wasm
+build) is found — $GLTFPACK, `gltfpack` on the PATH, or /tmp/gltfpack/node_modules/.bin/gltfpack
+(`npm install --prefix /tmp/gltfpack gltfpack`) — every GLB also goes through
+`gltfpack -i in.glb -o out.glb FLAGS` for a few FLAGS (EXT_meshopt_compression; its own
+re-quantization, so an estimate of what meshopt would save rather than an exact re-encoding).
+
+    python3 -m venv bench/.venv && bench/.venv/bin/pip install quantized-mesh-encoder 'laspy[lazrs]' numpy
+    bench/.venv/bin/python bench/codec_vs_anchors.py [--max-error 1] [--levels 4]
 """
 import argparse
 import gzip
 import io
 import json
 import os
+import shutil
+import struct
 import subprocess
 import sys
 import tempfile
@@ -27,6 +39,33 @@ import quantized_mesh_encoder
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DATA = os.environ.get("TERRASTREAM_DATA", os.path.join(ROOT, "..", "shared", "data"))
 EXE = os.path.join(ROOT, "target", "release", "terrastream")
+# gltfpack flag sets measured on every GLB: (label, flags). -c / -cc: EXT_meshopt_compression
+# (normal / higher ratio); -vp 16: 16-bit positions (gltfpack's default is 14 bits, coarser
+# than our grid on large tiles).
+MESHOPT = [("-c -vp 16", ["-c", "-vp", "16"]), ("-cc -vp 16", ["-cc", "-vp", "16"]), ("-cc", ["-cc"])]
+
+
+def find_gltfpack():
+    for c in (os.environ.get("GLTFPACK"), shutil.which("gltfpack"), "/tmp/gltfpack/node_modules/.bin/gltfpack"):
+        if c and os.path.isfile(c) and os.access(c, os.X_OK):
+            return c
+    return None
+
+
+COMPONENT = {5121: "u8", 5123: "u16", 5125: "u32", 5126: "float"}
+
+
+def glb_info(data):
+    """(POSITION count, its component type, index component type or "-") of a GLB."""
+    magic, _, _ = struct.unpack_from("<4sII", data, 0)
+    assert magic == b"glTF", "not a GLB"
+    jlen, jtype = struct.unpack_from("<I4s", data, 12)
+    assert jtype == b"JSON"
+    doc = json.loads(data[20:20 + jlen])
+    prim = doc["meshes"][0]["primitives"][0]
+    acc = doc["accessors"][prim["attributes"]["POSITION"]]
+    idx = COMPONENT.get(doc["accessors"][prim["indices"]]["componentType"], "?") if "indices" in prim else "-"
+    return acc["count"], COMPONENT.get(acc["componentType"], str(acc["componentType"])), idx
 
 
 def read_ply(path):
@@ -73,10 +112,22 @@ def main():
                     "--tile-size", args.tile_size, "--out", out], check=True, stdout=subprocess.DEVNULL)
     manifest = json.load(open(os.path.join(out, "tileset.json")))
     levels = manifest["levels"]
+    t3d = os.path.join(tmp, "3dtiles")
+    export_cmd = [EXE, "export", out, "--format", "3dtiles", "--out", t3d, "--quiet"]
+    export_msg = subprocess.run(export_cmd, check=True, capture_output=True, text=True).stdout.strip()
+    gltfpack = find_gltfpack()
     ours = {l["level"]: 0 for l in levels}
     anchor = dict(ours)
     anchor_xyz = dict(ours)
     items = dict(ours)
+    ours_gz = dict(ours)
+    glb = dict(ours)
+    glb_gz = dict(ours)
+    glb_verts = dict(ours)
+    glb_types = {l: set() for l in ours}
+    packed = {l: {label: 0 for label, _ in MESHOPT} for l in ours}
+    packed_gz = {l: {label: 0 for label, _ in MESHOPT} for l in ours}
+    packed_verts = {l: {label: 0 for label, _ in MESHOPT} for l in ours}
     for root, _, files in os.walk(os.path.join(out, "index")):
         for name in files:
             for node in json.load(open(os.path.join(root, name)))["nodes"]:
@@ -87,9 +138,26 @@ def main():
                     subprocess.run([EXE, "export", out, "--tile", f"{z}/{x}/{y}", "--level", str(level),
                                     "--format", "ply", "--out", ply], check=True, stdout=subprocess.DEVNULL)
                     verts, faces = read_ply(ply)
-                    ours[level] += os.path.getsize(os.path.join(out, "tiles", str(z), str(x), str(y),
-                                                                f"{level}.tsb"))
+                    blob = open(os.path.join(out, "tiles", str(z), str(x), str(y), f"{level}.tsb"), "rb").read()
+                    ours[level] += len(blob)
+                    ours_gz[level] += len(gzip.compress(blob, 9))
                     items[level] += len(verts)
+                    glb_path = os.path.join(t3d, "tiles", str(z), str(x), str(y), f"{level}.glb")
+                    data = open(glb_path, "rb").read()
+                    glb[level] += len(data)
+                    glb_gz[level] += len(gzip.compress(data, 9))
+                    count, ctype, itype = glb_info(data)
+                    glb_verts[level] += count
+                    glb_types[level].add(f"{ctype}/{itype}")
+                    if gltfpack:
+                        packed_path = os.path.join(tmp, "packed.glb")
+                        for label, flags in MESHOPT:
+                            subprocess.run([gltfpack, "-i", glb_path, "-o", packed_path] + flags, check=True,
+                                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                            p = open(packed_path, "rb").read()
+                            packed[level][label] += len(p)
+                            packed_verts[level][label] += glb_info(p)[0]
+                            packed_gz[level][label] += len(gzip.compress(p, 9))
                     if spec["kind"] == "mesh":
                         pos = np.stack([verts["x"], verts["y"], verts["z"]], axis=1).astype(np.float32)
                         b = node["bounds"]
@@ -122,6 +190,9 @@ def main():
                         buf = io.BytesIO()
                         las.write(buf, do_compress=True, laz_backend=laspy.LazBackend.Lazrs)
                         anchor[level] += len(buf.getvalue())
+    describe = subprocess.run(["git", "describe", "--always", "--dirty"], cwd=ROOT, capture_output=True,
+                              text=True).stdout.strip() or "?"
+    print(f"command: {' '.join(sys.argv)} ({describe})")
     print(f"fuji.png, 30 m cells, max error {args.max_error} m, tile size {args.tile_size}; "
           f"{sum(1 for _ in os.walk(os.path.join(out, 'tiles')))} dirs\n")
     print(f"{'level':>5} {'kind':>6} {'items':>9} | {'ours B':>9} {'B/item':>7} | {'anchor':>14} {'B':>9} "
@@ -134,6 +205,63 @@ def main():
               f"{name:>14} {anchor[l]:>9} {anchor[l] / items[l]:>7.2f} | {ours[l] / anchor[l]:>6.3f}{extra}")
     print("\nratio = terrastream / anchor (targets: mesh ≤ 0.5 of QM+gzip, points ≤ 1.0 of LAZ at the same precision,")
     print("normals included on both sides; 'LAZ xyz only' drops the normals our blobs carry)")
+
+    print(f"\n3D Tiles GLBs of the same (tile, level)s: `{' '.join(export_cmd[1:]).replace(tmp, '$TMP')}`")
+    print(f"  {export_msg.replace(tmp, '$TMP')}")
+    print("B/item = bytes / the blob's vertices (mesh) or points; gz = gzip -9 of each file; "
+          "anchor = QM-1.0+gzip (mesh), LAZ+normals (points)\n")
+    print(f"{'level':>5} {'kind':>6} {'items':>9} {'GLB verts':>9} {'pos/idx':>13} | {'blob':>6} {'blob gz':>7} "
+          f"{'anchor':>6} | {'GLB B':>9} {'B/item':>7} {'GLB gz B':>9} {'B/item':>7} | {'GLB/blob':>8} "
+          f"{'gz/blob':>7} {'gz/anchor':>9}")
+    tot = {k: 0 for k in ("glb", "gz", "blob", "blobgz")}
+    for spec in levels:
+        l = spec["level"]
+        n = items[l]
+        tot["glb"] += glb[l]; tot["gz"] += glb_gz[l]; tot["blob"] += ours[l]; tot["blobgz"] += ours_gz[l]
+        print(f"{l:>5} {spec['kind']:>6} {n:>9} {glb_verts[l]:>9} {','.join(sorted(glb_types[l])):>13} | "
+              f"{ours[l] / n:>6.2f} {ours_gz[l] / n:>7.2f} {anchor[l] / n:>6.2f} | {glb[l]:>9} {glb[l] / n:>7.2f} "
+              f"{glb_gz[l]:>9} {glb_gz[l] / n:>7.2f} | {glb[l] / ours[l]:>8.2f} {glb_gz[l] / ours[l]:>7.2f} "
+              f"{glb_gz[l] / anchor[l]:>9.2f}")
+    print(f"{'all':>5} {'':>6} {sum(items.values()):>9} {'':>9} {'':>13} | {'':>6} {'':>7} {'':>6} | "
+          f"{tot['glb']:>9} {'':>7} {tot['gz']:>9} {'':>7} | {tot['glb'] / tot['blob']:>8.2f} "
+          f"{tot['gz'] / tot['blob']:>7.2f}")
+    print(f"(blobs: {tot['blob']} B raw, {tot['blobgz']} B gzip -9 — gzip saves "
+          f"{100 * (1 - tot['blobgz'] / tot['blob']):.1f} % on them)")
+
+    if not gltfpack:
+        print("\nmeshopt: skipped, gltfpack not found (set $GLTFPACK, or "
+              "`npm install --prefix /tmp/gltfpack gltfpack`)")
+        return 0
+    version = subprocess.run([gltfpack, "-v"], capture_output=True, text=True).stdout.strip().splitlines()
+    print(f"\nEXT_meshopt_compression: `gltfpack -i GLB -o OUT FLAGS` ({version[0] if version else gltfpack}) "
+          "on every GLB above, B/item (+gz: gzip -9 of the packed file); gltfpack re-quantizes positions "
+          "(default 14 bits, -vp 16: 16), so these are size estimates, not exact re-encodings\n")
+    head = f"{'level':>5} {'kind':>6} | {'blob':>6} {'anchor':>6} {'GLB':>6} {'GLB gz':>6} |"
+    for label, _ in MESHOPT:
+        head += f" {label:>10} {'+gz':>6} |"
+    print(head + f" {'best/GLB gz':>11}")
+    ptot = {label: [0, 0] for label, _ in MESHOPT}
+    for spec in levels:
+        l = spec["level"]
+        n = items[l]
+        row = (f"{l:>5} {spec['kind']:>6} | {ours[l] / n:>6.2f} {anchor[l] / n:>6.2f} {glb[l] / n:>6.2f} "
+               f"{glb_gz[l] / n:>6.2f} |")
+        best = glb_gz[l]
+        for label, _ in MESHOPT:
+            row += f" {packed[l][label] / n:>10.2f} {packed_gz[l][label] / n:>6.2f} |"
+            ptot[label][0] += packed[l][label]
+            ptot[label][1] += packed_gz[l][label]
+            best = min(best, packed[l][label], packed_gz[l][label])
+        print(row + f" {best / glb_gz[l]:>11.2f}")
+    print("best/GLB gz = the smallest meshopt file (raw or gzipped, any flags) / the GLB gzipped")
+    print(f"all levels, bytes: blobs {tot['blob']}, GLB {tot['glb']}, GLB gz {tot['gz']}; "
+          + "; ".join(f"{label} {ptot[label][0]} (+gz {ptot[label][1]})" for label, _ in MESHOPT))
+    for spec in levels:
+        l = spec["level"]
+        for label, _ in MESHOPT:
+            if packed_verts[l][label] != glb_verts[l]:
+                print(f"note: level {l}, {label}: gltfpack's output has {packed_verts[l][label]} vertices "
+                      f"(the GLBs {glb_verts[l]})")
 
 
 if __name__ == "__main__":

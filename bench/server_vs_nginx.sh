@@ -10,15 +10,27 @@
 # both); each server gets a 5 s warm-up pass first. Prints requests/s and p99 of every run, the
 # mean requests/s and the median p99 of each server, and their ratios next to the targets.
 #
-# Usage: bench/server_vs_nginx.sh [SIZE=2049] [DURATION_S=30] [WRK_THREADS=2] [WORKERS=2] [ROUNDS=3]
+# GLB phase: the same tiles as 3D Tiles content, /tilesets/NAME/3dtiles/tiles/Z/X/Y/LEVEL.glb?v=…,
+# from the same server in the same run. A GLB is made from its blob on the first request and then
+# kept in the server's memory cache, so: (cold) one pass over every GLB URL on a freshly started
+# server, by one curl process with 50 transfers in parallel on keep-alive connections
+# (requests/s = URLs / wall time of the pass, p99 of curl's per-request time), 3 times (median);
+# the same curl pass again once they are cached (warm, same client: the client's own cost);
+# then wrk on the GLB URLs in every round next to the blob runs (warm). The served GLBs are
+# checked against `terrastream export --format 3dtiles` of the same tileset (all bytes counted,
+# every 7th file compared).
+#
+# Needs wrk, nginx (/usr/sbin/nginx), jq and curl >= 7.66 (-Z): apt-get install wrk nginx jq curl
+# Usage: bench/server_vs_nginx.sh [SIZE=2049] [DURATION_S=20] [WRK_THREADS=2] [WORKERS=2] [ROUNDS=3]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 size="${1:-2049}"
-duration="${2:-30}"
+duration="${2:-20}"
 wrk_threads="${3:-2}"
 workers="${4:-2}"
 rounds="${5:-3}"
 conns=50
+cold_passes=3
 port_ts=18081
 port_ng=18082
 bin=./target/release/terrastream
@@ -34,6 +46,8 @@ cleanup() {
 trap cleanup EXIT
 [ -n "${KEEP:-}" ] && trap - EXIT
 
+echo "load average before: $(cut -d' ' -f1-3 /proc/loadavg)"
+echo "command: $0 $size $duration $wrk_threads $workers $rounds ($(git describe --always --dirty 2>/dev/null || echo '?'))"
 echo "machine: $(nproc) cores, $(awk '/MemTotal/ {printf "%.0f GiB", $2/1048576}' /proc/meminfo); wrk -t$wrk_threads -c$conns -d${duration}s; server and nginx: $workers workers each"
 "$bin" synth --width "$size" --cell-size 10 --out "$tmp/synth.tif"
 mkdir -p "$tmp/store"
@@ -47,9 +61,15 @@ echo "tileset: ${size}x${size} samples, $blobs blobs, $bytes bytes (mean $((byte
 find "$tmp/store/bench/tiles" -name '*.tsb' -printf '%s\n' | sort -n \
     | awk '{a[NR]=$1} END {printf "blob sizes: min %d, median %d, max %d bytes\n", a[1], a[int((NR+1)/2)], a[NR]}'
 
-cat >"$tmp/mix.lua" <<EOF
+sed -E "s#^/tilesets/bench/tiles/(.*)\?v=#/tilesets/bench/3dtiles/tiles/\1.glb?v=#" "$tmp/urls.txt" >"$tmp/glb-urls.txt"
+"$bin" export "$tmp/store/bench" --format 3dtiles --out "$tmp/3dtiles" --quiet >/dev/null
+glb_bytes=$(find "$tmp/3dtiles/tiles" -name '*.glb' -printf '%s\n' | awk '{s+=$1} END {print s}')
+echo "GLBs (3D Tiles) of the same tiles: $(wc -l <"$tmp/glb-urls.txt") URLs, $glb_bytes bytes (mean $((glb_bytes / blobs)) B/GLB, $(awk -v a="$glb_bytes" -v b="$bytes" 'BEGIN {printf "%.2f", a / b}')x the blobs)"
+
+for list in urls glb-urls; do
+cat >"$tmp/$list.lua" <<EOF
 local urls = {}
-for line in io.lines("$tmp/urls.txt") do urls[#urls + 1] = line end
+for line in io.lines("$tmp/$list.txt") do urls[#urls + 1] = line end
 local i = 0
 function init(args)
     -- Threads start at different points of the list.
@@ -60,6 +80,7 @@ function request()
     return wrk.format("GET", urls[i])
 end
 EOF
+done
 
 # nginx started as root drops its workers to `nobody`: let them read the store.
 chmod -R a+rX "$tmp"
@@ -92,17 +113,65 @@ http {
 }
 EOF
 
-TOKIO_WORKER_THREADS=$workers "$bin" serve --store "$tmp/store" --bind "127.0.0.1:$port_ts" --gpu off \
-    --log warn >"$tmp/serve.log" 2>&1 &
-pids+=($!)
-/usr/sbin/nginx -c "$tmp/nginx.conf" -p "$tmp" >"$tmp/nginx.out" 2>&1 &
-pids+=($!)
-for port in $port_ts $port_ng; do
+wait_up() { # PORT
     for _ in $(seq 100); do
-        curl -fs -o /dev/null "http://127.0.0.1:$port$(head -1 "$tmp/urls.txt")" && break
+        curl -fs -o /dev/null "http://127.0.0.1:$1$(head -1 "$tmp/urls.txt")" && return 0
         sleep 0.1
     done
+    echo "nothing answers on port $1" >&2; exit 1
+}
+start_ts() {
+    TOKIO_WORKER_THREADS=$workers "$bin" serve --store "$tmp/store" --bind "127.0.0.1:$port_ts" --gpu off \
+        --log warn >>"$tmp/serve.log" 2>&1 &
+    ts_pid=$!
+    pids+=($ts_pid)
+    wait_up $port_ts
+}
+start_ts
+/usr/sbin/nginx -c "$tmp/nginx.conf" -p "$tmp" >"$tmp/nginx.out" 2>&1 &
+pids+=($!)
+wait_up $port_ng
+
+# GLB, cold: the first request of every GLB (made from its blob on the fly), one curl process
+# with $conns transfers in parallel on keep-alive connections.
+curl_pass() { # NAME → prints "req/s p99_ms wall_s"; keeps per-request "code seconds bytes" in $tmp/NAME.curl
+    awk -v base="http://127.0.0.1:$port_ts" '{printf "url = \"%s%s\"\noutput = \"/dev/null\"\n", base, $0}' \
+        "$tmp/glb-urls.txt" >"$tmp/curl.cfg"
+    local t0 t1 n bad
+    t0=$(date +%s.%N)
+    curl -s --no-progress-meter -Z --parallel-immediate --parallel-max $conns -K "$tmp/curl.cfg" \
+        -w '%{http_code} %{time_total} %{size_download}\n' >"$tmp/$1.curl" 2>"$tmp/$1.err"
+    t1=$(date +%s.%N)
+    n=$(wc -l <"$tmp/$1.curl")
+    bad=$(awk '$1 != 200' "$tmp/$1.curl" | wc -l)
+    ((n == $(wc -l <"$tmp/glb-urls.txt") && bad == 0)) || { echo "$1: $n responses, $bad not 200" >&2; exit 1; }
+    sort -k2 -g "$tmp/$1.curl" | awk -v t0="$t0" -v t1="$t1" \
+        '{t[NR] = $2} END {i = int(NR * 0.99 + 0.999); printf "%.0f %.2f %.3f\n", NR / (t1 - t0), t[i] * 1000, t1 - t0}'
+}
+# $cold_passes cold passes, each on a freshly started server (nothing of the tileset in its
+# memory: every GLB request reads, verifies and decodes its blob, then makes the GLB), then one
+# warm pass with the same client. Cold figures: median requests/s and median p99 of the passes.
+echo "GLB passes over all $(wc -l <"$tmp/glb-urls.txt") URLs (curl -Z --parallel-max $conns, keep-alive):"
+for ((i = 1; i <= cold_passes; i++)); do
+    if ((i > 1)); then kill "$ts_pid"; wait "$ts_pid" 2>/dev/null || true; start_ts; fi
+    curl_pass glb-cold >"$tmp/cold.txt"
+    read -r rps p99 wall <"$tmp/cold.txt"
+    echo "$rps $p99" >>"$tmp/cold.sum"
+    glb_served=$(awk '{s += $3} END {print s}' "$tmp/glb-cold.curl")
+    [ "$glb_served" = "$glb_bytes" ] || { echo "served $glb_served GLB bytes, export wrote $glb_bytes" >&2; exit 1; }
+    printf '  cold %d (fresh server)      %8d req/s   p99 %7.2f ms   (%.3f s, %d bytes)\n' "$i" "$rps" "$p99" "$wall" "$glb_served"
 done
+curl_pass glb-warm-curl >"$tmp/warm-curl.txt"
+read -r cw_rps cw_p99 cw_wall <"$tmp/warm-curl.txt"
+printf '  warm (cached), same client  %8d req/s   p99 %7.2f ms   (%.3f s)\n' "$cw_rps" "$cw_p99" "$cw_wall"
+read -r cold_rps cold_p99 < <(sort -n "$tmp/cold.sum" | awk '{r[NR] = $1} END {printf "%d ", r[int((NR + 1) / 2)]}'; \
+    sort -k2 -g "$tmp/cold.sum" | awk '{p[NR] = $2} END {print p[int((NR + 1) / 2)]}')
+while read -r u; do
+    f="${u%%\?*}"; f="$tmp/3dtiles/tiles/${f#/tilesets/bench/3dtiles/tiles/}"
+    curl -fs "http://127.0.0.1:$port_ts$u" -o "$tmp/a"
+    cmp -s "$tmp/a" "$f" || { echo "GLB $u differs from the export's $f" >&2; exit 1; }
+done < <(awk 'NR % 7 == 1' "$tmp/glb-urls.txt")
+echo "checked: the server's GLBs total the export's bytes, and are its bytes for every 7th URL"
 
 # Both serve the very same bytes.
 while read -r u; do
@@ -112,35 +181,47 @@ while read -r u; do
 done < <(awk 'NR % 7 == 1' "$tmp/urls.txt")
 echo "checked: both servers send identical bytes for every 7th URL"
 
-run() { # NAME PORT
-    wrk -t"$wrk_threads" -c$conns -d"${duration}s" --latency -s "$tmp/mix.lua" "http://127.0.0.1:$2" >"$tmp/$1.txt"
-    local rps p99 bad errs
+run() { # NAME PORT [URL LIST]
+    wrk -t"$wrk_threads" -c$conns -d"${duration}s" --latency -s "$tmp/${3:-urls}.lua" "http://127.0.0.1:$2" >"$tmp/$1.txt"
+    local rps p99 bad errs xfer
     rps=$(awk '/^Requests\/sec:/ {print $2}' "$tmp/$1.txt")
+    xfer=$(awk '/^Transfer\/sec:/ {print $2}' "$tmp/$1.txt")
     p99=$(awk '$1 == "99%" {print $2}' "$tmp/$1.txt")
     bad=$(awk '/Non-2xx or 3xx responses:/ {print $NF}' "$tmp/$1.txt")
     errs=$(awk '/Socket errors:/ {sub(/.*Socket errors: /, ""); print}' "$tmp/$1.txt")
-    printf '  %-12s %12s req/s   p99 %9s   non-2xx: %s   socket errors: %s\n' "$1" "$rps" "$p99" "${bad:-0}" "${errs:-none}"
+    printf '  %-16s %12s req/s   p99 %9s   %9s/s   non-2xx: %s   socket errors: %s\n' "$1" "$rps" "$p99" "$xfer" "${bad:-0}" "${errs:-none}"
     echo "$rps $(to_ms "$p99")" >>"$tmp/$1.sum"
 }
 to_ms() { # wrk latency (e.g. 812.00us, 3.21ms, 1.02s) → ms
     awk -v v="$1" 'BEGIN { n = v + 0; if (v ~ /us$/) n /= 1000; else if (v ~ /ms$/) n *= 1; else if (v ~ /s$/) n *= 1000; print n }'
 }
 for port in $port_ng $port_ts; do
-    wrk -t"$wrk_threads" -c$conns -d5s -s "$tmp/mix.lua" "http://127.0.0.1:$port" >/dev/null
+    wrk -t"$wrk_threads" -c$conns -d5s -s "$tmp/urls.lua" "http://127.0.0.1:$port" >/dev/null
 done
+wrk -t"$wrk_threads" -c$conns -d5s -s "$tmp/glb-urls.lua" "http://127.0.0.1:$port_ts" >/dev/null
 for ((r = 1; r <= rounds; r++)); do
     echo "round $r:"
-    if ((r % 2)); then run nginx $port_ng; run terrastream $port_ts; else run terrastream $port_ts; run nginx $port_ng; fi
+    if ((r % 2)); then
+        run nginx $port_ng; run terrastream $port_ts; run terrastream-glb $port_ts glb-urls
+    else
+        run terrastream-glb $port_ts glb-urls; run terrastream $port_ts; run nginx $port_ng
+    fi
 done
 summary() { # FILE → "mean_rps median_p99_ms"
     sort -k2 -n "$1" | awk '{rps += $1; p[NR] = $2} END {printf "%.0f %.2f\n", rps / NR, (NR % 2) ? p[(NR + 1) / 2] : (p[NR / 2] + p[NR / 2 + 1]) / 2}'
 }
 read -r ng_rps ng_p99 < <(summary "$tmp/nginx.sum")
 read -r ts_rps ts_p99 < <(summary "$tmp/terrastream.sum")
+read -r glb_rps glb_p99 < <(summary "$tmp/terrastream-glb.sum")
 echo "over $rounds rounds of ${duration} s (mean requests/s, median p99):"
-printf '  nginx        %8d req/s   p99 %7.2f ms\n' "$ng_rps" "$ng_p99"
-printf '  terrastream  %8d req/s   p99 %7.2f ms\n' "$ts_rps" "$ts_p99"
-awk -v a="$ts_rps" -v b="$ng_rps" -v c="$ts_p99" -v d="$ng_p99" 'BEGIN {
+printf '  nginx, blobs             %8d req/s   p99 %7.2f ms\n' "$ng_rps" "$ng_p99"
+printf '  terrastream, blobs       %8d req/s   p99 %7.2f ms\n' "$ts_rps" "$ts_p99"
+printf '  terrastream, GLB (warm)  %8d req/s   p99 %7.2f ms\n' "$glb_rps" "$glb_p99"
+printf '  terrastream, GLB (cold)  %8d req/s   p99 %7.2f ms   (median of %d curl passes on a fresh server; warm, same client: %d req/s, p99 %.2f ms)\n' "$cold_rps" "$cold_p99" "$cold_passes" "$cw_rps" "$cw_p99"
+awk -v a="$ts_rps" -v b="$ng_rps" -v c="$ts_p99" -v d="$ng_p99" -v g="$glb_rps" -v h="$glb_p99" 'BEGIN {
     printf "requests/s: terrastream / nginx = %.2f   (target >= 0.80)\n", a / b
     printf "p99:        terrastream / nginx = %.2f   (target <= 1.50)\n", c / d
+    printf "requests/s: GLB (warm) / blobs  = %.2f\n", g / a
+    printf "p99:        GLB (warm) / blobs  = %.2f\n", h / c
 }'
+echo "load average after: $(cut -d' ' -f1-3 /proc/loadavg)"
