@@ -72,7 +72,8 @@ fn json_entry(v: &serde_json::Value) -> Entry {
 }
 
 /// `GET /tilesets/{name}/3dtiles/tileset.json`: the root tileset (index chunk 0/0/0, the
-/// root `transform` at the anchor). Short-lived like the manifest: it names the content version.
+/// root `transform` at the anchor). Short-lived like the manifest: it names the content version
+/// (`no-cache` while an on-demand tileset is baking: it changes as nodes bake).
 pub(super) async fn root(
     State(app): State<Arc<App>>,
     path: Result<Path<String>, Rejection>,
@@ -82,9 +83,9 @@ pub(super) async fn root(
     let Path(name) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
     let ts = tileset(&app, &name)?;
     let info = info(&ts, true).await?;
-    let (c, _) = chunk(&app, &ts, TileKey::new(0, 0, 0)).await?;
+    let (c, growing) = chunk(&app, &ts, TileKey::new(0, 0, 0)).await?;
     let entry = json_entry(&chunk_tileset(&info, &c, true));
-    Ok(send(&method, &headers, &entry, "application/json", SHORT))
+    Ok(send(&method, &headers, &entry, "application/json", if growing { NO_CACHE } else { SHORT }))
 }
 
 type ChunkPath = (String, String, String, String);
