@@ -547,6 +547,17 @@ fn cli_anchor_and_export_3dtiles() {
     let e =
         fails(bin().arg("export").arg(&dir).args(["--format", "obj", "--out"]).arg(tmp.path().join("x.obj")));
     assert!(e.contains("--tile"), "{e}");
+    // A placement record that is not JSON, or out of range: refused naming the file.
+    for (bad, want) in
+        [("{\"anchor\": {\"lon\": 500, \"lat\": 0}}", "longitude 500"), ("not json", "invalid JSON")]
+    {
+        std::fs::write(dir.join("placement.json"), bad).unwrap();
+        let e = fails(
+            bin().arg("export").arg(&dir).args(["--format", "3dtiles", "--out"]).arg(tmp.path().join("z")),
+        );
+        assert!(e.contains("placement.json") && e.contains(want), "{e}");
+        assert!(!tmp.path().join("z").exists());
+    }
     // Not a tileset at all.
     let e = fails(
         bin().arg("export").arg(tmp.path()).args(["--format", "3dtiles", "--out"]).arg(tmp.path().join("y")),
