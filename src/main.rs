@@ -37,7 +37,11 @@ fn main() -> std::process::ExitCode {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {}", cli::error_chain(&e));
-            std::process::ExitCode::FAILURE
+            if e.downcast_ref::<cli::plan::InputRefused>().is_some() {
+                std::process::ExitCode::from(cli::plan::INPUT_REFUSED_EXIT)
+            } else {
+                std::process::ExitCode::FAILURE
+            }
         }
     }
 }

@@ -4,9 +4,11 @@
 //!   in parallel, resumable, the manifest last (`terrain`);
 //! - [`bake_node`] bakes one node of a raster into an existing tileset directory, the same
 //!   bytes [`bake_terrain`] writes for it: the server's on-demand tiles (`node`);
+//! - [`shard`] splits a terrain bake over many processes or machines (same bytes);
 //! - [`model::bake_model`] bakes one OBJ, STL or PLY model into a single-tile model tileset.
 
 mod node;
+pub mod shard;
 mod terrain;
 
 pub mod model;

@@ -72,6 +72,12 @@ pub enum BakeError {
     /// The GPU path's worker thread ended before it returned every round (it panicked).
     #[error("bake: the gpu worker stopped")]
     GpuWorkerStopped,
+    /// A sharded bake's plan or shard results are missing, damaged or do not match.
+    #[error("bake: {0}")]
+    Plan(String),
+    /// The final step of a sharded bake ran before every shard finished (it can run again later).
+    #[error("bake: {0}")]
+    ShardsUnfinished(String),
     #[error("bake: {0}")]
     Tiling(#[from] crate::tiling::TilingError),
     #[error("bake: tile {key}: {source}")]
@@ -287,34 +293,98 @@ pub fn bake_input(
     let pyramid = Pyramid::new(width, height, opts.tile_size)?;
     let options_json = options_record_of(input, source_name, opts);
     store.begin_bake(&options_json)?;
-
-    // Larger nodes first: parents measure against more full-resolution samples, so starting them
-    // early keeps both cores busy until the end.
     let nodes = pyramid.nodes();
+    let baked = bake_nodes(input, opts, baker, &pyramid, &nodes, store, progress)?;
+    let totals = publish(input, source_name, opts, &baker.describe(), &baked.entries, options_json, store)?;
+    Ok(baked.summary(input, totals, t0, baker.describe()))
+}
+
+/// What [`bake_nodes`] returns: the nodes' index entries (in the order asked), how many were
+/// resumed from blobs, and the GPU path's figures.
+pub(crate) struct NodesBaked {
+    pub entries: Vec<NodeEntry>,
+    pub resumed: u64,
+    /// [batches, peak batch bytes, budget bytes, levels left to the CPU] of the GPU path.
+    pub gpu_report: Option<[u64; 4]>,
+}
+
+impl NodesBaked {
+    pub(crate) fn summary(
+        &self,
+        input: &TerrainInput<'_>,
+        totals: Vec<LevelTotals>,
+        t0: Instant,
+        point_baker: String,
+    ) -> BakeSummary {
+        let (width, height) = input.reader.size();
+        let g = self.gpu_report;
+        BakeSummary {
+            nodes: self.entries.len() as u64,
+            nodes_resumed: self.resumed,
+            samples: u64::from(width) * u64::from(height),
+            nodata_filled: input.nodata_filled,
+            totals,
+            seconds: t0.elapsed().as_secs_f64(),
+            point_baker,
+            gpu_batches: g.map_or(0, |r| r[0]),
+            gpu_peak_batch_bytes: g.map_or(0, |r| r[1]),
+            gpu_budget_bytes: g.map_or(0, |r| r[2]),
+            gpu_cpu_fallback_levels: g.map_or(0, |r| r[3]),
+        }
+    }
+}
+
+/// Bakes `nodes` (of `pyramid`) into `store`, resuming those whose blobs are whole; the store
+/// was prepared by [`Store::begin_bake`] with this input's options record. Entries come back in
+/// the order of `nodes`.
+pub(crate) fn bake_nodes(
+    input: &TerrainInput<'_>,
+    opts: &BakeOptions,
+    baker: &PointBaker,
+    pyramid: &Pyramid,
+    nodes: &[TileKey],
+    store: &Store,
+    progress: &dyn Progress,
+) -> Result<NodesBaked, BakeError> {
+    // Larger nodes first (`nodes` comes root first): parents measure against more
+    // full-resolution samples, so starting them early keeps both cores busy until the end.
     let resumed: Vec<Option<NodeEntry>> =
         nodes.par_iter().map(|&k| node_from_blobs(store, k, opts.levels)).collect();
     let resumed_count = resumed.iter().filter(|r| r.is_some()).count() as u64;
     progress.start(nodes.len() as u64, resumed_count);
-    // [batches, peak batch bytes, budget bytes, levels left to the CPU] of the GPU path.
     #[allow(unused_mut)]
     let mut gpu_report: Option<[u64; 4]> = None;
     let entries: Vec<NodeEntry> = match baker {
-        PointBaker::Cpu => bake_nodes_cpu(&pyramid, input, opts, &nodes, resumed, store, progress)?,
+        PointBaker::Cpu => bake_nodes_cpu(pyramid, input, opts, nodes, resumed, store, progress)?,
         #[cfg(feature = "gpu")]
         PointBaker::Gpu(gpu) => {
             let (entries, report) =
-                bake_nodes_gpu(gpu, &pyramid, input, opts, &nodes, resumed, store, progress)?;
+                bake_nodes_gpu(gpu, pyramid, input, opts, nodes, resumed, store, progress)?;
             gpu_report =
                 Some([report.batches, report.peak_batch_bytes, report.budget_bytes, report.cpu_jobs]);
             entries
         }
     };
+    Ok(NodesBaked { entries, resumed: resumed_count, gpu_report })
+}
 
-    // Index chunks, then the manifest last.
+/// Writes the index chunks of `entries` (every node of the pyramid, in [`Pyramid::nodes`]
+/// order), then the manifest, last. Returns the per-level totals.
+pub(crate) fn publish(
+    input: &TerrainInput<'_>,
+    source_name: &str,
+    opts: &BakeOptions,
+    point_baker: &str,
+    entries: &[NodeEntry],
+    options_json: serde_json::Value,
+    store: &Store,
+) -> Result<Vec<LevelTotals>, BakeError> {
+    let (width, height) = input.reader.size();
+    let pyramid = Pyramid::new(width, height, opts.tile_size)?;
     let mut chunks: std::collections::BTreeMap<TileKey, Vec<NodeEntry>> = std::collections::BTreeMap::new();
     let mut totals = vec![LevelTotals::default(); usize::from(opts.levels) + 1];
     let mut bounds = Bounds::empty();
-    for e in &entries {
+    for e in entries {
         for l in &e.levels {
             if let Some(t) = totals.get_mut(usize::from(l.level)) {
                 t.add(l);
@@ -346,22 +416,10 @@ pub fn bake_input(
         levels: level_specs(opts),
         totals: totals.clone(),
         options: options_json,
-        point_baker: baker.describe(),
+        point_baker: point_baker.to_owned(),
     };
     store.finish_bake(&manifest)?;
-    Ok(BakeSummary {
-        nodes: nodes.len() as u64,
-        nodes_resumed: resumed_count,
-        samples: u64::from(width) * u64::from(height),
-        nodata_filled: input.nodata_filled,
-        totals,
-        seconds: t0.elapsed().as_secs_f64(),
-        point_baker: baker.describe(),
-        gpu_batches: gpu_report.map_or(0, |r| r[0]),
-        gpu_peak_batch_bytes: gpu_report.map_or(0, |r| r[1]),
-        gpu_budget_bytes: gpu_report.map_or(0, |r| r[2]),
-        gpu_cpu_fallback_levels: gpu_report.map_or(0, |r| r[3]),
-    })
+    Ok(totals)
 }
 
 /// The CPU path: every node on its own, in parallel.

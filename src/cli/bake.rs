@@ -13,6 +13,8 @@ use terrastream::tiles3d::Anchor;
 use terrastream::tiling;
 
 use super::parse_pair;
+use serde::{Deserialize, Serialize};
+
 use super::progress::{Bar, peak_rss_mib};
 
 #[derive(clap::Args)]
@@ -20,11 +22,48 @@ pub struct BakeArgs {
     /// Input rasters forming one dataset: files (OpenEXR, 16-bit PNG, terrain-RGB/Terrarium PNG,
     /// GeoTIFF/COG/BigTIFF, SRTM .hgt), directories (their raster files, sorted by name) or
     /// patterns like 'tiles/*.tif'. Several files are placed on one grid by their georeference.
-    #[arg(required = true, num_args = 1..)]
+    #[arg(required_unless_present = "plan", conflicts_with = "plan", num_args = 1..)]
     pub inputs: Vec<PathBuf>,
     /// Output tileset directory (created; must be empty or an earlier bake of the same input).
-    #[arg(long)]
-    pub out: PathBuf,
+    #[arg(long, required_unless_present = "plan", conflicts_with = "plan")]
+    pub out: Option<PathBuf>,
+    #[command(flatten)]
+    pub input: InputArgs,
+    /// Bake one shard of a sharded bake (`terrastream plan`): the tileset the plan was written
+    /// to (its --out), or its shards/plan.json. The inputs and options are the plan's.
+    #[arg(long, value_name = "TILESET")]
+    pub plan: Option<PathBuf>,
+    /// The shard to bake, 0 to N-1. Default: the array index of the engine running this process:
+    /// JOB_COMPLETION_INDEX (Kubernetes Indexed Job), AWS_BATCH_JOB_ARRAY_INDEX (AWS Batch array
+    /// job), SLURM_ARRAY_TASK_ID (Slurm job array, --array=0-(N-1)).
+    #[arg(long, requires = "plan", conflicts_with = "finish")]
+    pub shard: Option<u32>,
+    /// The final step of a sharded bake: once every shard has finished, bake the tiles above the
+    /// shards, write the index and the manifest, remove the plan.
+    #[arg(long, requires = "plan")]
+    pub finish: bool,
+    #[command(flatten)]
+    pub baker: super::BakerArgs,
+    /// Stop the bake after this many seconds (between tiles; what is baked is kept and a re-run
+    /// resumes it). Default: no limit.
+    #[arg(long, value_name = "SECONDS", value_parser = parse_time_limit)]
+    pub time_limit: Option<f64>,
+    /// Where the tileset sits on the globe in 3D Tiles, as LON,LAT[,HEIGHT] (WGS84 degrees,
+    /// ellipsoidal metres): the centre of the data, at height 0, is placed there. Geographic
+    /// sources know it (the centre of their data); other sources without it are placed at
+    /// 0°, 0°, 0 m and their 3D Tiles say so. Recorded in DIR/placement.json (no re-bake needed
+    /// to change it).
+    #[arg(long, value_parser = parse_anchor, allow_hyphen_values = true)]
+    pub anchor: Option<Anchor>,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+/// How the inputs are read and baked: the flags `bake` and `plan` share, recorded in a plan so
+/// that its shards read the inputs alike.
+#[derive(clap::Args, Clone, Serialize, Deserialize)]
+pub struct InputArgs {
     /// Leaf tile size in raster cells.
     #[arg(long, default_value_t = tiling::DEFAULT_TILE_SIZE)]
     pub tile_size: u32,
@@ -69,22 +108,88 @@ pub struct BakeArgs {
     /// Refuse files decoded whole (PNG, OpenEXR) whose heights exceed this many bytes.
     #[arg(long, default_value_t = raster::DEFAULT_MAX_BYTES)]
     pub max_bytes: u64,
-    #[command(flatten)]
-    pub baker: super::BakerArgs,
-    /// Stop the bake after this many seconds (between tiles; what is baked is kept and a re-run
-    /// resumes it). Default: no limit.
-    #[arg(long, value_name = "SECONDS", value_parser = parse_time_limit)]
-    pub time_limit: Option<f64>,
-    /// Where the tileset sits on the globe in 3D Tiles, as LON,LAT[,HEIGHT] (WGS84 degrees,
-    /// ellipsoidal metres): the centre of the data, at height 0, is placed there. Geographic
-    /// sources know it (the centre of their data); other sources without it are placed at
-    /// 0°, 0°, 0 m and their 3D Tiles say so. Recorded in DIR/placement.json (no re-bake needed
-    /// to change it).
-    #[arg(long, value_parser = parse_anchor, allow_hyphen_values = true)]
-    pub anchor: Option<Anchor>,
-    /// No progress bar.
-    #[arg(long, short)]
-    pub quiet: bool,
+}
+
+/// What a plan records of its inputs: the files (expanded, absolute) and how they are read.
+#[derive(Serialize, Deserialize)]
+pub struct PlanInputs {
+    pub files: Vec<PathBuf>,
+    pub read: InputArgs,
+}
+
+/// An opened dataset and what a bake names it.
+pub struct Opened {
+    pub dataset: Dataset,
+    pub name: String,
+    pub files: Vec<PathBuf>,
+}
+
+impl InputArgs {
+    pub fn bake_options(&self) -> BakeOptions {
+        BakeOptions { tile_size: self.tile_size, max_error: self.max_error, levels: self.levels }
+    }
+
+    fn dataset_options(&self) -> DatasetOptions {
+        let load = LoadOptions {
+            encoding: self.encoding,
+            channel: self.channel.clone(),
+            limits: Limits { max_side: self.max_side, max_bytes: self.max_bytes },
+            overrides: Overrides {
+                cell_size: self.cell_size,
+                origin: self.origin,
+                z_scale: self.z_scale,
+                z_offset: self.z_offset,
+            },
+        };
+        DatasetOptions {
+            load,
+            cache_bytes: self.cache_mib.saturating_mul(1 << 20),
+            max_distortion: self.max_distortion / 100.0,
+            scratch: self.scratch_dir.clone(),
+        }
+    }
+
+    /// Opens `files` (already expanded) as one dataset with a progress bar for the scan, and
+    /// prints its summary unless `quiet`.
+    pub fn open(&self, files: Vec<PathBuf>, quiet: bool) -> Result<Opened> {
+        bake::check_options(&self.bake_options())?;
+        let ds_opts = self.dataset_options();
+        let scan_bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(0) };
+        scan_bar.set_style(
+            ProgressStyle::with_template("{msg:>16} {bar:40} {human_pos}/{human_len}  ETA {eta}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        let dataset = Dataset::open(&files, &ds_opts, &|what, done, total| {
+            scan_bar.set_message(what.to_owned());
+            scan_bar.set_length(total);
+            scan_bar.set_position(done);
+        });
+        scan_bar.finish_and_clear();
+        let dataset = dataset?;
+        let file_name = |p: &std::path::Path| {
+            p.file_name().map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into())
+        };
+        let name = match files.as_slice() {
+            [one] => file_name(one),
+            [first, rest @ ..] => format!("{} + {} more files", file_name(first), rest.len()),
+            [] => String::new(),
+        };
+        if !quiet {
+            eprintln!("{}", describe(&dataset, &ds_opts));
+        }
+        Ok(Opened { dataset, name, files })
+    }
+}
+
+/// The tiles progress bar of a bake (with `--time-limit`).
+pub fn tiles_bar(quiet: bool, time_limit: Option<f64>) -> Bar {
+    let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(0) };
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} tiles  {per_sec}  ETA {eta}  {elapsed}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.enable_steady_tick(Duration::from_millis(200));
+    Bar(bar, time_limit.map(|s| (Instant::now(), Duration::from_secs_f64(s))))
 }
 
 pub fn parse_anchor(s: &str) -> Result<Anchor, String> {
@@ -102,69 +207,27 @@ fn parse_time_limit(s: &str) -> Result<f64, String> {
 
 pub fn run(a: &BakeArgs) -> Result<()> {
     a.baker.set_threads()?;
-    let opts = BakeOptions { tile_size: a.tile_size, max_error: a.max_error, levels: a.levels };
-    bake::check_options(&opts)?;
-    let load = LoadOptions {
-        encoding: a.encoding,
-        channel: a.channel.clone(),
-        limits: Limits { max_side: a.max_side, max_bytes: a.max_bytes },
-        overrides: Overrides {
-            cell_size: a.cell_size,
-            origin: a.origin,
-            z_scale: a.z_scale,
-            z_offset: a.z_offset,
-        },
-    };
-    let files = raster::dataset::expand_inputs(&a.inputs)?;
-    let ds_opts = DatasetOptions {
-        load,
-        cache_bytes: a.cache_mib.saturating_mul(1 << 20),
-        max_distortion: a.max_distortion / 100.0,
-        scratch: a.scratch_dir.clone(),
-    };
-    let scan_bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(0) };
-    scan_bar.set_style(
-        ProgressStyle::with_template("{msg:>16} {bar:40} {human_pos}/{human_len}  ETA {eta}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    let dataset = Dataset::open(&files, &ds_opts, &|what, done, total| {
-        scan_bar.set_message(what.to_owned());
-        scan_bar.set_length(total);
-        scan_bar.set_position(done);
-    });
-    scan_bar.finish_and_clear();
-    let dataset = dataset?;
-    let file_name = |p: &std::path::Path| {
-        p.file_name().map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into())
-    };
-    let name = match files.as_slice() {
-        [one] => file_name(one),
-        [first, rest @ ..] => format!("{} + {} more files", file_name(first), rest.len()),
-        [] => String::new(),
-    };
-    if !a.quiet {
-        eprintln!("{}", describe(&dataset, &ds_opts));
+    if let Some(plan) = &a.plan {
+        return super::plan::run_step(a, plan);
     }
-    let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(0) };
-    bar.set_style(
-        ProgressStyle::with_template("{bar:40} {pos}/{len} tiles  {per_sec}  ETA {eta}  {elapsed}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    bar.enable_steady_tick(Duration::from_millis(200));
-    let progress = Bar(bar, a.time_limit.map(|s| (Instant::now(), Duration::from_secs_f64(s))));
+    let Some(out) = &a.out else { anyhow::bail!("bake: --out is required") };
+    let files = raster::dataset::expand_inputs(&a.inputs)?;
+    let opened = a.input.open(files, a.quiet)?;
+    let progress = tiles_bar(a.quiet, a.time_limit);
     let baker = a.baker.open()?;
-    let input = bake::TerrainInput::of_dataset(&dataset);
-    let summary = bake::bake_input(&input, &name, &opts, &baker, &Store::new(&a.out), &progress);
+    let input = bake::TerrainInput::of_dataset(&opened.dataset);
+    let opts = a.input.bake_options();
+    let summary = bake::bake_input(&input, &opened.name, &opts, &baker, &Store::new(out), &progress);
     let summary = summary.inspect_err(|_| progress.0.finish_and_clear())?;
     progress.0.finish_and_clear();
     if let Some(anchor) = a.anchor {
-        terrastream::store::export::write_anchor(&Store::new(&a.out), anchor)?;
+        terrastream::store::export::write_anchor(&Store::new(out), anchor)?;
     }
-    print_summary(&summary, &a.out);
+    print_summary(&summary, out);
     Ok(())
 }
 
-fn print_summary(s: &BakeSummary, out: &std::path::Path) {
+pub fn print_summary(s: &BakeSummary, out: &std::path::Path) {
     outln!("{}", bake::BakeReport { summary: s, out, peak_rss_mib: peak_rss_mib() });
 }
 

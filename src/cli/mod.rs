@@ -11,6 +11,7 @@ pub mod demo;
 pub mod eval;
 pub mod export;
 pub mod inspect;
+pub mod plan;
 mod progress;
 #[cfg(feature = "server")]
 pub mod serve;
@@ -33,8 +34,12 @@ pub struct Cli {
 
 #[derive(Subcommand)]
 pub enum Command {
-    /// Bake a heightfield raster into a tileset directory (resumes an interrupted bake).
+    /// Bake a heightfield raster into a tileset directory (resumes an interrupted bake), or one
+    /// step of a sharded bake (--plan).
     Bake(bake::BakeArgs),
+    /// Plan a sharded bake: split a dataset into shards (subtrees of the quadtree) baked by
+    /// `bake --plan OUT --shard I` on any number of workers, then `bake --plan OUT --finish`.
+    Plan(plan::PlanArgs),
     /// Bake a standalone 3D model (OBJ, STL, PLY) into a model tileset: the quantized mesh as
     /// level 0 and point-cloud levels 1..K baked by 6-direction slicing.
     BakeModel(bake_model::BakeModelArgs),
@@ -102,6 +107,7 @@ impl BakerArgs {
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Bake(a) => bake::run(&a),
+        Command::Plan(a) => plan::run(&a),
         Command::BakeModel(a) => bake_model::run(&a),
         Command::Inspect(a) => inspect::run(&a),
         Command::Synth(a) => synth::run(&a),

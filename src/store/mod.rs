@@ -454,12 +454,88 @@ impl Store {
         }
     }
 
+    /// A file of the tileset by its path relative to the tileset (`shards/plan.json`), written
+    /// atomically.
+    pub fn write_file(&self, rel: &str, bytes: &[u8]) -> Result<(), StoreError> {
+        write_atomic(&self.dir.join(rel), bytes)
+    }
+
+    /// A file of the tileset by its relative path; `Ok(None)` when it does not exist.
+    pub fn read_file(&self, rel: &str) -> Result<Option<Vec<u8>>, StoreError> {
+        let path = self.dir.join(rel);
+        match fs::read(&path) {
+            Ok(b) => Ok(Some(b)),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(e) => Err(io(&path)(e)),
+        }
+    }
+
+    /// Removes a folder of the tileset (relative path) and everything in it; nothing when absent.
+    pub fn remove_folder(&self, rel: &str) -> Result<(), StoreError> {
+        let path = self.dir.join(rel);
+        match fs::remove_dir_all(&path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(io(&path)(e)),
+            _ => Ok(()),
+        }
+    }
+
+    /// Where a relative path of the tileset is, for messages.
+    #[must_use]
+    pub fn describe(&self, rel: &str) -> String {
+        self.dir.join(rel).display().to_string()
+    }
+
+    /// [`Store::remove_stale_temps`] in the folders of `keys`' blobs only: what a shard of a
+    /// sharded bake cleans on resume (the tileset's other folders belong to other shards, whose
+    /// writers may run on other machines where this one's process table says nothing).
+    pub fn remove_stale_temps_of(&self, keys: &[TileKey]) -> Result<u64, StoreError> {
+        let mut removed = 0u64;
+        for key in keys {
+            let dir = self.dir.join(format!("tiles/{}/{}/{}", key.z, key.x, key.y));
+            let entries = match fs::read_dir(&dir) {
+                Ok(e) => e,
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+                Err(e) => return Err(io(&dir)(e)),
+            };
+            for entry in entries {
+                let entry = entry.map_err(io(&dir))?;
+                let name = entry.file_name();
+                if entry.file_type().map_err(io(&entry.path()))?.is_file()
+                    && stale_temp(&name.to_string_lossy())
+                {
+                    fs::remove_file(entry.path()).map_err(io(&entry.path()))?;
+                    removed += 1;
+                }
+            }
+        }
+        Ok(removed)
+    }
+
+    /// Checks that the tileset was begun ([`Store::begin_bake`]) with `options`, without
+    /// touching it: what a shard checks before it writes.
+    pub fn check_bake(&self, options: &serde_json::Value) -> Result<(), StoreError> {
+        let state = self.dir.join(STATE_FILE);
+        let prev: serde_json::Value = read_json(&state)?;
+        if &prev == options {
+            Ok(())
+        } else {
+            Err(StoreError::OptionsChanged { path: self.dir.clone(), what: diff_keys(&prev, options) })
+        }
+    }
+
     /// Removes the temporary files of [`write_atomic`] (`.NAME.PID.N.tmp`) that a process which
     /// no longer runs left in the tileset (killed mid-write). Files of a live process other than
     /// this one are kept (where `/proc` tells; elsewhere all are removed). Walks only the
     /// tileset's own layout (root, `tiles/` and `index/` down to their blob depth). Returns how
     /// many were removed.
     pub fn remove_stale_temps(&self) -> Result<u64, StoreError> {
+        self.remove_temps(false)
+    }
+
+    /// [`Store::remove_stale_temps`], or with `every` all temporary files whoever wrote them:
+    /// what the final step of a sharded bake does once every shard has finished (a shard killed
+    /// on another machine left them; this machine's process table cannot tell).
+    pub fn remove_temps(&self, every: bool) -> Result<u64, StoreError> {
         let mut removed = 0u64;
         let mut stack = vec![(self.dir.clone(), 0u32)];
         while let Some((dir, depth)) = stack.pop() {
@@ -479,7 +555,7 @@ impl Store {
                     if ours && depth < 5 {
                         stack.push((path, depth + 1));
                     }
-                } else if ty.is_file() && stale_temp(&name) {
+                } else if ty.is_file() && (stale_temp(&name) || (every && temp_owner(&name).is_some())) {
                     fs::remove_file(&path).map_err(io(&path))?;
                     removed += 1;
                 }
@@ -628,7 +704,8 @@ fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, StoreError>
 }
 
 /// The top-level keys whose values differ, for a readable error.
-fn diff_keys(a: &serde_json::Value, b: &serde_json::Value) -> String {
+#[must_use]
+pub fn diff_keys(a: &serde_json::Value, b: &serde_json::Value) -> String {
     match (a.as_object(), b.as_object()) {
         (Some(a), Some(b)) => {
             let mut keys: Vec<&String> = a.keys().chain(b.keys()).collect();

@@ -1,0 +1,430 @@
+//! Sharded terrain bakes: one bake split over many processes or machines (the indexes of a
+//! Kubernetes Indexed Job, an AWS Batch or Slurm array), writing into one tileset.
+//!
+//! Every node of the pyramid is baked on its own (its blobs depend only on the samples it
+//! covers), so a shard is a set of whole subtrees: the nodes at the *shard depth* `d` (the
+//! shallowest depth with at least as many nodes as shards), in Morton order so a shard's
+//! subtrees lie side by side, cut into contiguous runs of about equal samples. Three steps:
+//!
+//! 1. [`write_plan`] (`terrastream plan`): begins the tileset ([`Store::begin_bake`]) and writes
+//!    `shards/plan.json` — the options record, the bake options, the shards' roots;
+//! 2. [`bake_shard`] (`terrastream bake --plan … --shard I`), any number at once, in any order,
+//!    each re-runnable alone: bakes the subtrees of shard I (resuming whole nodes) and then
+//!    writes `shards/shard-I.json`, the index entries of its nodes;
+//! 3. [`finish_plan`] (`terrastream bake --plan … --finish`): bakes the nodes above depth `d`,
+//!    joins them with every shard's entries in the one-machine order, writes the index chunks,
+//!    the manifest last, and removes `shards/`. The tileset is byte for byte the one a
+//!    one-machine bake of the same inputs writes.
+
+use std::collections::HashMap;
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use crate::store::{NodeEntry, Store};
+use crate::tiling::{Pyramid, TileKey};
+
+use super::terrain::{NodesBaked, bake_nodes, options_record_of, publish};
+use super::{BakeError, BakeOptions, BakeSummary, Progress, TerrainInput, check_options};
+use crate::lod::PointBaker;
+
+pub const PLAN_FORMAT: &str = "terrastream-plan";
+pub const PLAN_VERSION: u32 = 1;
+/// The folder of a tileset that holds the plan and the shards' results until the final step.
+pub const PLAN_DIR: &str = "shards";
+pub const PLAN_FILE: &str = "shards/plan.json";
+/// Most shards a plan may have (an Indexed Job allows 100,000 completions).
+pub const MAX_SHARDS: u32 = 100_000;
+
+/// One shard: the roots of its subtrees (all at the plan's shard depth).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ShardSpec {
+    pub roots: Vec<TileKey>,
+    /// Nodes of its subtrees.
+    pub nodes: u64,
+    /// Full-resolution samples its roots cover (each depth below covers them again).
+    pub samples: u64,
+}
+
+/// `shards/plan.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Plan {
+    pub format: String,
+    pub version: u32,
+    /// The bake's options record (`bake-options.json`): a shard whose inputs read differently
+    /// (other files, other bytes, other flags) refuses to write.
+    pub options: serde_json::Value,
+    pub bake: BakeOptions,
+    /// The source name the manifest records.
+    pub source_name: String,
+    /// How the command line reopens the inputs (files and load flags); opaque to the library.
+    pub inputs: serde_json::Value,
+    /// Depth of the shards' subtree roots; the final step bakes the nodes above it.
+    pub shard_depth: u8,
+    pub shards: Vec<ShardSpec>,
+    /// Nodes the final step bakes (above the shard depth).
+    pub top_nodes: u64,
+}
+
+impl Plan {
+    /// The plan of a tileset (`Ok(None)` when it has none).
+    pub fn read(store: &Store) -> Result<Option<Self>, BakeError> {
+        let Some(bytes) = store.read_file(PLAN_FILE)? else { return Ok(None) };
+        let plan: Plan = serde_json::from_slice(&bytes)
+            .map_err(|e| BakeError::Plan(format!("{}: invalid plan: {e}", store.describe(PLAN_FILE))))?;
+        if plan.format != PLAN_FORMAT || plan.version != PLAN_VERSION {
+            return Err(BakeError::Plan(format!(
+                "{}: not a {PLAN_FORMAT} v{PLAN_VERSION} file (format {:?}, version {})",
+                store.describe(PLAN_FILE),
+                plan.format,
+                plan.version
+            )));
+        }
+        check_options(&plan.bake)?;
+        Ok(Some(plan))
+    }
+
+    #[must_use]
+    pub fn shard_count(&self) -> u32 {
+        self.shards.len() as u32
+    }
+}
+
+/// A finished shard's result, `shards/shard-I.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct Fragment {
+    shard: u32,
+    shards: u32,
+    options: serde_json::Value,
+    point_baker: String,
+    nodes: Vec<NodeEntry>,
+}
+
+fn fragment_file(index: u32) -> String {
+    format!("{PLAN_DIR}/shard-{index}.json")
+}
+
+/// The Morton (Z-order) code of a key's x and y: nearby tiles get nearby codes.
+fn morton(x: u32, y: u32) -> u64 {
+    let spread = |v: u32| {
+        let mut v = u64::from(v);
+        v = (v | (v << 16)) & 0x0000_ffff_0000_ffff;
+        v = (v | (v << 8)) & 0x00ff_00ff_00ff_00ff;
+        v = (v | (v << 4)) & 0x0f0f_0f0f_0f0f_0f0f;
+        v = (v | (v << 2)) & 0x3333_3333_3333_3333;
+        (v | (v << 1)) & 0x5555_5555_5555_5555
+    };
+    spread(x) | (spread(y) << 1)
+}
+
+/// Every node of the subtree under `root`, root first.
+fn subtree(pyramid: &Pyramid, root: TileKey) -> Vec<TileKey> {
+    let mut out = vec![root];
+    let mut i = 0;
+    while let Some(&k) = out.get(i) {
+        out.extend(pyramid.children(k));
+        i += 1;
+    }
+    out
+}
+
+/// Splits `pyramid` into `shards` shards: the shard depth and each shard's subtree roots,
+/// contiguous in Morton order with about equal samples each (every shard has at least one).
+pub fn plan_shards(pyramid: &Pyramid, shards: u32) -> Result<(u8, Vec<ShardSpec>), BakeError> {
+    if shards == 0 || shards > MAX_SHARDS {
+        return Err(BakeError::Plan(format!("--shards must be 1 to {MAX_SHARDS}, got {shards}")));
+    }
+    let depth = (0..=pyramid.depth).find(|&z| {
+        let (nx, ny) = pyramid.nodes_at(z);
+        u64::from(nx) * u64::from(ny) >= u64::from(shards)
+    });
+    let Some(depth) = depth else {
+        let (nx, ny) = pyramid.nodes_at(pyramid.depth);
+        return Err(BakeError::Plan(format!(
+            "--shards {shards}: the dataset has only {} leaf tiles; ask for at most that many shards, or a smaller --tile-size",
+            u64::from(nx) * u64::from(ny)
+        )));
+    };
+    let (nx, ny) = pyramid.nodes_at(depth);
+    let mut roots: Vec<TileKey> =
+        (0..ny).flat_map(|y| (0..nx).map(move |x| TileKey::new(depth, x, y))).collect();
+    roots.sort_by_key(|k| morton(k.x, k.y));
+    let weight = |k: &TileKey| {
+        let s = pyramid.span(*k);
+        u64::from(s.cols()) * u64::from(s.rows())
+    };
+    let total: u64 = roots.iter().map(weight).sum();
+    let n = shards as usize;
+    let mut out: Vec<ShardSpec> = Vec::with_capacity(n);
+    let mut cum = 0u64;
+    let mut start = 0usize;
+    for i in 0..n {
+        // Shard i ends where the running sum first reaches (i+1)/n of the total, leaving at
+        // least one root for every shard after it.
+        let left_for_others = n - i - 1;
+        let target = (u128::from(total) * (i as u128 + 1) / n as u128) as u64;
+        let mut end = start + 1;
+        cum += weight(&roots[start]);
+        while end < roots.len() - left_for_others && cum < target {
+            cum += weight(&roots[end]);
+            end += 1;
+        }
+        if i == n - 1 {
+            for r in &roots[end..] {
+                cum += weight(r);
+            }
+            end = roots.len();
+        }
+        let rs = roots[start..end].to_vec();
+        let nodes = rs.iter().map(|&r| subtree(pyramid, r).len() as u64).sum();
+        let samples = rs.iter().map(weight).sum();
+        out.push(ShardSpec { roots: rs, nodes, samples });
+        start = end;
+    }
+    Ok((depth, out))
+}
+
+/// Plans a sharded bake of `input` into `store`: begins the tileset and writes its plan.
+/// Planning again with the same inputs and shard count rewrites the same plan; with another
+/// shard count while shards have finished, it refuses (their results would not match).
+pub fn write_plan(
+    input: &TerrainInput<'_>,
+    source_name: &str,
+    opts: &BakeOptions,
+    inputs: serde_json::Value,
+    shards: u32,
+    store: &Store,
+) -> Result<Plan, BakeError> {
+    check_options(opts)?;
+    let (width, height) = input.reader.size();
+    let pyramid = Pyramid::new(width, height, opts.tile_size)?;
+    let (shard_depth, specs) = plan_shards(&pyramid, shards)?;
+    let options = options_record_of(input, source_name, opts);
+    let top_nodes = pyramid.nodes().iter().filter(|k| k.z < shard_depth).count() as u64;
+    let plan = Plan {
+        format: PLAN_FORMAT.into(),
+        version: PLAN_VERSION,
+        options: options.clone(),
+        bake: opts.clone(),
+        source_name: source_name.into(),
+        inputs,
+        shard_depth,
+        shards: specs,
+        top_nodes,
+    };
+    if let Some(prev) = Plan::read(store)?
+        && prev.shards != plan.shards
+    {
+        let done: Vec<u32> = (0..prev.shard_count())
+            .filter(|&i| store.read_file(&fragment_file(i)).ok().flatten().is_some())
+            .collect();
+        if !done.is_empty() {
+            return Err(BakeError::Plan(format!(
+                "{}: an earlier plan of {} shards has finished shards {done:?}; finish it, or delete the tileset to plan again",
+                store.describe(PLAN_FILE),
+                prev.shard_count()
+            )));
+        }
+    }
+    store.begin_bake(&options)?;
+    let bytes = serde_json::to_vec_pretty(&plan).map_err(|e| BakeError::Plan(e.to_string()))?;
+    store.write_file(PLAN_FILE, &bytes)?;
+    Ok(plan)
+}
+
+/// Checks that `input` is what `plan` was made from, and that `store` holds that plan's bake.
+fn check_input(plan: &Plan, input: &TerrainInput<'_>, store: &Store) -> Result<Pyramid, BakeError> {
+    let options = options_record_of(input, &plan.source_name, &plan.bake);
+    if options != plan.options {
+        return Err(BakeError::Plan(format!(
+            "{}: the inputs no longer read as when the plan was made ({}); plan again",
+            store.describe(PLAN_FILE),
+            crate::store::diff_keys(&plan.options, &options)
+        )));
+    }
+    store.check_bake(&options)?;
+    let (w, h) = input.reader.size();
+    Ok(Pyramid::new(w, h, plan.bake.tile_size)?)
+}
+
+/// Bakes shard `index` of `plan` into `store`: every node of its subtrees (resuming whole ones),
+/// then its result file. Idempotent: a shard run again resumes its nodes and writes the same
+/// result.
+pub fn bake_shard(
+    input: &TerrainInput<'_>,
+    plan: &Plan,
+    index: u32,
+    baker: &PointBaker,
+    store: &Store,
+    progress: &dyn Progress,
+) -> Result<BakeSummary, BakeError> {
+    let t0 = Instant::now();
+    let spec = plan.shards.get(index as usize).ok_or_else(|| {
+        BakeError::Plan(format!(
+            "shard {index} does not exist: the plan {} has shards 0 to {}",
+            store.describe(PLAN_FILE),
+            plan.shard_count().saturating_sub(1)
+        ))
+    })?;
+    let pyramid = check_input(plan, input, store)?;
+    let mut nodes: Vec<TileKey> = spec.roots.iter().flat_map(|&r| subtree(&pyramid, r)).collect();
+    // The one-machine order (root first, depth by depth): larger nodes start first.
+    let order: HashMap<TileKey, usize> =
+        pyramid.nodes().into_iter().enumerate().map(|(i, k)| (k, i)).collect();
+    nodes.sort_by_key(|k| order.get(k).copied().unwrap_or(usize::MAX));
+    store.remove_stale_temps_of(&nodes)?;
+    let baked = bake_nodes(input, &plan.bake, baker, &pyramid, &nodes, store, progress)?;
+    let fragment = Fragment {
+        shard: index,
+        shards: plan.shard_count(),
+        options: plan.options.clone(),
+        point_baker: baker.describe(),
+        nodes: baked.entries.clone(),
+    };
+    let bytes = serde_json::to_vec(&fragment).map_err(|e| BakeError::Plan(e.to_string()))?;
+    store.write_file(&fragment_file(index), &bytes)?;
+    Ok(summary_of(&baked, input, &plan.bake, t0, baker.describe()))
+}
+
+fn summary_of(
+    baked: &NodesBaked,
+    input: &TerrainInput<'_>,
+    opts: &BakeOptions,
+    t0: Instant,
+    point_baker: String,
+) -> BakeSummary {
+    let mut totals = vec![crate::store::LevelTotals::default(); usize::from(opts.levels) + 1];
+    for l in baked.entries.iter().flat_map(|e| &e.levels) {
+        if let Some(t) = totals.get_mut(usize::from(l.level)) {
+            t.add(l);
+        }
+    }
+    baked.summary(input, totals, t0, point_baker)
+}
+
+/// The final step of `plan`: checks that every shard finished, bakes the nodes above the shard
+/// depth, writes the index chunks and the manifest (last) and removes `shards/`. Refuses, naming
+/// them, while shards are missing.
+pub fn finish_plan(
+    input: &TerrainInput<'_>,
+    plan: &Plan,
+    baker: &PointBaker,
+    store: &Store,
+    progress: &dyn Progress,
+) -> Result<BakeSummary, BakeError> {
+    let t0 = Instant::now();
+    let pyramid = check_input(plan, input, store)?;
+    let mut fragments = Vec::with_capacity(plan.shards.len());
+    let mut missing = Vec::new();
+    for i in 0..plan.shard_count() {
+        let file = fragment_file(i);
+        match store.read_file(&file)? {
+            None => missing.push(i),
+            Some(bytes) => {
+                let f: Fragment = serde_json::from_slice(&bytes).map_err(|e| {
+                    BakeError::Plan(format!("{}: invalid shard result: {e}", store.describe(&file)))
+                })?;
+                if f.shard != i || f.shards != plan.shard_count() || f.options != plan.options {
+                    return Err(BakeError::Plan(format!(
+                        "{}: written for another plan (shard {} of {}); run shard {i} again",
+                        store.describe(&file),
+                        f.shard,
+                        f.shards
+                    )));
+                }
+                fragments.push(f);
+            }
+        }
+    }
+    if !missing.is_empty() {
+        let shown: Vec<String> = missing.iter().take(20).map(ToString::to_string).collect();
+        return Err(BakeError::ShardsUnfinished(format!(
+            "{} of {} shards have not finished (shards {}{}); run them (bake --plan … --shard I), then finish",
+            missing.len(),
+            plan.shard_count(),
+            shown.join(", "),
+            if missing.len() > 20 { ", …" } else { "" }
+        )));
+    }
+    let all = pyramid.nodes();
+    // Every shard has finished: any temporary file left in the tileset is a killed writer's.
+    store.remove_temps(true)?;
+    let top: Vec<TileKey> = all.iter().copied().filter(|k| k.z < plan.shard_depth).collect();
+    let baked = bake_nodes(input, &plan.bake, baker, &pyramid, &top, store, progress)?;
+    let mut by_key: HashMap<TileKey, NodeEntry> = baked.entries.iter().map(|e| (e.key, e.clone())).collect();
+    let mut bakers: Vec<String> = vec![baker.describe()];
+    for f in fragments {
+        if !bakers.contains(&f.point_baker) {
+            bakers.push(f.point_baker);
+        }
+        for e in f.nodes {
+            by_key.insert(e.key, e);
+        }
+    }
+    let mut entries = Vec::with_capacity(all.len());
+    for k in &all {
+        let e = by_key.remove(k).ok_or_else(|| {
+            BakeError::Plan(format!("tile {k} is in no shard's result; run its shard again, then finish"))
+        })?;
+        entries.push(e);
+    }
+    let point_baker = bakers.join(" + ");
+    let totals =
+        publish(input, &plan.source_name, &plan.bake, &point_baker, &entries, plan.options.clone(), store)?;
+    store.remove_folder(PLAN_DIR)?;
+    // The summary counts the tiles this step baked (the shards reported theirs).
+    Ok(baked.summary(input, totals, t0, point_baker))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every node below the shard depth is in exactly one shard; shards are never empty and
+    /// their samples are about equal.
+    #[test]
+    fn shards_cover_the_pyramid_once() {
+        for (w, h, ts) in [(257, 257, 32), (1000, 300, 16), (33, 33, 8), (4097, 4097, 256)] {
+            let p = Pyramid::new(w, h, ts).unwrap();
+            for n in [1u32, 2, 3, 4, 7, 16] {
+                let Ok((d, shards)) = plan_shards(&p, n) else {
+                    continue;
+                };
+                assert_eq!(shards.len(), n as usize);
+                let mut seen = std::collections::HashSet::new();
+                for s in &shards {
+                    assert!(!s.roots.is_empty());
+                    for &r in &s.roots {
+                        assert_eq!(r.z, d);
+                        for k in subtree(&p, r) {
+                            assert!(seen.insert(k), "{k} twice");
+                        }
+                    }
+                }
+                let below: Vec<TileKey> = p.nodes().into_iter().filter(|k| k.z >= d).collect();
+                assert_eq!(seen.len(), below.len(), "{w}x{h}/{ts} n={n}");
+                if d == 0 {
+                    assert_eq!(n, 1);
+                }
+            }
+        }
+        let p = Pyramid::new(257, 257, 32).unwrap();
+        let (_, s) = plan_shards(&p, 4).unwrap();
+        assert!(s.iter().all(|s| s.samples == s.samples.max(1)), "{s:?}");
+        let max = s.iter().map(|s| s.samples).max().unwrap();
+        let min = s.iter().map(|s| s.samples).min().unwrap();
+        assert!(max - min <= max / 4, "{s:?}");
+        assert!(plan_shards(&p, 0).is_err());
+        let e = plan_shards(&p, 1000).unwrap_err().to_string();
+        assert!(e.contains("only 64 leaf tiles"), "{e}");
+    }
+
+    #[test]
+    fn morton_interleaves() {
+        assert_eq!(morton(0, 0), 0);
+        assert_eq!(morton(1, 0), 1);
+        assert_eq!(morton(0, 1), 2);
+        assert_eq!(morton(3, 3), 15);
+        assert_eq!(morton(u32::MAX, 0), 0x5555_5555_5555_5555);
+    }
+}

@@ -1,0 +1,184 @@
+//! `terrastream plan` and the steps of a sharded bake (`bake --plan … --shard I`, `bake --plan …
+//! --finish`): one bake split over the workers of an engine that runs array jobs (Kubernetes
+//! Indexed Jobs, AWS Batch, Slurm). The work is in `terrastream::bake::shard`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use terrastream::bake::shard::{self, PLAN_FILE, Plan};
+use terrastream::raster;
+use terrastream::store::Store;
+
+use super::bake::{BakeArgs, InputArgs, PlanInputs, print_summary, tiles_bar};
+
+#[derive(clap::Args)]
+pub struct PlanArgs {
+    /// Input rasters forming one dataset (as for `bake`). Every shard reads them at the same
+    /// paths: on a cluster, a volume mounted alike in every pod.
+    #[arg(required = true, num_args = 1..)]
+    pub inputs: Vec<PathBuf>,
+    /// The tileset to bake into (created; must be empty or an earlier bake of the same input).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Number of shards. Default: as many as keep each shard's region of the raster within
+    /// --shard-mib of float heights.
+    #[arg(long)]
+    pub shards: Option<u32>,
+    /// Largest region of the raster one shard covers, in MiB of 4-byte heights (when --shards is
+    /// not given).
+    #[arg(long, default_value_t = 4096)]
+    pub shard_mib: u64,
+    #[command(flatten)]
+    pub input: InputArgs,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+/// Marks an error as the input's or the plan's fault (a retry cannot succeed): the process exits
+/// with [`INPUT_REFUSED_EXIT`], which a Kubernetes `podFailurePolicy` turns into a failed index
+/// at once. Its text is empty: the error it wraps says what is wrong.
+#[derive(Debug)]
+pub struct InputRefused;
+
+impl std::fmt::Display for InputRefused {
+    fn fmt(&self, _: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        Ok(())
+    }
+}
+
+impl std::error::Error for InputRefused {}
+
+/// Exit status of a step refused for its input or plan (2 is a usage error, from clap).
+pub const INPUT_REFUSED_EXIT: u8 = 3;
+
+/// Array-index variables of the engines that run array jobs, in the order they are read.
+pub const INDEX_VARS: [&str; 3] =
+    ["JOB_COMPLETION_INDEX", "AWS_BATCH_JOB_ARRAY_INDEX", "SLURM_ARRAY_TASK_ID"];
+
+pub fn run(a: &PlanArgs) -> Result<()> {
+    let files = raster::dataset::expand_inputs(&a.inputs)?;
+    let files: Vec<PathBuf> = files
+        .into_iter()
+        .map(|f| std::path::absolute(&f).with_context(|| format!("{}", f.display())))
+        .collect::<Result<_>>()?;
+    let opened = a.input.open(files, a.quiet)?;
+    let (w, h) = {
+        let g = opened.dataset.summary();
+        (g.width, g.height)
+    };
+    let samples = u64::from(w) * u64::from(h);
+    let per = a.shard_mib.max(1).saturating_mul(1 << 20) / 4;
+    let shards = a.shards.unwrap_or_else(|| u32::try_from(samples.div_ceil(per).max(1)).unwrap_or(u32::MAX));
+    let input = terrastream::bake::TerrainInput::of_dataset(&opened.dataset);
+    let inputs = serde_json::to_value(PlanInputs { files: opened.files.clone(), read: a.input.clone() })?;
+    let store = Store::new(&a.out);
+    let plan = shard::write_plan(&input, &opened.name, &a.input.bake_options(), inputs, shards, &store)?;
+    let biggest = plan.shards.iter().map(|s| s.samples).max().unwrap_or(0);
+    outln!(
+        "plan: {} shards of the subtrees at depth {} ({} tiles each at most, ≤ {:.1} MiB of heights), then a final step for the {} tiles above\n\
+         written to {}\n\
+         run: terrastream bake --plan {} --shard I   for I in 0..{} (or as an array job: {}),\n\
+         \x20    terrastream bake --plan {} --finish    once they have all finished",
+        plan.shard_count(),
+        plan.shard_depth,
+        plan.shards.iter().map(|s| s.nodes).max().unwrap_or(0),
+        biggest as f64 * 4.0 / f64::from(1 << 20),
+        plan.top_nodes,
+        store.describe(PLAN_FILE),
+        a.out.display(),
+        plan.shard_count(),
+        INDEX_VARS.join(", "),
+        a.out.display(),
+    );
+    Ok(())
+}
+
+/// The shard index: `--shard`, else the first array-index variable set.
+fn shard_index(given: Option<u32>) -> Result<u32> {
+    if let Some(i) = given {
+        return Ok(i);
+    }
+    for var in INDEX_VARS {
+        if let Ok(v) = std::env::var(var) {
+            return v
+                .trim()
+                .parse::<u32>()
+                .map_err(|_| anyhow::anyhow!("{var}={v:?} is not a shard index (0, 1, 2, …)"))
+                .context(InputRefused);
+        }
+    }
+    Err(anyhow::anyhow!(
+        "bake --plan: give --shard I, --finish, or run as an array job that sets {}",
+        INDEX_VARS.join(", ")
+    ))
+    .context(InputRefused)
+}
+
+/// `bake --plan TILESET (--shard I | --finish)`.
+pub fn run_step(a: &BakeArgs, plan_at: &Path) -> Result<()> {
+    let dir = if plan_at.ends_with(PLAN_FILE) {
+        plan_at.parent().and_then(Path::parent).unwrap_or(Path::new("."))
+    } else {
+        plan_at
+    };
+    let store = Store::new(dir);
+    let plan = match Plan::read(&store).context(InputRefused)? {
+        Some(p) => p,
+        None if store.manifest_path().is_file() => {
+            // Every step is idempotent: a step run again after the final one has nothing to do.
+            eprintln!(
+                "{}: the sharded bake has finished (the tileset is complete); nothing to do",
+                dir.display()
+            );
+            return Ok(());
+        }
+        None => {
+            return Err(anyhow::anyhow!(
+                "{}: no plan; write one with `terrastream plan INPUTS --out {}`",
+                store.describe(PLAN_FILE),
+                dir.display()
+            ))
+            .context(InputRefused);
+        }
+    };
+    let step = if a.finish { None } else { Some(shard_index(a.shard)?) };
+    if let Some(i) = step
+        && i >= plan.shard_count()
+    {
+        // Before the inputs are opened: a wrong index fails at once.
+        return Err(anyhow::anyhow!(
+            "shard {i} does not exist: the plan {} has shards 0 to {}",
+            store.describe(PLAN_FILE),
+            plan.shard_count() - 1
+        ))
+        .context(InputRefused);
+    }
+    let inputs: PlanInputs = serde_json::from_value(plan.inputs.clone())
+        .map_err(|e| anyhow::anyhow!("{}: field `inputs`: {e}", store.describe(PLAN_FILE)))
+        .context(InputRefused)?;
+    let opened = inputs.read.open(inputs.files, a.quiet).context(InputRefused)?;
+    let input = terrastream::bake::TerrainInput::of_dataset(&opened.dataset);
+    let baker = a.baker.open()?;
+    let progress = tiles_bar(a.quiet, a.time_limit);
+    let r = match step {
+        Some(i) => shard::bake_shard(&input, &plan, i, &baker, &store, &progress),
+        None => shard::finish_plan(&input, &plan, &baker, &store, &progress),
+    };
+    progress.0.finish_and_clear();
+    let summary = r.map_err(|e| {
+        let refused = matches!(e, terrastream::bake::BakeError::Plan(_));
+        let e = anyhow::Error::from(e);
+        if refused { e.context(InputRefused) } else { e }
+    })?;
+    if let Some(i) = step {
+        outln!("shard {i} of {}:", plan.shard_count());
+    } else {
+        if let Some(anchor) = a.anchor {
+            terrastream::store::export::write_anchor(&store, anchor)?;
+        }
+        outln!("final step of {} shards:", plan.shard_count());
+    }
+    print_summary(&summary, dir);
+    Ok(())
+}

@@ -1,0 +1,226 @@
+//! Sharded bakes (`plan`, `bake --plan … --shard I`, `bake --plan … --finish`): the tileset is
+//! byte for byte a one-machine bake's, for 1, 4 and 16 shards run as separate processes in
+//! parallel and in a shuffled order, through the local Indexed Job runner, after kills; and each
+//! step refuses what it cannot do with a clear error and the exit status the deploy files use.
+
+#![allow(clippy::unwrap_used, clippy::panic)]
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use common::{bin, fails, ok, run_within, tree};
+
+fn synth(dir: &Path, seed: u32) -> PathBuf {
+    let tif = dir.join(format!("t{seed}.tif"));
+    ok(bin()
+        .args(["synth", "--width", "513", "--height", "385", "--seed", &seed.to_string(), "--out"])
+        .arg(&tif));
+    tif
+}
+
+const BAKE: [&str; 6] = ["--tile-size", "32", "--levels", "3", "--max-error", "0.5"];
+
+fn one_machine(dir: &Path, tif: &Path) -> PathBuf {
+    let out = dir.join("one");
+    ok(bin().arg("bake").arg(tif).arg("--out").arg(&out).args(BAKE).args(["-q", "--gpu", "off"]));
+    out
+}
+
+fn shard(plan: &Path, i: u32) -> Command {
+    let mut c = bin();
+    c.arg("bake").arg("--plan").arg(plan).args([
+        "--shard",
+        &i.to_string(),
+        "-q",
+        "--gpu",
+        "off",
+        "--threads",
+        "1",
+    ]);
+    c
+}
+
+/// A permutation of 0..n from a seed (xorshift), printed so a failure can be replayed.
+fn shuffled(n: u32, seed: u64) -> Vec<u32> {
+    let mut v: Vec<u32> = (0..n).collect();
+    let mut s = seed | 1;
+    for i in (1..v.len()).rev() {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        v.swap(i, (s % (i as u64 + 1)) as usize);
+    }
+    v
+}
+
+fn assert_same_tree(a: &Path, b: &Path) {
+    let (ta, tb) = (tree(a), tree(b));
+    let names = |t: &std::collections::BTreeMap<String, Vec<u8>>| t.keys().cloned().collect::<Vec<_>>();
+    assert_eq!(names(&ta), names(&tb), "{} and {} hold different files", a.display(), b.display());
+    for (k, v) in &ta {
+        assert!(tb[k] == *v, "{k} differs between {} and {}", a.display(), b.display());
+    }
+}
+
+/// 1, 4 and 16 shards, all shards at once as separate processes started in a shuffled order,
+/// then the final step: the same files with the same bytes as the one-machine bake.
+#[test]
+fn sharded_bakes_equal_the_one_machine_bake() {
+    let dir = tempfile::tempdir().unwrap();
+    let tif = synth(dir.path(), 7);
+    let one = one_machine(dir.path(), &tif);
+    for (n, seed) in [(1u32, 1u64), (4, 2), (16, 3)] {
+        let out = dir.path().join(format!("s{n}"));
+        let said = ok(bin().arg("plan").arg(&tif).arg("--out").arg(&out).args(BAKE).args([
+            "--shards",
+            &n.to_string(),
+            "-q",
+        ]));
+        assert!(said.contains(&format!("plan: {n} shards")), "{said}");
+        let order = shuffled(n, seed);
+        eprintln!("{n} shards, started in the order {order:?}");
+        let children: Vec<(u32, Child)> = order
+            .iter()
+            .map(|&i| (i, shard(&out, i).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap()))
+            .collect();
+        for (i, c) in children {
+            let o = c.wait_with_output().unwrap();
+            assert!(o.status.success(), "shard {i} of {n}: {}", String::from_utf8_lossy(&o.stderr));
+        }
+        assert!(out.join("shards/plan.json").is_file() && !out.join("tileset.json").exists());
+        let said = ok(bin()
+            .arg("bake")
+            .arg("--plan")
+            .arg(out.join("shards/plan.json"))
+            .args(["--finish", "-q", "--gpu", "off"]));
+        assert!(said.contains(&format!("final step of {n} shards")), "{said}");
+        assert_same_tree(&one, &out);
+        // Every step is idempotent: run again after the final step, each has nothing to do.
+        let again = run_within(&mut shard(&out, 0), Duration::from_mins(1));
+        assert!(again.status.success() && String::from_utf8_lossy(&again.stderr).contains("nothing to do"));
+        ok(bin().arg("bake").arg("--plan").arg(&out).args(["--finish", "-q"]));
+        assert_same_tree(&one, &out);
+    }
+}
+
+/// The local Indexed Job runner (deploy/run-indexed-job.sh) plays the Job of deploy/: 16
+/// indexes two at a time in a shuffled order, one index past the plan failing at once (exit 3,
+/// the podFailurePolicy's FailIndex) while the others succeed; then the final step.
+#[test]
+fn the_indexed_job_runner_bakes_every_shard() {
+    let dir = tempfile::tempdir().unwrap();
+    let tif = synth(dir.path(), 8);
+    let one = one_machine(dir.path(), &tif);
+    let out = dir.path().join("job");
+    ok(bin().arg("plan").arg(&tif).arg("--out").arg(&out).args(BAKE).args(["--shards", "16", "-q"]));
+    let runner = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/run-indexed-job.sh");
+    let o = run_within(
+        Command::new(&runner)
+            .args([
+                "--completions",
+                "17",
+                "--parallelism",
+                "2",
+                "--shuffle",
+                "--backoff-limit-per-index",
+                "2",
+                "--",
+            ])
+            .arg(env!("CARGO_BIN_EXE_terrastream"))
+            .args(["bake", "--plan"])
+            .arg(&out)
+            .args(["-q", "--gpu", "off", "--threads", "1"]),
+        Duration::from_mins(5),
+    );
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(!o.status.success(), "{said}");
+    assert!(said.contains("indexes: 16 succeeded, 1 failed"), "{said}");
+    assert!(
+        said.contains("index 16: failed at once (exit 3") && said.contains("shard 16 does not exist"),
+        "{said}"
+    );
+    ok(bin().arg("bake").arg("--plan").arg(&out).args(["--finish", "-q", "--gpu", "off"]));
+    assert_same_tree(&one, &out);
+}
+
+/// Shards killed mid-bake (SIGKILL, and stopped by --time-limit) and run again alone: the
+/// result is still the one-machine bake's, with no temporary file left behind.
+#[test]
+fn killed_shards_run_again_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let tif = synth(dir.path(), 9);
+    let one = one_machine(dir.path(), &tif);
+    let out = dir.path().join("k");
+    ok(bin().arg("plan").arg(&tif).arg("--out").arg(&out).args(BAKE).args(["--shards", "4", "-q"]));
+    let stopped = fails(shard(&out, 2).args(["--time-limit", "0.001"]));
+    assert!(stopped.contains("--time-limit"), "{stopped}");
+    for (i, ms) in [(0u32, 50u64), (1, 120), (3, 250)] {
+        let mut c = shard(&out, i).stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap();
+        std::thread::sleep(Duration::from_millis(ms));
+        let _ = c.kill();
+        let _ = c.wait();
+    }
+    // The final step refuses while shards are missing, naming them (exit 1: it can run later).
+    let early = run_within(
+        bin().arg("bake").arg("--plan").arg(&out).args(["--finish", "-q"]),
+        Duration::from_mins(1),
+    );
+    let err = String::from_utf8_lossy(&early.stderr);
+    if !(0..4).all(|i| out.join(format!("shards/shard-{i}.json")).exists()) {
+        assert_eq!(early.status.code(), Some(1), "{err}");
+        assert!(err.contains("shards have not finished"), "{err}");
+    }
+    for i in [3u32, 1, 0, 2] {
+        ok(&mut shard(&out, i));
+    }
+    ok(bin().arg("bake").arg("--plan").arg(&out).args(["--finish", "-q", "--gpu", "off"]));
+    assert_same_tree(&one, &out);
+}
+
+/// What a step cannot do: an index past the plan, an index variable that is not a number,
+/// inputs changed since the plan (exit 3, no retry can help); a tileset without a plan; another
+/// shard count while shards of the first plan have finished.
+#[test]
+fn steps_refuse_what_they_cannot_do() {
+    let dir = tempfile::tempdir().unwrap();
+    let tif = synth(dir.path(), 10);
+    let out = dir.path().join("r");
+    ok(bin().arg("plan").arg(&tif).arg("--out").arg(&out).args(BAKE).args(["--shards", "4", "-q"]));
+    let refused = |c: &mut Command, want: &str| {
+        let o = run_within(c, Duration::from_mins(1));
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert_eq!(o.status.code(), Some(3), "{err}");
+        assert!(err.contains(want), "{err}");
+    };
+    refused(&mut shard(&out, 4), "shard 4 does not exist: the plan");
+    refused(
+        bin().arg("bake").arg("--plan").arg(&out).env("JOB_COMPLETION_INDEX", "two"),
+        "JOB_COMPLETION_INDEX=\"two\" is not a shard index",
+    );
+    let none = dir.path().join("none");
+    refused(bin().arg("bake").arg("--plan").arg(&none).args(["--shard", "0"]), "no plan");
+    // Index from the environment, for each engine.
+    for var in ["JOB_COMPLETION_INDEX", "AWS_BATCH_JOB_ARRAY_INDEX", "SLURM_ARRAY_TASK_ID"] {
+        let o = run_within(
+            bin().arg("bake").arg("--plan").arg(&out).args(["-q", "--gpu", "off"]).env(var, "1"),
+            Duration::from_mins(2),
+        );
+        assert!(o.status.success(), "{var}: {}", String::from_utf8_lossy(&o.stderr));
+        assert!(String::from_utf8_lossy(&o.stdout).contains("shard 1 of 4"));
+    }
+    let other = dir.path().join("r2");
+    ok(bin().arg("plan").arg(&tif).arg("--out").arg(&other).args(BAKE).args(["--shards", "4", "-q"]));
+    let e =
+        fails(bin().arg("plan").arg(&tif).arg("--out").arg(&out).args(BAKE).args(["--shards", "16", "-q"]));
+    assert!(e.contains("has finished shards [1]"), "{e}");
+    // The input changed since the plan: every step refuses it.
+    std::fs::copy(synth(dir.path(), 11), &tif).unwrap();
+    refused(&mut shard(&out, 0), "no longer read as when the plan was made");
+    refused(
+        bin().arg("bake").arg("--plan").arg(&out).args(["--finish"]),
+        "no longer read as when the plan was made",
+    );
+}
