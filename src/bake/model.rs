@@ -538,7 +538,7 @@ mod tests {
                     assert_eq!(blob.header.vertex_count, info.count);
                     assert_eq!(blob.header.errors, info.errors);
                 }
-                None => assert!(!info.stored && store.is_unpaid(MODEL_TILE, info.level), "{info:?}"),
+                None => assert!(!info.stored && store.is_unpaid(MODEL_TILE, info.level).unwrap(), "{info:?}"),
             }
         }
         assert_eq!(store.manifest().unwrap().totals[1].tiles, 0);

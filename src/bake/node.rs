@@ -8,7 +8,7 @@ use crate::codec::{self, Quantization};
 use crate::geom::{Bounds, Errors, Mesh, PointCloud};
 use crate::lod::{self, PointBaker};
 use crate::raster::{Georef, LoadedRaster, WindowReader};
-use crate::store::{self, NodeEntry, NodeLevel, Store};
+use crate::store::{self, NodeEntry, NodeLevel, Store, StoreError};
 use crate::tiling::{Pyramid, TileKey};
 use crate::tin;
 
@@ -315,27 +315,28 @@ fn write_levels(
 /// `unpaid` marker says it was left out — rebuilt from the blob headers, and holding only the
 /// levels that pay (an earlier version stored them all); `None` for anything else — missing,
 /// truncated, extended, flipped, or written by a version whose blobs this one refuses — which a
-/// resumed bake bakes again (replacing its blobs).
-#[must_use]
-pub fn node_from_blobs(store: &Store, key: TileKey, levels: u8) -> Option<NodeEntry> {
+/// resumed bake bakes again (replacing its blobs). A store that cannot be read (an I/O error, a
+/// bucket that fails or stalls past its retries) is an error, not a missing blob: re-baking
+/// would only meet the same store.
+pub fn node_from_blobs(store: &Store, key: TileKey, levels: u8) -> Result<Option<NodeEntry>, StoreError> {
     let mut out = Vec::new();
     let mut bounds = None;
     for level in 0..=levels {
-        let Some(bytes) = store.read_blob(key, level).ok()? else {
-            if level > 0 && store.is_unpaid(key, level) {
+        let Some(bytes) = store.read_blob(key, level)? else {
+            if level > 0 && store.is_unpaid(key, level)? {
                 continue;
             }
-            return None;
+            return Ok(None);
         };
         let h = match codec::decode(&bytes) {
             Ok(b) => b.header,
             Err(e) => {
                 tracing::warn!(tile = %key, level, "re-baking a damaged blob: {e}");
-                return None;
+                return Ok(None);
             }
         };
         if h.key != key || h.level != level {
-            return None;
+            return Ok(None);
         }
         bounds.get_or_insert(Bounds::new(h.bounds[0], h.bounds[1]));
         out.push(NodeLevel {
@@ -351,11 +352,11 @@ pub fn node_from_blobs(store: &Store, key: TileKey, levels: u8) -> Option<NodeEn
     if pays.iter().any(|p| !p) {
         // Blobs of a bake from before levels had to pay: mark the ones that do not.
         for (l, _) in out.iter().zip(&pays).filter(|(_, p)| !**p) {
-            store.write_unpaid(key, l.level).ok()?;
+            store.write_unpaid(key, l.level)?;
         }
         out = out.into_iter().zip(pays).filter(|(_, p)| *p).map(|(l, _)| l).collect();
     }
-    Some(NodeEntry { key, bounds: bounds?, levels: out })
+    Ok(bounds.map(|bounds| NodeEntry { key, bounds, levels: out }))
 }
 
 /// The largest power of two ≤ `v` (v > 0 and finite).
@@ -407,7 +408,7 @@ mod one_node_tests {
         for level in 0..=opts.levels {
             assert_eq!(one_store.read_blob(key, level).unwrap(), full_store.read_blob(key, level).unwrap());
         }
-        assert_eq!(node_from_blobs(&one_store, key, opts.levels), Some(entry));
+        assert_eq!(node_from_blobs(&one_store, key, opts.levels).unwrap(), Some(entry));
         assert!(bake_node(&raster, TileKey::new(1, 2, 0), &opts, &PointBaker::Cpu, &one_store).is_err());
     }
 }

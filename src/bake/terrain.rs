@@ -349,7 +349,7 @@ pub(crate) fn bake_nodes(
     // Larger nodes first (`nodes` comes root first): parents measure against more
     // full-resolution samples, so starting them early keeps both cores busy until the end.
     let resumed: Vec<Option<NodeEntry>> =
-        nodes.par_iter().map(|&k| node_from_blobs(store, k, opts.levels)).collect();
+        nodes.par_iter().map(|&k| node_from_blobs(store, k, opts.levels)).collect::<Result<_, _>>()?;
     let resumed_count = resumed.iter().filter(|r| r.is_some()).count() as u64;
     progress.start(nodes.len() as u64, resumed_count);
     #[allow(unused_mut)]
@@ -648,7 +648,7 @@ mod bounds_tests {
             for level in 0..m.levels.len() as u8 {
                 let Some(bytes) = store.read_blob(key, level).unwrap() else {
                     prop_assert!(
-                        store.is_unpaid(key, level) && level > 0,
+                        store.is_unpaid(key, level).unwrap() && level > 0,
                         "{key}/{level}: no blob, no marker"
                     );
                     continue;

@@ -211,17 +211,18 @@ pub fn run(a: &BakeArgs) -> Result<()> {
         return super::plan::run_step(a, plan);
     }
     let Some(out) = &a.out else { anyhow::bail!("bake: --out is required") };
+    let store = Store::at(out)?;
     let files = raster::dataset::expand_inputs(&a.inputs)?;
     let opened = a.input.open(files, a.quiet)?;
     let progress = tiles_bar(a.quiet, a.time_limit);
     let baker = a.baker.open()?;
     let input = bake::TerrainInput::of_dataset(&opened.dataset);
     let opts = a.input.bake_options();
-    let summary = bake::bake_input(&input, &opened.name, &opts, &baker, &Store::new(out), &progress);
+    let summary = bake::bake_input(&input, &opened.name, &opts, &baker, &store, &progress);
     let summary = summary.inspect_err(|_| progress.0.finish_and_clear())?;
     progress.0.finish_and_clear();
     if let Some(anchor) = a.anchor {
-        terrastream::store::export::write_anchor(&Store::new(out), anchor)?;
+        terrastream::store::export::write_anchor(&store, anchor)?;
     }
     print_summary(&summary, out);
     Ok(())

@@ -47,9 +47,10 @@ pub fn run(a: &BakeModelArgs) -> Result<()> {
     bake_model::check_options(&opts)?;
     let file = bake_model::read_model_file(&a.model, opts.file_type)?;
     let baker = a.baker.open()?;
-    let s = bake_model::bake_model(&file, &opts, &baker, &Store::new(&a.out))?;
+    let store = Store::at(&a.out)?;
+    let s = bake_model::bake_model(&file, &opts, &baker, &store)?;
     if let Some(anchor) = a.anchor {
-        terrastream::store::export::write_anchor(&Store::new(&a.out), anchor)?;
+        terrastream::store::export::write_anchor(&store, anchor)?;
     }
     outln!("{}", bake_model::ModelBakeReport { summary: &s, out: &a.out });
     // The paper's figures live with the evaluation (`client` feature).

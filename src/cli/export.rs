@@ -49,7 +49,7 @@ pub struct ExportArgs {
 }
 
 pub fn run(a: &ExportArgs) -> Result<()> {
-    let store = Store::new(&a.dir);
+    let store = Store::at(&a.dir)?;
     let format = match a.format {
         ExportFormat::Ply => export::Format::Ply,
         ExportFormat::Obj => export::Format::Obj,

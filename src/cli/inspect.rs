@@ -24,7 +24,7 @@ pub struct InspectArgs {
 
 pub fn run(a: &InspectArgs) -> Result<()> {
     let (dir, json, tile) = (a.dir.as_path(), a.json, a.tile);
-    let store = Store::new(dir);
+    let store = Store::at(dir)?;
     let manifest = store.manifest()?;
     if tile.is_none() && store.manifest_kind()? == terrastream::store::TilesetKind::Model {
         let m = model::read_manifest(&store)?;

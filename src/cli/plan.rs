@@ -72,7 +72,7 @@ pub fn run(a: &PlanArgs) -> Result<()> {
     let shards = a.shards.unwrap_or_else(|| u32::try_from(samples.div_ceil(per).max(1)).unwrap_or(u32::MAX));
     let input = terrastream::bake::TerrainInput::of_dataset(&opened.dataset);
     let inputs = serde_json::to_value(PlanInputs { files: opened.files.clone(), read: a.input.clone() })?;
-    let store = Store::new(&a.out);
+    let store = Store::at(&a.out)?;
     let plan = shard::write_plan(&input, &opened.name, &a.input.bake_options(), inputs, shards, &store)?;
     let biggest = plan.shards.iter().map(|s| s.samples).max().unwrap_or(0);
     outln!(
@@ -122,10 +122,10 @@ pub fn run_step(a: &BakeArgs, plan_at: &Path) -> Result<()> {
     } else {
         plan_at
     };
-    let store = Store::new(dir);
+    let store = Store::at(dir).context(InputRefused)?;
     let plan = match Plan::read(&store).context(InputRefused)? {
         Some(p) => p,
-        None if store.manifest_path().is_file() => {
+        None if store.has_manifest()? => {
             // Every step is idempotent: a step run again after the final one has nothing to do.
             eprintln!(
                 "{}: the sharded bake has finished (the tileset is complete); nothing to do",

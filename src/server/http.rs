@@ -369,17 +369,18 @@ pub(super) async fn chunk_entry(
             for _ in 0..SUBTREE_LEVELS {
                 let mut next = Vec::new();
                 for k in frontier {
-                    if let Some(n) = crate::bake::node_from_blobs(&ts2.store, k, src.opts.levels) {
+                    if let Some(n) = crate::bake::node_from_blobs(&ts2.store, k, src.opts.levels)? {
                         nodes.push(n);
                     }
                     next.extend(src.pyramid.children(k));
                 }
                 frontier = next;
             }
-            crate::store::IndexChunk { root: key, nodes }
+            Ok::<_, crate::store::StoreError>(crate::store::IndexChunk { root: key, nodes })
         })
         .await
-        .map_err(|_| Problem::internal("index", "building the index chunk failed"))?;
+        .map_err(|_| Problem::internal("index", "building the index chunk failed"))?
+        .map_err(|e| Problem::internal("index", format!("reading the blobs baked so far: {e}")))?;
         let body = serde_json::to_vec_pretty(&chunk).unwrap_or_default();
         let etag = etag_value(&super::registry::etag_of(&body));
         return Ok((Entry { bytes: Bytes::from(body), etag }, true));

@@ -144,13 +144,14 @@ pub fn export_tile(
 ) -> Result<usize, ExportError> {
     use crate::codec::{Geometry, decode};
     let path = store.blob_path(key, level);
-    let bytes = store.read_blob(key, level)?.ok_or_else(|| {
-        if store.is_unpaid(key, level) {
+    let Some(bytes) = store.read_blob(key, level)? else {
+        return Err(if store.is_unpaid(key, level)? {
             crate::store::StoreError::LevelNotStored { path: store.dir().to_owned(), key, level }
         } else {
             crate::store::StoreError::NoSuchTile { path: store.dir().to_owned(), key, level }
         }
-    })?;
+        .into());
+    };
     let blob = decode(&bytes).map_err(|source| ExportError::Codec { path: path.clone(), source })?;
     let mut buf = Vec::new();
     let count = match &blob.geometry {
@@ -188,7 +189,7 @@ pub fn write_anchor(
     let mut bytes = serde_json::to_vec_pretty(&PlacementRecord { anchor })
         .map_err(|source| crate::store::StoreError::Json { path: path.clone(), source })?;
     bytes.push(b'\n');
-    crate::store::write_atomic(&path, &bytes)
+    store.write_file(PLACEMENT_FILE, &bytes)
 }
 
 /// The tileset's recorded anchor; `Ok(None)` when it has none. A record that cannot be read or
@@ -197,11 +198,7 @@ pub fn read_anchor(
     store: &crate::store::Store,
 ) -> Result<Option<crate::tiles3d::Anchor>, crate::store::StoreError> {
     let path = store.dir().join(PLACEMENT_FILE);
-    let bytes = match std::fs::read(&path) {
-        Ok(b) => b,
-        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(None),
-        Err(source) => return Err(crate::store::StoreError::Io { path, source }),
-    };
+    let Some(bytes) = store.read_file(PLACEMENT_FILE)? else { return Ok(None) };
     let r: PlacementRecord = serde_json::from_slice(&bytes)
         .map_err(|source| crate::store::StoreError::Json { path: path.clone(), source })?;
     r.anchor.check().map_err(|message| crate::store::StoreError::Invalid {
@@ -222,8 +219,9 @@ pub fn tiles3d_info(
     // Checks the format and version; the kind and a model's levels come from the raw JSON.
     store.manifest()?;
     let path = store.manifest_path();
-    let bytes =
-        std::fs::read(&path).map_err(|source| crate::store::StoreError::Io { path: path.clone(), source })?;
+    let bytes = store.read_file(crate::store::MANIFEST_FILE)?.ok_or_else(|| {
+        crate::store::StoreError::Invalid { path: path.clone(), message: "no manifest".into() }
+    })?;
     let anchor = match anchor {
         Some(a) => Some(a),
         None => read_anchor(store)?,
@@ -273,7 +271,7 @@ pub fn export_3dtiles(
         let path = path.to_owned();
         move |source| ExportError::Io { path, source }
     };
-    if !store.manifest_path().is_file() {
+    if !store.has_manifest()? {
         return Err(StoreError::Invalid {
             path: store.dir().to_owned(),
             message: "no tileset.json: not a complete tileset (finish or resume its bake first)".into(),

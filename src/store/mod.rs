@@ -16,6 +16,11 @@
 
 pub mod export;
 pub mod model;
+#[cfg(feature = "s3")]
+pub mod remote;
+#[cfg(not(feature = "s3"))]
+#[path = "no_remote.rs"]
+pub mod remote;
 
 use std::fs;
 use std::io::Write;
@@ -67,6 +72,9 @@ const STATE_FILE: &str = "bake-options.json";
 pub enum StoreError {
     #[error("{path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
+    /// An object-storage request failed (after its retries) or the URL cannot be opened.
+    #[error("{url}: {message}")]
+    Remote { url: String, message: String },
     #[error("{path}: invalid JSON: {source}")]
     Json { path: PathBuf, source: serde_json::Error },
     #[error("{path}: {message}")]
@@ -373,32 +381,126 @@ pub fn chunk_root(key: TileKey) -> TileKey {
     TileKey::new(key.z - dz, key.x >> dz, key.y >> dz)
 }
 
-/// A tileset directory.
+/// A tileset: a local directory (the default and the fast path) or a prefix in object storage
+/// ([`Store::at`] with an `s3://` URL).
 #[derive(Debug, Clone)]
 pub struct Store {
+    /// The directory; for a remote tileset its URL (so paths in messages read as URLs).
     dir: PathBuf,
+    remote: Option<std::sync::Arc<remote::Remote>>,
+}
+
+/// The blob of a node's level, relative to the tileset.
+#[must_use]
+pub fn blob_rel(key: TileKey, level: u8) -> String {
+    format!("tiles/{}/{}/{}/{level}.tsb", key.z, key.x, key.y)
+}
+
+/// The `unpaid` marker of a node's level, relative to the tileset.
+#[must_use]
+pub fn unpaid_rel(key: TileKey, level: u8) -> String {
+    format!("tiles/{}/{}/{}/{level}.unpaid", key.z, key.x, key.y)
+}
+
+/// The index chunk rooted at `root`, relative to the tileset.
+#[must_use]
+pub fn chunk_rel(root: TileKey) -> String {
+    format!("index/{}/{}/{}.json", root.z, root.x, root.y)
 }
 
 impl Store {
     /// Opens an existing or new tileset directory (nothing is created until the first write).
     #[must_use]
     pub fn new(dir: &Path) -> Self {
-        Self { dir: dir.to_owned() }
+        Self { dir: dir.to_owned(), remote: None }
     }
 
+    /// Opens a tileset by location: a path, a `file://` URL, or object storage (`s3://BUCKET/PREFIX`,
+    /// configured from the environment; see [`remote`]). Nothing is requested until the first
+    /// read or write.
+    pub fn at(location: &Path) -> Result<Self, StoreError> {
+        let text = location.to_string_lossy();
+        if let Some(path) = text.strip_prefix("file://") {
+            return Ok(Self::new(Path::new(path)));
+        }
+        if remote::is_remote(&text) {
+            let r = remote::Remote::open(&text)?;
+            return Ok(Self { dir: PathBuf::from(r.url()), remote: Some(std::sync::Arc::new(r)) });
+        }
+        Ok(Self::new(location))
+    }
+
+    /// The object-storage location, when the tileset is not a local directory.
+    #[must_use]
+    pub fn remote(&self) -> Option<&remote::Remote> {
+        self.remote.as_deref()
+    }
+
+    /// The directory (for a remote tileset, its URL as a path: for messages only).
     #[must_use]
     pub fn dir(&self) -> &Path {
         &self.dir
     }
 
+    /// A file of the tileset (relative path); `Ok(None)` when it does not exist.
+    fn get(&self, rel: &str) -> Result<Option<Vec<u8>>, StoreError> {
+        if let Some(r) = &self.remote {
+            return r.get(rel);
+        }
+        let path = self.dir.join(rel);
+        match fs::read(&path) {
+            Ok(b) => Ok(Some(b)),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(e) => Err(io(&path)(e)),
+        }
+    }
+
+    /// Writes a file of the tileset whole: a temporary file renamed into place, or one PUT.
+    fn put(&self, rel: &str, bytes: &[u8]) -> Result<(), StoreError> {
+        match &self.remote {
+            Some(r) => r.put(rel, bytes),
+            None => write_atomic(&self.dir.join(rel), bytes),
+        }
+    }
+
+    fn delete(&self, rel: &str) -> Result<(), StoreError> {
+        match &self.remote {
+            Some(r) => r.delete(rel),
+            None => remove_if_present(&self.dir.join(rel)),
+        }
+    }
+
+    fn exists(&self, rel: &str) -> Result<bool, StoreError> {
+        match &self.remote {
+            Some(r) => r.exists(rel),
+            None => Ok(self.dir.join(rel).is_file()),
+        }
+    }
+
+    fn get_json<T: for<'de> Deserialize<'de>>(&self, rel: &str) -> Result<T, StoreError> {
+        let path = self.dir.join(rel);
+        let bytes = self.get(rel)?.ok_or_else(|| {
+            io(&path)(std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                "No such file or directory (os error 2)",
+            ))
+        })?;
+        serde_json::from_slice(&bytes).map_err(|source| StoreError::Json { path, source })
+    }
+
     #[must_use]
     pub fn blob_path(&self, key: TileKey, level: u8) -> PathBuf {
-        self.dir.join(format!("tiles/{}/{}/{}/{level}.tsb", key.z, key.x, key.y))
+        self.dir.join(blob_rel(key, level))
     }
 
     #[must_use]
     pub fn chunk_path(&self, root: TileKey) -> PathBuf {
-        self.dir.join(format!("index/{}/{}/{}.json", root.z, root.x, root.y))
+        self.dir.join(chunk_rel(root))
+    }
+
+    /// Whether the manifest exists (the bake is complete).
+    pub fn has_manifest(&self) -> Result<bool, StoreError> {
+        self.exists(MANIFEST_FILE)
     }
 
     #[must_use]
@@ -410,10 +512,13 @@ impl Store {
     /// bake with the same options. Refuses a non-empty foreign directory and a tileset baked
     /// with other options. Returns true when an earlier bake is being resumed.
     pub fn begin_bake(&self, options: &serde_json::Value) -> Result<bool, StoreError> {
-        let state = self.dir.join(STATE_FILE);
-        let earlier = if state.exists() {
-            Some(read_json::<serde_json::Value>(&state)?)
-        } else if self.manifest_path().exists() {
+        let earlier = if let Some(bytes) = self.get(STATE_FILE)? {
+            let path = self.dir.join(STATE_FILE);
+            Some(
+                serde_json::from_slice::<serde_json::Value>(&bytes)
+                    .map_err(|source| StoreError::Json { path, source })?,
+            )
+        } else if self.exists(MANIFEST_FILE)? {
             Some(self.manifest()?.options)
         } else {
             None
@@ -428,7 +533,9 @@ impl Store {
             Some(prev) => {
                 Err(StoreError::OptionsChanged { path: self.dir.clone(), what: diff_keys(&prev, options) })
             }
+            None if self.remote.is_some() => self.begin_remote(options),
             None => {
+                let state = self.dir.join(STATE_FILE);
                 check_out_dir(&self.dir)?;
                 if self.dir.exists() {
                     for entry in fs::read_dir(&self.dir).map_err(io(&self.dir))? {
@@ -454,24 +561,39 @@ impl Store {
         }
     }
 
+    /// [`Store::begin_bake`] of a new remote tileset: the prefix must hold nothing; the options
+    /// record is created only if absent (a conditional create), so two bakes started at once
+    /// into one prefix cannot both begin.
+    fn begin_remote(&self, options: &serde_json::Value) -> Result<bool, StoreError> {
+        let Some(r) = &self.remote else { return Ok(false) };
+        if !r.is_empty()? {
+            return Err(StoreError::NotATileset { path: self.dir.clone() });
+        }
+        let state = self.dir.join(STATE_FILE);
+        if r.put_new(STATE_FILE, &to_json(options, &state)?)? {
+            Ok(false)
+        } else {
+            // Another bake began here between the listing and the write: check it as a resume.
+            self.begin_bake(options)
+        }
+    }
+
     /// A file of the tileset by its path relative to the tileset (`shards/plan.json`), written
     /// atomically.
     pub fn write_file(&self, rel: &str, bytes: &[u8]) -> Result<(), StoreError> {
-        write_atomic(&self.dir.join(rel), bytes)
+        self.put(rel, bytes)
     }
 
     /// A file of the tileset by its relative path; `Ok(None)` when it does not exist.
     pub fn read_file(&self, rel: &str) -> Result<Option<Vec<u8>>, StoreError> {
-        let path = self.dir.join(rel);
-        match fs::read(&path) {
-            Ok(b) => Ok(Some(b)),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-            Err(e) => Err(io(&path)(e)),
-        }
+        self.get(rel)
     }
 
     /// Removes a folder of the tileset (relative path) and everything in it; nothing when absent.
     pub fn remove_folder(&self, rel: &str) -> Result<(), StoreError> {
+        if let Some(r) = &self.remote {
+            return r.delete_folder(rel);
+        }
         let path = self.dir.join(rel);
         match fs::remove_dir_all(&path) {
             Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(io(&path)(e)),
@@ -489,6 +611,9 @@ impl Store {
     /// sharded bake cleans on resume (the tileset's other folders belong to other shards, whose
     /// writers may run on other machines where this one's process table says nothing).
     pub fn remove_stale_temps_of(&self, keys: &[TileKey]) -> Result<u64, StoreError> {
+        if self.remote.is_some() {
+            return Ok(0);
+        }
         let mut removed = 0u64;
         for key in keys {
             let dir = self.dir.join(format!("tiles/{}/{}/{}", key.z, key.x, key.y));
@@ -514,8 +639,7 @@ impl Store {
     /// Checks that the tileset was begun ([`Store::begin_bake`]) with `options`, without
     /// touching it: what a shard checks before it writes.
     pub fn check_bake(&self, options: &serde_json::Value) -> Result<(), StoreError> {
-        let state = self.dir.join(STATE_FILE);
-        let prev: serde_json::Value = read_json(&state)?;
+        let prev: serde_json::Value = self.get_json(STATE_FILE)?;
         if &prev == options {
             Ok(())
         } else {
@@ -536,6 +660,10 @@ impl Store {
     /// what the final step of a sharded bake does once every shard has finished (a shard killed
     /// on another machine left them; this machine's process table cannot tell).
     pub fn remove_temps(&self, every: bool) -> Result<u64, StoreError> {
+        if self.remote.is_some() {
+            // Object stores have no temporary names: a PUT is atomic.
+            return Ok(0);
+        }
         let mut removed = 0u64;
         let mut stack = vec![(self.dir.clone(), 0u32)];
         while let Some((dir, depth)) = stack.pop() {
@@ -566,27 +694,26 @@ impl Store {
 
     /// Marks the bake complete by writing the manifest, last.
     pub fn finish_bake(&self, manifest: &Manifest) -> Result<(), StoreError> {
-        let path = self.manifest_path();
-        write_atomic(&path, &to_json(manifest, &path)?)
+        self.finish_bake_as(manifest)
     }
 
     /// [`Store::finish_bake`] for a manifest of another shape (a model tileset's, which adds
     /// fields to [`Manifest`]'s).
     pub fn finish_bake_as<T: Serialize>(&self, manifest: &T) -> Result<(), StoreError> {
         let path = self.manifest_path();
-        write_atomic(&path, &to_json(manifest, &path)?)
+        self.put(MANIFEST_FILE, &to_json(manifest, &path)?)
     }
 
     /// The manifest read as `T` (for manifests that extend [`Manifest`]); no format check.
     pub fn manifest_as<T: for<'de> Deserialize<'de>>(&self) -> Result<T, StoreError> {
-        read_json(&self.manifest_path())
+        self.get_json(MANIFEST_FILE)
     }
 
     /// What the tileset holds: the manifest's `kind` field, terrain when it has none (terrain
     /// manifests predate the field).
     pub fn manifest_kind(&self) -> Result<TilesetKind, StoreError> {
         let path = self.manifest_path();
-        let v: serde_json::Value = read_json(&path)?;
+        let v: serde_json::Value = self.get_json(MANIFEST_FILE)?;
         match v.get("kind") {
             None => Ok(TilesetKind::Terrain),
             Some(k) => TilesetKind::deserialize(k).map_err(|_| StoreError::Invalid {
@@ -597,7 +724,14 @@ impl Store {
     }
 
     pub fn write_blob(&self, key: TileKey, level: u8, bytes: &[u8]) -> Result<(), StoreError> {
-        write_atomic(&self.blob_path(key, level), bytes)?;
+        self.put(&blob_rel(key, level), bytes)?;
+        if self.remote.is_some() {
+            // A fresh remote bake has no markers: ask only when resuming would find one.
+            if self.exists(&unpaid_rel(key, level))? {
+                self.delete(&unpaid_rel(key, level))?;
+            }
+            return Ok(());
+        }
         remove_if_present(&self.unpaid_path(key, level))
     }
 
@@ -606,44 +740,38 @@ impl Store {
     /// left out on purpose from a blob lost since (which it bakes again) by it.
     #[must_use]
     pub fn unpaid_path(&self, key: TileKey, level: u8) -> PathBuf {
-        self.dir.join(format!("tiles/{}/{}/{}/{level}.unpaid", key.z, key.x, key.y))
+        self.dir.join(unpaid_rel(key, level))
     }
 
     /// Records that `level` of `key` is not stored (it did not pay): writes the marker and
     /// removes any blob an earlier bake left for it.
     pub fn write_unpaid(&self, key: TileKey, level: u8) -> Result<(), StoreError> {
-        write_atomic(&self.unpaid_path(key, level), b"")?;
-        remove_if_present(&self.blob_path(key, level))
+        self.put(&unpaid_rel(key, level), b"")?;
+        self.delete(&blob_rel(key, level))
     }
 
     /// True when [`Store::write_unpaid`] marked `level` of `key` as not stored.
-    #[must_use]
-    pub fn is_unpaid(&self, key: TileKey, level: u8) -> bool {
-        self.unpaid_path(key, level).is_file()
+    pub fn is_unpaid(&self, key: TileKey, level: u8) -> Result<bool, StoreError> {
+        self.exists(&unpaid_rel(key, level))
     }
 
     /// The blob's bytes; `Ok(None)` when it does not exist.
     pub fn read_blob(&self, key: TileKey, level: u8) -> Result<Option<Vec<u8>>, StoreError> {
-        let path = self.blob_path(key, level);
-        match fs::read(&path) {
-            Ok(b) => Ok(Some(b)),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-            Err(e) => Err(io(&path)(e)),
-        }
+        self.get(&blob_rel(key, level))
     }
 
     pub fn write_chunk(&self, chunk: &IndexChunk) -> Result<(), StoreError> {
         let path = self.chunk_path(chunk.root);
-        write_atomic(&path, &to_json(chunk, &path)?)
+        self.put(&chunk_rel(chunk.root), &to_json(chunk, &path)?)
     }
 
     pub fn chunk(&self, root: TileKey) -> Result<IndexChunk, StoreError> {
-        read_json(&self.chunk_path(root))
+        self.get_json(&chunk_rel(root))
     }
 
     pub fn manifest(&self) -> Result<Manifest, StoreError> {
         let path = self.manifest_path();
-        let m: Manifest = read_json(&path)?;
+        let m: Manifest = self.get_json(MANIFEST_FILE)?;
         if m.format != MANIFEST_FORMAT || m.version != MANIFEST_VERSION {
             return Err(StoreError::Invalid {
                 path,
@@ -696,11 +824,6 @@ fn to_json<T: Serialize>(v: &T, path: &Path) -> Result<Vec<u8>, StoreError> {
         serde_json::to_vec_pretty(v).map_err(|source| StoreError::Json { path: path.to_owned(), source })?;
     out.push(b'\n');
     Ok(out)
-}
-
-fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, StoreError> {
-    let bytes = fs::read(path).map_err(io(path))?;
-    serde_json::from_slice(&bytes).map_err(|source| StoreError::Json { path: path.to_owned(), source })
 }
 
 /// The top-level keys whose values differ, for a readable error.

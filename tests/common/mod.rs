@@ -144,7 +144,7 @@ pub fn assert_levels_pay(dir: &Path) -> (usize, usize, usize) {
         for spec in &m.levels {
             if n.level(spec.level).is_none() {
                 assert!(
-                    store.is_unpaid(n.key, spec.level),
+                    store.is_unpaid(n.key, spec.level).unwrap(),
                     "{} level {}: neither blob nor marker",
                     n.key,
                     spec.level

@@ -1,0 +1,53 @@
+//! Object storage in a build without the `s3` feature: URLs are refused with a clear error.
+
+use super::StoreError;
+
+/// The URL schemes this build opens: none.
+pub const SCHEMES: &[&str] = &[];
+
+/// Whether `location` names object storage (a URL with a scheme other than `file://`).
+#[must_use]
+pub fn is_remote(location: &str) -> bool {
+    location.contains("://") && !location.starts_with("file://")
+}
+
+/// Never constructed in this build.
+#[derive(Debug, Clone)]
+pub enum Remote {}
+
+impl Remote {
+    pub fn open(url: &str) -> Result<Self, StoreError> {
+        Err(StoreError::Remote {
+            url: url.to_owned(),
+            message: "this build has no object storage (build with the `s3` feature)".into(),
+        })
+    }
+    #[must_use]
+    pub fn url(&self) -> &str {
+        match *self {}
+    }
+    pub fn get(&self, _: &str) -> Result<Option<Vec<u8>>, StoreError> {
+        match *self {}
+    }
+    pub fn put(&self, _: &str, _: &[u8]) -> Result<(), StoreError> {
+        match *self {}
+    }
+    pub fn put_new(&self, _: &str, _: &[u8]) -> Result<bool, StoreError> {
+        match *self {}
+    }
+    pub fn delete(&self, _: &str) -> Result<(), StoreError> {
+        match *self {}
+    }
+    pub fn exists(&self, _: &str) -> Result<bool, StoreError> {
+        match *self {}
+    }
+    pub fn list(&self, _: &str) -> Result<Vec<(String, u64)>, StoreError> {
+        match *self {}
+    }
+    pub fn is_empty(&self) -> Result<bool, StoreError> {
+        match *self {}
+    }
+    pub fn delete_folder(&self, _: &str) -> Result<(), StoreError> {
+        match *self {}
+    }
+}

@@ -1,0 +1,289 @@
+//! Tilesets in object storage (`s3://BUCKET/PREFIX`; `gs://` and `az://` with the `gcs` and
+//! `azure` features) through the `object_store` crate: the few operations a [`super::Store`]
+//! needs — get, put, delete, exists, list — each blocking on a small runtime of this module for
+//! the synchronous bake, and async for the server.
+//!
+//! Configuration comes from the usual environment variables of each service (for S3:
+//! `AWS_ACCESS_KEY_ID`, `AWS_SECRET_ACCESS_KEY`, `AWS_SESSION_TOKEN`, `AWS_REGION` or
+//! `AWS_DEFAULT_REGION`, `AWS_ENDPOINT_URL` for S3-compatible servers; an `http://` endpoint is
+//! allowed without `AWS_ALLOW_HTTP`). Every request is retried on server errors, throttling and
+//! timeouts with exponential backoff ([`retry_config`]), and a request that stalls is abandoned
+//! after [`REQUEST_TIMEOUT`] and retried.
+//!
+//! A PUT is atomic (an object appears whole or not at all), so remote writes need no temporary
+//! names; the manifest is still written last.
+
+use std::sync::{Arc, OnceLock};
+use std::time::Duration;
+
+use futures_util::StreamExt;
+use object_store::path::Path as ObjPath;
+use object_store::{ObjectStore, ObjectStoreExt, PutMode, PutOptions, PutPayload};
+
+use super::StoreError;
+
+/// How long one request may take before it is abandoned (and retried).
+pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(30);
+/// Retries of one request after its first attempt.
+pub const MAX_RETRIES: usize = 6;
+/// The time after which a request is not retried again.
+pub const RETRY_TIMEOUT: Duration = Duration::from_mins(2);
+
+/// The URL schemes this build opens.
+pub const SCHEMES: &[&str] = &[
+    "s3://",
+    #[cfg(feature = "gcs")]
+    "gs://",
+    #[cfg(feature = "azure")]
+    "az://",
+];
+
+/// Whether `location` names object storage (a URL with a scheme other than `file://`).
+#[must_use]
+pub fn is_remote(location: &str) -> bool {
+    location.contains("://") && !location.starts_with("file://")
+}
+
+/// Backoff from 100 ms doubling to 5 s, [`MAX_RETRIES`] retries within [`RETRY_TIMEOUT`].
+/// `TERRASTREAM_S3_RETRIES` and `TERRASTREAM_S3_TIMEOUT_S` override the retries and the
+/// request timeout (tests use small values).
+fn retry_config() -> object_store::RetryConfig {
+    let retries =
+        std::env::var("TERRASTREAM_S3_RETRIES").ok().and_then(|v| v.parse().ok()).unwrap_or(MAX_RETRIES);
+    object_store::RetryConfig {
+        backoff: object_store::BackoffConfig {
+            init_backoff: Duration::from_millis(100),
+            max_backoff: Duration::from_secs(5),
+            base: 2.0,
+        },
+        max_retries: retries,
+        retry_timeout: RETRY_TIMEOUT,
+    }
+}
+
+fn client_options(endpoint_is_http: bool) -> object_store::ClientOptions {
+    let timeout = std::env::var("TERRASTREAM_S3_TIMEOUT_S")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+        .filter(|s| s.is_finite() && *s > 0.0 && *s < 86_400.0)
+        .map_or(REQUEST_TIMEOUT, Duration::from_secs_f64);
+    object_store::ClientOptions::new()
+        .with_timeout(timeout)
+        .with_connect_timeout(timeout.min(Duration::from_secs(10)))
+        .with_allow_http(endpoint_is_http)
+}
+
+/// The runtime the blocking calls run on (two threads: the requests are I/O-bound; the callers'
+/// own threads drive their futures).
+fn runtime() -> &'static tokio::runtime::Runtime {
+    static RT: OnceLock<tokio::runtime::Runtime> = OnceLock::new();
+    RT.get_or_init(|| {
+        tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .thread_name("terrastream-store")
+            .enable_all()
+            .build()
+            // Creating a runtime fails only when the OS refuses threads or an event queue.
+            .unwrap_or_else(|e| {
+                eprintln!("error: cannot start the object-storage runtime: {e}");
+                std::process::exit(1)
+            })
+    })
+}
+
+/// Runs `f` to completion from synchronous code (also from a thread of another runtime).
+fn block<F: std::future::Future>(f: F) -> F::Output {
+    if tokio::runtime::Handle::try_current().is_ok() {
+        tokio::task::block_in_place(|| runtime().block_on(f))
+    } else {
+        runtime().block_on(f)
+    }
+}
+
+/// A tileset's location in object storage.
+#[derive(Debug, Clone)]
+pub struct Remote {
+    /// The URL as given, without a trailing slash (for messages and display).
+    url: String,
+    store: Arc<dyn ObjectStore>,
+    prefix: ObjPath,
+}
+
+impl Remote {
+    /// Opens `url` (`s3://BUCKET/PREFIX`, …) with the environment's configuration. Nothing is
+    /// requested until the first operation.
+    pub fn open(url: &str) -> Result<Self, StoreError> {
+        let url = url.trim_end_matches('/').to_owned();
+        let bad = |message: String| StoreError::Remote { url: url.clone(), message };
+        let parsed = url::Url::parse(&url).map_err(|e| bad(format!("not a URL: {e}")))?;
+        let prefix =
+            ObjPath::from_url_path(parsed.path()).map_err(|e| bad(format!("invalid object path: {e}")))?;
+        let store: Arc<dyn ObjectStore> = match parsed.scheme() {
+            "s3" | "s3a" => {
+                let endpoint = ["AWS_ENDPOINT_URL_S3", "AWS_ENDPOINT_URL", "AWS_ENDPOINT"]
+                    .iter()
+                    .find_map(|v| std::env::var(v).ok())
+                    .unwrap_or_default();
+                let s3 = object_store::aws::AmazonS3Builder::from_env()
+                    .with_url(url.clone())
+                    .with_retry(retry_config())
+                    .with_client_options(client_options(endpoint.starts_with("http://")))
+                    .build()
+                    .map_err(|e| bad(format!("cannot open: {e}")))?;
+                Arc::new(s3)
+            }
+            #[cfg(feature = "gcs")]
+            "gs" => Arc::new(
+                object_store::gcp::GoogleCloudStorageBuilder::from_env()
+                    .with_url(url.clone())
+                    .with_retry(retry_config())
+                    .with_client_options(client_options(false))
+                    .build()
+                    .map_err(|e| bad(format!("cannot open: {e}")))?,
+            ),
+            #[cfg(feature = "azure")]
+            "az" | "azure" | "abfs" => Arc::new(
+                object_store::azure::MicrosoftAzureBuilder::from_env()
+                    .with_url(url.clone())
+                    .with_retry(retry_config())
+                    .with_client_options(client_options(false))
+                    .build()
+                    .map_err(|e| bad(format!("cannot open: {e}")))?,
+            ),
+            other => {
+                return Err(bad(format!(
+                    "unsupported scheme {other}://; this build opens {} (and local paths or file://)",
+                    SCHEMES.join(", ")
+                )));
+            }
+        };
+        Ok(Self { url, store, prefix })
+    }
+
+    #[must_use]
+    pub fn url(&self) -> &str {
+        &self.url
+    }
+
+    fn key(&self, rel: &str) -> ObjPath {
+        let mut p = self.prefix.clone();
+        for part in rel.split('/').filter(|s| !s.is_empty()) {
+            p = p.clone().join(part);
+        }
+        p
+    }
+
+    fn err(&self, rel: &str, e: &object_store::Error) -> StoreError {
+        StoreError::Remote { url: format!("{}/{rel}", self.url), message: e.to_string() }
+    }
+
+    /// The object's bytes; `Ok(None)` when it does not exist.
+    pub async fn get_async(&self, rel: &str) -> Result<Option<bytes::Bytes>, StoreError> {
+        match self.store.get(&self.key(rel)).await {
+            Ok(r) => r.bytes().await.map(Some).map_err(|e| self.err(rel, &e)),
+            Err(object_store::Error::NotFound { .. }) => Ok(None),
+            Err(e) => Err(self.err(rel, &e)),
+        }
+    }
+
+    /// Bytes `range` of the object; `Ok(None)` when it does not exist.
+    pub async fn get_range_async(
+        &self,
+        rel: &str,
+        range: std::ops::Range<u64>,
+    ) -> Result<Option<bytes::Bytes>, StoreError> {
+        match self.store.get_range(&self.key(rel), range).await {
+            Ok(b) => Ok(Some(b)),
+            Err(object_store::Error::NotFound { .. }) => Ok(None),
+            Err(e) => Err(self.err(rel, &e)),
+        }
+    }
+
+    pub fn get(&self, rel: &str) -> Result<Option<Vec<u8>>, StoreError> {
+        block(self.get_async(rel)).map(|b| b.map(|b| b.to_vec()))
+    }
+
+    /// Writes the object whole (a PUT is atomic).
+    pub fn put(&self, rel: &str, bytes: &[u8]) -> Result<(), StoreError> {
+        let payload = PutPayload::from(bytes.to_vec());
+        block(self.store.put(&self.key(rel), payload)).map(|_| ()).map_err(|e| self.err(rel, &e))
+    }
+
+    /// Writes the object only if it does not exist (a conditional create); false when it did.
+    pub fn put_new(&self, rel: &str, bytes: &[u8]) -> Result<bool, StoreError> {
+        let payload = PutPayload::from(bytes.to_vec());
+        let opts = PutOptions { mode: PutMode::Create, ..PutOptions::default() };
+        match block(self.store.put_opts(&self.key(rel), payload, opts)) {
+            Ok(_) => Ok(true),
+            Err(object_store::Error::AlreadyExists { .. }) => Ok(false),
+            // A store without conditional writes: exists-then-put (the caller's check is then
+            // advisory, as on a plain filesystem).
+            Err(object_store::Error::NotImplemented { .. } | object_store::Error::NotSupported { .. }) => {
+                if self.exists(rel)? {
+                    Ok(false)
+                } else {
+                    self.put(rel, bytes).map(|()| true)
+                }
+            }
+            Err(e) => Err(self.err(rel, &e)),
+        }
+    }
+
+    /// Deletes the object; nothing when it does not exist.
+    pub fn delete(&self, rel: &str) -> Result<(), StoreError> {
+        match block(self.store.delete(&self.key(rel))) {
+            Ok(()) | Err(object_store::Error::NotFound { .. }) => Ok(()),
+            Err(e) => Err(self.err(rel, &e)),
+        }
+    }
+
+    pub async fn exists_async(&self, rel: &str) -> Result<bool, StoreError> {
+        match self.store.head(&self.key(rel)).await {
+            Ok(_) => Ok(true),
+            Err(object_store::Error::NotFound { .. }) => Ok(false),
+            Err(e) => Err(self.err(rel, &e)),
+        }
+    }
+
+    pub fn exists(&self, rel: &str) -> Result<bool, StoreError> {
+        block(self.exists_async(rel))
+    }
+
+    /// Every object under `rel` (a folder; "" for the whole tileset), as paths relative to the
+    /// tileset, with their sizes. Bounded by what the bucket holds under the prefix.
+    pub fn list(&self, rel: &str) -> Result<Vec<(String, u64)>, StoreError> {
+        let base = self.key(rel);
+        let strip = self.prefix.as_ref().len();
+        block(async {
+            let mut out = Vec::new();
+            let mut s = self.store.list(Some(&base));
+            while let Some(meta) = s.next().await {
+                let meta = meta.map_err(|e| self.err(rel, &e))?;
+                let full = meta.location.as_ref();
+                let rel = full.get(strip..).unwrap_or(full).trim_start_matches('/').to_owned();
+                out.push((rel, meta.size));
+            }
+            Ok(out)
+        })
+    }
+
+    /// Whether the tileset's prefix holds any object (one listing request).
+    pub fn is_empty(&self) -> Result<bool, StoreError> {
+        block(async {
+            let mut s = self.store.list(Some(&self.prefix));
+            match s.next().await {
+                None => Ok(true),
+                Some(Ok(_)) => Ok(false),
+                Some(Err(e)) => Err(self.err("", &e)),
+            }
+        })
+    }
+
+    /// Deletes every object under `rel`.
+    pub fn delete_folder(&self, rel: &str) -> Result<(), StoreError> {
+        for (name, _) in self.list(rel)? {
+            self.delete(&name)?;
+        }
+        Ok(())
+    }
+}
