@@ -11,6 +11,7 @@ pub mod demo;
 pub mod eval;
 pub mod export;
 pub mod inspect;
+pub mod pack;
 pub mod plan;
 mod progress;
 #[cfg(feature = "server")]
@@ -66,6 +67,9 @@ pub enum Command {
     Eval(Box<eval::EvalArgs>),
     /// Decode one (tile, level) to PLY or OBJ in world coordinates.
     Export(export::ExportArgs),
+    /// Pack a finished tileset into one archive file (.tsa; local or s3://), which `serve`,
+    /// `inspect` and `export` read like the tileset and any HTTP host can serve by ranges.
+    Pack(pack::PackArgs),
 }
 
 /// The worker and point-baker flags `bake` and `bake-model` share.
@@ -120,6 +124,7 @@ pub fn run(cli: Cli) -> Result<()> {
         #[cfg(all(feature = "client", feature = "gpu"))]
         Command::Eval(a) => eval::run(&a),
         Command::Export(a) => export::run(&a),
+        Command::Pack(a) => pack::run(&a),
     }
 }
 

@@ -123,7 +123,13 @@ pub fn run_step(a: &BakeArgs, plan_at: &Path) -> Result<()> {
         plan_at
     };
     let store = Store::at(dir).context(InputRefused)?;
-    let plan = match Plan::read(&store).context(InputRefused)? {
+    // A plan that cannot be read (an I/O error, a bucket failing past its retries) may be read
+    // on a retry; one that is damaged or of another version may not.
+    let plan = match Plan::read(&store).map_err(|e| {
+        let refused = !matches!(e, terrastream::bake::BakeError::Store(_));
+        let e = anyhow::Error::from(e);
+        if refused { e.context(InputRefused) } else { e }
+    })? {
         Some(p) => p,
         None if store.has_manifest()? => {
             // Every step is idempotent: a step run again after the final one has nothing to do.

@@ -14,6 +14,7 @@
 //! Every file is written to a temporary name in the same directory and renamed into place, so a
 //! reader (or a resumed bake) sees either the old file or the complete new one, never a torn one.
 
+pub mod archive;
 pub mod export;
 pub mod model;
 #[cfg(feature = "s3")]
@@ -39,6 +40,8 @@ pub const MANIFEST_VERSION: u32 = 1;
 /// index file grows with the dataset.
 pub const SUBTREE_LEVELS: u8 = 4;
 pub const MANIFEST_FILE: &str = "tileset.json";
+/// The file name ending of a packed tileset (`terrastream pack`).
+pub const ARCHIVE_SUFFIX: &str = ".tsa";
 /// What a tileset holds: the manifest's `kind` (`"terrain"`, also what a manifest without
 /// `kind` is, or `"model"`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -388,6 +391,8 @@ pub struct Store {
     /// The directory; for a remote tileset its URL (so paths in messages read as URLs).
     dir: PathBuf,
     remote: Option<std::sync::Arc<remote::Remote>>,
+    /// A packed tileset (`.tsa`, local or in a bucket): read-only.
+    archive: Option<std::sync::Arc<archive::Archive>>,
 }
 
 /// The blob of a node's level, relative to the tileset.
@@ -412,7 +417,7 @@ impl Store {
     /// Opens an existing or new tileset directory (nothing is created until the first write).
     #[must_use]
     pub fn new(dir: &Path) -> Self {
-        Self { dir: dir.to_owned(), remote: None }
+        Self { dir: dir.to_owned(), remote: None, archive: None }
     }
 
     /// Opens a tileset by location: a path, a `file://` URL, or object storage (`s3://BUCKET/PREFIX`,
@@ -423,11 +428,51 @@ impl Store {
         if let Some(path) = text.strip_prefix("file://") {
             return Ok(Self::new(Path::new(path)));
         }
-        if remote::is_remote(&text) {
-            let r = remote::Remote::open(&text)?;
-            return Ok(Self { dir: PathBuf::from(r.url()), remote: Some(std::sync::Arc::new(r)) });
+        let text = text.strip_prefix("file://").unwrap_or(&text);
+        if text.ends_with(ARCHIVE_SUFFIX) {
+            return Self::archive_at(text);
+        }
+        if remote::is_remote(text) {
+            let r = remote::Remote::open(text)?;
+            return Ok(Self {
+                dir: PathBuf::from(r.url()),
+                remote: Some(std::sync::Arc::new(r)),
+                archive: None,
+            });
         }
         Ok(Self::new(location))
+    }
+
+    /// A packed tileset: a local `.tsa` file or one in a bucket, opened for reading (its footer
+    /// and directory root are read and checked now).
+    pub fn archive_at(location: &str) -> Result<Self, StoreError> {
+        let refused = |message: String| StoreError::Remote { url: location.to_owned(), message };
+        let a = if remote::is_remote(location) {
+            let r = remote::Remote::open(location)?;
+            let len = r.size("")?.ok_or_else(|| refused("no such archive".into()))?;
+            archive::Archive::open(Box::new(remote::RemoteSource::new(r)), len)
+        } else {
+            archive::Archive::open_file(Path::new(location))
+        }
+        .map_err(|e| refused(e.to_string()))?;
+        Ok(Self { dir: PathBuf::from(location), remote: None, archive: Some(std::sync::Arc::new(a)) })
+    }
+
+    /// The archive, when the tileset is a packed one.
+    #[must_use]
+    pub fn archive(&self) -> Option<&archive::Archive> {
+        self.archive.as_deref()
+    }
+
+    /// Refuses writing into a packed tileset.
+    fn writable(&self) -> Result<(), StoreError> {
+        if self.archive.is_some() {
+            return Err(StoreError::Invalid {
+                path: self.dir.clone(),
+                message: "a packed tileset (.tsa) is read-only; bake into a directory or bucket prefix and pack it again".into(),
+            });
+        }
+        Ok(())
     }
 
     /// The object-storage location, when the tileset is not a local directory.
@@ -444,6 +489,9 @@ impl Store {
 
     /// A file of the tileset (relative path); `Ok(None)` when it does not exist.
     fn get(&self, rel: &str) -> Result<Option<Vec<u8>>, StoreError> {
+        if let Some(a) = &self.archive {
+            return a.read(rel).map_err(|e| self.archive_err(rel, &e));
+        }
         if let Some(r) = &self.remote {
             return r.get(rel);
         }
@@ -457,6 +505,7 @@ impl Store {
 
     /// Writes a file of the tileset whole: a temporary file renamed into place, or one PUT.
     fn put(&self, rel: &str, bytes: &[u8]) -> Result<(), StoreError> {
+        self.writable()?;
         match &self.remote {
             Some(r) => r.put(rel, bytes),
             None => write_atomic(&self.dir.join(rel), bytes),
@@ -464,13 +513,61 @@ impl Store {
     }
 
     fn delete(&self, rel: &str) -> Result<(), StoreError> {
+        self.writable()?;
         match &self.remote {
             Some(r) => r.delete(rel),
             None => remove_if_present(&self.dir.join(rel)),
         }
     }
 
+    fn archive_err(&self, rel: &str, e: &archive::ArchiveError) -> StoreError {
+        StoreError::Remote { url: format!("{} ({rel})", self.dir.display()), message: e.to_string() }
+    }
+
+    /// A file of the tileset by its relative path, for the server: `Ok(None)` when it does not
+    /// exist. Local files are read on tokio's blocking pool, objects through the async client,
+    /// archive ranges on the blocking pool.
+    #[cfg(feature = "server")]
+    pub async fn get_async(&self, rel: &str) -> Result<Option<bytes::Bytes>, StoreError> {
+        if self.archive.is_some() {
+            let (me, rel2) = (self.clone(), rel.to_owned());
+            return tokio::task::spawn_blocking(move || me.get(&rel2))
+                .await
+                .map_err(|e| StoreError::Remote { url: self.describe(rel), message: e.to_string() })?
+                .map(|b| b.map(bytes::Bytes::from));
+        }
+        if let Some(r) = &self.remote {
+            return r.get_async(rel).await;
+        }
+        let path = self.dir.join(rel);
+        match tokio::fs::read(&path).await {
+            Ok(b) => Ok(Some(bytes::Bytes::from(b))),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(e) => Err(io(&path)(e)),
+        }
+    }
+
+    /// Whether a file of the tileset exists, for the server.
+    #[cfg(feature = "server")]
+    pub async fn exists_async(&self, rel: &str) -> Result<bool, StoreError> {
+        if let Some(a) = &self.archive {
+            // The root is in memory; a page read is one small range at most.
+            let (a, rel2) = (a.clone(), rel.to_owned());
+            return tokio::task::spawn_blocking(move || a.entry(&rel2).map(|e| e.is_some()))
+                .await
+                .map_err(|e| StoreError::Remote { url: self.describe(rel), message: e.to_string() })?
+                .map_err(|e| self.archive_err(rel, &e));
+        }
+        if let Some(r) = &self.remote {
+            return r.exists_async(rel).await;
+        }
+        Ok(tokio::fs::metadata(self.dir.join(rel)).await.is_ok_and(|m| m.is_file()))
+    }
+
     fn exists(&self, rel: &str) -> Result<bool, StoreError> {
+        if let Some(a) = &self.archive {
+            return a.entry(rel).map(|e| e.is_some()).map_err(|e| self.archive_err(rel, &e));
+        }
         match &self.remote {
             Some(r) => r.exists(rel),
             None => Ok(self.dir.join(rel).is_file()),
@@ -498,6 +595,78 @@ impl Store {
         self.dir.join(chunk_rel(root))
     }
 
+    /// Every file of the tileset a reader needs, as relative paths with their sizes, in path
+    /// order: temporary files (names beginning with a dot), a sharded bake's `shards/` folder
+    /// and blobs moved aside as `.corrupt` are left out. A directory tree deeper than 16 levels
+    /// is refused (a tileset is 6 deep).
+    pub fn files(&self) -> Result<Vec<(String, u64)>, StoreError> {
+        let mut out: Vec<(String, u64)> = if let Some(a) = &self.archive {
+            a.entries().map_err(|e| self.archive_err("", &e))?.into_iter().map(|e| (e.path, e.len)).collect()
+        } else if let Some(r) = &self.remote {
+            r.list("")?
+        } else {
+            let mut out = Vec::new();
+            let mut stack = vec![(self.dir.clone(), String::new(), 0u32)];
+            while let Some((dir, rel, depth)) = stack.pop() {
+                if depth > 16 {
+                    return Err(StoreError::Invalid { path: dir, message: "folders nested too deep".into() });
+                }
+                for entry in fs::read_dir(&dir).map_err(io(&dir))? {
+                    let entry = entry.map_err(io(&dir))?;
+                    let name = entry.file_name().to_string_lossy().into_owned();
+                    let child = if rel.is_empty() { name.clone() } else { format!("{rel}/{name}") };
+                    let md = entry.metadata().map_err(io(&entry.path()))?;
+                    if md.is_dir() {
+                        stack.push((entry.path(), child, depth + 1));
+                    } else if md.is_file() {
+                        out.push((child, md.len()));
+                    }
+                }
+            }
+            out
+        };
+        out.retain(|(rel, _)| {
+            !rel.starts_with("shards/")
+                && !rel.split('/').any(|c| c.starts_with('.'))
+                && !rel.ends_with(".corrupt")
+        });
+        out.sort();
+        Ok(out)
+    }
+
+    /// Packs the finished tileset into one archive ([`archive`]) written to `out`; returns the
+    /// files packed and the archive's length. Refuses a tileset without its manifest.
+    pub fn pack_into<W: Write>(
+        &self,
+        out: W,
+        mut progress: impl FnMut(u64),
+    ) -> Result<(W, u64, u64), StoreError> {
+        if !self.has_manifest()? {
+            return Err(StoreError::Invalid {
+                path: self.manifest_path(),
+                message:
+                    "no manifest: only a finished tileset can be packed (finish or resume its bake first)"
+                        .into(),
+            });
+        }
+        let files = self.files()?;
+        let werr = |e: archive::ArchiveError| StoreError::Invalid {
+            path: self.dir.clone(),
+            message: format!("packing: {e}"),
+        };
+        let mut w = archive::ArchiveWriter::new(out).map_err(werr)?;
+        for (rel, _) in &files {
+            let bytes = self.get(rel)?.ok_or_else(|| StoreError::Invalid {
+                path: self.dir.join(rel),
+                message: "vanished while packing (is a bake still writing here?)".into(),
+            })?;
+            w.add(rel, &bytes).map_err(werr)?;
+            progress(bytes.len() as u64);
+        }
+        let (out, len) = w.finish().map_err(werr)?;
+        Ok((out, files.len() as u64, len))
+    }
+
     /// Whether the manifest exists (the bake is complete).
     pub fn has_manifest(&self) -> Result<bool, StoreError> {
         self.exists(MANIFEST_FILE)
@@ -512,6 +681,7 @@ impl Store {
     /// bake with the same options. Refuses a non-empty foreign directory and a tileset baked
     /// with other options. Returns true when an earlier bake is being resumed.
     pub fn begin_bake(&self, options: &serde_json::Value) -> Result<bool, StoreError> {
+        self.writable()?;
         let earlier = if let Some(bytes) = self.get(STATE_FILE)? {
             let path = self.dir.join(STATE_FILE);
             Some(
@@ -611,7 +781,7 @@ impl Store {
     /// sharded bake cleans on resume (the tileset's other folders belong to other shards, whose
     /// writers may run on other machines where this one's process table says nothing).
     pub fn remove_stale_temps_of(&self, keys: &[TileKey]) -> Result<u64, StoreError> {
-        if self.remote.is_some() {
+        if self.remote.is_some() || self.archive.is_some() {
             return Ok(0);
         }
         let mut removed = 0u64;
@@ -660,7 +830,7 @@ impl Store {
     /// what the final step of a sharded bake does once every shard has finished (a shard killed
     /// on another machine left them; this machine's process table cannot tell).
     pub fn remove_temps(&self, every: bool) -> Result<u64, StoreError> {
-        if self.remote.is_some() {
+        if self.remote.is_some() || self.archive.is_some() {
             // Object stores have no temporary names: a PUT is atomic.
             return Ok(0);
         }

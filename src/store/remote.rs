@@ -91,12 +91,39 @@ fn runtime() -> &'static tokio::runtime::Runtime {
     })
 }
 
-/// Runs `f` to completion from synchronous code (also from a thread of another runtime).
-fn block<F: std::future::Future>(f: F) -> F::Output {
+/// Runs `f` to completion from synchronous code. On a thread inside another runtime (a
+/// server's blocking pool, where a nested `block_on` would panic) it runs on a scoped thread.
+fn block<F: std::future::Future + Send>(f: F) -> F::Output
+where
+    F::Output: Send,
+{
     if tokio::runtime::Handle::try_current().is_ok() {
-        tokio::task::block_in_place(|| runtime().block_on(f))
+        std::thread::scope(|s| {
+            s.spawn(|| runtime().block_on(f)).join().unwrap_or_else(|p| std::panic::resume_unwind(p))
+        })
     } else {
         runtime().block_on(f)
+    }
+}
+
+/// An archive in a bucket, read by range GETs (each retried like any request).
+pub struct RemoteSource(Remote);
+
+impl RemoteSource {
+    #[must_use]
+    pub fn new(r: Remote) -> Self {
+        Self(r)
+    }
+}
+
+impl super::archive::RangeSource for RemoteSource {
+    fn read_range(&self, start: u64, len: u64) -> std::io::Result<Vec<u8>> {
+        let r = &self.0;
+        match block(r.get_range_async("", start..start + len)) {
+            Ok(Some(b)) => Ok(b.to_vec()),
+            Ok(None) => Err(std::io::Error::new(std::io::ErrorKind::NotFound, format!("{}: gone", r.url))),
+            Err(e) => Err(std::io::Error::other(e.to_string())),
+        }
     }
 }
 
@@ -247,6 +274,62 @@ impl Remote {
 
     pub fn exists(&self, rel: &str) -> Result<bool, StoreError> {
         block(self.exists_async(rel))
+    }
+
+    /// The object's size and last-modified time (Unix ms); `Ok(None)` when it does not exist.
+    pub async fn stamp_async(&self, rel: &str) -> Result<Option<(u64, i64)>, StoreError> {
+        match self.store.head(&self.key(rel)).await {
+            Ok(m) => Ok(Some((m.size, m.last_modified.timestamp_millis()))),
+            Err(object_store::Error::NotFound { .. }) => Ok(None),
+            Err(e) => Err(self.err(rel, &e)),
+        }
+    }
+
+    /// The object's size; `Ok(None)` when it does not exist.
+    pub fn size(&self, rel: &str) -> Result<Option<u64>, StoreError> {
+        block(self.stamp_async(rel)).map(|s| s.map(|(size, _)| size))
+    }
+
+    /// The folders and objects directly under the prefix (one delimited listing): folder names
+    /// and object names with their sizes.
+    pub async fn list_top_async(&self) -> Result<(Vec<String>, Vec<(String, u64)>), StoreError> {
+        let prefix = if self.prefix.as_ref().is_empty() { None } else { Some(&self.prefix) };
+        let r = self.store.list_with_delimiter(prefix).await.map_err(|e| self.err("", &e))?;
+        let name = |p: &ObjPath| p.filename().unwrap_or_default().to_owned();
+        Ok((
+            r.common_prefixes.iter().map(name).collect(),
+            r.objects.iter().map(|o| (name(&o.location), o.size)).collect(),
+        ))
+    }
+
+    /// The tileset under `name` (a sub-prefix or object below this one), for the server's store.
+    #[must_use]
+    pub fn child(&self, name: &str) -> Self {
+        Self { url: format!("{}/{name}", self.url), store: self.store.clone(), prefix: self.key(name) }
+    }
+
+    /// Uploads the local file `path` as the object `rel` (a multipart upload in parts of 16 MiB,
+    /// which S3 completes atomically: the object appears whole or not at all).
+    pub fn put_file(&self, rel: &str, path: &std::path::Path) -> Result<(), StoreError> {
+        use std::io::Read;
+        const PART: usize = 16 << 20;
+        let io = |e: std::io::Error| StoreError::Io { path: path.to_owned(), source: e };
+        let mut file = std::fs::File::open(path).map_err(io)?;
+        let key = self.key(rel);
+        block(async {
+            let upload = self.store.put_multipart(&key).await.map_err(|e| self.err(rel, &e))?;
+            let mut w = object_store::WriteMultipart::new_with_chunk_size(upload, PART);
+            let mut buf = vec![0u8; PART];
+            loop {
+                let n = file.read(&mut buf).map_err(io)?;
+                if n == 0 {
+                    break;
+                }
+                w.wait_for_capacity(4).await.map_err(|e| self.err(rel, &e))?;
+                w.write(&buf[..n]);
+            }
+            w.finish().await.map(|_| ()).map_err(|e| self.err(rel, &e))
+        })
     }
 
     /// Every object under `rel` (a folder; "" for the whole tileset), as paths relative to the
