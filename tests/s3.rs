@@ -311,3 +311,80 @@ fn a_failing_or_stalling_bucket_is_retried_then_refused_and_nothing_is_published
         assert_same(&local, &objects(&endpoint, &url), &format!("resumed after the bucket was {what}"));
     }
 }
+
+/// `serve` from a bucket — a tileset folder and a packed archive — answers every resource with
+/// the same status, bytes and headers as from a directory; a tileset uploaded while serving is
+/// picked up by polling; a bucket that stalls makes blob reads `503` with `Retry-After` within
+/// the request timeout and retries, not a hang.
+#[test]
+fn serving_from_a_bucket_equals_a_directory_and_picks_up_new_tilesets() {
+    let Some((endpoint, bucket)) = s3("serving_from_a_bucket") else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let tif = synth(dir.path());
+    let local_root = dir.path().join("store");
+    ok(bin()
+        .arg("bake")
+        .arg(&tif)
+        .arg("--out")
+        .arg(local_root.join("ts"))
+        .args(BAKE)
+        .args(["-q", "--gpu", "off"]));
+    let folder_root = prefix(&bucket, "serve-folder");
+    let archive_root = prefix(&bucket, "serve-archive");
+    ok(tbin(&endpoint)
+        .arg("bake")
+        .arg(&tif)
+        .arg("--out")
+        .arg(format!("{folder_root}/ts"))
+        .args(BAKE)
+        .args(["-q", "--gpu", "off"]));
+    ok(tbin(&endpoint)
+        .arg("pack")
+        .arg(local_root.join("ts"))
+        .arg("--out")
+        .arg(format!("{archive_root}/ts.tsa"))
+        .arg("-q"));
+
+    let serve_at = |store: &str, ep: &str| {
+        let mut c = tbin(ep);
+        c.args(["serve", "--poll-ms", "200", "--store", store]);
+        common::serve(c)
+    };
+    let local = serve_at(local_root.to_str().unwrap(), &endpoint);
+    let folder = serve_at(&folder_root, &endpoint);
+    let archive = serve_at(&archive_root, &endpoint);
+    let files = common::tree(&local_root.join("ts"));
+    let urls = common::tileset_urls("ts", files.keys());
+    common::assert_same_responses(
+        &[("directory", local.addr), ("bucket folder", folder.addr), ("bucket archive", archive.addr)],
+        &urls,
+    );
+
+    // A tileset uploaded while serving appears within a few polls.
+    ok(tbin(&endpoint)
+        .arg("pack")
+        .arg(local_root.join("ts"))
+        .arg("--out")
+        .arg(format!("{folder_root}/late.tsa"))
+        .arg("-q"));
+    let t0 = Instant::now();
+    while common::http_get(folder.addr, "/tilesets/late/tileset.json").unwrap().0 != 200 {
+        assert!(t0.elapsed() < Duration::from_secs(20), "the uploaded archive was not picked up");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+
+    // The same bucket behind a proxy that stops answering after the server's first scans.
+    let (stalling, count) = fault_proxy(&endpoint, Fault::StallAfter(1_000_000));
+    let mut c = tbin(&stalling);
+    c.args(["serve", "--poll-ms", "60000", "--store", &folder_root])
+        .env("TERRASTREAM_S3_RETRIES", "1")
+        .env("TERRASTREAM_S3_TIMEOUT_S", "1");
+    let srv = common::serve(c);
+    count.store(2_000_000, Ordering::SeqCst);
+    let blob = urls.iter().find(|u| u.contains("/tiles/") && !u.contains("3dtiles")).unwrap();
+    let t0 = Instant::now();
+    let (status, headers, body) = common::http_get(srv.addr, blob).unwrap();
+    assert_eq!(status, 503, "{}", String::from_utf8_lossy(&body));
+    assert!(headers.iter().any(|(k, _)| k == "retry-after"), "{headers:?}");
+    assert!(t0.elapsed() < Duration::from_secs(15), "took {:?}", t0.elapsed());
+}

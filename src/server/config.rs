@@ -122,7 +122,7 @@ pub struct PartialConfig {
         arg(
             long,
             env = "TERRASTREAM_STORE",
-            help = "Store directory: each subdirectory DIR/NAME is a tileset"
+            help = "The store: a directory or s3://BUCKET/PREFIX; each folder NAME/ in it is a tileset, and so is each archive NAME.tsa (terrastream pack). A bucket is served read-only"
         )
     )]
     pub store: Option<PathBuf>,

@@ -199,7 +199,8 @@ async fn healthz() -> Response {
 }
 
 async fn readyz(State(app): State<Arc<App>>) -> Response {
-    let store_ok = app.registry.root().is_dir();
+    // A bucket is readable when its last scan (a listing) succeeded: `ready` says so.
+    let store_ok = app.registry.is_remote() || app.registry.root().is_dir();
     let ready = app.ready.load(Ordering::Relaxed) && store_ok;
     if ready {
         let n = app.registry.all().len();
@@ -389,18 +390,18 @@ pub(super) async fn chunk_entry(
     let entry = if let Some(e) = app.cache.get(&ck) {
         e
     } else {
-        let p = ts.store.chunk_path(key);
-        let bytes = match tokio::fs::read(&p).await {
-            Ok(b) => b,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+        let rel = crate::store::chunk_rel(key);
+        let bytes = match ts.store.get_async(&rel).await {
+            Ok(Some(b)) => b,
+            Ok(None) => {
                 return Err(Problem::not_found(format!("no index chunk {key} in tileset {name:?}")));
             }
             Err(e) => {
-                tracing::error!(path = %p.display(), error = %e, "cannot read index chunk");
+                tracing::error!(path = %ts.store.describe(&rel), error = %e, "cannot read index chunk");
                 return Err(store_unavailable("the index chunk could not be read from the store".into()));
             }
         };
-        let e = Entry { etag: etag_value(&super::registry::etag_of(&bytes)), bytes: Bytes::from(bytes) };
+        let e = Entry { etag: etag_value(&super::registry::etag_of(&bytes)), bytes };
         app.cache.insert(ck, e.clone());
         e
     };
@@ -456,7 +457,7 @@ enum Read {
     Corrupt(String),
 }
 
-fn verify(bytes: Vec<u8>, key: TileKey, level: u8) -> Read {
+fn verify(bytes: Bytes, key: TileKey, level: u8) -> Read {
     let h = match codec::decode_header(&bytes) {
         Ok(h) => h,
         Err(e) => return Read::Corrupt(e.to_string()),
@@ -474,15 +475,16 @@ fn verify(bytes: Vec<u8>, key: TileKey, level: u8) -> Read {
     // Content-derived: the payload's CRC and the header's CRC (which covers the payload CRC,
     // its length, the key and level), 64 bits in all.
     let etag = etag_value(&format!("\"{:08x}{:08x}\"", h.checksum, h.header_checksum));
-    Read::Ok(Entry { bytes: Bytes::from(bytes), etag })
+    Read::Ok(Entry { bytes, etag })
 }
 
-async fn read_verified(path: std::path::PathBuf, key: TileKey, level: u8) -> Result<Read, Problem> {
-    match tokio::fs::read(&path).await {
-        Ok(b) => Ok(verify(b, key, level)),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Read::Missing),
+async fn read_verified(store: &crate::store::Store, key: TileKey, level: u8) -> Result<Read, Problem> {
+    let rel = crate::store::blob_rel(key, level);
+    match store.get_async(&rel).await {
+        Ok(Some(b)) => Ok(verify(b, key, level)),
+        Ok(None) => Ok(Read::Missing),
         Err(e) => {
-            tracing::error!(path = %path.display(), error = %e, "cannot read blob");
+            tracing::error!(path = %store.describe(&rel), error = %e, "cannot read blob");
             Err(store_unavailable(format!("tile {key} level {level} could not be read from the store")))
         }
     }
@@ -507,7 +509,7 @@ pub(super) async fn load_blob(
     let path = ts.store.blob_path(key, level);
     let mut baked = false;
     loop {
-        match read_verified(path.clone(), key, level).await? {
+        match read_verified(&ts.store, key, level).await? {
             Read::Ok(e) => {
                 app.cache.insert(ck, e.clone());
                 return Ok(e);
@@ -536,7 +538,14 @@ pub(super) async fn load_blob(
                 }
             }
             Read::Missing => {
-                if tokio::fs::metadata(ts.store.unpaid_path(key, level)).await.is_ok() {
+                let unpaid =
+                    ts.store.exists_async(&crate::store::unpaid_rel(key, level)).await.map_err(|e| {
+                        tracing::error!(error = %e, "cannot look up an unpaid marker");
+                        store_unavailable(format!(
+                            "tile {key} level {level} could not be read from the store"
+                        ))
+                    })?;
+                if unpaid {
                     return Err(Problem::not_found(format!(
                         "tile {key} has no level {level} in tileset {:?}: that level did not pay (it would \
                          cost as many primitives or bytes as a finer level of the tile); its index entry \

@@ -213,16 +213,27 @@ pub struct Server {
 impl Server {
     /// Loads the on-demand sources, scans the store, starts the bake workers and binds.
     pub async fn bind(config: Config) -> Result<Self, ServerError> {
-        if !config.store.is_dir() {
+        let remote = crate::store::remote::is_remote(&config.store.to_string_lossy());
+        if remote {
+            // The server only reads a bucket: what writes into the store needs a directory.
+            if !config.sources.is_empty() || config.admin_token.is_some() {
+                return Err(ServerError::Config(format!(
+                    "--store {}: a store in object storage is served read-only; --source and the admin API \
+                     (--admin-token) bake into the store and need a local directory",
+                    config.store.display()
+                )));
+            }
+        } else if !config.store.is_dir() {
             return Err(ServerError::Config(format!(
                 "--store {}: not a directory (create it, or bake into DIR/NAME first)",
                 config.store.display()
             )));
+        } else {
+            let root = config.store.clone();
+            tokio::task::spawn_blocking(move || remove_staging_leftovers(&root))
+                .await
+                .map_err(|e| ServerError::Config(format!("--store: {e}")))?;
         }
-        let root = config.store.clone();
-        tokio::task::spawn_blocking(move || remove_staging_leftovers(&root))
-            .await
-            .map_err(|e| ServerError::Config(format!("--store: {e}")))?;
         let mut on_demand = HashMap::new();
         for spec in &config.sources {
             let root = config.store.clone();
@@ -246,8 +257,9 @@ impl Server {
         tracing::info!(point_baker = %baker.describe(), "point levels will be baked here");
         let baker = Arc::new(baker);
         let metrics = Arc::new(Metrics::default());
+        let registry = registry::Registry::new(&config.store, on_demand)?;
         let app = Arc::new(App {
-            registry: registry::Registry::new(&config.store, on_demand),
+            registry,
             cache: cache::BlobCache::new(config.cache_bytes),
             bakery: bakery::Bakery::start(config.bake_workers, config.bake_queue, metrics.clone(), &baker),
             baker,
@@ -258,7 +270,12 @@ impl Server {
             metrics,
             config,
         });
-        app.rescan();
+        {
+            let a = app.clone();
+            tokio::task::spawn_blocking(move || a.rescan())
+                .await
+                .map_err(|e| ServerError::Config(format!("--store: {e}")))?;
+        }
         let listener =
             listen(app.config.bind).map_err(|source| ServerError::Bind { addr: app.config.bind, source })?;
         Ok(Self { listener, app })

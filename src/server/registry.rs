@@ -1,8 +1,10 @@
-//! The tilesets being served: one per subdirectory of the store with a valid manifest, plus the
-//! on-demand tilesets named by `--source`. The store is re-scanned by polling (every
-//! `Config::poll`): a subdirectory whose `tileset.json` appeared, changed (size or mtime) or
-//! vanished is loaded, reloaded or dropped. Polling rather than inotify keeps it portable and
-//! works on network filesystems; the cost is one `stat` per tileset per interval.
+//! The tilesets being served: one per subdirectory of the store with a valid manifest, one per
+//! packed archive `NAME.tsa` beside them, plus the on-demand tilesets named by `--source`. The
+//! store is a local directory or a bucket prefix (`s3://BUCKET/PREFIX`, the same layout). It is
+//! re-scanned by polling (every `Config::poll`): a tileset whose `tileset.json` (or archive)
+//! appeared, changed (size or mtime) or vanished is loaded, reloaded or dropped. Polling rather
+//! than inotify keeps it portable and works on network filesystems and buckets; the cost is one
+//! `stat` per tileset per interval (in a bucket: one listing plus one HEAD per folder tileset).
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -76,13 +78,20 @@ fn summary(name: &str, m: &Manifest, complete: bool) -> serde_json::Value {
     })
 }
 
-/// Loads a complete (manifest present) tileset directory.
-fn load_complete(name: &str, dir: &Path, source: Option<Arc<Source>>) -> Result<Tileset, ServerError> {
-    let store = Store::new(dir);
-    let st = stamp(&store.manifest_path()).ok().flatten();
+/// Loads a complete (manifest present) tileset: a directory, a bucket prefix or an archive.
+fn load_complete(
+    name: &str,
+    store: Store,
+    st: Option<(SystemTime, u64)>,
+    source: Option<Arc<Source>>,
+) -> Result<Tileset, ServerError> {
     let manifest = store.manifest()?;
-    let bytes = std::fs::read(store.manifest_path())
-        .map_err(|e| ServerError::Config(format!("{}: {e}", store.manifest_path().display())))?;
+    let bytes = store.read_file(crate::store::MANIFEST_FILE)?.ok_or_else(|| {
+        ServerError::Config(format!(
+            "{}: vanished while loading",
+            store.describe(crate::store::MANIFEST_FILE)
+        ))
+    })?;
     Ok(Tileset {
         name: name.to_owned(),
         manifest_etag: etag_of(&bytes),
@@ -165,21 +174,43 @@ pub struct OnDemand {
     pub options: serde_json::Value,
 }
 
+/// Where a tileset of the store is, as the scan found it.
+enum Found {
+    Dir(PathBuf),
+    Prefix(String),
+    Archive(String, Option<(SystemTime, u64)>),
+}
+
 /// All tilesets, by name.
 pub struct Registry {
     root: PathBuf,
+    /// The bucket prefix, when the store is in object storage.
+    remote: Option<crate::store::remote::Remote>,
     on_demand: HashMap<String, OnDemand>,
     map: RwLock<HashMap<String, Arc<Tileset>>>,
 }
 
 impl Registry {
-    pub fn new(root: &Path, on_demand: HashMap<String, OnDemand>) -> Self {
-        Self { root: root.to_owned(), on_demand, map: RwLock::new(HashMap::new()) }
+    /// The registry of the store at `root` (a directory, or a bucket URL opened here).
+    pub fn new(root: &Path, on_demand: HashMap<String, OnDemand>) -> Result<Self, ServerError> {
+        let text = root.to_string_lossy();
+        let remote = if crate::store::remote::is_remote(&text) {
+            Some(crate::store::remote::Remote::open(&text)?)
+        } else {
+            None
+        };
+        Ok(Self { root: root.to_owned(), remote, on_demand, map: RwLock::new(HashMap::new()) })
     }
 
     #[must_use]
     pub fn root(&self) -> &Path {
         &self.root
+    }
+
+    /// Whether the store is a bucket prefix (read-only for this server).
+    #[must_use]
+    pub fn is_remote(&self) -> bool {
+        self.remote.is_some()
     }
 
     #[must_use]
@@ -206,8 +237,89 @@ impl Registry {
         }
     }
 
+    /// Re-scans a store in a bucket: one delimited listing, then a HEAD of each folder's
+    /// manifest (archives' sizes and times come with the listing). A tileset whose manifest
+    /// cannot be looked at now stays loaded (its reads fail as `503`).
+    fn scan_remote(&self, r: &crate::store::remote::Remote) -> Result<(), ServerError> {
+        let (folders, objects) = r.list_top()?;
+        let current: HashMap<String, Arc<Tileset>> = self.map.read().map(|m| m.clone()).unwrap_or_default();
+        let mut found: Vec<(String, Found)> = Vec::new();
+        for (file, size, modified_ms) in objects {
+            if let Some(name) = file.strip_suffix(crate::store::ARCHIVE_SUFFIX).filter(|n| valid_name(n)) {
+                let t = SystemTime::UNIX_EPOCH + std::time::Duration::from_millis(modified_ms.max(0) as u64);
+                found.push((name.to_owned(), Found::Archive(file.clone(), Some((t, size)))));
+            }
+        }
+        for name in folders.into_iter().filter(|n| valid_name(n)) {
+            if !found.iter().any(|(n, _)| *n == name) {
+                found.push((name.clone(), Found::Prefix(name)));
+            }
+        }
+        let mut next = HashMap::with_capacity(found.len());
+        for (name, f) in found {
+            // Ok: an archive object's name; Err: a folder tileset's prefix.
+            let (st, store): (_, Result<String, crate::store::remote::Remote>) = match &f {
+                Found::Archive(file, st) => (*st, Ok(file.clone())),
+                Found::Prefix(p) => {
+                    let child = r.child(p);
+                    match child.stamp(crate::store::MANIFEST_FILE) {
+                        Ok(Some((size, ms))) => (
+                            Some((
+                                SystemTime::UNIX_EPOCH + std::time::Duration::from_millis(ms.max(0) as u64),
+                                size,
+                            )),
+                            Err(child),
+                        ),
+                        Ok(None) => continue,
+                        Err(e) => {
+                            if let Some(old) = current.get(&name) {
+                                tracing::error!(tileset = %name, error = %e, "tileset cannot be read; still listed, its reads fail");
+                                next.insert(name, Arc::clone(old));
+                            }
+                            continue;
+                        }
+                    }
+                }
+                Found::Dir(_) => continue,
+            };
+            if let Some(old) = current.get(&name)
+                && old.stamp == st
+            {
+                next.insert(name, old.clone());
+                continue;
+            }
+            let opened = match store {
+                Ok(file) => Store::archive_at(&format!("{}/{file}", r.url())),
+                Err(child) => Ok(Store::from_remote(child)),
+            };
+            match opened.map_err(ServerError::from).and_then(|s| load_complete(&name, s, st, None)) {
+                Ok(ts) => {
+                    tracing::info!(tileset = %name, content_version = %ts.content_version, "tileset loaded");
+                    next.insert(name, Arc::new(ts));
+                }
+                Err(e) => tracing::warn!(tileset = %name, error = %e, "tileset skipped"),
+            }
+        }
+        self.publish(&current, next);
+        Ok(())
+    }
+
+    fn publish(&self, current: &HashMap<String, Arc<Tileset>>, next: HashMap<String, Arc<Tileset>>) {
+        for name in current.keys() {
+            if !next.contains_key(name) {
+                tracing::info!(tileset = %name, "tileset removed");
+            }
+        }
+        if let Ok(mut m) = self.map.write() {
+            *m = next;
+        }
+    }
+
     /// Re-scans the store; returns an error only when the store itself cannot be read.
     pub fn scan(&self) -> Result<(), ServerError> {
+        if let Some(r) = &self.remote {
+            return self.scan_remote(r);
+        }
         let entries = std::fs::read_dir(&self.root).map_err(|e| {
             ServerError::Config(format!("{}: cannot read the store: {e}", self.root.display()))
         })?;
@@ -223,16 +335,29 @@ impl Registry {
                 next.insert(name.to_owned(), Arc::clone(old));
             }
         };
-        let mut seen: HashMap<String, PathBuf> = HashMap::new();
+        let mut seen: HashMap<String, Found> = HashMap::new();
         for entry in entries.flatten() {
-            let Some(name) = entry.file_name().to_str().map(str::to_owned) else { continue };
+            let Some(file) = entry.file_name().to_str().map(str::to_owned) else { continue };
+            let path = entry.path();
+            if let Some(name) = file.strip_suffix(crate::store::ARCHIVE_SUFFIX).filter(|n| valid_name(n)) {
+                // A packed tileset; a folder of the same name wins.
+                match stamp(&path) {
+                    Ok(Some(st)) => {
+                        seen.entry(name.to_owned())
+                            .or_insert_with(|| Found::Archive(path.to_string_lossy().into_owned(), Some(st)));
+                    }
+                    Ok(None) => {}
+                    Err(e) => keep_unreadable(name, &path, &e, &mut next),
+                }
+                continue;
+            }
+            let name = file;
             if !valid_name(&name) {
                 continue;
             }
-            let path = entry.path();
             match std::fs::metadata(&path) {
                 Ok(md) if md.is_dir() => {
-                    seen.insert(name, path);
+                    seen.insert(name, Found::Dir(path));
                 }
                 Ok(_) => keep_unreadable(
                     &name,
@@ -246,10 +371,33 @@ impl Registry {
         }
         for name in self.on_demand.keys() {
             if !next.contains_key(name) {
-                seen.entry(name.clone()).or_insert_with(|| self.root.join(name));
+                seen.insert(name.clone(), Found::Dir(self.root.join(name)));
             }
         }
-        for (name, dir) in seen {
+        for (name, found) in seen {
+            let dir = match found {
+                Found::Dir(dir) => dir,
+                Found::Archive(file, st) => {
+                    if let Some(old) = current.get(&name)
+                        && old.stamp == st
+                    {
+                        next.insert(name, old.clone());
+                        continue;
+                    }
+                    match Store::archive_at(&file)
+                        .map_err(ServerError::from)
+                        .and_then(|s| load_complete(&name, s, st, None))
+                    {
+                        Ok(ts) => {
+                            tracing::info!(tileset = %name, content_version = %ts.content_version, "tileset loaded (archive)");
+                            next.insert(name, Arc::new(ts));
+                        }
+                        Err(e) => tracing::warn!(tileset = %name, error = %e, "tileset skipped"),
+                    }
+                    continue;
+                }
+                Found::Prefix(_) => continue,
+            };
             let od = self.on_demand.get(&name);
             let manifest_path = dir.join(crate::store::MANIFEST_FILE);
             let st = match stamp(&manifest_path) {
@@ -266,7 +414,7 @@ impl Registry {
                 continue;
             }
             let loaded = match (st, od) {
-                (Some(_), _) => load_complete(&name, &dir, od.map(|o| o.source.clone())),
+                (Some(_), _) => load_complete(&name, Store::new(&dir), st, od.map(|o| o.source.clone())),
                 (None, Some(o)) => Ok(load_provisional(&name, &dir, o.source.clone(), &o.options)),
                 (None, None) => continue,
             };
@@ -281,14 +429,7 @@ impl Registry {
                 }
             }
         }
-        for name in current.keys() {
-            if !next.contains_key(name) {
-                tracing::info!(tileset = %name, "tileset removed");
-            }
-        }
-        if let Ok(mut m) = self.map.write() {
-            *m = next;
-        }
+        self.publish(&current, next);
         Ok(())
     }
 }

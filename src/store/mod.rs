@@ -443,6 +443,12 @@ impl Store {
         Ok(Self::new(location))
     }
 
+    /// The tileset at an opened bucket prefix.
+    #[must_use]
+    pub fn from_remote(r: remote::Remote) -> Self {
+        Self { dir: PathBuf::from(r.url()), remote: Some(std::sync::Arc::new(r)), archive: None }
+    }
+
     /// A packed tileset: a local `.tsa` file or one in a bucket, opened for reading (its footer
     /// and directory root are read and checked now).
     pub fn archive_at(location: &str) -> Result<Self, StoreError> {

@@ -68,12 +68,10 @@ impl Remote {
     pub async fn exists_async(&self, _: &str) -> Result<bool, StoreError> {
         match *self {}
     }
-    #[cfg(feature = "server")]
-    pub async fn stamp_async(&self, _: &str) -> Result<Option<(u64, i64)>, StoreError> {
+    pub fn list_top(&self) -> Result<(Vec<String>, Vec<(String, u64, i64)>), StoreError> {
         match *self {}
     }
-    #[cfg(feature = "server")]
-    pub async fn list_top_async(&self) -> Result<(Vec<String>, Vec<(String, u64)>), StoreError> {
+    pub fn stamp(&self, _: &str) -> Result<Option<(u64, i64)>, StoreError> {
         match *self {}
     }
 }

@@ -292,14 +292,28 @@ impl Remote {
 
     /// The folders and objects directly under the prefix (one delimited listing): folder names
     /// and object names with their sizes.
-    pub async fn list_top_async(&self) -> Result<(Vec<String>, Vec<(String, u64)>), StoreError> {
+    pub async fn list_top_async(&self) -> Result<(Vec<String>, Vec<(String, u64, i64)>), StoreError> {
         let prefix = if self.prefix.as_ref().is_empty() { None } else { Some(&self.prefix) };
         let r = self.store.list_with_delimiter(prefix).await.map_err(|e| self.err("", &e))?;
         let name = |p: &ObjPath| p.filename().unwrap_or_default().to_owned();
         Ok((
             r.common_prefixes.iter().map(name).collect(),
-            r.objects.iter().map(|o| (name(&o.location), o.size)).collect(),
+            r.objects
+                .iter()
+                .map(|o| (name(&o.location), o.size, o.last_modified.timestamp_millis()))
+                .collect(),
         ))
+    }
+
+    /// [`Remote::list_top_async`], blocking: folder names, and objects with their sizes and
+    /// last-modified times (Unix ms).
+    pub fn list_top(&self) -> Result<(Vec<String>, Vec<(String, u64, i64)>), StoreError> {
+        block(self.list_top_async())
+    }
+
+    /// [`Remote::stamp_async`], blocking.
+    pub fn stamp(&self, rel: &str) -> Result<Option<(u64, i64)>, StoreError> {
+        block(self.stamp_async(rel))
     }
 
     /// The tileset under `name` (a sub-prefix or object below this one), for the server's store.

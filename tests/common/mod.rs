@@ -156,3 +156,114 @@ pub fn assert_levels_pay(dir: &Path) -> (usize, usize, usize) {
     }
     (nodes.len(), stored, left_out)
 }
+
+/// A `terrastream serve` process on a free 127.0.0.1 port, killed when dropped.
+pub struct Served {
+    pub child: std::process::Child,
+    pub addr: std::net::SocketAddr,
+}
+
+impl Drop for Served {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Starts `cmd` (a `bin()` with `serve --store …` arguments) with `--bind` on a free port and
+/// waits until `/readyz` answers 200 (at most 60 s).
+pub fn serve(mut cmd: Command) -> Served {
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let addr: std::net::SocketAddr = format!("127.0.0.1:{port}").parse().unwrap();
+    let child = cmd
+        .arg("--bind")
+        .arg(addr.to_string())
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap();
+    let s = Served { child, addr };
+    let t0 = Instant::now();
+    while http_get(addr, "/readyz").map(|r| r.0) != Some(200) {
+        assert!(t0.elapsed() < Duration::from_mins(1), "the server on {addr} did not become ready");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    s
+}
+
+/// One GET on its own connection: status, headers (lower-case names) and body; `None` when the
+/// connection fails.
+pub fn http_get(addr: std::net::SocketAddr, path: &str) -> Option<(u16, Vec<(String, String)>, Vec<u8>)> {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(addr).ok()?;
+    s.set_read_timeout(Some(Duration::from_mins(1))).ok()?;
+    write!(s, "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n").ok()?;
+    let mut raw = Vec::new();
+    s.read_to_end(&mut raw).ok()?;
+    let end = raw.windows(4).position(|w| w == b"\r\n\r\n")?;
+    let head = String::from_utf8_lossy(&raw[..end]).into_owned();
+    let mut lines = head.split("\r\n");
+    let status = lines.next()?.split(' ').nth(1)?.parse().ok()?;
+    let headers: Vec<(String, String)> = lines
+        .filter_map(|l| l.split_once(':'))
+        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_owned()))
+        .collect();
+    let mut body = raw[end + 4..].to_vec();
+    if headers.iter().any(|(k, v)| k == "transfer-encoding" && v.contains("chunked")) {
+        let mut out = Vec::new();
+        let mut b = body.as_slice();
+        while let Some(eol) = b.windows(2).position(|w| w == b"\r\n") {
+            let size = usize::from_str_radix(std::str::from_utf8(&b[..eol]).ok()?.trim(), 16).ok()?;
+            if size == 0 {
+                break;
+            }
+            out.extend_from_slice(b.get(eol + 2..eol + 2 + size)?);
+            b = b.get(eol + 2 + size + 2..)?;
+        }
+        body = out;
+    }
+    Some((status, headers, body))
+}
+
+/// The URLs of every resource of tileset `name` whose files are `files` (paths relative to the
+/// tileset): the manifest, each index chunk, each blob, the 3D Tiles root, and the GLB and
+/// subtree of every 5th blob.
+pub fn tileset_urls<'a>(name: &str, files: impl IntoIterator<Item = &'a String>) -> Vec<String> {
+    let mut urls = vec![
+        format!("/tilesets/{name}/tileset.json"),
+        format!("/tilesets/{name}"),
+        format!("/tilesets/{name}/3dtiles/tileset.json"),
+    ];
+    for (i, f) in files.into_iter().enumerate() {
+        if let Some(rest) = f.strip_prefix("tiles/").and_then(|r| r.strip_suffix(".tsb")) {
+            urls.push(format!("/tilesets/{name}/tiles/{rest}"));
+            if i % 5 == 0 {
+                urls.push(format!("/tilesets/{name}/3dtiles/tiles/{rest}.glb"));
+            }
+        } else if let Some(rest) = f.strip_prefix("index/") {
+            urls.push(format!("/tilesets/{name}/index/{rest}"));
+            if !rest.starts_with("0/") {
+                urls.push(format!("/tilesets/{name}/3dtiles/index/{rest}"));
+            }
+        }
+    }
+    urls
+}
+
+/// Asserts that every URL gets the same status, body, ETag and content type from each server.
+pub fn assert_same_responses(servers: &[(&str, std::net::SocketAddr)], urls: &[String]) {
+    let pick = |h: &[(String, String)], k: &str| h.iter().find(|(n, _)| n == k).map(|(_, v)| v.clone());
+    for url in urls {
+        let (first_name, first_addr) = servers[0];
+        let (s0, h0, b0) = http_get(first_addr, url).unwrap();
+        assert!(s0 == 200 || s0 == 404, "{first_name} {url}: {s0} {}", String::from_utf8_lossy(&b0));
+        for &(name, addr) in &servers[1..] {
+            let (s, h, b) = http_get(addr, url).unwrap();
+            assert_eq!(s, s0, "{url}: {name} vs {first_name}");
+            assert!(b == b0, "{url}: {name} body differs from {first_name}'s");
+            for k in ["etag", "content-type", "cache-control"] {
+                assert_eq!(pick(&h, k), pick(&h0, k), "{url}: {name} {k} vs {first_name}");
+            }
+        }
+    }
+}
