@@ -11,6 +11,9 @@ pub fn is_remote(location: &str) -> bool {
     location.contains("://") && !location.starts_with("file://")
 }
 
+/// Folder names, and object names with their sizes and last-modified times (Unix ms).
+pub type Listing = (Vec<String>, Vec<(String, u64, i64)>);
+
 /// Never constructed in this build.
 #[derive(Debug, Clone)]
 pub enum Remote {}
@@ -68,7 +71,7 @@ impl Remote {
     pub async fn exists_async(&self, _: &str) -> Result<bool, StoreError> {
         match *self {}
     }
-    pub fn list_top(&self) -> Result<(Vec<String>, Vec<(String, u64, i64)>), StoreError> {
+    pub fn list_top(&self) -> Result<Listing, StoreError> {
         match *self {}
     }
     pub fn stamp(&self, _: &str) -> Result<Option<(u64, i64)>, StoreError> {

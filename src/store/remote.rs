@@ -106,6 +106,9 @@ where
     }
 }
 
+/// Folder names, and object names with their sizes and last-modified times (Unix ms).
+pub type Listing = (Vec<String>, Vec<(String, u64, i64)>);
+
 /// An archive in a bucket, read by range GETs (each retried like any request).
 pub struct RemoteSource(Remote);
 
@@ -292,7 +295,7 @@ impl Remote {
 
     /// The folders and objects directly under the prefix (one delimited listing): folder names
     /// and object names with their sizes.
-    pub async fn list_top_async(&self) -> Result<(Vec<String>, Vec<(String, u64, i64)>), StoreError> {
+    pub async fn list_top_async(&self) -> Result<Listing, StoreError> {
         let prefix = if self.prefix.as_ref().is_empty() { None } else { Some(&self.prefix) };
         let r = self.store.list_with_delimiter(prefix).await.map_err(|e| self.err("", &e))?;
         let name = |p: &ObjPath| p.filename().unwrap_or_default().to_owned();
@@ -307,7 +310,7 @@ impl Remote {
 
     /// [`Remote::list_top_async`], blocking: folder names, and objects with their sizes and
     /// last-modified times (Unix ms).
-    pub fn list_top(&self) -> Result<(Vec<String>, Vec<(String, u64, i64)>), StoreError> {
+    pub fn list_top(&self) -> Result<Listing, StoreError> {
         block(self.list_top_async())
     }
 

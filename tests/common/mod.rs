@@ -191,9 +191,12 @@ pub fn serve(mut cmd: Command) -> Served {
     s
 }
 
+/// A response: status, headers (lower-case names), body.
+pub type Got = (u16, Vec<(String, String)>, Vec<u8>);
+
 /// One GET on its own connection: status, headers (lower-case names) and body; `None` when the
 /// connection fails.
-pub fn http_get(addr: std::net::SocketAddr, path: &str) -> Option<(u16, Vec<(String, String)>, Vec<u8>)> {
+pub fn http_get(addr: std::net::SocketAddr, path: &str) -> Option<Got> {
     use std::io::{Read, Write};
     let mut s = std::net::TcpStream::connect(addr).ok()?;
     s.set_read_timeout(Some(Duration::from_mins(1))).ok()?;
