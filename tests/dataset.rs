@@ -300,6 +300,63 @@ fn out_of_core_with_no_data_matches_in_memory_under_a_small_cache() {
     assert_eq!(options["fill"]["reach"], 64);
 }
 
+/// A dataset opened from its scan record (what the shards of a sharded bake do) reads and
+/// bakes exactly as the scanned one, without the scan; a changed file, a record of another
+/// dataset or a damaged fallback grid is not taken (the caller scans), and a point cloud is
+/// never opened from a record.
+#[test]
+fn a_scan_record_opens_the_same_dataset_without_scanning_and_only_while_it_stands() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("holey.tif");
+    tiled(&p, (600, 400), (0, 0), 5.0, Model::Projected, Some(-9999.0), &holey);
+    let paths = vec![p.clone()];
+    let opts = DatasetOptions { cache_bytes: MIN_CACHE_BYTES, ..DatasetOptions::default() };
+    let scanned = Dataset::open(&paths, &opts, &|_, _, _| {}).unwrap();
+    let (record, fallback) = scanned.scan_record().unwrap();
+    let fallback = fallback.expect("a dataset with no-data has a fallback grid");
+    assert_eq!(record.nodata_filled, scanned.summary().nodata_filled);
+    // The record survives its JSON form.
+    let record: terrastream::raster::dataset::ScanRecord =
+        serde_json::from_value(serde_json::to_value(&record).unwrap()).unwrap();
+
+    let passes = std::sync::atomic::AtomicU32::new(0);
+    let counting = |_: &str, _: u64, _: u64| {
+        passes.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    };
+    let ds = Dataset::open_scanned(&paths, &opts, &record, Some(&fallback), &counting).unwrap().unwrap();
+    assert_eq!(passes.load(std::sync::atomic::Ordering::Relaxed), 0, "the record's dataset was scanned");
+    assert_eq!(serde_json::to_value(ds.summary()).unwrap(), serde_json::to_value(scanned.summary()).unwrap());
+    let cols: Vec<u32> = (0..600).collect();
+    let rows: Vec<u32> = (0..400).collect();
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    ds.read_window(&cols, &rows, &mut a).unwrap();
+    scanned.read_window(&cols, &rows, &mut b).unwrap();
+    assert!(a == b, "other heights from the record's dataset");
+    let (ta, tb) = (dir.path().join("a"), dir.path().join("b"));
+    bake_dataset(&ds, "holey.tif", &ta);
+    bake_dataset(&scanned, "holey.tif", &tb);
+    assert_eq!(tree(&ta), tree(&tb));
+
+    let not_taken =
+        |record: &terrastream::raster::dataset::ScanRecord, fallback: Option<&[u8]>, want: &str| {
+            let why =
+                Dataset::open_scanned(&paths, &opts, record, fallback, &|_, _, _| {}).unwrap().err().unwrap();
+            assert!(why.contains(want), "{why}");
+        };
+    let mut damaged = fallback.clone();
+    damaged[5] ^= 1;
+    not_taken(&record, Some(&damaged), "fallback grid");
+    not_taken(&record, None, "fallback grid");
+    not_taken(&record, Some(&fallback[4..]), "fallback grid");
+    let mut other = record.clone();
+    other.width += 1;
+    not_taken(&other, Some(&fallback), "600x400");
+    // The file rewritten (same length, later time): its stamp differs.
+    std::thread::sleep(std::time::Duration::from_millis(20));
+    tiled(&p, (600, 400), (0, 0), 5.0, Model::Projected, Some(-9999.0), &|c, r| holey(c, r) + 1.0);
+    not_taken(&record, Some(&fallback), "has changed since the scan");
+}
+
 #[test]
 fn local_fill_equals_the_unbounded_fill_within_its_reach() {
     // Holes no wider than the reach: the local fill is the old whole-raster wavefront exactly,

@@ -216,6 +216,14 @@ fn steps_refuse_what_they_cannot_do() {
     let e =
         fails(bin().arg("plan").arg(&tif).arg("--out").arg(&out).args(BAKE).args(["--shards", "16", "-q"]));
     assert!(e.contains("has finished shards [1]"), "{e}");
+    // Touched since the plan (same heights, a new modification time): a shard does not trust
+    // the plan's scan record, scans the input whole, finds the same checksum and bakes.
+    let f = std::fs::File::options().write(true).open(&tif).unwrap();
+    f.set_modified(std::time::SystemTime::now() + Duration::from_secs(5)).unwrap();
+    drop(f);
+    let o = run_within(&mut shard(&out, 2), Duration::from_mins(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && err.contains("scanning the inputs whole"), "{err}");
     // The input changed since the plan: every step refuses it.
     std::fs::copy(synth(dir.path(), 11), &tif).unwrap();
     refused(&mut shard(&out, 0), "no longer read as when the plan was made");
@@ -223,4 +231,48 @@ fn steps_refuse_what_they_cannot_do() {
         bin().arg("bake").arg("--plan").arg(&out).args(["--finish"]),
         "no longer read as when the plan was made",
     );
+}
+
+/// A raster with no-data, small holes and one wider than the fill's reach: the plan records its
+/// scan (checksum, counts, the fallback grid in `shards/fallback.f32`), every shard opens the
+/// input from that record without scanning it, and the tileset is the one-machine bake's.
+#[test]
+fn a_raster_with_no_data_shards_from_the_plans_scan_record() {
+    use terrastream::raster::geotiff::{Model, write_tiled_f32};
+    let dir = tempfile::tempdir().unwrap();
+    let tif = dir.path().join("holey.tif");
+    let mut file = std::fs::File::create(&tif).unwrap();
+    write_tiled_f32(
+        &mut file,
+        (600, 400),
+        32,
+        Model::Projected,
+        (0.0, 1000.0),
+        (5.0, -5.0),
+        Some(-9999.0),
+        false,
+        |c, r| {
+            let small = (c % 97 < 3) && (r % 89 < 4);
+            let wide = (150..420).contains(&c) && (100..300).contains(&r);
+            if small || wide { -9999.0 } else { terrastream::raster::synth::height_at(600, 400, 11, c, r) }
+        },
+    )
+    .unwrap();
+    drop(file);
+    let one = one_machine(dir.path(), &tif);
+    let out = dir.path().join("s");
+    ok(bin().arg("plan").arg(&tif).arg("--out").arg(&out).args(BAKE).args(["--shards", "4", "-q"]));
+    let plan: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("shards/plan.json")).unwrap()).unwrap();
+    let scan = &plan["inputs"]["scan"];
+    assert!(scan["nodata_filled"].as_u64().unwrap() > 0 && scan["fallback"]["cols"] == 3, "{scan}");
+    assert!(out.join("shards/fallback.f32").is_file());
+    for i in [3, 0, 2, 1] {
+        let o = run_within(&mut shard(&out, i), Duration::from_mins(2));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success() && !err.contains("scanning"), "shard {i}: {err}");
+    }
+    ok(bin().arg("bake").arg("--plan").arg(&out).args(["--finish", "-q", "--gpu", "off"]));
+    assert_same_tree(&one, &out);
+    assert!(!out.join("shards").exists());
 }

@@ -193,6 +193,7 @@ pub fn write_plan(
     opts: &BakeOptions,
     inputs: serde_json::Value,
     shards: u32,
+    files: &[(&str, &[u8])],
     store: &Store,
 ) -> Result<Plan, BakeError> {
     check_options(opts)?;
@@ -227,6 +228,9 @@ pub fn write_plan(
         }
     }
     store.begin_bake(&options)?;
+    for (rel, bytes) in files {
+        store.write_file(rel, bytes)?;
+    }
     let bytes = serde_json::to_vec_pretty(&plan).map_err(|e| BakeError::Plan(e.to_string()))?;
     store.write_file(PLAN_FILE, &bytes)?;
     Ok(plan)

@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use terrastream::bake::{self, BakeOptions, BakeSummary};
-use terrastream::raster::dataset::{Dataset, DatasetOptions};
+use terrastream::raster::dataset::{Dataset, DatasetOptions, ScanRecord};
 use terrastream::raster::{self, HeightEncoding, Limits, LoadOptions, Overrides};
 use terrastream::store::Store;
 use terrastream::tiles3d::Anchor;
@@ -115,7 +115,15 @@ pub struct InputArgs {
 pub struct PlanInputs {
     pub files: Vec<PathBuf>,
     pub read: InputArgs,
+    /// What the plan's scan of the inputs found (the shards open them without scanning while
+    /// it stands; plans without it scan in every step). Its fallback grid, when the dataset has
+    /// no-data, is the plan's file [`FALLBACK_FILE`].
+    #[serde(default)]
+    pub scan: Option<ScanRecord>,
 }
+
+/// The fallback grid of a plan's scan (little-endian f32), beside `shards/plan.json`.
+pub const FALLBACK_FILE: &str = "shards/fallback.f32";
 
 /// An opened dataset and what a bake names it.
 pub struct Opened {
@@ -152,6 +160,17 @@ impl InputArgs {
     /// Opens `files` (already expanded) as one dataset with a progress bar for the scan, and
     /// prints its summary unless `quiet`.
     pub fn open(&self, files: Vec<PathBuf>, quiet: bool) -> Result<Opened> {
+        self.open_with(files, None, quiet)
+    }
+
+    /// [`InputArgs::open`], taking the scan's results from `scanned` (a plan's record and
+    /// fallback grid) when it still stands for the files; else scanning them, with a notice.
+    pub fn open_with(
+        &self,
+        files: Vec<PathBuf>,
+        scanned: Option<(&ScanRecord, Option<&[u8]>)>,
+        quiet: bool,
+    ) -> Result<Opened> {
         bake::check_options(&self.bake_options())?;
         let ds_opts = self.dataset_options();
         let scan_bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(0) };
@@ -159,11 +178,20 @@ impl InputArgs {
             ProgressStyle::with_template("{msg:>16} {bar:40} {human_pos}/{human_len}  ETA {eta}")
                 .unwrap_or_else(|_| ProgressStyle::default_bar()),
         );
-        let dataset = Dataset::open(&files, &ds_opts, &|what, done, total| {
+        let progress = |what: &str, done, total| {
             scan_bar.set_message(what.to_owned());
             scan_bar.set_length(total);
             scan_bar.set_position(done);
-        });
+        };
+        let dataset = match scanned.map(|(r, f)| Dataset::open_scanned(&files, &ds_opts, r, f, &progress)) {
+            Some(Ok(Ok(ds))) => Ok(ds),
+            Some(Err(e)) => Err(e),
+            Some(Ok(Err(why))) => {
+                eprintln!("{why}: scanning the inputs whole to check them against the plan");
+                Dataset::open(&files, &ds_opts, &progress)
+            }
+            None => Dataset::open(&files, &ds_opts, &progress),
+        };
         scan_bar.finish_and_clear();
         let dataset = dataset?;
         let file_name = |p: &std::path::Path| {

@@ -9,7 +9,7 @@ use terrastream::bake::shard::{self, PLAN_FILE, Plan};
 use terrastream::raster;
 use terrastream::store::Store;
 
-use super::bake::{BakeArgs, InputArgs, PlanInputs, print_summary, tiles_bar};
+use super::bake::{BakeArgs, FALLBACK_FILE, InputArgs, PlanInputs, print_summary, tiles_bar};
 
 #[derive(clap::Args)]
 pub struct PlanArgs {
@@ -71,9 +71,18 @@ pub fn run(a: &PlanArgs) -> Result<()> {
     let per = a.shard_mib.max(1).saturating_mul(1 << 20) / 4;
     let shards = a.shards.unwrap_or_else(|| u32::try_from(samples.div_ceil(per).max(1)).unwrap_or(u32::MAX));
     let input = terrastream::bake::TerrainInput::of_dataset(&opened.dataset);
-    let inputs = serde_json::to_value(PlanInputs { files: opened.files.clone(), read: a.input.clone() })?;
+    // The scan's results go into the plan, so that the shards open the inputs without reading
+    // every sample again (each reads only its own region).
+    let (scan, fallback) = opened.dataset.scan_record()?;
+    let inputs = serde_json::to_value(PlanInputs {
+        files: opened.files.clone(),
+        read: a.input.clone(),
+        scan: Some(scan),
+    })?;
     let store = Store::at(&a.out)?;
-    let plan = shard::write_plan(&input, &opened.name, &a.input.bake_options(), inputs, shards, &store)?;
+    let files: Vec<(&str, &[u8])> = fallback.as_deref().map(|b| (FALLBACK_FILE, b)).into_iter().collect();
+    let plan =
+        shard::write_plan(&input, &opened.name, &a.input.bake_options(), inputs, shards, &files, &store)?;
     let biggest = plan.shards.iter().map(|s| s.samples).max().unwrap_or(0);
     outln!(
         "plan: {} shards of the subtrees at depth {} ({} tiles each at most, ≤ {:.1} MiB of heights), then a final step for the {} tiles above\n\
@@ -163,7 +172,12 @@ pub fn run_step(a: &BakeArgs, plan_at: &Path) -> Result<()> {
     let inputs: PlanInputs = serde_json::from_value(plan.inputs.clone())
         .map_err(|e| anyhow::anyhow!("{}: field `inputs`: {e}", store.describe(PLAN_FILE)))
         .context(InputRefused)?;
-    let opened = inputs.read.open(inputs.files, a.quiet).context(InputRefused)?;
+    let fallback = match inputs.scan.as_ref().and_then(|s| s.fallback.as_ref()) {
+        Some(_) => store.read_file(FALLBACK_FILE)?,
+        None => None,
+    };
+    let scanned = inputs.scan.as_ref().map(|s| (s, fallback.as_deref()));
+    let opened = inputs.read.open_with(inputs.files, scanned, a.quiet).context(InputRefused)?;
     let input = terrastream::bake::TerrainInput::of_dataset(&opened.dataset);
     let baker = a.baker.open()?;
     let progress = tiles_bar(a.quiet, a.time_limit);

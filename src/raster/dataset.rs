@@ -28,7 +28,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, PoisonError};
 
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tiff::decoder::{ChunkType, Decoder};
 
 use super::nodata::{self, FALLBACK_BLOCK};
@@ -99,6 +99,52 @@ pub struct DatasetSummary {
     pub crc32: String,
     /// Point clouds: what the gridding read and used.
     pub points: Option<las::PointStats>,
+}
+
+/// What the opening scan of a dataset found ([`Dataset::scan_record`]), so that the same files
+/// can be opened again without reading every sample ([`Dataset::open_scanned`]).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ScanRecord {
+    /// The files as scanned: a file whose length or modification time differs is scanned again.
+    pub files: Vec<FileStamp>,
+    pub width: u32,
+    pub height: u32,
+    pub nodata_filled: u64,
+    pub nodata_fallback: u64,
+    pub crc32: String,
+    /// The fallback grid's shape and the CRC-32 of its bytes, when the dataset has no-data.
+    pub fallback: Option<FallbackRecord>,
+}
+
+/// A file's path, length and modification time (nanoseconds since the Unix epoch).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FileStamp {
+    pub path: PathBuf,
+    pub len: u64,
+    pub modified_ns: u64,
+}
+
+/// The shape of a recorded fallback grid (block columns and rows) and its bytes' CRC-32.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FallbackRecord {
+    pub cols: u32,
+    pub rows: u32,
+    pub crc32: String,
+}
+
+fn file_stamps(paths: &[PathBuf]) -> Result<Vec<FileStamp>, RasterError> {
+    paths
+        .iter()
+        .map(|p| {
+            let md = std::fs::metadata(p).map_err(|e| RasterError::Io { path: p.clone(), source: e })?;
+            let modified_ns = md
+                .modified()
+                .ok()
+                .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+                .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX));
+            Ok(FileStamp { path: p.clone(), len: md.len(), modified_ns })
+        })
+        .collect()
 }
 
 /// Reads one file's samples in blocks: values as stored, no-data as NaN.
@@ -577,6 +623,116 @@ impl Dataset {
         opts: &DatasetOptions,
         progress: &(dyn Fn(&str, u64, u64) + Sync),
     ) -> Result<Self, RasterError> {
+        let mut ds = Self::open_unscanned(paths, opts, progress)?;
+        ds.scan(progress)?;
+        Ok(ds)
+    }
+
+    /// Opens the dataset as [`Dataset::open`] does, taking what its scan finds from `record`
+    /// (made by [`Dataset::scan_record`] of the same files, with `fallback` its fallback grid's
+    /// bytes) instead of reading every sample: what the shards of a sharded bake do, its plan
+    /// having scanned once. `Ok(Err(why))` when the record cannot stand for these files — a
+    /// file's length or modification time differs from the record's, the record does not fit
+    /// the dataset, or the inputs are point clouds (gridded on every open) — and the caller
+    /// scans instead (the checksum then tells whether the heights changed).
+    pub fn open_scanned(
+        paths: &[PathBuf],
+        opts: &DatasetOptions,
+        record: &ScanRecord,
+        fallback: Option<&[u8]>,
+        progress: &(dyn Fn(&str, u64, u64) + Sync),
+    ) -> Result<Result<Self, String>, RasterError> {
+        if paths.iter().any(|p| format_of(p).is_ok_and(|(_, f)| f == Format::Las)) {
+            return Ok(Err("point clouds are gridded on every open".into()));
+        }
+        let mut ds = Self::open_unscanned(paths, opts, progress)?;
+        let stamps = ds.stamps()?;
+        if let Some((now, then)) = stamps.iter().zip(&record.files).find(|(a, b)| a != b) {
+            return Ok(Err(format!(
+                "{} has changed since the scan (length {} bytes, modified {} ns; recorded {} bytes, {} ns)",
+                now.path.display(),
+                now.len,
+                now.modified_ns,
+                then.len,
+                then.modified_ns
+            )));
+        }
+        if stamps.len() != record.files.len() {
+            return Ok(Err(format!(
+                "{} input files; the scan recorded {}",
+                stamps.len(),
+                record.files.len()
+            )));
+        }
+        if (ds.width, ds.height) != (record.width, record.height) {
+            return Ok(Err(format!(
+                "the dataset is {}x{} samples; the scan recorded {}x{}",
+                ds.width, ds.height, record.width, record.height
+            )));
+        }
+        let (bc, br) = (ds.width.div_ceil(BLOCK), ds.height.div_ceil(BLOCK));
+        match (&record.fallback, fallback) {
+            (None, _) if record.nodata_filled == 0 => {}
+            (Some(f), Some(bytes))
+                if (f.cols, f.rows) == (bc, br)
+                    && bytes.len() as u64 == u64::from(bc) * u64::from(br) * 4
+                    && format!("{:08x}", crc32fast::hash(bytes)) == f.crc32 =>
+            {
+                let grid =
+                    bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+                ds.fallback = Some(Fallback { grid, cols: bc as usize, rows: br as usize });
+            }
+            _ => {
+                return Ok(Err("the recorded fallback grid is missing or does not match the dataset".into()));
+            }
+        }
+        ds.summary.nodata_filled = record.nodata_filled;
+        ds.summary.nodata_fallback = record.nodata_fallback;
+        ds.summary.crc32.clone_from(&record.crc32);
+        Ok(Ok(ds))
+    }
+
+    /// What the scan found, for [`Dataset::open_scanned`]: the record and the fallback grid's
+    /// bytes (little-endian f32, block rows top to bottom), when the dataset has no-data.
+    pub fn scan_record(&self) -> Result<(ScanRecord, Option<Vec<u8>>), RasterError> {
+        let bytes =
+            self.fallback.as_ref().map(|f| f.grid.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>());
+        let record = ScanRecord {
+            files: self.stamps()?,
+            width: self.width,
+            height: self.height,
+            nodata_filled: self.summary.nodata_filled,
+            nodata_fallback: self.summary.nodata_fallback,
+            crc32: self.summary.crc32.clone(),
+            fallback: self.fallback.as_ref().zip(bytes.as_ref()).map(|(f, b)| FallbackRecord {
+                cols: f.cols as u32,
+                rows: f.rows as u32,
+                crc32: format!("{:08x}", crc32fast::hash(b)),
+            }),
+        };
+        Ok((record, bytes))
+    }
+
+    /// Stamps of the files given and of the files they name (a VRT's sources), each once.
+    fn stamps(&self) -> Result<Vec<FileStamp>, RasterError> {
+        let mut seen: std::collections::HashSet<&Path> = std::collections::HashSet::new();
+        let paths: Vec<PathBuf> = self
+            .summary
+            .files
+            .iter()
+            .chain(self.parts.iter().map(|p| &p.path))
+            .filter(|p| seen.insert(p.as_path()))
+            .cloned()
+            .collect();
+        file_stamps(&paths)
+    }
+
+    /// Everything [`Dataset::open`] does but the scan.
+    fn open_unscanned(
+        paths: &[PathBuf],
+        opts: &DatasetOptions,
+        progress: &(dyn Fn(&str, u64, u64) + Sync),
+    ) -> Result<Self, RasterError> {
         let Some(first_path) = paths.first() else {
             return Err(dataset_error(Path::new("bake"), "no input files"));
         };
@@ -672,7 +828,7 @@ impl Dataset {
         let formats: Vec<&str> = parts.iter().map(|p| p.format).collect();
         let format = if formats.iter().all(|f| *f == formats[0]) { formats[0] } else { "mixed" };
         // Half to the files' blocks, half to the filled dataset blocks.
-        let mut ds = Self {
+        let ds = Self {
             width,
             height,
             georef,
@@ -694,7 +850,6 @@ impl Dataset {
                 points,
             },
         };
-        ds.scan(progress)?;
         Ok(ds)
     }
 
