@@ -128,3 +128,130 @@ fn pack_refuses_unfinished_tilesets_bad_names_and_reads_refuse_damaged_archives(
     );
     assert!(err.contains("read-only"), "{err}");
 }
+
+/// A plain static web server for one file, as nginx or a CDN answers: `HEAD` and `GET` of
+/// `path` (anything else `404`), a single `Range: bytes=A-B | A- | -N` answered `206` (with
+/// `ranges` false the header is ignored and the whole file sent, `200`). One request per
+/// connection. Counts the requests and the body bytes sent, and the GETs of the whole file.
+struct StaticHost {
+    addr: std::net::SocketAddr,
+    requests: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    sent: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    whole: std::sync::Arc<std::sync::atomic::AtomicU64>,
+}
+
+fn static_host(file: std::path::PathBuf, path: &'static str, ranges: bool) -> StaticHost {
+    use std::io::{BufRead, BufReader, Write};
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicU64, Ordering};
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap();
+    let (requests, sent, whole) =
+        (Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0)));
+    let (r, s, w) = (requests.clone(), sent.clone(), whole.clone());
+    std::thread::spawn(move || {
+        let body = std::fs::read(&file).unwrap();
+        let n = body.len() as u64;
+        for conn in listener.incoming() {
+            let Ok(mut conn) = conn else { continue };
+            let mut reader = BufReader::new(conn.try_clone().unwrap());
+            let mut head = Vec::new();
+            for _ in 0..64 {
+                let mut line = String::new();
+                if reader.read_line(&mut line).unwrap_or(0) == 0 || line == "\r\n" {
+                    break;
+                }
+                head.push(line.trim_end().to_owned());
+            }
+            r.fetch_add(1, Ordering::Relaxed);
+            let first: Vec<&str> = head.first().map(|l| l.split(' ').collect()).unwrap_or_default();
+            let (method, target) =
+                (first.first().copied().unwrap_or(""), first.get(1).copied().unwrap_or(""));
+            if target != path || !matches!(method, "GET" | "HEAD") {
+                let _ = conn
+                    .write_all(b"HTTP/1.1 404 Not Found\r\ncontent-length: 0\r\nconnection: close\r\n\r\n");
+                continue;
+            }
+            let range = head
+                .iter()
+                .find_map(|l| l.to_ascii_lowercase().strip_prefix("range: bytes=").map(str::to_owned))
+                .filter(|_| ranges)
+                .and_then(|spec| {
+                    let (a, b) = spec.split_once('-')?;
+                    let (start, end) = match (a.parse::<u64>().ok(), b.parse::<u64>().ok()) {
+                        (Some(a), Some(b)) => (a, b.min(n - 1)),
+                        (Some(a), None) => (a, n - 1),
+                        (None, Some(k)) => (n.saturating_sub(k), n - 1),
+                        (None, None) => return None,
+                    };
+                    (start <= end && end < n).then_some((start, end))
+                });
+            let (status, lo, hi) = match range {
+                Some((a, b)) => ("206 Partial Content", a, b + 1),
+                None => ("200 OK", 0, n),
+            };
+            let content_range = if range.is_some() {
+                format!("content-range: bytes {lo}-{}/{n}\r\n", hi - 1)
+            } else {
+                String::new()
+            };
+            let reply = format!(
+                "HTTP/1.1 {status}\r\ncontent-length: {}\r\naccept-ranges: {}\r\nconnection: close\r\n{content_range}\r\n",
+                hi - lo,
+                if ranges { "bytes" } else { "none" }
+            );
+            let mut out = reply.into_bytes();
+            if method == "GET" {
+                if range.is_none() {
+                    w.fetch_add(1, Ordering::Relaxed);
+                }
+                out.extend_from_slice(&body[lo as usize..hi as usize]);
+                s.fetch_add(hi - lo, Ordering::Relaxed);
+            }
+            let _ = conn.write_all(&out);
+        }
+    });
+    StaticHost { addr, requests, sent, whole }
+}
+
+/// An archive on a plain static host (no terrastream server; any host that answers range
+/// requests) is read by ranges: `inspect` and the whole 3D Tiles export from its URL equal the
+/// directory's, every blob verified, without ever fetching the whole file. A host that ignores
+/// ranges, and a URL that names a folder, are refused with a clear error.
+#[test]
+fn an_archive_on_a_static_host_is_read_by_ranges() {
+    use std::sync::atomic::Ordering;
+    let tmp = tempfile::tempdir().unwrap();
+    let ts = baked(tmp.path());
+    let tsa = tmp.path().join("ts.tsa");
+    ok(bin().arg("pack").arg(&ts).arg("--out").arg(&tsa).arg("-q"));
+    let size = std::fs::metadata(&tsa).unwrap().len();
+    let host = static_host(tsa.clone(), "/cdn/terrain/ts.tsa", true);
+    let url = format!("http://{}/cdn/terrain/ts.tsa", host.addr);
+
+    let a = ok(bin().arg("inspect").arg(&url));
+    let d = ok(bin().arg("inspect").arg(&ts));
+    assert_eq!(a.lines().skip(1).collect::<Vec<_>>(), d.lines().skip(1).collect::<Vec<_>>());
+    let (from_url, from_dir) = (tmp.path().join("3dt-url"), tmp.path().join("3dt-dir"));
+    ok(bin().arg("export").arg(&url).args(["--format", "3dtiles", "-q", "--out"]).arg(&from_url));
+    ok(bin().arg("export").arg(&ts).args(["--format", "3dtiles", "-q", "--out"]).arg(&from_dir));
+    let (u, d) = (tree(&from_url), tree(&from_dir));
+    assert!(u.len() > 100, "{}", u.len());
+    assert!(u == d, "the 3D Tiles exported from the archive's URL differ from the directory's");
+    assert_eq!(host.whole.load(Ordering::Relaxed), 0, "a GET of the whole archive");
+    let (requests, sent) = (host.requests.load(Ordering::Relaxed), host.sent.load(Ordering::Relaxed));
+    // Two commands, each reading every file it needs once (export: every blob and index chunk).
+    assert!(sent <= 3 * size, "{sent} bytes sent for a {size}-byte archive");
+    assert!(requests > 100, "{requests} requests");
+
+    // A host that ignores Range: refused, naming the URL and the reason.
+    let plain = static_host(tsa, "/ts.tsa", false);
+    let plain_url = format!("http://{}/ts.tsa", plain.addr);
+    let err = fails(bin().arg("inspect").arg(&plain_url));
+    assert!(err.contains(&plain_url) && err.to_lowercase().contains("range"), "{err}");
+    // A folder on a web server cannot be listed; an archive cannot be uploaded to one.
+    let err = fails(bin().arg("inspect").arg(format!("http://{}/cdn/terrain", host.addr)));
+    assert!(err.contains("archive") && err.contains(".tsa"), "{err}");
+    let err = fails(bin().arg("pack").arg(&ts).arg("--out").arg(&url));
+    assert!(err.contains("no uploads"), "{err}");
+}

@@ -29,6 +29,11 @@ pub fn run(a: &PackArgs) -> Result<()> {
             "pack --out {out}: an archive's name ends in {ARCHIVE_SUFFIX} (that is how `serve` and the other commands tell it from a folder)"
         );
     }
+    if out.starts_with("http://") || out.starts_with("https://") {
+        bail!(
+            "pack --out {out}: a web server takes no uploads here; write the archive to a file or s3://BUCKET/KEY{ARCHIVE_SUFFIX} and publish it from there"
+        );
+    }
     let store = Store::at(&a.dir)?;
     if store.archive().is_some() {
         bail!("pack: {} is already an archive", a.dir.display());

@@ -290,8 +290,7 @@ pub fn export_3dtiles(
             });
         }
     }
-    let name =
-        store.dir().file_name().map_or_else(|| "tileset".to_owned(), |n| n.to_string_lossy().into_owned());
+    let name = store.name().unwrap_or_else(|| "tileset".to_owned());
     let info = tiles3d_info(store, &name, anchor, String::new())?;
     // The chunks, from the root down (each read once; bounded by the pyramid).
     let mut chunks = Vec::new();

@@ -443,6 +443,18 @@ impl Store {
         Ok(Self::new(location))
     }
 
+    /// The tileset's name: its folder's (or prefix's) last component, an archive's file name
+    /// without `.tsa` (as `serve` names it).
+    #[must_use]
+    pub fn name(&self) -> Option<String> {
+        let n = self.dir.file_name()?.to_string_lossy().into_owned();
+        Some(if self.archive.is_some() {
+            n.strip_suffix(ARCHIVE_SUFFIX).map_or(n.clone(), str::to_owned)
+        } else {
+            n
+        })
+    }
+
     /// The tileset at an opened bucket prefix.
     #[must_use]
     pub fn from_remote(r: remote::Remote) -> Self {
@@ -793,21 +805,13 @@ impl Store {
         let mut removed = 0u64;
         for key in keys {
             let dir = self.dir.join(format!("tiles/{}/{}/{}", key.z, key.x, key.y));
-            let entries = match fs::read_dir(&dir) {
-                Ok(e) => e,
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
-                Err(e) => return Err(io(&dir)(e)),
-            };
-            for entry in entries {
-                let entry = entry.map_err(io(&dir))?;
-                let name = entry.file_name();
-                if entry.file_type().map_err(io(&entry.path()))?.is_file()
-                    && stale_temp(&name.to_string_lossy())
-                {
-                    fs::remove_file(entry.path()).map_err(io(&entry.path()))?;
+            for_each_entry(&dir, |path, ty, name| {
+                if ty.is_file() && stale_temp(name) {
+                    fs::remove_file(path).map_err(io(path))?;
                     removed += 1;
                 }
-            }
+                Ok(())
+            })?;
         }
         Ok(removed)
     }
@@ -843,27 +847,18 @@ impl Store {
         let mut removed = 0u64;
         let mut stack = vec![(self.dir.clone(), 0u32)];
         while let Some((dir, depth)) = stack.pop() {
-            let entries = match fs::read_dir(&dir) {
-                Ok(e) => e,
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
-                Err(e) => return Err(io(&dir)(e)),
-            };
-            for entry in entries {
-                let entry = entry.map_err(io(&dir))?;
-                let path = entry.path();
-                let ty = entry.file_type().map_err(io(&path))?;
-                let name = entry.file_name();
-                let name = name.to_string_lossy();
+            for_each_entry(&dir, |path, ty, name| {
                 if ty.is_dir() {
                     let ours = depth > 0 || name == "tiles" || name == "index";
                     if ours && depth < 5 {
-                        stack.push((path, depth + 1));
+                        stack.push((path.to_path_buf(), depth + 1));
                     }
-                } else if ty.is_file() && (stale_temp(&name) || (every && temp_owner(&name).is_some())) {
-                    fs::remove_file(&path).map_err(io(&path))?;
+                } else if ty.is_file() && (stale_temp(name) || (every && temp_owner(name).is_some())) {
+                    fs::remove_file(path).map_err(io(path))?;
                     removed += 1;
                 }
-            }
+                Ok(())
+            })?;
         }
         Ok(removed)
     }
@@ -1072,6 +1067,26 @@ fn check_out_dir(dir: &Path) -> Result<(), StoreError> {
             break;
         }
         up = p.parent();
+    }
+    Ok(())
+}
+
+/// Calls `f` with the path, type and name of every entry of `dir`; a folder that does not exist
+/// has none.
+fn for_each_entry(
+    dir: &Path,
+    mut f: impl FnMut(&Path, fs::FileType, &str) -> Result<(), StoreError>,
+) -> Result<(), StoreError> {
+    let entries = match fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(io(dir)(e)),
+    };
+    for entry in entries {
+        let entry = entry.map_err(io(dir))?;
+        let path = entry.path();
+        let ty = entry.file_type().map_err(io(&path))?;
+        f(&path, ty, &entry.file_name().to_string_lossy())?;
     }
     Ok(())
 }

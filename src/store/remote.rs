@@ -1,5 +1,6 @@
 //! Tilesets in object storage (`s3://BUCKET/PREFIX`; `gs://` and `az://` with the `gcs` and
-//! `azure` features) through the `object_store` crate: the few operations a [`super::Store`]
+//! `azure` features), and packed archives on any web server that answers range requests
+//! (`https://HOST/PATH/NAME.tsa`, read-only), through the `object_store` crate: the few operations a [`super::Store`]
 //! needs — get, put, delete, exists, list — each blocking on a small runtime of this module for
 //! the synchronous bake, and async for the server.
 //!
@@ -32,6 +33,7 @@ pub const RETRY_TIMEOUT: Duration = Duration::from_mins(2);
 /// The URL schemes this build opens.
 pub const SCHEMES: &[&str] = &[
     "s3://",
+    "http(s):// (a .tsa archive, read-only)",
     #[cfg(feature = "gcs")]
     "gs://",
     #[cfg(feature = "azure")]
@@ -180,6 +182,28 @@ impl Remote {
                     .build()
                     .map_err(|e| bad(format!("cannot open: {e}")))?,
             ),
+            // A plain web server or CDN: one packed archive, read by HEAD and range GETs.
+            "http" | "https" => {
+                if !parsed.path().ends_with(super::ARCHIVE_SUFFIX) {
+                    return Err(bad(format!(
+                        "an {}:// URL can only name a packed archive (NAME{}), read by range requests: a web server cannot list or write a folder (use s3:// for a bucket)",
+                        parsed.scheme(),
+                        super::ARCHIVE_SUFFIX
+                    )));
+                }
+                let mut origin = parsed.clone();
+                origin.set_path("");
+                origin.set_query(None);
+                origin.set_fragment(None);
+                Arc::new(
+                    object_store::http::HttpBuilder::new()
+                        .with_url(origin.as_str().trim_end_matches('/'))
+                        .with_retry(retry_config())
+                        .with_client_options(client_options(parsed.scheme() == "http"))
+                        .build()
+                        .map_err(|e| bad(format!("cannot open: {e}")))?,
+                )
+            }
             other => {
                 return Err(bad(format!(
                     "unsupported scheme {other}://; this build opens {} (and local paths or file://)",
