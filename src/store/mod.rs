@@ -700,6 +700,11 @@ impl Store {
     /// with other options. Returns true when an earlier bake is being resumed.
     pub fn begin_bake(&self, options: &serde_json::Value) -> Result<bool, StoreError> {
         self.writable()?;
+        if self.remote.is_none() {
+            // Before anything is read under it: a path that cannot be a tileset folder is
+            // named as such, not as a failed read of a file inside it.
+            check_out_dir(&self.dir)?;
+        }
         let earlier = if let Some(bytes) = self.get(STATE_FILE)? {
             let path = self.dir.join(STATE_FILE);
             Some(
