@@ -266,7 +266,16 @@ fn a_raster_with_no_data_shards_from_the_plans_scan_record() {
         serde_json::from_slice(&std::fs::read(out.join("shards/plan.json")).unwrap()).unwrap();
     let scan = &plan["inputs"]["scan"];
     assert!(scan["nodata_filled"].as_u64().unwrap() > 0 && scan["fallback"]["cols"] == 3, "{scan}");
-    assert!(out.join("shards/fallback.f32").is_file());
+    // A fallback grid of another size than the plan records is refused before it is read.
+    let grid = out.join("shards/fallback.f32");
+    let bytes = std::fs::read(&grid).unwrap();
+    assert_eq!(bytes.len(), 3 * 2 * 4);
+    std::fs::write(&grid, [bytes.clone(), vec![0; 1 << 20]].concat()).unwrap();
+    let o = run_within(&mut shard(&out, 0), Duration::from_mins(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(3), "{err}");
+    assert!(err.contains("fallback.f32: is 1048600 bytes; 24 bytes were expected"), "{err}");
+    std::fs::write(&grid, &bytes).unwrap();
     for i in [3, 0, 2, 1] {
         let o = run_within(&mut shard(&out, i), Duration::from_mins(2));
         let err = String::from_utf8_lossy(&o.stderr);

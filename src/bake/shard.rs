@@ -33,6 +33,9 @@ pub const PLAN_VERSION: u32 = 1;
 /// The folder of a tileset that holds the plan and the shards' results until the final step.
 pub const PLAN_DIR: &str = "shards";
 pub const PLAN_FILE: &str = "shards/plan.json";
+/// Largest plan or shard result a step reads (checked before reading): far above what a plan
+/// of [`MAX_SHARDS`] shards over a million input files, or a shard's node list, holds.
+pub const MAX_STEP_FILE_BYTES: u64 = 1 << 30;
 /// Most shards a plan may have (an Indexed Job allows 100,000 completions).
 pub const MAX_SHARDS: u32 = 100_000;
 
@@ -69,7 +72,9 @@ pub struct Plan {
 impl Plan {
     /// The plan of a tileset (`Ok(None)` when it has none).
     pub fn read(store: &Store) -> Result<Option<Self>, BakeError> {
-        let Some(bytes) = store.read_file(PLAN_FILE)? else { return Ok(None) };
+        let Some(bytes) = store.read_file_within(PLAN_FILE, 0..=MAX_STEP_FILE_BYTES)? else {
+            return Ok(None);
+        };
         let plan: Plan = serde_json::from_slice(&bytes)
             .map_err(|e| BakeError::Plan(format!("{}: invalid plan: {e}", store.describe(PLAN_FILE))))?;
         if plan.format != PLAN_FORMAT || plan.version != PLAN_VERSION {
@@ -216,9 +221,12 @@ pub fn write_plan(
     if let Some(prev) = Plan::read(store)?
         && prev.shards != plan.shards
     {
-        let done: Vec<u32> = (0..prev.shard_count())
-            .filter(|&i| store.read_file(&fragment_file(i)).ok().flatten().is_some())
-            .collect();
+        let mut done = Vec::new();
+        for i in 0..prev.shard_count() {
+            if store.has_file(&fragment_file(i))? {
+                done.push(i);
+            }
+        }
         if !done.is_empty() {
             return Err(BakeError::Plan(format!(
                 "{}: an earlier plan of {} shards has finished shards {done:?}; finish it, or delete the tileset to plan again",
@@ -322,7 +330,7 @@ pub fn finish_plan(
     let mut missing = Vec::new();
     for i in 0..plan.shard_count() {
         let file = fragment_file(i);
-        match store.read_file(&file)? {
+        match store.read_file_within(&file, 0..=MAX_STEP_FILE_BYTES)? {
             None => missing.push(i),
             Some(bytes) => {
                 let f: Fragment = serde_json::from_slice(&bytes).map_err(|e| {

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use terrastream::bake::shard::{self, PLAN_FILE, Plan};
 use terrastream::raster;
-use terrastream::store::Store;
+use terrastream::store::{Store, StoreError};
 
 use super::bake::{BakeArgs, FALLBACK_FILE, InputArgs, PlanInputs, print_summary, tiles_bar};
 
@@ -172,8 +172,24 @@ pub fn run_step(a: &BakeArgs, plan_at: &Path) -> Result<()> {
     let inputs: PlanInputs = serde_json::from_value(plan.inputs.clone())
         .map_err(|e| anyhow::anyhow!("{}: field `inputs`: {e}", store.describe(PLAN_FILE)))
         .context(InputRefused)?;
-    let fallback = match inputs.scan.as_ref().and_then(|s| s.fallback.as_ref()) {
-        Some(_) => store.read_file(FALLBACK_FILE)?,
+    let fallback = match inputs.scan.as_ref().filter(|s| s.fallback.is_some()) {
+        Some(scan) => {
+            let Some(len) = scan.fallback_len() else {
+                return Err(anyhow::anyhow!(
+                    "{}: field `inputs.scan.fallback` does not fit the recorded {}x{} samples",
+                    store.describe(PLAN_FILE),
+                    scan.width,
+                    scan.height
+                ))
+                .context(InputRefused);
+            };
+            match store.read_file_within(FALLBACK_FILE, len..=len) {
+                Err(e @ StoreError::Invalid { .. }) => {
+                    return Err(anyhow::Error::from(e)).context(InputRefused);
+                }
+                r => r?,
+            }
+        }
         None => None,
     };
     let scanned = inputs.scan.as_ref().map(|s| (s, fallback.as_deref()));

@@ -116,6 +116,19 @@ pub struct ScanRecord {
     pub fallback: Option<FallbackRecord>,
 }
 
+impl ScanRecord {
+    /// The length in bytes of the recorded fallback grid, when there is one and its shape is
+    /// that of a dataset of the recorded size (at most [`MAX_DATASET_SIDE`] a side): what a
+    /// reader checks the stored grid's size against before reading it.
+    #[must_use]
+    pub fn fallback_len(&self) -> Option<u64> {
+        let f = self.fallback.as_ref()?;
+        let fits = self.width.max(self.height) <= MAX_DATASET_SIDE
+            && (f.cols, f.rows) == (self.width.div_ceil(BLOCK), self.height.div_ceil(BLOCK));
+        fits.then(|| u64::from(f.cols) * u64::from(f.rows) * 4)
+    }
+}
+
 /// A file's path, length and modification time (nanoseconds since the Unix epoch).
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct FileStamp {
@@ -1396,5 +1409,29 @@ mod tests {
             Ok(())
         });
         assert_eq!(*got.unwrap(), block(99, 3));
+    }
+
+    /// The fallback grid's length follows from the record's shape only when that shape is the
+    /// recorded dataset's (so a damaged record cannot ask for a large read).
+    #[test]
+    fn fallback_len_only_for_a_shape_that_fits() {
+        let record = |width, height, cols, rows| ScanRecord {
+            files: vec![],
+            width,
+            height,
+            nodata_filled: 1,
+            nodata_fallback: 1,
+            crc32: String::new(),
+            fallback: Some(FallbackRecord { cols, rows, crc32: String::new() }),
+        };
+        assert_eq!(record(600, 400, 3, 2).fallback_len(), Some(24));
+        assert_eq!(record(600, 400, 3, 3).fallback_len(), None);
+        let side = MAX_DATASET_SIDE / BLOCK;
+        assert_eq!(record(MAX_DATASET_SIDE, 1, side, 1).fallback_len(), Some(u64::from(side) * 4));
+        assert_eq!(
+            record(u32::MAX, u32::MAX, u32::MAX / BLOCK + 1, u32::MAX / BLOCK + 1).fallback_len(),
+            None
+        );
+        assert_eq!(ScanRecord { fallback: None, ..record(600, 400, 3, 2) }.fallback_len(), None);
     }
 }

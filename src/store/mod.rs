@@ -782,6 +782,51 @@ impl Store {
         self.get(rel)
     }
 
+    /// [`Store::read_file`] of a file whose length must lie in `lens` (one length when it is
+    /// known in advance, or a limit): the stored size is checked before anything is read, so a
+    /// damaged or hostile file is not loaded whole, and a file of another size is
+    /// [`StoreError::Invalid`], naming its size and the expected one.
+    pub fn read_file_within(
+        &self,
+        rel: &str,
+        lens: std::ops::RangeInclusive<u64>,
+    ) -> Result<Option<Vec<u8>>, StoreError> {
+        let size = if let Some(a) = &self.archive {
+            a.entry(rel).map_err(|e| self.archive_err(rel, &e))?.map(|e| e.len)
+        } else if let Some(r) = &self.remote {
+            r.size(rel)?
+        } else {
+            let path = self.dir.join(rel);
+            match fs::metadata(&path) {
+                Ok(m) => Some(m.len()),
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+                Err(e) => return Err(io(&path)(e)),
+            }
+        };
+        let wrong = |size: u64| {
+            let expected = if lens.start() == lens.end() {
+                format!("{} bytes were expected", lens.start())
+            } else {
+                format!("{} to {} bytes were expected", lens.start(), lens.end())
+            };
+            StoreError::Invalid { path: self.dir.join(rel), message: format!("is {size} bytes; {expected}") }
+        };
+        match size {
+            None => Ok(None),
+            Some(size) if !lens.contains(&size) => Err(wrong(size)),
+            Some(_) => match self.get(rel)? {
+                // Replaced between the two requests.
+                Some(b) if !lens.contains(&(b.len() as u64)) => Err(wrong(b.len() as u64)),
+                other => Ok(other),
+            },
+        }
+    }
+
+    /// Whether a file of the tileset (relative path) exists.
+    pub fn has_file(&self, rel: &str) -> Result<bool, StoreError> {
+        self.exists(rel)
+    }
+
     /// Removes a folder of the tileset (relative path) and everything in it; nothing when absent.
     pub fn remove_folder(&self, rel: &str) -> Result<(), StoreError> {
         if let Some(r) = &self.remote {
