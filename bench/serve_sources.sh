@@ -40,25 +40,9 @@ conns=50
 venv="${TERRASTREAM_CI_VENV:-$HOME/.cache/terrastream-ci-venv}"
 py="$venv/bin/python"
 
-if [ -z "${BIN:-}" ]; then
-    BIN=./target/release/terrastream
-    [ -x "$BIN" ] || cargo build --release --quiet
-fi
-
-tmp="$(mktemp -d)"
-pids=()
-cleanup() {
-    for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
-    wait 2>/dev/null || true
-    if [ -n "${KEEP:-}" ]; then echo "kept $tmp"; else rm -rf "$tmp"; fi
-}
-trap cleanup EXIT
-
-# The binary is copied once (a rebuild during the run does not change it under the bench).
-for _ in $(seq 120); do [ -x "$BIN" ] && break; sleep 1; done
-cp "$BIN" "$tmp/terrastream"
-bin="$tmp/terrastream"
-free_port() { python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
+source bench/lib.sh
+BIN="${BIN:-./target/release/terrastream}"
+bench_setup "$BIN"
 
 echo "load average before: $(cut -d' ' -f1-3 /proc/loadavg)"
 echo "command: $0 $size $duration $rounds (WRK_THREADS=$wrk_threads WORKERS=$workers CACHES=\"$caches\" BIN=$BIN; $(git describe --always --dirty 2>/dev/null || echo '?'))"
@@ -85,13 +69,7 @@ else
     echo "archive: skipped: \`terrastream pack --help\` fails (this binary has no pack yet)" | tee -a "$tmp/skipped"
 fi
 if [ -x "$venv/bin/moto_server" ] && "$py" -c 'import boto3' 2>/dev/null; then
-    moto_port=$(free_port)
-    "$venv/bin/moto_server" -H 127.0.0.1 -p "$moto_port" >"$tmp/moto.log" 2>&1 &
-    pids+=($!)
-    for _ in $(seq 100); do curl -fs -o /dev/null "http://127.0.0.1:$moto_port/" && break; sleep 0.1; done
-    curl -fs -o /dev/null -X PUT "http://127.0.0.1:$moto_port/bench" || { echo "moto on port $moto_port: cannot create the bucket" >&2; exit 1; }
-    export AWS_ENDPOINT_URL="http://127.0.0.1:$moto_port" AWS_ACCESS_KEY_ID=bench AWS_SECRET_ACCESS_KEY=bench AWS_REGION=us-east-1
-    unset AWS_ENDPOINT_URL_S3 AWS_PROFILE AWS_SESSION_TOKEN
+    start_moto "$venv" bench
     t0=$(date +%s.%N)
     "$bin" bake "$tmp/synth.tif" --out s3://bench/store/bench "${bake_opts[@]}" >/dev/null
     t1=$(date +%s.%N)
@@ -103,21 +81,7 @@ else
     echo "s3: skipped: no moto_server/boto3 in $venv (python3 -m venv $venv && $venv/bin/pip install 'moto[server]' boto3)" | tee -a "$tmp/skipped"
 fi
 
-for list in urls; do
-cat >"$tmp/$list.lua" <<EOF
-local urls = {}
-for line in io.lines("$tmp/$list.txt") do urls[#urls + 1] = line end
-local i = 0
-function init(args)
-    -- Threads start at different points of the list.
-    i = math.random(#urls)
-end
-function request()
-    i = i % #urls + 1
-    return wrk.format("GET", urls[i])
-end
-EOF
-done
+wrk_url_script urls
 
 declare -A port=() spid=()
 up() { # NAME → 0 once it answers the first URL; 1 if its process ended
@@ -183,19 +147,10 @@ check_same() {
     echo "checked: $n URLs (every 7th), identical bodies and ETags from: $(printf '%s\n' "${sources[@]}" | cut -d' ' -f1 | tr '\n' ' ')"
 }
 
-to_ms() { # wrk latency (e.g. 812.00us, 3.21ms, 1.02s) → ms
-    awk -v v="$1" 'BEGIN { n = v + 0; if (v ~ /us$/) n /= 1000; else if (v ~ /ms$/) n *= 1; else if (v ~ /s$/) n *= 1000; print n }'
-}
 run() { # MODE NAME
-    local f="$tmp/$1-$2" rps p99 bad errs xfer
+    local f="$tmp/$1-$2"
     wrk -t"$wrk_threads" -c$conns -d"${duration}s" --latency -s "$tmp/urls.lua" "http://127.0.0.1:${port[$2]}" >"$f.txt"
-    rps=$(awk '/^Requests\/sec:/ {print $2}' "$f.txt")
-    xfer=$(awk '/^Transfer\/sec:/ {print $2}' "$f.txt")
-    p99=$(awk '$1 == "99%" {print $2}' "$f.txt")
-    bad=$(awk '/Non-2xx or 3xx responses:/ {print $NF}' "$f.txt")
-    errs=$(awk '/Socket errors:/ {sub(/.*Socket errors: /, ""); print}' "$f.txt")
-    printf '  %-10s %12s req/s   p99 %9s   %9s/s   non-2xx: %s   socket errors: %s\n' "$2" "$rps" "$p99" "$xfer" "${bad:-0}" "${errs:-none}"
-    echo "$rps $(to_ms "$p99")" >>"$f.sum"
+    wrk_report "$f.txt" "$2" 10 "$f.sum"
 }
 summary() { # FILE → "mean_rps median_p99_ms"
     sort -k2 -g "$1" | awk '{rps += $1; p[NR] = $2} END {printf "%.0f %.2f\n", rps / NR, (NR % 2) ? p[(NR + 1) / 2] : (p[NR / 2] + p[NR / 2 + 1]) / 2}'

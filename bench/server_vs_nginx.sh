@@ -36,15 +36,8 @@ port_ng=18082
 bin=./target/release/terrastream
 [ -x "$bin" ] || cargo build --release --quiet
 
-tmp="$(mktemp -d)"
-pids=()
-cleanup() {
-    for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
-    wait 2>/dev/null || true
-    rm -rf "$tmp"
-}
-trap cleanup EXIT
-[ -n "${KEEP:-}" ] && trap - EXIT
+source bench/lib.sh
+bench_setup
 
 echo "load average before: $(cut -d' ' -f1-3 /proc/loadavg)"
 echo "command: $0 $size $duration $wrk_threads $workers $rounds ($(git describe --always --dirty 2>/dev/null || echo '?'))"
@@ -66,21 +59,7 @@ sed -E "s#^/tilesets/bench/tiles/(.*)\?v=#/tilesets/bench/3dtiles/tiles/\1.glb?v
 glb_bytes=$(find "$tmp/3dtiles/tiles" -name '*.glb' -printf '%s\n' | awk '{s+=$1} END {print s}')
 echo "GLBs (3D Tiles) of the same tiles: $(wc -l <"$tmp/glb-urls.txt") URLs, $glb_bytes bytes (mean $((glb_bytes / blobs)) B/GLB, $(awk -v a="$glb_bytes" -v b="$bytes" 'BEGIN {printf "%.2f", a / b}')x the blobs)"
 
-for list in urls glb-urls; do
-cat >"$tmp/$list.lua" <<EOF
-local urls = {}
-for line in io.lines("$tmp/$list.txt") do urls[#urls + 1] = line end
-local i = 0
-function init(args)
-    -- Threads start at different points of the list.
-    i = math.random(#urls)
-end
-function request()
-    i = i % #urls + 1
-    return wrk.format("GET", urls[i])
-end
-EOF
-done
+for list in urls glb-urls; do wrk_url_script "$list"; done
 
 # nginx started as root drops its workers to `nobody`: let them read the store.
 chmod -R a+rX "$tmp"
@@ -183,17 +162,7 @@ echo "checked: both servers send identical bytes for every 7th URL"
 
 run() { # NAME PORT [URL LIST]
     wrk -t"$wrk_threads" -c$conns -d"${duration}s" --latency -s "$tmp/${3:-urls}.lua" "http://127.0.0.1:$2" >"$tmp/$1.txt"
-    local rps p99 bad errs xfer
-    rps=$(awk '/^Requests\/sec:/ {print $2}' "$tmp/$1.txt")
-    xfer=$(awk '/^Transfer\/sec:/ {print $2}' "$tmp/$1.txt")
-    p99=$(awk '$1 == "99%" {print $2}' "$tmp/$1.txt")
-    bad=$(awk '/Non-2xx or 3xx responses:/ {print $NF}' "$tmp/$1.txt")
-    errs=$(awk '/Socket errors:/ {sub(/.*Socket errors: /, ""); print}' "$tmp/$1.txt")
-    printf '  %-16s %12s req/s   p99 %9s   %9s/s   non-2xx: %s   socket errors: %s\n' "$1" "$rps" "$p99" "$xfer" "${bad:-0}" "${errs:-none}"
-    echo "$rps $(to_ms "$p99")" >>"$tmp/$1.sum"
-}
-to_ms() { # wrk latency (e.g. 812.00us, 3.21ms, 1.02s) → ms
-    awk -v v="$1" 'BEGIN { n = v + 0; if (v ~ /us$/) n /= 1000; else if (v ~ /ms$/) n *= 1; else if (v ~ /s$/) n *= 1000; print n }'
+    wrk_report "$tmp/$1.txt" "$1" 16 "$tmp/$1.sum"
 }
 for port in $port_ng $port_ts; do
     wrk -t"$wrk_threads" -c$conns -d5s -s "$tmp/urls.lua" "http://127.0.0.1:$port" >/dev/null

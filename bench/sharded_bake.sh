@@ -53,25 +53,11 @@ py="$venv/bin/python"
 big=250000000000 # 500 km × 500 km at 1 m
 workers_big="16 64 256"
 
-if [ -z "${BIN:-}" ]; then
-    BIN=./target/release/terrastream
-    [ -x "$BIN" ] || cargo build --release --quiet
-fi
 [ -x /usr/bin/time ] || { echo "needs GNU time: apt-get install time" >&2; exit 1; }
 
-tmp="$(mktemp -d)"
-pids=()
-cleanup() {
-    for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
-    wait 2>/dev/null || true
-    if [ -n "${KEEP:-}" ]; then echo "kept $tmp"; else rm -rf "$tmp"; fi
-}
-trap cleanup EXIT
-
-# The binary is copied once (a rebuild during the run does not change it under the bench).
-for _ in $(seq 120); do [ -x "$BIN" ] && break; sleep 1; done
-cp "$BIN" "$tmp/terrastream"
-bin="$tmp/terrastream"
+source bench/lib.sh
+BIN="${BIN:-./target/release/terrastream}"
+bench_setup "$BIN"
 threads_one=$(nproc)
 threads_worker=$(( $(nproc) / parallel )); ((threads_worker >= 1)) || threads_worker=1
 
@@ -182,14 +168,8 @@ if [ -n "${SKIP_S3:-}" ]; then
 elif [ ! -x "$venv/bin/moto_server" ] || ! "$py" -c 'import boto3' 2>/dev/null; then
     s3_note="skipped: no moto_server/boto3 in $venv (python3 -m venv $venv && $venv/bin/pip install 'moto[server]' boto3)"
 else
-    port=$("$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
-    "$venv/bin/moto_server" -H 127.0.0.1 -p "$port" >"$tmp/moto.log" 2>&1 &
-    pids+=($!)
-    for _ in $(seq 100); do curl -fs -o /dev/null "http://127.0.0.1:$port/" && break; sleep 0.1; done
-    curl -fs -o /dev/null -X PUT "http://127.0.0.1:$port/bench" || { echo "moto on port $port: cannot create the bucket" >&2; exit 1; }
-    export AWS_ENDPOINT_URL="http://127.0.0.1:$port" AWS_ACCESS_KEY_ID=bench AWS_SECRET_ACCESS_KEY=bench AWS_REGION=us-east-1
-    unset AWS_ENDPOINT_URL_S3 AWS_PROFILE AWS_SESSION_TOKEN
-    echo "S3: moto on 127.0.0.1:$port, bucket bench"
+    start_moto "$venv" bench
+    echo "S3: moto on 127.0.0.1:$moto_port, bucket bench"
 
     step s3-dir "$bin" bake "$tif" --out s3://bench/dir/tileset "${bake_opts[@]}" --threads "$threads_one"
     read -r s3_objects s3_bytes < <("$py" bench/s3_upload.py count s3://bench/dir/tileset)

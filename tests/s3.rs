@@ -151,19 +151,7 @@ fn sharded_bakes_into_a_bucket_equal_a_directory() {
         let children: Vec<_> = order
             .iter()
             .map(|&i| {
-                let c = tbin(&endpoint)
-                    .args([
-                        "bake",
-                        "--plan",
-                        &url,
-                        "--shard",
-                        &i.to_string(),
-                        "-q",
-                        "--gpu",
-                        "off",
-                        "--threads",
-                        "1",
-                    ])
+                let c = common::shard_step(tbin(&endpoint), &url, i)
                     .stdout(Stdio::null())
                     .stderr(Stdio::piped())
                     .spawn()

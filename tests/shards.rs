@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
-use common::{bin, fails, ok, run_within, tree};
+use common::{bin, fails, ok, run_within, shard_step, tree};
 
 fn synth(dir: &Path, seed: u32) -> PathBuf {
     let tif = dir.join(format!("t{seed}.tif"));
@@ -30,17 +30,7 @@ fn one_machine(dir: &Path, tif: &Path) -> PathBuf {
 }
 
 fn shard(plan: &Path, i: u32) -> Command {
-    let mut c = bin();
-    c.arg("bake").arg("--plan").arg(plan).args([
-        "--shard",
-        &i.to_string(),
-        "-q",
-        "--gpu",
-        "off",
-        "--threads",
-        "1",
-    ]);
-    c
+    shard_step(bin(), plan, i)
 }
 
 /// A permutation of 0..n from a seed (xorshift), printed so a failure can be replayed.

@@ -17,6 +17,14 @@ pub fn bin() -> Command {
     c
 }
 
+/// `cmd` set up as one shard of a sharded bake: `bake --plan PLAN --shard I`, quiet, on the CPU,
+/// one thread (shards run side by side).
+pub fn shard_step(mut cmd: Command, plan: impl AsRef<std::ffi::OsStr>, i: u32) -> Command {
+    cmd.arg("bake").arg("--plan").arg(plan).args(["--shard", &i.to_string(), "-q", "--gpu", "off"]);
+    cmd.args(["--threads", "1"]);
+    cmd
+}
+
 /// Runs `cmd`, killing it after `limit` (a hang is a failure, not a stuck test run).
 pub fn run_within(cmd: &mut Command, limit: Duration) -> Output {
     let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
