@@ -192,6 +192,16 @@ fn steps_refuse_what_they_cannot_do() {
     );
     let none = dir.path().join("none");
     refused(bin().arg("bake").arg("--plan").arg(&none).args(["--shard", "0"]), "no plan");
+    // A plan far larger than any plan is refused before it is read (a sparse file: no disk).
+    let huge = dir.path().join("huge");
+    std::fs::create_dir_all(huge.join("shards")).unwrap();
+    let plan = std::fs::File::create(huge.join("shards/plan.json")).unwrap();
+    plan.set_len((1 << 30) + 1).unwrap();
+    drop(plan);
+    refused(
+        bin().arg("bake").arg("--plan").arg(&huge).args(["--shard", "0"]),
+        "plan.json: is 1073741825 bytes; 0 to 1073741824 bytes were expected",
+    );
     // Index from the environment, for each engine.
     for var in ["JOB_COMPLETION_INDEX", "AWS_BATCH_JOB_ARRAY_INDEX", "SLURM_ARRAY_TASK_ID"] {
         let o = run_within(

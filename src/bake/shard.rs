@@ -72,7 +72,7 @@ pub struct Plan {
 impl Plan {
     /// The plan of a tileset (`Ok(None)` when it has none).
     pub fn read(store: &Store) -> Result<Option<Self>, BakeError> {
-        let Some(bytes) = store.read_file_within(PLAN_FILE, 0..=MAX_STEP_FILE_BYTES)? else {
+        let Some(bytes) = read_step_file(store, PLAN_FILE)? else {
             return Ok(None);
         };
         let plan: Plan = serde_json::from_slice(&bytes)
@@ -103,6 +103,15 @@ struct Fragment {
     options: serde_json::Value,
     point_baker: String,
     nodes: Vec<NodeEntry>,
+}
+
+/// A plan or shard result, refused as a damaged plan ([`BakeError::Plan`]) when it is larger
+/// than [`MAX_STEP_FILE_BYTES`] (checked before reading).
+fn read_step_file(store: &Store, rel: &str) -> Result<Option<Vec<u8>>, BakeError> {
+    store.read_file_within(rel, 0..=MAX_STEP_FILE_BYTES).map_err(|e| match e {
+        e @ crate::store::StoreError::Invalid { .. } => BakeError::Plan(e.to_string()),
+        e => e.into(),
+    })
 }
 
 fn fragment_file(index: u32) -> String {
@@ -330,7 +339,7 @@ pub fn finish_plan(
     let mut missing = Vec::new();
     for i in 0..plan.shard_count() {
         let file = fragment_file(i);
-        match store.read_file_within(&file, 0..=MAX_STEP_FILE_BYTES)? {
+        match read_step_file(store, &file)? {
             None => missing.push(i),
             Some(bytes) => {
                 let f: Fragment = serde_json::from_slice(&bytes).map_err(|e| {
