@@ -230,3 +230,28 @@ put("config_toml", "min.toml", 'store = "s"\n')
 put("http_router", "zeros", b"\0" * 64)
 put("http_router", "ones", b"\x01" * 64)
 put("http_router", "mixed", bytes(range(0, 256, 3)))
+
+# ---- tileset archives (.tsa; layout in docs/formats.md) ----
+def tsa(files, page_entries=4096):
+    out = bytearray(b"TSARC\x00\x01\n")
+    entries, root = [], []
+    for path, data in sorted(files):
+        p = path.encode()
+        entries.append((p, len(out), len(data), zlib.crc32(data) & 0xffffffff))
+        out += data
+    data_end = len(out)
+    for i in range(0, len(entries), page_entries):
+        page = entries[i:i + page_entries]
+        buf = b"".join(struct.pack("<H", len(p)) + p + struct.pack("<QQI", o, n, c) for p, o, n, c in page)
+        root.append((page[0][0], len(out), len(buf), zlib.crc32(buf) & 0xffffffff, len(page)))
+        out += buf
+    rbuf = b"".join(struct.pack("<H", len(p)) + p + struct.pack("<QIII", o, n, c, k) for p, o, n, c, k in root)
+    root_off = len(out)
+    out += rbuf
+    f = b"TSARCHV1" + struct.pack("<IIQQIIQQI", 1, 0, root_off, len(rbuf), zlib.crc32(rbuf) & 0xffffffff,
+                                  0, len(entries), data_end, 0)
+    return bytes(out + f + struct.pack("<I", zlib.crc32(f) & 0xffffffff))
+
+put("store_archive", "empty.tsa", tsa([]))
+put("store_archive", "three.tsa", tsa([("a.json", b"{}"), ("tiles/0/0/0/0.tsb", bytes(range(40))), ("z", b"")]))
+put("store_archive", "pages.tsa", tsa([("f%02d" % i, bytes([i]) * (i % 5)) for i in range(9)], page_entries=4))

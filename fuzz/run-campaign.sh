@@ -30,6 +30,7 @@ max_len() {
     case $1 in
         raster_hgt|flight_json|config_toml|http_router) echo 4096 ;;
         codec_roundtrip) echo 2048 ;;
+        store_archive) echo 32768 ;;
         *) echo 16384 ;;
     esac
 }

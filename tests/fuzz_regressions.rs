@@ -192,3 +192,22 @@ fn fuzzed_blob_stays_inside_its_header_bounds() {
     let e = terrastream::codec::decode(&case("codec-blob-d1-overshoot.tsb")).unwrap_err();
     assert!(matches!(e, terrastream::codec::CodecError::OutOfBounds { index: 0, .. }), "{e}");
 }
+
+/// `store_archive`: a tileset archive (`tests/fuzz-cases/archive-page-count-alloc.tsa`, 232
+/// bytes, the fuzzer's artifact with its checksums and footer count repaired as the target
+/// repairs them) whose root says its one 90-byte directory page holds 1,073,741,827 files. The
+/// reader reserved room for that many entries before parsing the page (`Vec::with_capacity`,
+/// 51.5 GB) and aborted the process on the first lookup — one hostile archive in a bucket would
+/// have taken `serve` down. `Archive::open` now refuses a page whose count cannot fit its length
+/// (at least 23 bytes a file), naming the root entry.
+#[test]
+fn archive_page_counting_more_files_than_fit_is_refused_on_open() {
+    use terrastream::store::archive::{Archive, FileSource};
+    let bytes = case("archive-page-count-alloc.tsa");
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("hostile.tsa");
+    std::fs::write(&path, &bytes).unwrap();
+    let file = std::fs::File::open(&path).unwrap();
+    let e = Archive::open(Box::new(FileSource(file)), bytes.len() as u64).unwrap_err();
+    assert!(e.to_string().contains("entry 0 counts 1073741827 files in a page of 90 bytes"), "{e}");
+}

@@ -55,7 +55,15 @@ fn setup() -> State {
     };
     let opts = BakeOptions { tile_size: 32, max_error: 2.0, levels: 2 };
     let demo = dir.path().join("demo");
-    terrastream::bake::bake_terrain(&raster, "synthetic", &opts, &terrastream::lod::PointBaker::Cpu, &Store::new(&demo), &NoProgress).expect("bake");
+    terrastream::bake::bake_terrain(
+        &raster,
+        "synthetic",
+        &opts,
+        &terrastream::lod::PointBaker::Cpu,
+        &Store::new(&demo),
+        &NoProgress,
+    )
+    .expect("bake");
     // `deep`: the same tiles under a manifest stating depth 255.
     let mut files = Vec::new();
     walk(&demo, &mut files);

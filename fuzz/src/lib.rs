@@ -289,3 +289,105 @@ pub fn assert_same_geometry(a: &Geometry, b: &Geometry) {
         _ => panic!("geometry kind changed"),
     }
 }
+
+/// An archive held in memory, read by ranges as a file or a bucket would be; counts the bytes
+/// handed out, so a harness can check that reads stay bounded by the archive's size.
+pub struct MemRanges(pub Vec<u8>, pub std::sync::atomic::AtomicU64);
+
+impl terrastream::store::archive::RangeSource for MemRanges {
+    fn read_range(&self, start: u64, len: u64) -> std::io::Result<Vec<u8>> {
+        let n = self.0.len() as u64;
+        let (s, e) = (start.min(n), start.saturating_add(len).min(n));
+        self.1.fetch_add(e - s, std::sync::atomic::Ordering::Relaxed);
+        Ok(self.0[s as usize..e as usize].to_vec())
+    }
+}
+
+/// Opens `data` as a `.tsa` archive and checks what an `Ok` archive promises: its directory is
+/// in strictly increasing path order with every file inside the data section, the entry count
+/// is the footer's, each file found by its path is that entry, every file read is exactly the
+/// bytes at its range (and matches its CRC), an absent path is `None`, and no lookup reads more
+/// than a few times the archive's size.
+pub fn check_archive(data: &[u8]) {
+    use terrastream::store::archive::{Archive, MAGIC};
+    let len = data.len() as u64;
+    let src = std::sync::Arc::new(MemRanges(data.to_vec(), 0.into()));
+    struct Shared(std::sync::Arc<MemRanges>);
+    impl terrastream::store::archive::RangeSource for Shared {
+        fn read_range(&self, start: u64, len: u64) -> std::io::Result<Vec<u8>> {
+            self.0.read_range(start, len)
+        }
+    }
+    let a = match Archive::open(Box::new(Shared(src.clone())), len) {
+        Ok(a) => a,
+        Err(e) => {
+            assert!(!e.to_string().is_empty());
+            return;
+        }
+    };
+    show(|| format!("archive of {len} bytes, {} files", a.file_count()));
+    assert_eq!(a.len(), len);
+    let Ok(entries) = a.entries() else { return };
+    assert_eq!(entries.len() as u64, a.file_count(), "entries vs the footer's count");
+    for w in entries.windows(2) {
+        assert!(w[0].path < w[1].path, "directory out of order: {:?} then {:?}", w[0].path, w[1].path);
+    }
+    for e in entries.iter().take(64) {
+        assert!(
+            e.offset >= MAGIC.len() as u64 && e.offset.checked_add(e.len).is_some_and(|end| end <= len),
+            "{e:?} outside {len} bytes"
+        );
+        assert_eq!(a.entry(&e.path).ok().flatten().as_ref(), Some(e), "lookup of {:?}", e.path);
+        if let Ok(Some(b)) = a.read(&e.path) {
+            assert_eq!(&b[..], &data[e.offset as usize..(e.offset + e.len) as usize], "{:?}", e.path);
+            assert_eq!(crc32fast::hash(&b), e.crc);
+        }
+        let absent = format!("{}\u{0}", e.path);
+        assert!(matches!(a.read(&absent), Ok(None) | Err(_)), "{absent:?} found");
+    }
+    // Open + every page + 64 lookups and reads: each touches at most the whole archive.
+    let read = src.1.load(std::sync::atomic::Ordering::Relaxed);
+    assert!(read <= 200 * len.max(1), "{read} bytes read from an archive of {len}");
+}
+
+/// Rewrites every checksum of an archive that a mutation would break — the footer's, the
+/// root's (in the footer) and each page's (in the root) — and the footer's file count (the sum
+/// of the root's page counts, as a writer would put it), so a fuzzer gets past them to the
+/// directory values. Leaves the bytes alone where the footer or root cannot be located.
+pub fn fix_archive_checksums(b: &mut [u8]) {
+    use terrastream::store::archive::FOOTER_LEN;
+    let n = b.len();
+    let fl = FOOTER_LEN as usize;
+    if n < fl {
+        return;
+    }
+    let f = n - fl;
+    let u64_at = |b: &[u8], i: usize| u64::from_le_bytes(b[i..i + 8].try_into().unwrap_or_default());
+    let (root_off, root_len) = (u64_at(b, f + 16), u64_at(b, f + 24));
+    if let Some(end) = root_off.checked_add(root_len).filter(|&e| e <= f as u64) {
+        let (ro, re) = (root_off as usize, end as usize);
+        // Root entries: path length u16, path, offset u64, length u32, CRC u32, count u32.
+        let mut i = ro;
+        let mut count = 0u64;
+        while i + 2 <= re {
+            let pl = usize::from(u16::from_le_bytes([b[i], b[i + 1]]));
+            let at = i + 2 + pl;
+            if at + 20 > re {
+                break;
+            }
+            let off = u64_at(b, at);
+            let plen = u64::from(u32::from_le_bytes(b[at + 8..at + 12].try_into().unwrap_or_default()));
+            if let Some(pe) = off.checked_add(plen).filter(|&e| e <= n as u64) {
+                let crc = crc32fast::hash(&b[off as usize..pe as usize]);
+                b[at + 12..at + 16].copy_from_slice(&crc.to_le_bytes());
+            }
+            count += u64::from(u32::from_le_bytes(b[at + 16..at + 20].try_into().unwrap_or_default()));
+            i = at + 20;
+        }
+        b[f + 40..f + 48].copy_from_slice(&count.to_le_bytes());
+        let crc = crc32fast::hash(&b[ro..re]);
+        b[f + 32..f + 36].copy_from_slice(&crc.to_le_bytes());
+    }
+    let crc = crc32fast::hash(&b[f..f + 60]);
+    b[f + 60..f + 64].copy_from_slice(&crc.to_le_bytes());
+}

@@ -41,6 +41,8 @@ pub const PAGE_ENTRIES: usize = 4096;
 pub const MAX_PATH: usize = 1024;
 /// Largest directory page or root an archive may declare (checked before allocating).
 pub const MAX_DIR_BYTES: u64 = 64 << 20;
+/// Fewest bytes one file takes in a directory page (a one-byte path).
+const MIN_ENTRY_BYTES: u64 = 2 + 1 + 8 + 8 + 4;
 /// Directory pages a reader keeps in memory.
 const CACHED_PAGES: usize = 512;
 
@@ -88,6 +90,49 @@ fn put_path(buf: &mut Vec<u8>, path: &str) {
     buf.extend_from_slice(path.as_bytes());
 }
 
+/// A directory page's bytes: per file its path, offset, length and CRC-32.
+fn encode_page(entries: &[Entry]) -> Vec<u8> {
+    let mut buf = Vec::with_capacity(entries.len() * 64);
+    for e in entries {
+        put_path(&mut buf, &e.path);
+        buf.extend_from_slice(&e.offset.to_le_bytes());
+        buf.extend_from_slice(&e.len.to_le_bytes());
+        buf.extend_from_slice(&e.crc.to_le_bytes());
+    }
+    buf
+}
+
+/// The root directory's bytes: per page its first path, offset, length, CRC-32 and file count.
+fn encode_root(pages: &[PageRef]) -> Vec<u8> {
+    let mut root = Vec::new();
+    for p in pages {
+        put_path(&mut root, &p.first);
+        root.extend_from_slice(&p.offset.to_le_bytes());
+        root.extend_from_slice(&p.len.to_le_bytes());
+        root.extend_from_slice(&p.crc.to_le_bytes());
+        root.extend_from_slice(&p.count.to_le_bytes());
+    }
+    root
+}
+
+/// The footer (`FOOTER_LEN` bytes) of an archive whose root `root` starts at `root_offset`.
+fn encode_footer(root_offset: u64, root: &[u8], count: u64, data_end: u64) -> Vec<u8> {
+    let mut f = Vec::with_capacity(FOOTER_LEN as usize);
+    f.extend_from_slice(FOOTER_MAGIC);
+    f.extend_from_slice(&VERSION.to_le_bytes());
+    f.extend_from_slice(&0u32.to_le_bytes());
+    f.extend_from_slice(&root_offset.to_le_bytes());
+    f.extend_from_slice(&(root.len() as u64).to_le_bytes());
+    f.extend_from_slice(&crc32fast::hash(root).to_le_bytes());
+    f.extend_from_slice(&0u32.to_le_bytes());
+    f.extend_from_slice(&count.to_le_bytes());
+    f.extend_from_slice(&data_end.to_le_bytes());
+    f.extend_from_slice(&0u32.to_le_bytes());
+    let crc = crc32fast::hash(&f);
+    f.extend_from_slice(&crc.to_le_bytes());
+    f
+}
+
 impl<W: Write> ArchiveWriter<W> {
     pub fn new(mut out: W) -> Result<Self, ArchiveError> {
         out.write_all(MAGIC)?;
@@ -122,13 +167,7 @@ impl<W: Write> ArchiveWriter<W> {
 
     fn flush_page(&mut self) -> Result<(), ArchiveError> {
         let Some(first) = self.page.first().map(|e| e.path.clone()) else { return Ok(()) };
-        let mut buf = Vec::with_capacity(self.page.len() * 64);
-        for e in &self.page {
-            put_path(&mut buf, &e.path);
-            buf.extend_from_slice(&e.offset.to_le_bytes());
-            buf.extend_from_slice(&e.len.to_le_bytes());
-            buf.extend_from_slice(&e.crc.to_le_bytes());
-        }
+        let buf = encode_page(&self.page);
         self.out.write_all(&buf)?;
         self.root.push(PageRef {
             first,
@@ -146,14 +185,7 @@ impl<W: Write> ArchiveWriter<W> {
     pub fn finish(mut self) -> Result<(W, u64), ArchiveError> {
         let data_end = self.pos;
         self.flush_page()?;
-        let mut root = Vec::new();
-        for p in &self.root {
-            put_path(&mut root, &p.first);
-            root.extend_from_slice(&p.offset.to_le_bytes());
-            root.extend_from_slice(&p.len.to_le_bytes());
-            root.extend_from_slice(&p.crc.to_le_bytes());
-            root.extend_from_slice(&p.count.to_le_bytes());
-        }
+        let root = encode_root(&self.root);
         if root.len() as u64 > MAX_DIR_BYTES {
             return Err(ArchiveError::Write(format!(
                 "{} files: the directory root would exceed {MAX_DIR_BYTES} bytes",
@@ -163,19 +195,7 @@ impl<W: Write> ArchiveWriter<W> {
         let root_offset = self.pos;
         self.out.write_all(&root)?;
         self.pos += root.len() as u64;
-        let mut f = Vec::with_capacity(FOOTER_LEN as usize);
-        f.extend_from_slice(FOOTER_MAGIC);
-        f.extend_from_slice(&VERSION.to_le_bytes());
-        f.extend_from_slice(&0u32.to_le_bytes());
-        f.extend_from_slice(&root_offset.to_le_bytes());
-        f.extend_from_slice(&(root.len() as u64).to_le_bytes());
-        f.extend_from_slice(&crc32fast::hash(&root).to_le_bytes());
-        f.extend_from_slice(&0u32.to_le_bytes());
-        f.extend_from_slice(&self.count.to_le_bytes());
-        f.extend_from_slice(&data_end.to_le_bytes());
-        f.extend_from_slice(&0u32.to_le_bytes());
-        let crc = crc32fast::hash(&f);
-        f.extend_from_slice(&crc.to_le_bytes());
+        let f = encode_footer(root_offset, &root, self.count, data_end);
         self.out.write_all(&f)?;
         self.pos += FOOTER_LEN;
         self.out.flush()?;
@@ -321,10 +341,20 @@ impl Archive {
             };
             if root.last().is_some_and(|l| l.first >= p.first)
                 || p.offset < MAGIC.len() as u64
-                || p.offset + u64::from(p.len) > root_offset
+                || p.offset.checked_add(u64::from(p.len)).is_none_or(|end| end > root_offset)
+                || u64::from(p.len) > MAX_DIR_BYTES
                 || p.count == 0
             {
                 return Err(bad(format!("root directory entry {} is out of order or range", root.len())));
+            }
+            if u64::from(p.count) * MIN_ENTRY_BYTES > u64::from(p.len) {
+                return Err(bad(format!(
+                    "root directory entry {} counts {} files in a page of {} bytes (at most {} fit)",
+                    root.len(),
+                    p.count,
+                    p.len,
+                    u64::from(p.len) / MIN_ENTRY_BYTES
+                )));
             }
             total += u64::from(p.count);
             root.push(p);
@@ -385,8 +415,14 @@ impl Archive {
             }
             out.push(e);
         }
-        if out.len() != r.count as usize || out.first().map(|e| &e.path) != Some(&r.first) {
-            return Err(bad(format!("directory page {i} does not match the root")));
+        let next = self.root.get(i + 1).map(|n| &n.first);
+        if out.len() != r.count as usize
+            || out.first().map(|e| &e.path) != Some(&r.first)
+            || out.last().zip(next).is_some_and(|(l, n)| &l.path >= n)
+        {
+            return Err(bad(format!(
+                "directory page {i} does not match the root (its file count, first path, or order before the next page)"
+            )));
         }
         let page = std::sync::Arc::new(out);
         if let Ok(mut m) = self.pages.lock() {
@@ -437,7 +473,7 @@ mod tests {
         fn read_range(&self, start: u64, len: u64) -> std::io::Result<Vec<u8>> {
             self.1.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             let s = (start as usize).min(self.0.len());
-            let e = (start + len).min(self.0.len() as u64) as usize;
+            let e = start.saturating_add(len).min(self.0.len() as u64) as usize;
             Ok(self.0[s..e].to_vec())
         }
     }
@@ -488,6 +524,63 @@ mod tests {
         assert!(w.add("b", b"2").is_err());
         assert!(w.add("/c", b"2").is_err());
         assert!(w.add("", b"2").is_err());
+    }
+
+    /// An archive with every checksum right around hostile directory values: 64 data bytes,
+    /// then `pages`, then a root describing them as `tweak` leaves it.
+    fn hostile(pages: &[Vec<Entry>], tweak: impl Fn(&mut Vec<PageRef>)) -> Vec<u8> {
+        let mut b = MAGIC.to_vec();
+        b.extend_from_slice(&[5; 64]);
+        let data_end = b.len() as u64;
+        let mut refs = Vec::new();
+        for p in pages {
+            let bytes = encode_page(p);
+            refs.push(PageRef {
+                first: p[0].path.clone(),
+                offset: b.len() as u64,
+                len: bytes.len() as u32,
+                crc: crc32fast::hash(&bytes),
+                count: p.len() as u32,
+            });
+            b.extend_from_slice(&bytes);
+        }
+        tweak(&mut refs);
+        let count = refs.iter().map(|r| u64::from(r.count)).sum();
+        let root = encode_root(&refs);
+        let root_offset = b.len() as u64;
+        b.extend_from_slice(&root);
+        b.extend_from_slice(&encode_footer(root_offset, &root, count, data_end));
+        b
+    }
+
+    fn entry(path: &str, offset: u64) -> Entry {
+        Entry { path: path.into(), offset, len: 4, crc: crc32fast::hash(&[5; 4]) }
+    }
+
+    fn open_mem(bytes: Vec<u8>) -> Result<Archive, ArchiveError> {
+        let len = bytes.len() as u64;
+        Archive::open(Box::new(Mem(bytes, 0.into())), len)
+    }
+
+    #[test]
+    fn hostile_archives_with_right_checksums_are_refused() {
+        let page = || vec![entry("a", 8), entry("b", 12)];
+        // The control: the same construction untouched opens and reads.
+        let a = open_mem(hostile(&[page()], |_| {})).unwrap();
+        assert_eq!(a.read("b").unwrap(), Some(vec![5; 4]));
+        // A page placed so that offset + length wraps past 2^64.
+        let wrap = open_mem(hostile(&[page()], |r| r[0].offset = u64::MAX - 3)).unwrap_err();
+        assert!(wrap.to_string().contains("out of order or range"), "{wrap}");
+        // A page claiming 4 billion files in 46 bytes (a reader would reserve ~200 GiB).
+        let many = open_mem(hostile(&[page()], |r| r[0].count = u32::MAX)).unwrap_err();
+        assert!(many.to_string().contains("root directory entry 0 counts 4294967295 files"), "{many}");
+        // A page holding a path that sorts after the next page's first: listed, but a lookup
+        // by its path would search the wrong page.
+        let a =
+            open_mem(hostile(&[vec![entry("a", 8), entry("c", 12)], vec![entry("b", 16)]], |_| {})).unwrap();
+        let e = a.read("a").unwrap_err();
+        assert!(e.to_string().contains("order before the next page"), "{e}");
+        assert!(a.entries().is_err());
     }
 
     /// Every single-byte change, and every truncation, of a small archive is either refused on
