@@ -292,7 +292,7 @@ pub fn assert_same_geometry(a: &Geometry, b: &Geometry) {
 
 /// An archive held in memory, read by ranges as a file or a bucket would be; counts the bytes
 /// handed out, so a harness can check that reads stay bounded by the archive's size.
-pub struct MemRanges(pub Vec<u8>, pub std::sync::atomic::AtomicU64);
+pub struct MemRanges(pub Vec<u8>, pub std::sync::Arc<std::sync::atomic::AtomicU64>);
 
 impl terrastream::store::archive::RangeSource for MemRanges {
     fn read_range(&self, start: u64, len: u64) -> std::io::Result<Vec<u8>> {
@@ -311,14 +311,8 @@ impl terrastream::store::archive::RangeSource for MemRanges {
 pub fn check_archive(data: &[u8]) {
     use terrastream::store::archive::{Archive, MAGIC};
     let len = data.len() as u64;
-    let src = std::sync::Arc::new(MemRanges(data.to_vec(), 0.into()));
-    struct Shared(std::sync::Arc<MemRanges>);
-    impl terrastream::store::archive::RangeSource for Shared {
-        fn read_range(&self, start: u64, len: u64) -> std::io::Result<Vec<u8>> {
-            self.0.read_range(start, len)
-        }
-    }
-    let a = match Archive::open(Box::new(Shared(src.clone())), len) {
+    let read = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let a = match Archive::open(Box::new(MemRanges(data.to_vec(), read.clone())), len) {
         Ok(a) => a,
         Err(e) => {
             assert!(!e.to_string().is_empty());
@@ -346,7 +340,7 @@ pub fn check_archive(data: &[u8]) {
         assert!(matches!(a.read(&absent), Ok(None) | Err(_)), "{absent:?} found");
     }
     // Open + every page + 64 lookups and reads: each touches at most the whole archive.
-    let read = src.1.load(std::sync::atomic::Ordering::Relaxed);
+    let read = read.load(std::sync::atomic::Ordering::Relaxed);
     assert!(read <= 200 * len.max(1), "{read} bytes read from an archive of {len}");
 }
 
