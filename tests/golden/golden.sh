@@ -1,22 +1,29 @@
 #!/usr/bin/env bash
-# Golden outputs for refactors that must not change behaviour (issue 12's redesign): the sha256
-# of every file of three bakes (the fuji bake of docs/cli.md, `bake-model` of the bunny, the demo
-# tileset), of their summaries on stdout (timings and peak memory masked), and of status line,
-# headers (Date dropped) and body of a fixed list of HTTP requests to `serve` over those three.
+# Golden outputs for refactors that must not change behaviour: every file of three bakes (the
+# fuji bake of docs/cli.md, `bake-model` of the bunny, the demo tileset), their summaries on
+# stdout (timings and peak memory masked), and status line, headers (Date dropped) and body of a
+# fixed list of HTTP requests to `serve` over those three.
 #
-#   tests/golden/golden.sh record   # writes tests/golden/golden.sha256 (do this before a change)
+# The outputs themselves are committed in tests/golden/expected/, readable (summarize.py): text
+# as it is, each blob's header decoded field by field, other binary bodies as size + sha256 +
+# first bytes, and `files.sha256` pinning every file's exact bytes. A change shows as a diff.
+#
+#   tests/golden/golden.sh record   # rewrites tests/golden/expected/ (only for a change meant
+#                                   # to alter output; review `git diff tests/golden` and say so
+#                                   # in the commit)
 #   tests/golden/golden.sh check    # recomputes and diffs against it; exit 1 on any difference
 #
 # BIN (default target/release/terrastream, built if missing), DATA (default ../shared/data) and
-# PORT (default 18123, on 127.0.0.1) and KEEP (a folder to keep the outputs in) can be set. Every bake runs with --gpu off, the
-# deterministic CPU reference; the GPU path has its own equality tests (tests/gpu.rs).
+# PORT (default 18123, on 127.0.0.1) and KEEP (a folder to keep the outputs in) can be set. Every
+# bake runs with --gpu off, the deterministic CPU reference; the GPU path has its own equality
+# tests (tests/gpu.rs).
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 BIN=${BIN:-$ROOT/target/release/terrastream}
 DATA=${DATA:-$ROOT/../shared/data}
 PORT=${PORT:-18123}
-GOLDEN=$ROOT/tests/golden/golden.sha256
+GOLDEN=$ROOT/tests/golden/expected
 mode=${1:-}
 case $mode in record|check) ;; *) echo "usage: $0 record|check" >&2; exit 2 ;; esac
 [ -x "$BIN" ] || (cd "$ROOT" && cargo build --release --quiet)
@@ -106,24 +113,21 @@ request upload-no-token POST /tilesets/demo
 request delete-no-token DELETE /tilesets/demo
 request unknown-job GET /jobs/0123456789abcdef
 
-listing=$WORK/listing
-{
-    (cd store && find . -type f | LC_ALL=C sort | sed 's|^\./||' | while read -r p; do
-        printf '%s  store/%s\n' "$(sha256sum <"$p" | cut -d' ' -f1)" "$p"
-    done)
-    (cd out && find . -type f ! -name serve.log | LC_ALL=C sort | sed 's|^\./||' | while read -r p; do
-        printf '%s  %s\n' "$(sha256sum <"$p" | cut -d' ' -f1)" "$p"
-    done)
-} >"$listing"
+rm -f out/serve.log
+summary=$WORK/summary
+mkdir -p "$WORK/all" "$summary"
+cp -r store out "$WORK/all"/
+python3 "$ROOT/tests/golden/summarize.py" "$WORK/all" "$summary"
 
 # KEEP=DIR: keep the outputs there to look at.
 [ -n "${KEEP:-}" ] && mkdir -p "$KEEP" && cp -r out store "$KEEP"/
 if [ "$mode" = record ]; then
-    cp "$listing" "$GOLDEN"
-    echo "golden: recorded $(wc -l <"$GOLDEN") hashes in ${GOLDEN#"$ROOT"/}"
+    rm -rf "$GOLDEN"
+    cp -r "$summary" "$GOLDEN"
+    echo "golden: recorded $(wc -l <"$GOLDEN/files.sha256") files in ${GOLDEN#"$ROOT"/}"
 else
-    if diff -u "$GOLDEN" "$listing"; then
-        echo "golden: all $(wc -l <"$GOLDEN") hashes identical"
+    if diff -ru "$GOLDEN" "$summary"; then
+        echo "golden: all $(wc -l <"$GOLDEN/files.sha256") files identical"
     else
         keep=$(mktemp -d /tmp/golden-diff.XXXXXX)
         cp -r out store "$keep"/
