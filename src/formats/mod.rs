@@ -1,7 +1,7 @@
 //! Output formats: every format a tileset is written or served in, other than the native blobs
 //! of [`crate::codec`], each in one place. Pure: decoded blobs, manifests and index chunks in,
-//! bytes and JSON out; no file or network I/O (the export driver in [`crate::bake::export`]
-//! and the server do that).
+//! bytes and JSON out; no file or network I/O (the export driver in `bake::export` and the
+//! server do that).
 //!
 //! - [`tiles3d`]: OGC 3D Tiles 1.1 (placement on the globe, glTF binaries, tileset JSON);
 //! - [`interchange`]: PLY and OBJ files of one (tile, level), for mesh and point tools.
