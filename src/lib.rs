@@ -9,6 +9,7 @@ pub mod bake;
 pub mod client;
 pub mod codec;
 mod error;
+pub mod formats;
 pub mod geom;
 #[cfg(feature = "gpu")]
 pub mod gpu;
@@ -18,7 +19,6 @@ pub mod raster;
 #[cfg(feature = "server")]
 pub mod server;
 pub mod store;
-pub mod tiles3d;
 pub mod tiling;
 pub mod tin;
 

@@ -21,12 +21,13 @@ use std::time::Duration;
 use serde_json::Value;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
+use terrastream::bake::export;
 use terrastream::bake::{BakeOptions, NoProgress};
 use terrastream::codec::{self, Geometry};
+use terrastream::formats::tiles3d::{Anchor, AnchorFrom};
 use terrastream::raster::{self, LoadOptions};
 use terrastream::server::{PartialConfig, Server};
-use terrastream::store::{Store, export};
-use terrastream::tiles3d::{Anchor, AnchorFrom};
+use terrastream::store::Store;
 use terrastream::tiling::TileKey;
 
 /// 257² samples in 16-cell leaves: depth 4, so the root chunk has 256 external tilesets below.
@@ -276,7 +277,7 @@ fn export_places_geographic_and_unreferenced_sources() {
     .unwrap();
     let info = export::tiles3d_info(&Store::new(&dir), "fuji", None, String::new()).unwrap();
     assert_eq!(info.place.from, AnchorFrom::Default);
-    assert_eq!(info.place.anchor, terrastream::tiles3d::DEFAULT_ANCHOR);
+    assert_eq!(info.place.anchor, terrastream::formats::tiles3d::DEFAULT_ANCHOR);
     // Row 0 (y = 0) is the north edge.
     assert!(info.place.enu_of([0.0, 0.0, 0.0])[1] > info.place.enu_of([0.0, 30.0, 0.0])[1]);
     let out = tmp.path().join("x/3d");

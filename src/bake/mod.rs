@@ -7,6 +7,7 @@
 //! - [`shard`] splits a terrain bake over many processes or machines (same bytes);
 //! - [`model::bake_model`] bakes one OBJ, STL or PLY model into a single-tile model tileset.
 
+pub mod export;
 mod node;
 pub mod shard;
 mod terrain;

@@ -6,10 +6,10 @@ use std::time::{Duration, Instant};
 use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use terrastream::bake::{self, BakeOptions, BakeSummary};
+use terrastream::formats::tiles3d::Anchor;
 use terrastream::raster::dataset::{Dataset, DatasetOptions, ScanRecord};
 use terrastream::raster::{self, HeightEncoding, Limits, LoadOptions, Overrides};
 use terrastream::store::Store;
-use terrastream::tiles3d::Anchor;
 use terrastream::tiling;
 
 use super::parse_pair;
@@ -250,7 +250,7 @@ pub fn run(a: &BakeArgs) -> Result<()> {
     let summary = summary.inspect_err(|_| progress.0.finish_and_clear())?;
     progress.0.finish_and_clear();
     if let Some(anchor) = a.anchor {
-        terrastream::store::export::write_anchor(&store, anchor)?;
+        terrastream::bake::export::write_anchor(&store, anchor)?;
     }
     print_summary(&summary, out);
     Ok(())

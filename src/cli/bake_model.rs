@@ -30,7 +30,7 @@ pub struct BakeModelArgs {
     /// Where the model sits on the globe in 3D Tiles, as LON,LAT[,HEIGHT]: the centre of its
     /// base is placed there, its +y up (default 0°, 0°, 0 m, stated in the tileset JSON).
     #[arg(long, value_parser = super::bake::parse_anchor, allow_hyphen_values = true)]
-    pub anchor: Option<terrastream::tiles3d::Anchor>,
+    pub anchor: Option<terrastream::formats::tiles3d::Anchor>,
     #[command(flatten)]
     pub baker: super::BakerArgs,
 }
@@ -50,7 +50,7 @@ pub fn run(a: &BakeModelArgs) -> Result<()> {
     let store = Store::at(&a.out)?;
     let s = bake_model::bake_model(&file, &opts, &baker, &store)?;
     if let Some(anchor) = a.anchor {
-        terrastream::store::export::write_anchor(&store, anchor)?;
+        terrastream::bake::export::write_anchor(&store, anchor)?;
     }
     outln!("{}", bake_model::ModelBakeReport { summary: &s, out: &a.out });
     // The paper's figures live with the evaluation (`client` feature).

@@ -1,13 +1,16 @@
-//! `terrastream export`: one (tile, level) decoded to PLY or OBJ in world coordinates, or a
-//! whole tileset as static 3D Tiles 1.1 (`--format 3dtiles`).
+//! `terrastream export`: one (tile, level) decoded to PLY or OBJ in world coordinates (the
+//! format named by `--format` or by the extension of `--out`), or a whole tileset as static 3D
+//! Tiles 1.1 (`--format 3dtiles`).
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use terrastream::store::{Store, export};
-use terrastream::tiles3d::Anchor;
+use terrastream::bake::export;
+use terrastream::formats::interchange::Format;
+use terrastream::formats::tiles3d::Anchor;
+use terrastream::store::Store;
 use terrastream::tiling::TileKey;
 
 use super::parse_key;
@@ -35,11 +38,17 @@ pub struct ExportArgs {
     /// The level to export (PLY, OBJ).
     #[arg(long, required_unless_present = "format")]
     pub level: Option<u8>,
-    #[arg(long, value_enum, default_value_t = ExportFormat::Ply)]
-    pub format: ExportFormat,
-    /// The output file (PLY, OBJ), or folder (3dtiles: created; must not exist or be empty).
+    /// What to write. Default: the format the extension of --out names (.ply, .obj), else PLY;
+    /// a format that contradicts the extension is refused.
+    #[arg(long, value_enum)]
+    pub format: Option<ExportFormat>,
+    /// The output file (PLY, OBJ: must not exist unless --force), or folder (3dtiles: created;
+    /// must not exist or be empty).
     #[arg(long)]
     pub out: PathBuf,
+    /// PLY, OBJ: overwrite an existing --out file.
+    #[arg(long)]
+    pub force: bool,
     /// 3dtiles: place the tileset at LON,LAT[,HEIGHT] (overrides the tileset's own anchor).
     #[arg(long, value_parser = super::bake::parse_anchor, allow_hyphen_values = true)]
     pub anchor: Option<Anchor>,
@@ -48,20 +57,52 @@ pub struct ExportArgs {
     pub quiet: bool,
 }
 
+impl ExportFormat {
+    fn name(self) -> &'static str {
+        match self {
+            Self::Ply => "ply",
+            Self::Obj => "obj",
+            Self::Tiles3d => "3dtiles",
+        }
+    }
+}
+
+/// The format to write: `--format`, else the one the extension of `--out` names, else PLY. A
+/// `--format` that contradicts the extension (`--format ply --out x.obj`, or 3D Tiles, a folder,
+/// into `x.ply`) is refused rather than written under a misleading name.
+fn format_of(a: &ExportArgs) -> Result<ExportFormat> {
+    let by_ext = Format::from_extension(&a.out).map(|f| match f {
+        Format::Ply => ExportFormat::Ply,
+        Format::Obj => ExportFormat::Obj,
+    });
+    match (a.format, by_ext) {
+        (Some(f), Some(e)) if f != e => bail!(
+            "export: --format {} contradicts --out {} (a .{} file name); drop --format, or name the output after its format",
+            f.name(),
+            a.out.display(),
+            e.name()
+        ),
+        (Some(f), _) => Ok(f),
+        (None, Some(e)) => Ok(e),
+        (None, None) => Ok(ExportFormat::Ply),
+    }
+}
+
 pub fn run(a: &ExportArgs) -> Result<()> {
+    let chosen = format_of(a)?;
     let store = Store::at(&a.dir)?;
-    let format = match a.format {
-        ExportFormat::Ply => export::Format::Ply,
-        ExportFormat::Obj => export::Format::Obj,
+    let format = match chosen {
+        ExportFormat::Ply => Format::Ply,
+        ExportFormat::Obj => Format::Obj,
         ExportFormat::Tiles3d => return run_3dtiles(a, &store),
     };
     let (Some(tile), Some(level)) = (a.tile, a.level) else {
-        bail!("export --format {:?}: --tile Z/X/Y and --level N name the tile to export", a.format);
+        bail!("export --format {}: --tile Z/X/Y and --level N name the tile to export", chosen.name());
     };
     if a.anchor.is_some() {
         bail!("export: --anchor places 3D Tiles only (--format 3dtiles); PLY and OBJ keep world coordinates");
     }
-    let n = export::export_tile(&store, tile, level, format, &a.out)?;
+    let n = export::export_tile(&store, tile, level, format, &a.out, a.force)?;
     outln!("wrote {} ({n} {})", a.out.display(), if level == 0 { "vertices" } else { "points" });
     Ok(())
 }
@@ -69,6 +110,11 @@ pub fn run(a: &ExportArgs) -> Result<()> {
 fn run_3dtiles(a: &ExportArgs, store: &Store) -> Result<()> {
     if a.tile.is_some() || a.level.is_some() {
         bail!("export --format 3dtiles writes the whole tileset: drop --tile and --level");
+    }
+    if a.force {
+        bail!(
+            "export --format 3dtiles: --force overwrites PLY and OBJ files only; 3D Tiles go into a new or empty folder"
+        );
     }
     let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(0) };
     bar.set_style(

@@ -65,7 +65,8 @@ pub enum Command {
     /// write REPORT_DIR/report.md with PNG charts. The last line printed is `F-measure: <value>`.
     #[cfg(all(feature = "client", feature = "gpu"))]
     Eval(Box<eval::EvalArgs>),
-    /// Decode one (tile, level) to PLY or OBJ in world coordinates.
+    /// Export a tileset: one (tile, level) decoded to PLY or OBJ in world coordinates, or the
+    /// whole tileset as static 3D Tiles 1.1 (--format 3dtiles).
     Export(export::ExportArgs),
     /// Pack a finished tileset into one archive file (.tsa; local or s3://), which `serve`,
     /// `inspect` and `export` read like the tileset and any HTTP host can serve by ranges.

@@ -211,7 +211,7 @@ pub fn run_step(a: &BakeArgs, plan_at: &Path) -> Result<()> {
         outln!("shard {i} of {}:", plan.shard_count());
     } else {
         if let Some(anchor) = a.anchor {
-            terrastream::store::export::write_anchor(&store, anchor)?;
+            terrastream::bake::export::write_anchor(&store, anchor)?;
         }
         outln!("final step of {} shards:", plan.shard_count());
     }

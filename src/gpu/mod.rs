@@ -1,6 +1,7 @@
-//! The GPU, shared by the point-level bake ([`crate::lod::gpu`]) and the client's rendering
-//! ([`crate::client::render`]): opening an adapter and device, the error type, and WGSL shader
-//! modules.
+//! The GPU device layer: opening an adapter and device, the error type, a render pipeline
+//! helper and WGSL shader modules. It sits below its users (the point-level bake in
+//! `lod::gpu`, the client's renderer and the evaluation) and imports none of them: they
+//! import it.
 
 /// A GPU stage failure.
 #[derive(Debug, thiserror::Error)]

@@ -25,7 +25,9 @@ use tower::Service;
 
 use super::App;
 use super::conditional::{self, Conditional};
-use super::http::{self, BLOB_ROUTE};
+use super::http;
+use super::loaders;
+use super::native::{self, BLOB_ROUTE};
 use super::problem::Problem;
 
 /// The router behind the in-memory blob fast path.
@@ -105,9 +107,9 @@ fn cached_blob(app: &App, req: &Request) -> Option<Response> {
     if tiles != "tiles" || parts.next().is_some() {
         return None;
     }
-    let ts = http::tileset(app, name).ok()?;
-    let key = http::parse_key(&ts, z, x, y).ok()?;
-    let level = http::parse_level(&ts, level).ok()?;
+    let ts = loaders::tileset(app, name).ok()?;
+    let key = loaders::parse_key(&ts, z, x, y).ok()?;
+    let level = loaders::parse_level(&ts, level).ok()?;
     let entry = app.cache.get(&(ts.generation, key, u16::from(level)))?;
     app.metrics.cache_hits.fetch_add(1, Ordering::Relaxed);
     let cond = Conditional::from_headers(req.headers());
@@ -115,8 +117,8 @@ fn cached_blob(app: &App, req: &Request) -> Option<Response> {
         req.method(),
         &cond,
         &entry,
-        http::BLOB_TYPE,
-        http::versioned_cache(&ts, req.uri().query()),
+        native::BLOB_TYPE,
+        loaders::versioned_cache(&ts, req.uri().query()),
     );
     // What the CORS layer adds to every response.
     let h = resp.headers_mut();

@@ -177,7 +177,7 @@ pub fn document() -> Value {
                 &key_params(false), "3D Tiles tileset", "application/json", &any,
                 &[("500", "The manifest or index cannot be read")]),
             "/tilesets/{name}/3dtiles/tiles/{z}/{x}/{y}/{level}.glb": cached_get("One (tile, level) as glTF 2.0 binary (made from its verified blob; baked on first request for --source tilesets)",
-                &key_params(true), "GLB", crate::tiles3d::GLB_TYPE, &json!({"type": "string", "format": "binary"}),
+                &key_params(true), "GLB", crate::formats::tiles3d::GLB_TYPE, &json!({"type": "string", "format": "binary"}),
                 &[("500", "Stored blob failed its checksum (never sent) or the bake failed")]),
             "/viewer": cached_get("The viewer page: any tileset of the store in 3D (?tileset=NAME picks one)", &json!([]), "HTML page", "text/html; charset=utf-8",
                 &json!({"type": "string"}), &[]),

@@ -14,13 +14,14 @@ use bytes::Bytes;
 use super::App;
 use super::cache::{Entry, GLB, TILES3D_CHUNK};
 use super::conditional::{Conditional, etag_value, send};
-use super::http::{
+use super::loaders::{
     NO_CACHE, SHORT, chunk_entry, load_blob, parse_key, parse_level, tileset, versioned_cache,
 };
 use super::problem::Problem;
 use super::registry::{Tileset, etag_of};
-use crate::store::{IndexChunk, SUBTREE_LEVELS, export};
-use crate::tiles3d::{GLB_TYPE, TilesetInfo, chunk_tileset};
+use crate::bake::export;
+use crate::formats::tiles3d::{GLB_TYPE, TilesetInfo, chunk_tileset, tile_glb};
+use crate::store::{IndexChunk, SUBTREE_LEVELS};
 use crate::tiling::TileKey;
 
 /// The viewer page (`GET /viewer`): a small WebGL 2 client of the 3D Tiles routes, no
@@ -152,7 +153,7 @@ pub(super) async fn glb(
     let blob = load_blob(&app, &ts, key, level).await?;
     let info = info(&ts, false).await?;
     let glb = tokio::task::spawn_blocking(move || {
-        crate::codec::decode(&blob.bytes).map(|b| export::tile_glb(&info, &b))
+        crate::codec::decode(&blob.bytes).map(|b| tile_glb(&info, &b))
     })
     .await
     .map_err(|_| Problem::internal("glb", format!("making the GLB of tile {key} level {level} failed")))?

@@ -15,7 +15,6 @@
 //! reader (or a resumed bake) sees either the old file or the complete new one, never a torn one.
 
 pub mod archive;
-pub mod export;
 pub mod model;
 #[cfg(feature = "s3")]
 pub mod remote;

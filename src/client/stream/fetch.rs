@@ -397,49 +397,18 @@ pub fn backoff_delay(p: &FetchParams, r: &Resource, failures: u32) -> f64 {
     full * (0.5 + 0.5 * u)
 }
 
-/// Parses a `Retry-After` header value: delay-seconds or an IMF-fixdate
-/// (`Sun, 06 Nov 1994 08:49:37 GMT`), relative to `now`. `None` when it is neither.
+/// Parses a `Retry-After` header value: delay-seconds or an HTTP date (RFC 9110 §5.6.7, through
+/// `httpdate`: the IMF-fixdate `Sun, 06 Nov 1994 08:49:37 GMT`, or the obsolete RFC 850 and
+/// asctime forms every recipient must accept), relative to `now`. `None` when it is neither, or
+/// names a date that does not exist (30 Feb, a wrong weekday).
 #[must_use]
 pub fn parse_retry_after(value: &str, now: SystemTime) -> Option<f64> {
     let v = value.trim();
     if !v.is_empty() && v.bytes().all(|b| b.is_ascii_digit()) {
         return v.parse::<u64>().ok().map(|s| s as f64);
     }
-    let date = parse_imf_fixdate(v)?;
+    let date = httpdate::parse_http_date(v).ok()?;
     Some(date.duration_since(now).unwrap_or(Duration::ZERO).as_secs_f64())
-}
-
-fn parse_imf_fixdate(v: &str) -> Option<SystemTime> {
-    // "Sun, 06 Nov 1994 08:49:37 GMT"
-    let parts: Vec<&str> = v.split_ascii_whitespace().collect();
-    let [wd, day, mon, year, time, "GMT"] = parts.as_slice() else {
-        return None;
-    };
-    if !wd.ends_with(',') {
-        return None;
-    }
-    let day: u32 = day.parse().ok()?;
-    let month = ["Jan", "Feb", "Mar", "Apr", "May", "Jun", "Jul", "Aug", "Sep", "Oct", "Nov", "Dec"]
-        .iter()
-        .position(|m| m == mon)? as u32
-        + 1;
-    let year: i64 = year.parse().ok()?;
-    let hms: Vec<u32> = time.split(':').map(str::parse).collect::<Result<_, _>>().ok()?;
-    let [h, m, s] = hms.as_slice() else {
-        return None;
-    };
-    if !(1..=31).contains(&day) || *h > 23 || *m > 59 || *s > 60 || year < 1970 {
-        return None;
-    }
-    // Days from the civil date (Howard Hinnant's algorithm).
-    let (y, mo) = if month <= 2 { (year - 1, month + 9) } else { (year, month - 3) };
-    let era = y.div_euclid(400);
-    let yoe = y - era * 400;
-    let doy = (153 * i64::from(mo) + 2) / 5 + i64::from(day) - 1;
-    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
-    let days = era * 146_097 + doe - 719_468;
-    let secs = days * 86_400 + i64::from(*h) * 3600 + i64::from(*m) * 60 + i64::from(*s);
-    Some(SystemTime::UNIX_EPOCH + Duration::from_secs(u64::try_from(secs).ok()?))
 }
 
 /// Decoded tiles under a byte budget, least recently used evicted first, drawn tiles pinned.

@@ -178,6 +178,9 @@ fn retry_after_header_values() {
         parse_retry_after("Sat, 29 Feb 2020 12:00:00 GMT", SystemTime::UNIX_EPOCH),
         Some(1_582_977_600.0)
     );
+    // The obsolete forms RFC 9110 §5.6.7 says a recipient must accept.
+    assert_eq!(parse_retry_after("Sunday, 06-Nov-94 08:51:37 GMT", now), Some(120.0));
+    assert_eq!(parse_retry_after("Sun Nov  6 08:51:37 1994", now), Some(120.0));
     for bad in [
         "",
         "-5",
@@ -186,6 +189,11 @@ fn retry_after_header_values() {
         "Sun, 06 Nov 1994 08:49:37 CET",
         "Sun, 06 Foo 1994 08:49:37 GMT",
         "Sun, 06 Nov 1994 25:49:37 GMT",
+        "Sun, 06 Nov 1994 08:60:37 GMT",
+        "Wed, 30 Feb 2000 00:00:00 GMT",
+        "Mon, 06 Nov 1994 08:49:37 GMT",
+        "Sun, 06 Nov 1994 08:49:37",
+        "Thu, 31 Dec 1969 23:59:59 GMT",
     ] {
         assert_eq!(parse_retry_after(bad, now), None, "{bad:?}");
     }

@@ -1,6 +1,12 @@
 #![allow(clippy::float_cmp)] // placements of exact values are exact
 
+use serde_json::{Value, json};
+
 use super::*;
+use crate::codec::Geometry;
+use crate::geom::{Bounds, Errors, Mesh};
+use crate::store::{Manifest, SUBTREE_LEVELS, TilesetKind};
+use crate::tiling::TileKey;
 use crate::codec::{Quantization, decode, encode_mesh, encode_points};
 use crate::geom::PointCloud;
 use crate::raster::Georef;

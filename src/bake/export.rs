@@ -1,128 +1,16 @@
-//! Writers for decoded geometry in common interchange formats (PLY, OBJ), so any (tile, level)
-//! can be opened in `MeshLab`, `CloudCompare` or Blender. Writes to any `io::Write`.
+//! The export driver: reads a tileset (directory, bucket or archive) and writes the files of
+//! an output format of [`crate::formats`]: one (tile, level) as PLY or OBJ ([`export_tile`]),
+//! or the whole tileset as static 3D Tiles ([`export_3dtiles`]); and the tileset's placement
+//! record ([`PLACEMENT_FILE`]), which the server's 3D Tiles view reads too. Orchestration like
+//! the bakes beside it: the formats make bytes, this module does the I/O (atomic files, a
+//! staging folder renamed into place).
 
-use std::io::{self, Write};
+use std::io;
 
-use crate::geom::{Mesh, PointCloud};
+use crate::formats::interchange::{self, Format};
+use crate::formats::tiles3d::{Anchor, TilesetInfo, chunk_tileset, tile_glb};
 
-/// Interchange formats `export` writes.
-#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Format {
-    /// Binary little-endian PLY: positions as doubles (world coordinates need them), normals as
-    /// floats, faces as uchar-counted int lists.
-    Ply,
-    /// Wavefront OBJ text: `v`, `vn` (points) and `f` (mesh) lines.
-    Obj,
-}
-
-pub fn write_mesh(mesh: &Mesh, format: Format, out: &mut dyn Write) -> io::Result<()> {
-    match format {
-        Format::Ply => {
-            write!(
-                out,
-                "ply\nformat binary_little_endian 1.0\ncomment terrastream mesh\nelement vertex {}\n\
-                 property double x\nproperty double y\nproperty double z\nelement face {}\n\
-                 property list uchar int vertex_indices\nend_header\n",
-                mesh.positions.len(),
-                mesh.triangles.len()
-            )?;
-            let mut buf = Vec::with_capacity(mesh.positions.len() * 24 + mesh.triangles.len() * 13);
-            for p in &mesh.positions {
-                for c in p {
-                    buf.extend_from_slice(&c.to_le_bytes());
-                }
-            }
-            for t in &mesh.triangles {
-                buf.push(3);
-                for &i in t {
-                    buf.extend_from_slice(&(i as i32).to_le_bytes());
-                }
-            }
-            out.write_all(&buf)
-        }
-        Format::Obj => {
-            let mut w = io::BufWriter::new(out);
-            writeln!(
-                w,
-                "# terrastream mesh: {} vertices, {} triangles",
-                mesh.positions.len(),
-                mesh.triangles.len()
-            )?;
-            for p in &mesh.positions {
-                writeln!(w, "v {} {} {}", p[0], p[1], p[2])?;
-            }
-            for t in &mesh.triangles {
-                writeln!(w, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1)?;
-            }
-            w.flush()
-        }
-    }
-}
-
-pub fn write_points(points: &PointCloud, format: Format, out: &mut dyn Write) -> io::Result<()> {
-    match format {
-        Format::Ply => {
-            write!(
-                out,
-                "ply\nformat binary_little_endian 1.0\ncomment terrastream points\nelement vertex {}\n\
-                 property double x\nproperty double y\nproperty double z\n\
-                 property float nx\nproperty float ny\nproperty float nz\nend_header\n",
-                points.positions.len()
-            )?;
-            let mut buf = Vec::with_capacity(points.positions.len() * 36);
-            for (p, n) in points.positions.iter().zip(&points.normals) {
-                for c in p {
-                    buf.extend_from_slice(&c.to_le_bytes());
-                }
-                for c in n {
-                    buf.extend_from_slice(&c.to_le_bytes());
-                }
-            }
-            out.write_all(&buf)
-        }
-        Format::Obj => {
-            let mut w = io::BufWriter::new(out);
-            writeln!(
-                w,
-                "# terrastream points: {} (v and vn lines pair up by order)",
-                points.positions.len()
-            )?;
-            for (p, n) in points.positions.iter().zip(&points.normals) {
-                writeln!(w, "v {} {} {}", p[0], p[1], p[2])?;
-                writeln!(w, "vn {} {} {}", n[0], n[1], n[2])?;
-            }
-            w.flush()
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn ply_mesh_layout() {
-        let mesh =
-            Mesh { positions: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 2.0]], triangles: vec![[0, 1, 2]] };
-        let mut out = Vec::new();
-        write_mesh(&mesh, Format::Ply, &mut out).unwrap();
-        let header_end = out.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
-        assert_eq!(out.len() - header_end, 3 * 24 + 13);
-        assert_eq!(&out[out.len() - 12..out.len() - 8], &0i32.to_le_bytes());
-    }
-
-    #[test]
-    fn obj_points() {
-        let pc = PointCloud { positions: vec![[1.5, 2.0, 3.0]], normals: vec![[0.0, 0.0, 1.0]] };
-        let mut out = Vec::new();
-        write_points(&pc, Format::Obj, &mut out).unwrap();
-        let text = String::from_utf8(out).unwrap();
-        assert!(text.contains("v 1.5 2 3\nvn 0 0 1\n"), "{text}");
-    }
-}
-
-/// Errors of `export_tile`.
+/// Errors of the export driver.
 #[derive(Debug, thiserror::Error)]
 pub enum ExportError {
     #[error(transparent)]
@@ -131,16 +19,21 @@ pub enum ExportError {
     Codec { path: std::path::PathBuf, source: crate::codec::CodecError },
     #[error("{path}: {source}")]
     Io { path: std::path::PathBuf, source: io::Error },
+    /// The output file of a single-tile export exists and overwriting was not asked for.
+    #[error("{path}: exists; choose another --out or pass --force to overwrite it")]
+    Exists { path: std::path::PathBuf },
 }
 
-/// Decodes one (tile, level) of a tileset and writes it to `out` (atomically) in `format`.
-/// Returns the number of vertices or points written.
+/// Decodes one (tile, level) of a tileset and writes it to `out` (atomically) in `format`. An
+/// existing `out` is refused unless `overwrite`. Returns the number of vertices or points
+/// written.
 pub fn export_tile(
     store: &crate::store::Store,
     key: crate::tiling::TileKey,
     level: u8,
     format: Format,
     out: &std::path::Path,
+    overwrite: bool,
 ) -> Result<usize, ExportError> {
     use crate::codec::{Geometry, decode};
     let path = store.blob_path(key, level);
@@ -153,19 +46,15 @@ pub fn export_tile(
         .into());
     };
     let blob = decode(&bytes).map_err(|source| ExportError::Codec { path: path.clone(), source })?;
-    let mut buf = Vec::new();
-    let count = match &blob.geometry {
-        Geometry::Mesh(m) => {
-            write_mesh(m, format, &mut buf)
-                .map_err(|source| ExportError::Io { path: out.to_owned(), source })?;
-            m.positions.len()
-        }
-        Geometry::Points(p) => {
-            write_points(p, format, &mut buf)
-                .map_err(|source| ExportError::Io { path: out.to_owned(), source })?;
-            p.positions.len()
-        }
+    let (buf, count) = match &blob.geometry {
+        Geometry::Mesh(m) => (interchange::mesh_bytes(m, format), m.positions.len()),
+        Geometry::Points(p) => (interchange::points_bytes(p, format), p.positions.len()),
     };
+    // Checked once the tile is known to exist, so a wrong tile is reported as such.
+    // `symlink_metadata`: a dangling link or a special file is there too.
+    if !overwrite && std::fs::symlink_metadata(out).is_ok() {
+        return Err(ExportError::Exists { path: out.to_owned() });
+    }
     crate::store::write_atomic(out, &buf)?;
     Ok(count)
 }
@@ -177,14 +66,11 @@ pub const PLACEMENT_FILE: &str = "placement.json";
 
 #[derive(serde::Serialize, serde::Deserialize)]
 struct PlacementRecord {
-    anchor: crate::tiles3d::Anchor,
+    anchor: Anchor,
 }
 
 /// Records the tileset's anchor ([`PLACEMENT_FILE`]), atomically.
-pub fn write_anchor(
-    store: &crate::store::Store,
-    anchor: crate::tiles3d::Anchor,
-) -> Result<(), crate::store::StoreError> {
+pub fn write_anchor(store: &crate::store::Store, anchor: Anchor) -> Result<(), crate::store::StoreError> {
     let path = store.dir().join(PLACEMENT_FILE);
     let mut bytes = serde_json::to_vec_pretty(&PlacementRecord { anchor })
         .map_err(|source| crate::store::StoreError::Json { path: path.clone(), source })?;
@@ -194,9 +80,7 @@ pub fn write_anchor(
 
 /// The tileset's recorded anchor; `Ok(None)` when it has none. A record that cannot be read or
 /// holds an anchor out of range is an error naming the file.
-pub fn read_anchor(
-    store: &crate::store::Store,
-) -> Result<Option<crate::tiles3d::Anchor>, crate::store::StoreError> {
+pub fn read_anchor(store: &crate::store::Store) -> Result<Option<Anchor>, crate::store::StoreError> {
     let path = store.dir().join(PLACEMENT_FILE);
     let Some(bytes) = store.read_file(PLACEMENT_FILE)? else { return Ok(None) };
     let r: PlacementRecord = serde_json::from_slice(&bytes)
@@ -213,9 +97,9 @@ pub fn read_anchor(
 pub fn tiles3d_info(
     store: &crate::store::Store,
     name: &str,
-    anchor: Option<crate::tiles3d::Anchor>,
+    anchor: Option<Anchor>,
     query: String,
-) -> Result<crate::tiles3d::TilesetInfo, crate::store::StoreError> {
+) -> Result<TilesetInfo, crate::store::StoreError> {
     // Checks the format and version; the kind and a model's levels come from the raw JSON.
     store.manifest()?;
     let path = store.manifest_path();
@@ -226,17 +110,8 @@ pub fn tiles3d_info(
         Some(a) => Some(a),
         None => read_anchor(store)?,
     };
-    crate::tiles3d::TilesetInfo::from_manifest_json(name, &bytes, anchor, query)
+    TilesetInfo::from_manifest_json(name, &bytes, anchor, query)
         .map_err(|message| crate::store::StoreError::Invalid { path, message })
-}
-
-/// The GLB of one stored (tile, level), from its verified blob.
-#[must_use]
-pub fn tile_glb(info: &crate::tiles3d::TilesetInfo, blob: &crate::codec::Blob) -> Vec<u8> {
-    let skirt = (info.kind == crate::store::TilesetKind::Terrain
-        && blob.header.kind == crate::codec::Kind::Mesh)
-        .then(|| (crate::tiles3d::mesh_skirt_depth(blob.header.errors.max), Some(&info.manifest.bounds)));
-    crate::tiles3d::glb(blob, &info.place, skirt)
 }
 
 /// What `export --format 3dtiles` wrote.
@@ -259,7 +134,7 @@ pub struct Tiles3dExport {
 pub fn export_3dtiles(
     store: &crate::store::Store,
     out: &std::path::Path,
-    anchor: Option<crate::tiles3d::Anchor>,
+    anchor: Option<Anchor>,
     progress: &(dyn Fn(u64, u64) + Sync),
 ) -> Result<Tiles3dExport, ExportError> {
     use rayon::prelude::*;
@@ -328,8 +203,7 @@ pub fn export_3dtiles(
             } else {
                 stage.join(format!("index/{}/{}/{}.json", c.root.z, c.root.x, c.root.y))
             };
-            let mut bytes =
-                serde_json::to_vec(&crate::tiles3d::chunk_tileset(&info, c, root)).unwrap_or_default();
+            let mut bytes = serde_json::to_vec(&chunk_tileset(&info, c, root)).unwrap_or_default();
             bytes.push(b'\n');
             write_file(&path, &bytes).map_err(io_err(&path))?;
             docs += 1;

@@ -1,0 +1,359 @@
+//! The glTF 2.0 binary (GLB) of a decoded blob ([`glb`]). Positions keep the blob's integer
+//! grid: each glTF axis stores `q` (or `Q − q` where the axis is reversed) and the node's
+//! `translation` and `scale` hold the grid's origin and step, so a position decodes to exactly
+//! what the blob decodes to.
+
+use serde_json::{Value, json};
+
+use super::placement::{Axes, Placement};
+use crate::codec::{Blob, Geometry};
+use crate::geom::{Bounds, Mesh, add_skirts, skirt_depth};
+use crate::tiling::TileKey;
+
+/// Media type of a glTF binary.
+pub const GLB_TYPE: &str = "model/gltf-binary";
+/// Written into `asset.generator` of every tileset and glTF.
+pub const GENERATOR: &str = concat!("terrastream ", env!("CARGO_PKG_VERSION"));
+
+const GLTF_FLOAT: u32 = 5126;
+const GLTF_U16: u32 = 5123;
+const GLTF_U32: u32 = 5125;
+const GLTF_I8: u32 = 5120;
+const ARRAY_BUFFER: u32 = 34962;
+const ELEMENT_ARRAY_BUFFER: u32 = 34963;
+/// Largest vertex count drawn with 16-bit indices: 65535 is WebGL 2's primitive-restart index.
+const MAX_U16_VERTICES: usize = 65_535;
+
+/// Skirt depth of a tile mesh with error `own`: deep enough for a neighbour drawn one level
+/// coarser (about twice the error), see [`skirt_depth`].
+#[must_use]
+pub fn mesh_skirt_depth(own: f64) -> f64 {
+    skirt_depth(own, 2.0 * own)
+}
+
+/// The glTF binary of a decoded blob: a mesh as indexed triangles (with skirts `skirt` deep
+/// below its borders, none on the dataset's outer border `outer`, when `skirt` is given), points
+/// as `POINTS` with normals. Positions are the blob's integer grid: `UNSIGNED_SHORT` with
+/// `KHR_mesh_quantization` when every axis fits 16 bits, else the same integers as `FLOAT`
+/// (exact below 2²⁴); normals are `BYTE` normalized.
+#[must_use]
+pub fn glb(blob: &Blob, place: &Placement, skirt: Option<(f64, Option<&Bounds>)>) -> Vec<u8> {
+    let h = &blob.header;
+    let step = [h.quant.xy_step, h.quant.xy_step, h.quant.z_step];
+    let min = h.bounds[0];
+    match &blob.geometry {
+        Geometry::Mesh(mesh) => {
+            // Top triangles must face up (a terrain) or keep their winding (a model, unless the
+            // placement mirrors it); skirt walls are built facing outward in the world frame, so
+            // they turn only where the placement mirrors.
+            let flip_top = turns(mesh, place);
+            let skirted = match skirt {
+                Some((depth, outer)) if !mesh.triangles.is_empty() => {
+                    // A whole number of z steps, so skirt vertices stay on the grid.
+                    let depth = (depth / step[2]).ceil().max(1.0) * step[2];
+                    Some(add_skirts(mesh, depth, outer))
+                }
+                _ => None,
+            };
+            let (all, tops, first_wall): (&Mesh, &[u32], usize) = match &skirted {
+                Some(s) => (&s.mesh, &s.skirt_tops, s.first_skirt_triangle),
+                None => (mesh, &[], mesh.triangles.len()),
+            };
+            let mut tris = all.triangles.clone();
+            for (i, t) in tris.iter_mut().enumerate() {
+                let flip = if i < first_wall { flip_top } else { place.mirrored() };
+                if flip {
+                    t.swap(1, 2);
+                }
+            }
+            let pos = Positions::new(&all.positions, min, step, place);
+            let normals = mesh_normals(all, &tris[..first_wall], tops, place);
+            Gltf::mesh(&pos, &tris, &normals, h.key, h.level).finish()
+        }
+        Geometry::Points(points) => {
+            let pos = Positions::new(&points.positions, min, step, place);
+            let map = place.axis_map();
+            let normals: Vec<[i8; 3]> =
+                points.normals.iter().map(|n| oct_free_i8(map.map(|(a, s)| s * f64::from(n[a])))).collect();
+            Gltf::points(&pos, &normals, h.key, h.level).finish()
+        }
+    }
+}
+
+/// Whether a mesh's triangles must turn to face the way glTF expects (counter-clockwise seen from
+/// outside). A model keeps its own winding unless the placement mirrors it; a terrain mesh is a
+/// height field, so its triangles must face up: the sign of their summed area seen from above
+/// in the tileset frame says which way they face (the TIN's winding follows the raster's rows,
+/// whose direction in the world frame depends on the georeference).
+fn turns(mesh: &Mesh, place: &Placement) -> bool {
+    if place.axes == Axes::ModelYUp {
+        return place.mirrored();
+    }
+    let area: f64 = mesh
+        .triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| place.enu_of(mesh.positions[i as usize]));
+            (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+        })
+        .sum();
+    area < 0.0
+}
+
+/// Smooth vertex normals in glTF axes, as `BYTE` vectors: area-weighted sums over the top
+/// triangles (`top`, already facing the right way); a skirt vertex takes the normal of the
+/// border vertex it hangs below (`tops`, in order from the first skirt vertex), so a wall
+/// shades like the surface above it, as Cesium's quantized-mesh skirts do.
+fn mesh_normals(mesh: &Mesh, top: &[[u32; 3]], tops: &[u32], place: &Placement) -> Vec<[i8; 3]> {
+    let g: Vec<glam::DVec3> =
+        mesh.positions.iter().map(|p| glam::DVec3::from_array(place.gltf_of(*p))).collect();
+    let mut sums = vec![glam::DVec3::ZERO; g.len()];
+    for t in top {
+        let [a, b, c] = t.map(|i| g[i as usize]);
+        let n = (b - a).cross(c - a);
+        for &i in t {
+            sums[i as usize] += n;
+        }
+    }
+    let first_skirt = g.len() - tops.len();
+    for (k, &top) in tops.iter().enumerate() {
+        sums[first_skirt + k] = sums[top as usize];
+    }
+    // A vertex of no triangle (there are none in a decoded mesh) points up.
+    sums.iter().map(|s| oct_free_i8(if s.length() > 0.0 { s.to_array() } else { [0.0, 1.0, 0.0] })).collect()
+}
+
+/// Positions on the blob's grid, per glTF axis: the stored integers, the node's translation
+/// (relative to the placement origin) and scale (the grid step).
+struct Positions {
+    ints: Vec<[u32; 3]>,
+    translation: [f64; 3],
+    scale: [f64; 3],
+    max: [u32; 3],
+}
+
+impl Positions {
+    fn new(world: &[[f64; 3]], min: [f64; 3], step: [f64; 3], place: &Placement) -> Self {
+        let q: Vec<[i64; 3]> = world
+            .iter()
+            .map(|p| std::array::from_fn(|a| ((p[a] - min[a]) / step[a]).round() as i64))
+            .collect();
+        let (mut lo, mut hi) = ([i64::MAX; 3], [i64::MIN; 3]);
+        for p in &q {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        if q.is_empty() {
+            (lo, hi) = ([0; 3], [0; 3]);
+        }
+        let map = place.axis_map();
+        let ints = q
+            .iter()
+            .map(|p| map.map(|(a, s)| if s > 0.0 { p[a] - lo[a] } else { hi[a] - p[a] } as u32))
+            .collect();
+        let translation = map.map(|(a, s)| {
+            let base = if s > 0.0 { lo[a] } else { hi[a] };
+            s * (min[a] + base as f64 * step[a] - place.origin[a])
+        });
+        let scale = map.map(|(a, _)| step[a]);
+        let max = map.map(|(a, _)| (hi[a] - lo[a]) as u32);
+        Self { ints, translation, scale, max }
+    }
+
+    fn fits_u16(&self) -> bool {
+        self.max.iter().all(|&m| u16::try_from(m).is_ok())
+    }
+}
+
+/// The `BYTE`-normalized unit vector nearest in direction to `n` whose length passes glTF
+/// validators (|len − 1| small): rounding each component alone can miss by 0.7 %.
+fn oct_free_i8(n: [f64; 3]) -> [i8; 3] {
+    let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    let u = if len > 0.0 && len.is_finite() { n.map(|c| c / len) } else { [0.0, 0.0, 1.0] };
+    let base = u.map(|c| (c * 127.0).round());
+    let mut best = (f64::INFINITY, [0i8; 3]);
+    for d in 0..27 {
+        let c: [f64; 3] = std::array::from_fn(|a| {
+            (base[a] + f64::from((d / 3_i32.pow(a as u32)) % 3 - 1)).clamp(-127.0, 127.0)
+        });
+        let l = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt() / 127.0;
+        if l == 0.0 {
+            continue;
+        }
+        let cos = (c[0] * u[0] + c[1] * u[1] + c[2] * u[2]) / (l * 127.0);
+        let score = (1.0 - cos) + (l - 1.0).abs() * 4.0;
+        if score < best.0 {
+            best = (score, c.map(|v| v as i8));
+        }
+    }
+    best.1
+}
+
+/// A glTF document being put together: its JSON and its one binary buffer.
+struct Gltf {
+    json: Value,
+    bin: Vec<u8>,
+}
+
+impl Gltf {
+    fn new(key: TileKey, level: u8) -> Self {
+        Self {
+            json: json!({
+                "asset": { "version": "2.0", "generator": GENERATOR },
+                "scene": 0,
+                "scenes": [{ "nodes": [0] }],
+                "bufferViews": [],
+                "accessors": [],
+                "extras": { "terrastream": { "key": key.to_string(), "level": level } },
+            }),
+            bin: Vec::new(),
+        }
+    }
+
+    /// Appends a buffer view (4-byte aligned) and returns its index.
+    fn view(&mut self, bytes: &[u8], stride: Option<usize>, target: u32) -> usize {
+        while !self.bin.len().is_multiple_of(4) {
+            self.bin.push(0);
+        }
+        let mut v =
+            json!({ "buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len(), "target": target });
+        if let Some(s) = stride {
+            v["byteStride"] = json!(s);
+        }
+        self.bin.extend_from_slice(bytes);
+        push(&mut self.json, "bufferViews", v)
+    }
+
+    fn accessor(&mut self, a: Value) -> usize {
+        push(&mut self.json, "accessors", a)
+    }
+
+    fn positions(&mut self, p: &Positions) -> usize {
+        let count = p.ints.len();
+        let (view, component) = if p.fits_u16() {
+            let mut b = Vec::with_capacity(count * 8);
+            for v in &p.ints {
+                for c in v {
+                    b.extend_from_slice(&(*c as u16).to_le_bytes());
+                }
+                b.extend_from_slice(&[0, 0]);
+            }
+            (self.view(&b, Some(8), ARRAY_BUFFER), GLTF_U16)
+        } else {
+            let mut b = Vec::with_capacity(count * 12);
+            for v in &p.ints {
+                for c in v {
+                    b.extend_from_slice(&(*c as f32).to_le_bytes());
+                }
+            }
+            (self.view(&b, Some(12), ARRAY_BUFFER), GLTF_FLOAT)
+        };
+        let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
+        for v in &p.ints {
+            for a in 0..3 {
+                lo[a] = lo[a].min(v[a]);
+                hi[a] = hi[a].max(v[a]);
+            }
+        }
+        if p.ints.is_empty() {
+            lo = [0; 3];
+        }
+        let acc = self.accessor(json!({
+            "bufferView": view, "componentType": component, "count": count, "type": "VEC3",
+            "min": lo, "max": hi,
+        }));
+        if component == GLTF_U16 {
+            self.json["extensionsUsed"] = json!(["KHR_mesh_quantization"]);
+            self.json["extensionsRequired"] = json!(["KHR_mesh_quantization"]);
+        }
+        self.json["nodes"] = json!([{ "mesh": 0, "translation": p.translation, "scale": p.scale }]);
+        acc
+    }
+
+    /// Unit normals as `BYTE` normalized (`KHR_mesh_quantization`), padded to 4 bytes each.
+    fn normals(&mut self, normals: &[[i8; 3]]) -> usize {
+        let b: Vec<u8> = normals.iter().flat_map(|n| [n[0] as u8, n[1] as u8, n[2] as u8, 0]).collect();
+        let view = self.view(&b, Some(4), ARRAY_BUFFER);
+        self.json["extensionsUsed"] = json!(["KHR_mesh_quantization"]);
+        self.json["extensionsRequired"] = json!(["KHR_mesh_quantization"]);
+        self.accessor(json!({
+            "bufferView": view, "componentType": GLTF_I8, "normalized": true, "count": normals.len(), "type": "VEC3",
+        }))
+    }
+
+    fn material(&mut self, rgb: [f64; 3], points: bool) {
+        self.json["materials"] = json!([{
+            "name": if points { "points" } else { "terrain" },
+            "pbrMetallicRoughness": {
+                "baseColorFactor": [rgb[0], rgb[1], rgb[2], 1.0],
+                "metallicFactor": 0.0,
+                "roughnessFactor": 1.0,
+            },
+        }]);
+    }
+
+    fn mesh(p: &Positions, tris: &[[u32; 3]], normals: &[[i8; 3]], key: TileKey, level: u8) -> Self {
+        let mut g = Self::new(key, level);
+        let pos = g.positions(p);
+        let nrm = g.normals(normals);
+        let (view, component) = if p.ints.len() <= MAX_U16_VERTICES {
+            let b: Vec<u8> = tris.iter().flatten().flat_map(|&i| (i as u16).to_le_bytes()).collect();
+            (g.view(&b, None, ELEMENT_ARRAY_BUFFER), GLTF_U16)
+        } else {
+            let b: Vec<u8> = tris.iter().flatten().flat_map(|&i| i.to_le_bytes()).collect();
+            (g.view(&b, None, ELEMENT_ARRAY_BUFFER), GLTF_U32)
+        };
+        let idx =
+            g.accessor(json!({ "bufferView": view, "componentType": component, "count": tris.len() * 3, "type": "SCALAR" }));
+        g.material([0.64, 0.60, 0.50], false);
+        g.json["meshes"] = json!([{ "primitives": [{ "attributes": { "POSITION": pos, "NORMAL": nrm }, "indices": idx, "mode": 4, "material": 0 }] }]);
+        g
+    }
+
+    fn points(p: &Positions, normals: &[[i8; 3]], key: TileKey, level: u8) -> Self {
+        let mut g = Self::new(key, level);
+        let pos = g.positions(p);
+        let nrm = g.normals(normals);
+        g.material([0.78, 0.70, 0.52], true);
+        g.json["meshes"] = json!([{
+            "primitives": [{ "attributes": { "POSITION": pos, "NORMAL": nrm }, "mode": 0, "material": 0 }]
+        }]);
+        g
+    }
+
+    /// The GLB container: header, JSON chunk (space-padded), BIN chunk (zero-padded).
+    fn finish(mut self) -> Vec<u8> {
+        while !self.bin.len().is_multiple_of(4) {
+            self.bin.push(0);
+        }
+        self.json["buffers"] = json!([{ "byteLength": self.bin.len() }]);
+        let mut text = serde_json::to_vec(&self.json).unwrap_or_default();
+        while !text.len().is_multiple_of(4) {
+            text.push(b' ');
+        }
+        let total = 12 + 8 + text.len() + 8 + self.bin.len();
+        let mut out = Vec::with_capacity(total);
+        out.extend_from_slice(b"glTF");
+        out.extend_from_slice(&2u32.to_le_bytes());
+        out.extend_from_slice(&(total as u32).to_le_bytes());
+        out.extend_from_slice(&(text.len() as u32).to_le_bytes());
+        out.extend_from_slice(&0x4E4F_534Au32.to_le_bytes());
+        out.extend_from_slice(&text);
+        out.extend_from_slice(&(self.bin.len() as u32).to_le_bytes());
+        out.extend_from_slice(&0x004E_4942u32.to_le_bytes());
+        out.extend_from_slice(&self.bin);
+        out
+    }
+}
+
+fn push(doc: &mut Value, array: &str, v: Value) -> usize {
+    if let Some(a) = doc.get_mut(array).and_then(Value::as_array_mut) {
+        a.push(v);
+        a.len() - 1
+    } else {
+        doc[array] = json!([v]);
+        0
+    }
+}

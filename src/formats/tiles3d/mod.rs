@@ -1,0 +1,27 @@
+//! OGC 3D Tiles 1.1 from a tileset's own records, so third-party clients (CesiumJS, Cesium for
+//! Unreal/Unity, the three.js 3d-tiles-renderer, deck.gl) read every tileset without a re-bake:
+//! a decoded blob becomes a glTF 2.0 binary ([`glb()`]) and an index chunk becomes a tileset JSON
+//! ([`chunk_tileset`]) whose subtrees below the chunk are external tilesets, so no JSON grows
+//! with the dataset. Pure: values in, bytes and JSON out (the server and `export` do the I/O).
+//!
+//! Placement ([`Placement`]): the tileset frame is east-north-up metres around a local origin
+//! (the centre of the data at height 0; a model's bottom centre), and the root tile's
+//! `transform` takes it to Earth-centred coordinates at the anchor (longitude, latitude,
+//! ellipsoidal height). glTF is y-up, so a glTF position is (east, up, −north). Positions keep
+//! the blob's integer grid: each glTF axis stores `q` (or `Q − q` where the axis is reversed)
+//! and the node's `translation` and `scale` hold the grid's origin and step, so a position
+//! decodes to exactly what the blob decodes to.
+//!
+//! One file per part: [`placement`] (anchor, axes, the east-north-up frame), [`mod@glb`] (the
+//! glTF binary of a blob), [`tileset`] (tileset JSON, and the GLB of a stored tile as it lists it).
+
+pub mod glb;
+pub mod placement;
+pub mod tileset;
+
+pub use glb::{GENERATOR, GLB_TYPE, glb, mesh_skirt_depth};
+pub use placement::{Anchor, AnchorFrom, Axes, DEFAULT_ANCHOR, MAX_ANCHOR_HEIGHT, Placement};
+pub use tileset::{TilesetInfo, chunk_tileset, tile_glb};
+
+#[cfg(test)]
+mod tests;
