@@ -5,7 +5,7 @@
 #![allow(clippy::unwrap_used, clippy::float_cmp)]
 
 mod common;
-use common::{bin, data, fails, ok, tree};
+use common::{bin, fails, fuji_or_generated, ok, tree};
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -14,12 +14,12 @@ use terrastream::codec::{self, Geometry};
 use terrastream::store::Store;
 use terrastream::tiling::{Pyramid, TileKey};
 
-fn bake_fuji(out: &Path) -> String {
+fn bake_fuji(fuji: &Path, out: &Path) -> String {
     ok(bin()
         .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "128"])
         .args(["--max-error", "2", "--levels", "3", "--out"])
         .arg(out)
-        .arg(data("fuji.png")))
+        .arg(fuji))
 }
 
 fn decode(store: &Store, key: TileKey, level: u8) -> codec::Blob {
@@ -29,8 +29,9 @@ fn decode(store: &Store, key: TileKey, level: u8) -> codec::Blob {
 #[test]
 fn fuji_bake_errors_borders_determinism_resume() {
     let tmp = tempfile::tempdir().unwrap();
+    let fuji = fuji_or_generated(tmp.path(), "bake::fuji_bake_errors_borders_determinism_resume");
     let a = tmp.path().join("a");
-    let summary = bake_fuji(&a);
+    let summary = bake_fuji(&fuji, &a);
     assert!(summary.contains("baked 21 tiles"), "{summary}");
 
     let store = Store::new(&a);
@@ -96,7 +97,7 @@ fn fuji_bake_errors_borders_determinism_resume() {
 
     // Deterministic: a second bake is byte-identical.
     let b = tmp.path().join("b");
-    bake_fuji(&b);
+    bake_fuji(&fuji, &b);
     let (ta, tb) = (tree(&a), tree(&b));
     assert_eq!(ta.keys().collect::<Vec<_>>(), tb.keys().collect::<Vec<_>>());
     assert!(ta == tb, "two bakes of the same input differ");
@@ -118,7 +119,7 @@ fn fuji_bake_errors_borders_determinism_resume() {
         }
     }
     std::fs::remove_dir_all(b.join("index")).unwrap();
-    let summary = bake_fuji(&b);
+    let summary = bake_fuji(&fuji, &b);
     assert!(summary.contains("(19 resumed)"), "{summary}");
     assert!(tree(&b) == ta, "resumed bake differs from a fresh one");
 
@@ -128,7 +129,7 @@ fn fuji_bake_errors_borders_determinism_resume() {
             .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30"])
             .arg("--out")
             .arg(&b)
-            .arg(data("fuji.png")),
+            .arg(&fuji),
     );
     assert!(err.contains("different options"), "{err}");
     assert!(tree(&b) == ta);
@@ -169,6 +170,7 @@ fn store_blob(dir: &Path, key: TileKey, level: u8) -> PathBuf {
 #[test]
 fn bad_inputs_fail_cleanly_and_write_nothing() {
     let tmp = tempfile::tempdir().unwrap();
+    let fuji = fuji_or_generated(tmp.path(), "bake::bad_inputs_fail_cleanly_and_write_nothing");
     let out = tmp.path().join("out");
     let missing = tmp.path().join("nope.png");
     let err = fails(bin().arg("bake").arg(&missing).arg("--out").arg(&out));
@@ -184,7 +186,7 @@ fn bad_inputs_fail_cleanly_and_write_nothing() {
     let err = fails(
         bin()
             .arg("bake")
-            .arg(data("fuji.png"))
+            .arg(&fuji)
             .args(["--encoding", "terrain-rgb", "--max-side", "100", "--out"])
             .arg(&out),
     );
@@ -192,11 +194,7 @@ fn bad_inputs_fail_cleanly_and_write_nothing() {
     assert!(!out.exists());
 
     let err = fails(
-        bin()
-            .arg("bake")
-            .arg(data("fuji.png"))
-            .args(["--encoding", "terrain-rgb", "--max-error=-1", "--out"])
-            .arg(&out),
+        bin().arg("bake").arg(&fuji).args(["--encoding", "terrain-rgb", "--max-error=-1", "--out"]).arg(&out),
     );
     assert!(err.contains("max-error"), "{err}");
     assert!(!out.exists());

@@ -40,7 +40,8 @@ fn flight() -> Flight {
 
 /// Bakes fuji.png (30 m cells, 128-sample tiles: 85 nodes, 3 levels) into `store/fuji`.
 fn bake(store: &Path) {
-    let fuji = terrastream::raster::test_data_dir().join("fuji.png");
+    let src = tempfile::tempdir().unwrap();
+    let fuji = common::fuji_or_generated(src.path(), "client: the fuji.png bake");
     let out = Command::new(env!("CARGO_BIN_EXE_terrastream"))
         .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "128"])
         .args(["--max-error", "2", "--levels", "3", "--gpu", "off", "--out"])

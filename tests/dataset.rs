@@ -6,7 +6,7 @@
 #![allow(clippy::unwrap_used, clippy::float_cmp, clippy::cast_lossless, clippy::type_complexity)]
 
 mod common;
-use common::{bin, blobs_and_index, data, fails, ok, tree};
+use common::{bin, blobs_and_index, fails, ok, tree};
 
 use std::path::{Path, PathBuf};
 
@@ -242,21 +242,24 @@ fn mosaics_that_do_not_fit_are_refused_naming_the_file() {
         load: LoadOptions { encoding: Some(HeightEncoding::TerrainRgb), ..LoadOptions::default() },
         ..DatasetOptions::default()
     };
-    let e = Dataset::open(&[base, data("fuji.png")], &opts, &|_, _, _| {}).err().unwrap().to_string();
+    let png = common::fuji_or_generated(d, "dataset: a PNG in a mosaic");
+    let e = Dataset::open(&[base, png], &opts, &|_, _, _| {}).err().unwrap().to_string();
     assert!(e.contains("fuji.png") && e.contains("no georeference"), "{e}");
 }
 
 #[test]
 fn out_of_core_fuji_is_byte_identical_to_in_memory() {
     let dir = tempfile::tempdir().unwrap();
+    let fuji =
+        common::fuji_or_generated(dir.path(), "dataset::out_of_core_fuji_is_byte_identical_to_in_memory");
     let load = LoadOptions {
         encoding: Some(HeightEncoding::TerrainRgb),
         overrides: Overrides { cell_size: Some(30.0), ..Overrides::default() },
         ..LoadOptions::default()
     };
-    let raster = raster::load(&data("fuji.png"), &load).unwrap();
+    let raster = raster::load(&fuji, &load).unwrap();
     let opts = DatasetOptions { load, cache_bytes: MIN_CACHE_BYTES, ..DatasetOptions::default() };
-    let ds = Dataset::open(&[data("fuji.png")], &opts, &|_, _, _| {}).unwrap();
+    let ds = Dataset::open(std::slice::from_ref(&fuji), &opts, &|_, _, _| {}).unwrap();
     let (a, b) = (dir.path().join("a"), dir.path().join("b"));
     bake_memory(&raster, "fuji.png", &a);
     bake_dataset(&ds, "fuji.png", &b);

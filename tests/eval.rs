@@ -55,13 +55,13 @@ fn check_png(path: &Path) -> (u32, u32) {
 #[test]
 fn eval_reports_coverage_and_instances_on_a_model_and_a_terrain() {
     let tmp = tempfile::tempdir().unwrap();
-    let data = terrastream::raster::test_data_dir();
+    let model = common::bunny_or_generated(tmp.path(), "eval: the bunny as a model tileset");
     // The bunny, three coarse point levels (fast in debug builds).
     let bunny = tmp.path().join("bunny");
     let o = bin()
         .args(["bake-model", "--gpu", "off", "--resolutions", "60,40,20", "--out"])
         .arg(&bunny)
-        .arg(data.join("stanford-bunny.obj"))
+        .arg(&model)
         .output()
         .unwrap();
     ok(&o, "bake-model");

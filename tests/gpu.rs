@@ -10,7 +10,7 @@
 #![allow(clippy::unwrap_used, clippy::panic)]
 
 mod common;
-use common::{bin, data, gpu_or_skip, require_gpu, tree};
+use common::{bin, bunny_or_generated, fuji_or_generated, gpu_or_skip, require_gpu, shared, tree};
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -172,7 +172,8 @@ fn agrees_with_cpu_on_fuji_tiles() {
         overrides: Overrides { cell_size: Some(30.0), ..Overrides::default() },
         ..LoadOptions::default()
     };
-    let r = raster::load(&data("fuji.png"), &opts).unwrap();
+    let Some(fuji) = shared("fuji.png", "gpu::agrees_with_cpu_on_fuji_tiles") else { return };
+    let r = raster::load(&fuji, &opts).unwrap();
     let meshes = node_meshes(&r.heights, &r.georef, 128, 2.0);
     check_jobs("fuji", gpu, &level_jobs(&meshes, 3));
 }
@@ -189,7 +190,9 @@ fn agrees_with_cpu_on_generated_terrain() {
 #[test]
 fn agrees_with_cpu_on_the_bunny() {
     let Some(gpu) = baker() else { return };
-    let mesh = terrastream::model::load(&data("stanford-bunny.obj")).unwrap().mesh;
+    let tmp = tempfile::tempdir().unwrap();
+    let bunny = bunny_or_generated(tmp.path(), "gpu::agrees_with_cpu_on_the_bunny");
+    let mesh = terrastream::model::load(&bunny).unwrap().mesh;
     assert!(mesh.triangles.len() > 10_000);
     let b = terrastream::geom::Bounds::of_points(&mesh.positions);
     let size = b.size().max_element();
@@ -265,11 +268,13 @@ fn degenerate_input_matches_the_reference() {
 }
 
 fn bake_fuji(out: &Path, gpu: &str) -> String {
+    let src = tempfile::tempdir().unwrap();
+    let fuji = fuji_or_generated(src.path(), "gpu: a fuji.png bake");
     let o = bin()
         .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "128"])
         .args(["--max-error", "2", "--levels", "3", "--gpu", gpu, "--out"])
         .arg(out)
-        .arg(data("fuji.png"))
+        .arg(&fuji)
         .output()
         .unwrap();
     assert!(o.status.success(), "bake --gpu {gpu} failed: {}", String::from_utf8_lossy(&o.stderr));
@@ -304,12 +309,9 @@ fn point_baker_is_send_and_sync() {
 }
 
 fn bake_bunny(out: &Path, gpu: &str) -> String {
-    let o = bin()
-        .args(["bake-model", "--gpu", gpu, "--out"])
-        .arg(out)
-        .arg(raster::test_data_dir().join("stanford-bunny.obj"))
-        .output()
-        .unwrap();
+    let src = tempfile::tempdir().unwrap();
+    let bunny = bunny_or_generated(src.path(), "gpu: a stanford-bunny.obj bake");
+    let o = bin().args(["bake-model", "--gpu", gpu, "--out"]).arg(out).arg(&bunny).output().unwrap();
     assert!(o.status.success(), "bake-model --gpu {gpu} failed: {}", String::from_utf8_lossy(&o.stderr));
     String::from_utf8(o.stdout).unwrap()
 }
@@ -405,7 +407,7 @@ fn gpu_bakes_keep_positions_inside_the_bounds() {
     run(
         &["--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "64", "--max-error", "2"],
         &out,
-        &data("fuji.png"),
+        &fuji_or_generated(tmp.path(), "gpu::gpu_bakes_keep_positions_inside_the_bounds"),
     );
     check(&out);
     for (i, plateau) in [false, true].into_iter().enumerate() {

@@ -16,7 +16,7 @@
 )]
 
 mod common;
-use common::{bin, data, fails, ok, run_within, tree};
+use common::{bin, fails, fuji_or_generated, ok, run_within, tree};
 
 use std::path::Path;
 use std::process::Stdio;
@@ -63,12 +63,14 @@ fn write_geotiff(path: &Path, w: u32, h: u32, data: &[f32], cell: f64) {
 #[test]
 fn d1_fuji_small_tiles_bake_with_points_inside_the_bounds() {
     let tmp = tempfile::tempdir().unwrap();
+    let fuji =
+        fuji_or_generated(tmp.path(), "hardening::d1_fuji_small_tiles_bake_with_points_inside_the_bounds");
     let out = tmp.path().join("x");
     ok(bin()
         .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "64"])
         .args(["--max-error", "2", "--gpu", "off", "--out"])
         .arg(&out)
-        .arg(data("fuji.png")));
+        .arg(&fuji));
     assert!(assert_positions_inside_bounds(&out) > 300);
 }
 
@@ -123,6 +125,7 @@ fn d1_flat_rasters_and_lakes_bake() {
 #[test]
 fn d2_d7_absurd_values_are_refused_up_front() {
     let tmp = tempfile::tempdir().unwrap();
+    let fuji = fuji_or_generated(tmp.path(), "hardening::d2_d7_absurd_values_are_refused_up_front");
     let out = tmp.path().join("never");
     let cases: [(&[&str], &str); 4] = [
         (&["--cell-size", "1e300"], "cell size"),
@@ -137,7 +140,7 @@ fn d2_d7_absurd_values_are_refused_up_front() {
                 .args(flags)
                 .arg("--out")
                 .arg(&out)
-                .arg(data("fuji.png")),
+                .arg(&fuji),
         );
         assert!(e.contains("fuji.png") && e.contains(what), "{flags:?}: {e}");
         assert!(!out.exists(), "{flags:?} wrote {out:?}");
@@ -183,6 +186,7 @@ fn d2_d7_absurd_values_are_refused_up_front() {
 #[test]
 fn d4_resume_rebakes_damaged_blobs() {
     let tmp = tempfile::tempdir().unwrap();
+    let fuji = fuji_or_generated(tmp.path(), "hardening::d4_resume_rebakes_damaged_blobs");
     let out = tmp.path().join("t");
     let bake = |out: &Path| {
         let out = run_within(
@@ -190,7 +194,7 @@ fn d4_resume_rebakes_damaged_blobs() {
                 .args(["bake", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "128"])
                 .args(["--levels", "3", "--gpu", "off", "--out"])
                 .arg(out)
-                .arg(data("fuji.png")),
+                .arg(&fuji),
             Duration::from_secs(300),
         );
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -220,7 +224,10 @@ fn d4_resume_rebakes_damaged_blobs() {
 
 /// D6 and the kill -9 promise: a bake killed at several moments and then run again gives the
 /// tree of an uninterrupted bake, every file included (temporary files of the killed run are
-/// removed).
+/// removed). Each kill must interrupt a running bake: the bake is run in short steps between
+/// SIGSTOP and SIGCONT, the blobs are counted while it is stopped, and it is killed while still
+/// stopped, so it cannot end between the count and the kill; a bake that ended on its own
+/// before its kill fails the test rather than passing it untested.
 #[test]
 fn killed_bakes_resume_to_the_identical_tree() {
     let tmp = tempfile::tempdir().unwrap();
@@ -234,9 +241,12 @@ fn killed_bakes_resume_to_the_identical_tree() {
         c
     };
     let reference = tmp.path().join("ref");
+    let t0 = Instant::now();
     ok(&mut args(&reference));
     let clean = tree(&reference);
     let blobs = clean.keys().filter(|k| k.ends_with(".tsb")).count();
+    // Steps cover at most half the time the blobs still missing took in the reference bake.
+    let per_blob = t0.elapsed() / u32::try_from(blobs).unwrap();
 
     // Kill when a share of the blobs exists (or at once), then resume; twice for one of them.
     for (i, share) in [0.0, 0.1, 0.5, 0.9].into_iter().enumerate() {
@@ -246,17 +256,27 @@ fn killed_bakes_resume_to_the_identical_tree() {
             let want = (blobs as f64 * share) as usize + round;
             let t0 = Instant::now();
             loop {
+                stop(&child);
+                if let Some(status) = child.try_wait().unwrap() {
+                    panic!(
+                        "kill at {share}: the bake ended ({status}) before {want} of {blobs} blobs were \
+                         counted: it was never interrupted"
+                    );
+                }
                 let have = if out.exists() { count_files(&out, ".tsb") } else { 0 };
-                if have >= want || t0.elapsed() > Duration::from_secs(120) {
+                if have >= want {
                     break;
                 }
-                if child.try_wait().unwrap().is_some() {
-                    break;
-                }
-                std::thread::sleep(Duration::from_millis(2));
+                assert!(t0.elapsed() < Duration::from_mins(2), "kill at {share}: {have} of {want} blobs");
+                signal(&child, "CONT");
+                let step = per_blob * u32::try_from(want - have).unwrap() / 2;
+                std::thread::sleep(step.clamp(Duration::from_millis(1), Duration::from_millis(50)));
             }
+            // Still stopped, so still unfinished: the kill interrupts it.
             child.kill().unwrap(); // SIGKILL
-            child.wait().unwrap();
+            let status = child.wait().unwrap();
+            assert!(!status.success(), "kill at {share}: {status}");
+            assert!(tree(&out) != clean, "kill at {share}: the killed bake had already written everything");
         }
         // A temporary file a killed writer left mid-write (planted too, since a kill between
         // writes leaves none).
@@ -268,6 +288,34 @@ fn killed_bakes_resume_to_the_identical_tree() {
         let extra: Vec<&String> = resumed.keys().filter(|k| !clean.contains_key(*k)).collect();
         assert!(extra.is_empty(), "kill at {share}: leftovers {extra:?}");
         assert!(resumed == clean, "kill at {share}: resumed tree differs from the uninterrupted bake");
+    }
+}
+
+/// Sends `SIG<name>` to `child` (through kill(1): the tests have no libc binding).
+fn signal(child: &std::process::Child, name: &str) {
+    let st = std::process::Command::new("kill").arg(format!("-{name}")).arg(child.id().to_string()).status();
+    assert!(st.unwrap().success(), "kill -{name} {}", child.id());
+}
+
+/// Stops `child` (SIGSTOP) and waits until each of its threads is stopped, or it has exited.
+fn stop(child: &std::process::Child) {
+    signal(child, "STOP");
+    let tasks = format!("/proc/{}/task", child.id());
+    let t0 = Instant::now();
+    loop {
+        let states: Vec<String> = std::fs::read_dir(&tasks)
+            .map(|d| d.filter_map(Result::ok).map(|e| e.path().join("stat")).collect::<Vec<_>>())
+            .unwrap_or_default()
+            .into_iter()
+            .filter_map(|p| std::fs::read_to_string(p).ok())
+            // The state follows the command name's closing parenthesis.
+            .filter_map(|s| s.rsplit_once(") ").map(|(_, rest)| rest.chars().take(1).collect()))
+            .collect();
+        if states.iter().all(|s| s == "T" || s == "Z" || s == "X") {
+            return;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(10), "{tasks}: not stopped: {states:?}");
+        std::thread::sleep(Duration::from_micros(200));
     }
 }
 
@@ -291,13 +339,14 @@ fn count_files(dir: &Path, suffix: &str) -> usize {
 #[test]
 fn d8_messages_name_the_cause_once() {
     let tmp = tempfile::tempdir().unwrap();
+    let fuji = fuji_or_generated(tmp.path(), "hardening::d8_messages_name_the_cause_once");
     let file = tmp.path().join("a-file");
     std::fs::write(&file, b"x").unwrap();
     let e = fails(
         bin()
             .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--gpu", "off", "--out"])
             .arg(file.join("sub"))
-            .arg(data("fuji.png")),
+            .arg(&fuji),
     );
     assert!(e.contains("not a directory"), "{e}");
     for line in e.lines() {
@@ -318,7 +367,7 @@ fn d8_messages_name_the_cause_once() {
         bin()
             .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--gpu", "off", "--out"])
             .arg(&link)
-            .arg(data("fuji.png")),
+            .arg(&fuji),
     );
     assert!(e.contains("symbolic link") && !e.contains("File exists"), "{e}");
 }
@@ -329,12 +378,13 @@ fn d8_messages_name_the_cause_once() {
 #[test]
 fn closed_stdout_is_not_a_panic() {
     let tmp = tempfile::tempdir().unwrap();
+    let fuji = fuji_or_generated(tmp.path(), "hardening::closed_stdout_is_not_a_panic");
     let out = tmp.path().join("t");
     ok(bin()
         .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "256"])
         .args(["--levels", "1", "--gpu", "off", "--out"])
         .arg(&out)
-        .arg(data("fuji.png")));
+        .arg(&fuji));
     let (reader, writer) = std::io::pipe().unwrap();
     drop(reader);
     let o = bin().arg("inspect").arg(&out).stdout(writer).stderr(Stdio::piped()).output().unwrap();
@@ -348,6 +398,7 @@ fn closed_stdout_is_not_a_panic() {
 #[test]
 fn time_limit_stops_a_bake_and_it_resumes() {
     let tmp = tempfile::tempdir().unwrap();
+    let fuji = fuji_or_generated(tmp.path(), "hardening::time_limit_stops_a_bake_and_it_resumes");
     let out = tmp.path().join("t");
     let base = |limit: Option<&str>| {
         let mut c = bin();
@@ -356,7 +407,7 @@ fn time_limit_stops_a_bake_and_it_resumes() {
         if let Some(l) = limit {
             c.args(["--time-limit", l]);
         }
-        c.arg("--out").arg(&out).arg(data("fuji.png"));
+        c.arg("--out").arg(&out).arg(&fuji);
         c
     };
     let e = fails(&mut base(Some("0.000001")));

@@ -193,7 +193,7 @@ fn bad_point_clouds_are_refused_naming_the_file_and_nothing_is_written() {
     let out = d.join("out-nocell");
     let msg = fails(bin().args(["bake", "--quiet", "--out"]).arg(&out).arg(&good_las));
     assert!(msg.contains("--cell-size") && msg.contains("good.las"), "{msg}");
-    let png = common::data("fuji.png");
+    let png = common::fuji_or_generated(d, "lidar: a point cloud mixed with a raster");
     let msg = fails(
         bin().args(["bake", "--quiet", "--cell-size", "1", "--out"]).arg(&out).arg(&good_las).arg(&png),
     );

@@ -358,7 +358,11 @@ const PAPER_BUNNY: [u32; 5] = [14_904, 12_654, 7_092, 3_191, 800];
 
 #[test]
 fn stanford_bunny_next_to_the_papers_table_3() {
-    let bunny = terrastream::raster::test_data_dir().join("stanford-bunny.obj");
+    let Some(bunny) =
+        common::shared("stanford-bunny.obj", "model::stanford_bunny_next_to_the_papers_table_3")
+    else {
+        return;
+    };
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("bunny");
     let stdout = bake(&bunny, &out, &[]);
@@ -430,7 +434,7 @@ fn stanford_bunny_next_to_the_papers_table_3() {
     // Other options into the same directory, or a terrain bake into it, are refused.
     let e = fails(bin().arg("bake-model").arg(&bunny).args(["--resolution", "40", "--out"]).arg(&out));
     assert!(e.contains("different options") && e.contains("resolutions"), "{e}");
-    let fuji = terrastream::raster::test_data_dir().join("fuji.png");
+    let fuji = common::fuji_or_generated(tmp.path(), "model: a terrain bake into a model tileset");
     let e = fails(bin().args(["bake", "--quiet", "--encoding", "terrain-rgb", "--out"]).arg(&out).arg(fuji));
     assert!(e.contains("different options"), "{e}");
     assert!(tree(&out) == a);
@@ -459,4 +463,89 @@ fn stanford_bunny_next_to_the_papers_table_3() {
     assert_eq!((back.mesh.positions.len(), back.mesh.triangles.len()), (levels[0].count as usize, 69_451));
     let e = fails(bin().arg("export").arg(&out).args(["--tile", "0/0/0", "--level", "9", "--out"]).arg(&obj));
     assert!(e.contains("no tile 0/0/0 level 9"), "{e}");
+}
+
+/// What `stanford_bunny_next_to_the_papers_table_3` checks besides the paper's figures, on a
+/// generated model (`common::write_model_obj`), so that a clone without the shared data runs
+/// the same paths: the ladder and its measured errors, levels that pay, determinism, refusals,
+/// inspect and export.
+#[test]
+fn generated_model_bakes_inspects_and_exports_like_the_bunny() {
+    const VERTICES: u64 = 2 + 99 * 200;
+    const TRIANGLES: u64 = 2 * 200 + 98 * 200 * 2;
+    let tmp = tempfile::tempdir().unwrap();
+    let src = tmp.path().join("generated-model.obj");
+    common::write_model_obj(&src);
+    let out = tmp.path().join("m");
+    bake(&src, &out, &[]);
+    let store = Store::new(&out);
+    assert_eq!(store.manifest_kind().unwrap(), TilesetKind::Model);
+    let m = bake_model::read_manifest(&store).unwrap();
+    let levels = &m.model.levels;
+    assert_eq!(levels.len(), 5);
+    assert_eq!((m.model.vertices_read, m.model.triangles_read), (VERTICES, TRIANGLES));
+    assert_eq!(u64::from(levels[0].triangles), TRIANGLES);
+    assert_eq!(u64::from(levels[0].count), m.model.vertices_read - m.model.unreferenced_dropped);
+    assert!(levels[0].errors.max > 0.0 && levels[0].errors.max < levels[0].quant_step);
+    for (l, info) in levels.iter().enumerate().skip(1) {
+        assert!(info.count < levels[l - 1].count, "{info:?}");
+        let cell = info.cell.unwrap();
+        assert!(info.errors.max > 0.0 && info.errors.max < cell, "{info:?}");
+        assert!(info.errors.gap > 0.0 && info.errors.gap < 2.0 * cell, "{info:?}");
+    }
+    let (_, stored, left_out) = common::assert_levels_pay(&out);
+    assert_eq!(stored + left_out, 5);
+    assert_eq!(stored, levels.iter().filter(|l| l.stored).count());
+    for info in levels.iter().filter(|l| l.stored) {
+        let blob = decode(&store, info.level);
+        assert_eq!(blob.header.vertex_count, info.count);
+        assert_eq!(blob.header.errors, info.errors);
+    }
+
+    // Deterministic; a rerun in place rewrites the same bytes.
+    let again = tmp.path().join("again");
+    bake(&src, &again, &[]);
+    let a = tree(&out);
+    assert!(tree(&again) == a, "two bakes differ");
+    bake(&src, &out, &[]);
+    assert!(tree(&out) == a);
+
+    // Other options into the same directory, or a terrain bake into it, are refused.
+    let e = fails(bin().arg("bake-model").arg(&src).args(["--resolution", "40", "--out"]).arg(&out));
+    assert!(e.contains("different options") && e.contains("resolutions"), "{e}");
+    let png = tmp.path().join("terrain-rgb.png");
+    common::write_terrain_rgb_png(&png, 65, 65, 1);
+    let e = fails(bin().args(["bake", "--quiet", "--encoding", "terrain-rgb", "--out"]).arg(&out).arg(&png));
+    assert!(e.contains("different options"), "{e}");
+    assert!(tree(&out) == a);
+
+    // inspect and export.
+    let text = ok(bin().arg("inspect").arg(&out));
+    assert!(text.contains("model generated-model.obj") && text.contains(&TRIANGLES.to_string()), "{text}");
+    let json: serde_json::Value =
+        serde_json::from_str(&ok(bin().arg("inspect").arg(&out).arg("--json"))).unwrap();
+    assert_eq!(json["kind"], "model");
+    assert_eq!(json["model"]["levels"][1]["count"], levels[1].count);
+    let stored_point_level = levels.iter().skip(1).find(|l| l.stored).unwrap().level;
+    let ply = tmp.path().join("points.ply");
+    let text = ok(bin()
+        .arg("export")
+        .arg(&out)
+        .args(["--tile", "0/0/0", "--level", &stored_point_level.to_string(), "--out"])
+        .arg(&ply));
+    let count = levels[usize::from(stored_point_level)].count;
+    assert!(text.contains(&format!("{count} points")), "{text}");
+    let e = model::load(&ply).unwrap_err().to_string();
+    assert!(e.contains("no faces"), "{e}");
+    let obj = tmp.path().join("l0.obj");
+    ok(bin()
+        .arg("export")
+        .arg(&out)
+        .args(["--tile", "0/0/0", "--level", "0", "--format", "obj", "--out"])
+        .arg(&obj));
+    let back = model::load(&obj).unwrap();
+    assert_eq!(
+        (back.mesh.positions.len() as u64, back.mesh.triangles.len() as u64),
+        (u64::from(levels[0].count), TRIANGLES)
+    );
 }

@@ -26,7 +26,8 @@ use terrastream::store::Store;
 const POINT_CASES: [(f64, f64); 3] = [(0.0, 16.0), (0.0, 24.0), (8.0, 32.0)];
 
 fn bake(out: &Path) {
-    let fuji = terrastream::raster::test_data_dir().join("fuji.png");
+    let src = tempfile::tempdir().unwrap();
+    let fuji = common::fuji_or_generated(src.path(), "render: the fuji.png bake");
     let o = Command::new(env!("CARGO_BIN_EXE_terrastream"))
         .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "128"])
         .args(["--max-error", "2", "--levels", "3", "--gpu", "off", "--out"])

@@ -929,18 +929,23 @@ async fn idle_slowloris_and_greedy_connections_are_closed_and_others_still_serve
     let greedy: IpAddr = "127.0.0.3".parse().unwrap();
     let slow: IpAddr = "127.0.0.4".parse().unwrap();
     let normal: Option<IpAddr> = Some("127.0.0.2".parse().unwrap());
-    let t0 = std::time::Instant::now();
 
     // One client opens 12 idle connections: 8 are held, the 4 past its cap are refused at once.
     let mut idle = Vec::new();
-    for _ in 0..12 {
+    let mut last_idle_opened = std::time::Instant::now();
+    for i in 0..12 {
+        if i < 8 {
+            last_idle_opened = std::time::Instant::now();
+        }
         idle.push(connect_from(Some(greedy), a).await);
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
+    // The window is generous (a loaded machine is slow, not wrong); that these were refused, not
+    // closed idle, the refused-connections metric says below.
     let mut refused = 0;
     for s in &mut idle[8..] {
         let got =
-            closed_within(s, Duration::from_secs(1)).await.expect("a connection past the cap stayed open");
+            closed_within(s, Duration::from_secs(30)).await.expect("a connection past the cap stayed open");
         assert!(got.is_empty() || got.starts_with(b"HTTP/1.1 503"), "{}", String::from_utf8_lossy(&got));
         refused += 1;
     }
@@ -950,9 +955,9 @@ async fn idle_slowloris_and_greedy_connections_are_closed_and_others_still_serve
     // Slowloris: 5 connections trickling a request head, one byte every 200 ms.
     let mut slow_tasks = Vec::new();
     for _ in 0..5 {
+        let start = std::time::Instant::now();
         let mut s = connect_from(Some(slow), a).await;
         slow_tasks.push(tokio::spawn(async move {
-            let start = std::time::Instant::now();
             let head = b"GET /healthz HTTP/1.1\r\nHost: x\r\nX-Padding: aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa\r\n";
             for b in head {
                 if s.write_all(&[*b]).await.is_err() {
@@ -973,18 +978,25 @@ async fn idle_slowloris_and_greedy_connections_are_closed_and_others_still_serve
         assert!(r.body.starts_with(b"TSB1"));
     }
 
-    // Slowloris heads are cut after the header timeout (1 s), though bytes keep arriving.
+    // Slowloris heads are cut after the header timeout (1 s), though bytes keep arriving. No
+    // timing window that a slow machine could miss: not before the timeout (the clock started
+    // before the connection did), and long before the head is complete (93 bytes at 200 ms a
+    // byte take 18.6 s; without a cut the task panics when all are sent).
     for t in slow_tasks {
         let took = t.await.unwrap();
-        assert!(took < Duration::from_millis(2800), "a slowloris connection lived {took:?}");
+        assert!(
+            (Duration::from_secs(1)..Duration::from_secs(9)).contains(&took),
+            "a slowloris connection was cut after {took:?}"
+        );
     }
-    // Idle connections close after the idle timeout (3 s), not the header timeout.
+    // Idle connections close after the idle timeout (3 s), not the header timeout: not before
+    // 3 s after the last one opened (a lower bound only; the upper one is "closed at all").
     for s in &mut idle {
-        let got = closed_within(s, Duration::from_secs(6)).await.expect("an idle connection stayed open");
+        let got = closed_within(s, Duration::from_secs(60)).await.expect("an idle connection stayed open");
         assert!(got.is_empty());
     }
-    let idle_for = t0.elapsed();
-    assert!(idle_for >= Duration::from_millis(2500), "idle connections closed after {idle_for:?}");
+    let idle_for = last_idle_opened.elapsed();
+    assert!(idle_for >= Duration::from_secs(3), "idle connections closed after {idle_for:?}");
 
     // The greedy client's slots are free again.
     let r = request_from(Some(greedy), a, "GET", "/healthz", &[], &[]).await;
@@ -1016,9 +1028,11 @@ async fn idle_connections_filling_the_server_are_closed_and_it_serves_again() {
     let start = std::time::Instant::now();
     let r = request_from(Some("127.0.0.6".parse().unwrap()), a, "GET", "/healthz", &[], &[]).await;
     assert_eq!(r.status, 200);
-    assert!(start.elapsed() < Duration::from_secs(5), "served after {:?}", start.elapsed());
+    // Served once the 1 s idle timeout freed a slot: generous bounds (a slow machine is slow,
+    // not wrong); without the timeout the slots would never free.
+    assert!(start.elapsed() < Duration::from_secs(30), "served after {:?}", start.elapsed());
     for s in &mut idle {
-        closed_within(s, Duration::from_secs(5)).await.expect("an idle connection stayed open");
+        closed_within(s, Duration::from_secs(30)).await.expect("an idle connection stayed open");
     }
     srv.stop().await;
 }

@@ -254,7 +254,8 @@ fn export_writes_every_stored_level_as_a_tile_with_the_blobs_positions() {
 fn export_places_geographic_and_unreferenced_sources() {
     let tmp = tempfile::tempdir().unwrap();
     // A PNG has no georeference: placed at the default anchor, north = −y (row 0 is north).
-    let png = common::data("fuji.png");
+    let png =
+        common::fuji_or_generated(tmp.path(), "tiles3d::export_places_geographic_and_unreferenced_sources");
     let r = raster::load(
         &png,
         &LoadOptions {

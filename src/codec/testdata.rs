@@ -55,14 +55,15 @@ pub fn synthetic(w: usize, h: usize, cell: f64) -> Heights {
     Heights { w, h, cell, z }
 }
 
-/// `../shared/data` beside the checkout, or `TERRASTREAM_DATA` (the raster tests' helper).
-pub fn data_dir() -> std::path::PathBuf {
-    crate::raster::test_data_dir()
+/// `name` in the shared test data, or `None` after printing the skip (the tests' one "shared data
+/// or skip" rule, [`crate::raster::shared_test_data`]: fails under `TERRASTREAM_REQUIRE_DATA=1`).
+pub fn data_file(name: &str) -> Option<std::path::PathBuf> {
+    crate::raster::shared_test_data(name, "a codec figure on the shared data")
 }
 
 /// The Mt. Fuji terrain-RGB tile at 30 m cells, if present.
 pub fn fuji() -> Option<Heights> {
-    let img = image::open(data_dir().join("fuji.png")).ok()?.to_rgb8();
+    let img = image::open(data_file("fuji.png")?).ok()?.to_rgb8();
     let (w, h) = (img.width() as usize, img.height() as usize);
     let z = img
         .pixels()
@@ -76,7 +77,7 @@ pub fn fuji() -> Option<Heights> {
 
 /// The Stanford Bunny (a closed 3D mesh, not a TIN), if present.
 pub fn bunny() -> Option<Mesh> {
-    let text = std::fs::read_to_string(data_dir().join("stanford-bunny.obj")).ok()?;
+    let text = std::fs::read_to_string(data_file("stanford-bunny.obj")?).ok()?;
     let mut m = Mesh::default();
     for line in text.lines() {
         let mut it = line.split_whitespace();
