@@ -23,7 +23,7 @@ use glam::DVec3;
 use terrastream::bake::{self, BakeOptions, NodeMesh};
 use terrastream::client::camera::Camera;
 use terrastream::client::select::{AllResident, DEFAULT_FOV_DEG, DistanceRule, SelectParams, Selector};
-use terrastream::client::stream::flight::Pose;
+use terrastream::client::stream::flight_path::Pose;
 use terrastream::client::tree::{Synthetic, TileTree};
 use terrastream::codec;
 use terrastream::geom::Errors;

@@ -27,8 +27,8 @@ use std::time::Instant;
 use terrastream::client::select::{
     AllResident, Camera, DEFAULT_FOV_DEG, DistanceRule, SelectParams, Selector,
 };
-use terrastream::client::stream::flight::{Flight, Frame, Key};
-use terrastream::client::stream::session::percentile;
+use terrastream::client::stream::flight_path::{Flight, Frame, Key};
+use terrastream::client::stream::replay::percentile;
 use terrastream::client::tree::{Synthetic, TileTree};
 
 /// The second paper's region-tree control overhead per frame.

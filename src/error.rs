@@ -2,8 +2,8 @@
 //! stage that failed while `?` converts between them.
 
 use crate::{
-    bake::BakeError, bake::model::ModelBakeError, codec::CodecError, model::MeshError, raster::RasterError,
-    store::StoreError, tin::TinError,
+    bake::BakeError, bake::model_tileset::ModelBakeError, codec::CodecError, model::MeshError,
+    raster::RasterError, store::StoreError, tin::TinError,
 };
 
 #[derive(Debug, thiserror::Error)]
@@ -33,7 +33,7 @@ pub enum Error {
     Client(#[from] crate::client::ClientError),
     #[cfg(feature = "client")]
     #[error(transparent)]
-    Eval(#[from] crate::client::eval::EvalError),
+    Eval(#[from] crate::eval::EvalError),
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

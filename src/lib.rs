@@ -9,6 +9,8 @@ pub mod bake;
 pub mod client;
 pub mod codec;
 mod error;
+#[cfg(feature = "client")]
+pub mod eval;
 pub mod formats;
 pub mod geom;
 #[cfg(feature = "gpu")]

@@ -25,10 +25,9 @@ use std::time::Duration;
 
 use terrastream::client::select::{Camera, SelectParams};
 use terrastream::client::stream::fetch::FetchParams;
-use terrastream::client::stream::flight::{Flight, Pose};
-use terrastream::client::stream::session::{
-    self as live, ReplayOptions, ReplayPhase, Session, SessionOptions,
-};
+use terrastream::client::stream::flight_path::{Flight, Pose};
+use terrastream::client::stream::replay::{self as live, ReplayOptions};
+use terrastream::client::stream::session::{ReplayPhase, Session, SessionOptions};
 use terrastream::server::{Config, Server};
 use terrastream::store::Store;
 

@@ -331,8 +331,8 @@ fn bake_model_on_the_gpu_matches_the_cpu() {
     assert_eq!(tree(&a), tree(&b));
     assert!(summary.contains("point levels baked by gpu: "), "{summary}");
     bake_bunny(&c, "off");
-    let g = terrastream::bake::model::read_manifest(&terrastream::store::Store::new(&a)).unwrap();
-    let cpu = terrastream::bake::model::read_manifest(&terrastream::store::Store::new(&c)).unwrap();
+    let g = terrastream::bake::model_tileset::read_manifest(&terrastream::store::Store::new(&a)).unwrap();
+    let cpu = terrastream::bake::model_tileset::read_manifest(&terrastream::store::Store::new(&c)).unwrap();
     assert!(g.tileset.point_baker.starts_with("gpu: "), "{}", g.tileset.point_baker);
     assert_eq!(cpu.tileset.point_baker, "cpu");
     assert_eq!(g.model.levels.len(), cpu.model.levels.len());

@@ -10,7 +10,7 @@ use common::{bin, fails, ok, tree};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use terrastream::bake::model::{self as bake_model, MODEL_TILE};
+use terrastream::bake::model_tileset::{self as bake_model, MODEL_TILE};
 use terrastream::codec::{self, Geometry};
 use terrastream::model::{self, ModelEncoding};
 use terrastream::store::{Store, TilesetKind};
@@ -197,7 +197,7 @@ fn every_encoding_reads_the_same_cube() {
     // and errors of every baked level, stored or not — on an 8-vertex cube no point level pays,
     // so none is stored), and the PLY encodings (same vertex order) identical
     // level 0 meshes.
-    let mut points: Option<Vec<terrastream::bake::model::ModelLevel>> = None;
+    let mut points: Option<Vec<terrastream::bake::model_tileset::ModelLevel>> = None;
     for (path, _) in &files {
         let out = d.join(format!("ts-{}", path.file_name().unwrap().to_string_lossy()));
         bake(path, &out, &["--resolutions", "12,6"]);

@@ -15,7 +15,7 @@ use std::process::Command;
 
 use terrastream::client::render::{self, Renderer, covered};
 use terrastream::client::select::{AllResident, Camera, DrawItem, SelectParams, Selector, skirt_depth};
-use terrastream::client::stream::flight::Flight;
+use terrastream::client::stream::flight_path::Flight;
 use terrastream::client::tree::TileTree;
 use terrastream::codec;
 use terrastream::store::Store;

@@ -5,14 +5,15 @@
 //! - [`bake_node`] bakes one node of a raster into an existing tileset directory, the same
 //!   bytes [`bake_terrain`] writes for it: the server's on-demand tiles (`node`);
 //! - [`shard`] splits a terrain bake over many processes or machines (same bytes);
-//! - [`model::bake_model`] bakes one OBJ, STL or PLY model into a single-tile model tileset.
+//! - [`model_tileset::bake_model`] bakes one OBJ, STL or PLY model into a single-tile model
+//!   tileset (`model_tileset`).
 
 pub mod export;
 mod node;
 pub mod shard;
 mod terrain;
 
-pub mod model;
+pub mod model_tileset;
 
 pub use node::{NodeMesh, bake_node, node_from_blobs, node_mesh};
 pub use terrain::*;

@@ -7,7 +7,9 @@
 //! subtrees lie side by side, cut into contiguous runs of about equal samples. Three steps:
 //!
 //! 1. [`write_plan`] (`terrastream plan`): begins the tileset ([`Store::begin_bake`]) and writes
-//!    `shards/plan.json` — the options record, the bake options, the shards' roots;
+//!    `shards/plan.json` ([`Plan`]) — the options record, the bake options, how the inputs are
+//!    reopened ([`PlanInputs`]: files, read options, the scan's record, with its fallback grid
+//!    in [`FALLBACK_FILE`]), the shards' roots;
 //! 2. [`bake_shard`] (`terrastream bake --plan … --shard I`), any number at once, in any order,
 //!    each re-runnable alone: bakes the subtrees of shard I (resuming whole nodes) and then
 //!    writes `shards/shard-I.json`, the index entries of its nodes;
@@ -17,11 +19,14 @@
 //!    one-machine bake of the same inputs writes.
 
 use std::collections::HashMap;
+use std::path::PathBuf;
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use crate::store::{NodeEntry, Store};
+use crate::raster::dataset::{DatasetOptions, ScanRecord};
+use crate::raster::{HeightEncoding, Limits, LoadOptions, Overrides};
+use crate::store::{NodeEntry, Store, StoreError};
 use crate::tiling::{Pyramid, TileKey};
 
 use super::terrain::{NodesBaked, bake_nodes, options_record_of, publish};
@@ -33,6 +38,8 @@ pub const PLAN_VERSION: u32 = 1;
 /// The folder of a tileset that holds the plan and the shards' results until the final step.
 pub const PLAN_DIR: &str = "shards";
 pub const PLAN_FILE: &str = "shards/plan.json";
+/// The fallback grid of a plan's scan (little-endian f32), beside [`PLAN_FILE`].
+pub const FALLBACK_FILE: &str = "shards/fallback.f32";
 /// Largest plan or shard result a step reads (checked before reading): far above what a plan
 /// of [`MAX_SHARDS`] shards over a million input files, or a shard's node list, holds.
 pub const MAX_STEP_FILE_BYTES: u64 = 1 << 30;
@@ -49,6 +56,87 @@ pub struct ShardSpec {
     pub samples: u64,
 }
 
+/// What a plan records of its inputs (`inputs` in `shards/plan.json`): the files (expanded,
+/// absolute) and how they are read, so that every step opens them alike.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlanInputs {
+    pub files: Vec<PathBuf>,
+    pub read: InputOptions,
+    /// What the plan's scan of the inputs found (the shards open them without scanning while
+    /// it stands; plans without it scan in every step). Its fallback grid, when the dataset has
+    /// no-data, is the plan's file [`FALLBACK_FILE`] ([`Plan::read_fallback`]).
+    #[serde(default)]
+    pub scan: Option<ScanRecord>,
+}
+
+/// How a terrain bake reads its inputs and bakes them (the flags `bake` and `plan` share), as a
+/// plan records them (`inputs.read`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct InputOptions {
+    /// Leaf tile size in raster cells.
+    pub tile_size: u32,
+    /// TIN error bound for leaf tiles (world units).
+    pub max_error: f64,
+    /// Point-cloud levels below the mesh.
+    pub levels: u8,
+    /// How a PNG encodes heights.
+    pub encoding: Option<HeightEncoding>,
+    /// OpenEXR channel to read.
+    pub channel: Option<String>,
+    /// Horizontal cell size (overrides the file's georeference).
+    pub cell_size: Option<f64>,
+    /// World position of sample (0, 0) (overrides the file's georeference).
+    pub origin: Option<(f64, f64)>,
+    /// Multiplies raw sample values.
+    pub z_scale: Option<f64>,
+    /// Added to heights after scaling.
+    pub z_offset: Option<f64>,
+    /// Memory for the block caches, in MiB.
+    pub cache_mib: u64,
+    /// Directory for scratch files.
+    pub scratch_dir: Option<PathBuf>,
+    /// Largest accepted distortion of the metric frame over a geographic dataset, in percent.
+    pub max_distortion: f64,
+    /// Largest side of a file decoded whole, in samples.
+    pub max_side: u32,
+    /// Largest heights of a file decoded whole, in bytes.
+    pub max_bytes: u64,
+}
+
+impl InputOptions {
+    #[must_use]
+    pub fn bake_options(&self) -> BakeOptions {
+        BakeOptions { tile_size: self.tile_size, max_error: self.max_error, levels: self.levels }
+    }
+
+    #[must_use]
+    pub fn dataset_options(&self) -> DatasetOptions {
+        let load = LoadOptions {
+            encoding: self.encoding,
+            channel: self.channel.clone(),
+            limits: Limits { max_side: self.max_side, max_bytes: self.max_bytes },
+            overrides: Overrides {
+                cell_size: self.cell_size,
+                origin: self.origin,
+                z_scale: self.z_scale,
+                z_offset: self.z_offset,
+            },
+        };
+        DatasetOptions {
+            load,
+            cache_bytes: self.cache_mib.saturating_mul(1 << 20),
+            max_distortion: self.max_distortion / 100.0,
+            scratch: self.scratch_dir.clone(),
+        }
+    }
+}
+
+/// Writes `v` as a `serde_json::Value`, whose objects sort their keys: the bytes plans have
+/// always been written with (their `inputs` used to be an untyped value).
+fn sorted_json<T: Serialize, S: serde::Serializer>(v: &T, s: S) -> Result<S::Ok, S::Error> {
+    serde_json::to_value(v).map_err(serde::ser::Error::custom)?.serialize(s)
+}
+
 /// `shards/plan.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Plan {
@@ -60,8 +148,9 @@ pub struct Plan {
     pub bake: BakeOptions,
     /// The source name the manifest records.
     pub source_name: String,
-    /// How the command line reopens the inputs (files and load flags); opaque to the library.
-    pub inputs: serde_json::Value,
+    /// How every step reopens the inputs: files, read options, the scan's record.
+    #[serde(serialize_with = "sorted_json")]
+    pub inputs: PlanInputs,
     /// Depth of the shards' subtree roots; the final step bakes the nodes above it.
     pub shard_depth: u8,
     pub shards: Vec<ShardSpec>,
@@ -93,6 +182,27 @@ impl Plan {
     pub fn shard_count(&self) -> u32 {
         self.shards.len() as u32
     }
+
+    /// The fallback grid of the plan's scan ([`FALLBACK_FILE`]), when the scan recorded one:
+    /// its size is checked against the record before it is read. A record that does not fit
+    /// its dataset, or a file of another size, is a damaged plan ([`BakeError::Plan`]).
+    pub fn read_fallback(&self, store: &Store) -> Result<Option<Vec<u8>>, BakeError> {
+        let Some(scan) = self.inputs.scan.as_ref().filter(|s| s.fallback.is_some()) else {
+            return Ok(None);
+        };
+        let Some(len) = scan.fallback_len() else {
+            return Err(BakeError::Plan(format!(
+                "{}: field `inputs.scan.fallback` does not fit the recorded {}x{} samples",
+                store.describe(PLAN_FILE),
+                scan.width,
+                scan.height
+            )));
+        };
+        store.read_file_within(FALLBACK_FILE, len..=len).map_err(|e| match e {
+            e @ StoreError::Invalid { .. } => BakeError::Plan(e.to_string()),
+            e => e.into(),
+        })
+    }
 }
 
 /// A finished shard's result, `shards/shard-I.json`.
@@ -109,7 +219,7 @@ struct Fragment {
 /// than [`MAX_STEP_FILE_BYTES`] (checked before reading).
 fn read_step_file(store: &Store, rel: &str) -> Result<Option<Vec<u8>>, BakeError> {
     store.read_file_within(rel, 0..=MAX_STEP_FILE_BYTES).map_err(|e| match e {
-        e @ crate::store::StoreError::Invalid { .. } => BakeError::Plan(e.to_string()),
+        e @ StoreError::Invalid { .. } => BakeError::Plan(e.to_string()),
         e => e.into(),
     })
 }
@@ -201,13 +311,14 @@ pub fn plan_shards(pyramid: &Pyramid, shards: u32) -> Result<(u8, Vec<ShardSpec>
 /// Plans a sharded bake of `input` into `store`: begins the tileset and writes its plan.
 /// Planning again with the same inputs and shard count rewrites the same plan; with another
 /// shard count while shards have finished, it refuses (their results would not match).
+/// `fallback` is the scan's fallback grid ([`FALLBACK_FILE`]), when `inputs.scan` has one.
 pub fn write_plan(
     input: &TerrainInput<'_>,
     source_name: &str,
     opts: &BakeOptions,
-    inputs: serde_json::Value,
+    inputs: PlanInputs,
     shards: u32,
-    files: &[(&str, &[u8])],
+    fallback: Option<&[u8]>,
     store: &Store,
 ) -> Result<Plan, BakeError> {
     check_options(opts)?;
@@ -245,8 +356,8 @@ pub fn write_plan(
         }
     }
     store.begin_bake(&options)?;
-    for (rel, bytes) in files {
-        store.write_file(rel, bytes)?;
+    if let Some(bytes) = fallback {
+        store.write_file(FALLBACK_FILE, bytes)?;
     }
     let bytes = serde_json::to_vec_pretty(&plan).map_err(|e| BakeError::Plan(e.to_string()))?;
     store.write_file(PLAN_FILE, &bytes)?;

@@ -1,21 +1,18 @@
 //! `terrastream bake`: a heightfield raster → a tileset directory (resumes an interrupted bake).
 
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
 
 use anyhow::Result;
-use indicatif::{ProgressBar, ProgressStyle};
+use terrastream::bake::shard::InputOptions;
 use terrastream::bake::{self, BakeOptions, BakeSummary};
 use terrastream::formats::tiles3d::Anchor;
 use terrastream::raster::dataset::{Dataset, DatasetOptions, ScanRecord};
-use terrastream::raster::{self, HeightEncoding, Limits, LoadOptions, Overrides};
+use terrastream::raster::{self, HeightEncoding};
 use terrastream::store::Store;
 use terrastream::tiling;
 
 use super::parse_pair;
-use serde::{Deserialize, Serialize};
-
-use super::progress::{Bar, peak_rss_mib};
+use super::progress::{Bar, TILES_TEMPLATE, peak_rss_mib};
 
 #[derive(clap::Args)]
 pub struct BakeArgs {
@@ -55,14 +52,11 @@ pub struct BakeArgs {
     /// to change it).
     #[arg(long, value_parser = parse_anchor, allow_hyphen_values = true)]
     pub anchor: Option<Anchor>,
-    /// No progress bar.
-    #[arg(long, short)]
-    pub quiet: bool,
 }
 
-/// How the inputs are read and baked: the flags `bake` and `plan` share, recorded in a plan so
-/// that its shards read the inputs alike.
-#[derive(clap::Args, Clone, Serialize, Deserialize)]
+/// How the inputs are read and baked: the flags `bake` and `plan` share, recorded in a plan
+/// (as [`InputOptions`]) so that its shards read the inputs alike.
+#[derive(clap::Args, Clone)]
 pub struct InputArgs {
     /// Leaf tile size in raster cells.
     #[arg(long, default_value_t = tiling::DEFAULT_TILE_SIZE)]
@@ -110,21 +104,6 @@ pub struct InputArgs {
     pub max_bytes: u64,
 }
 
-/// What a plan records of its inputs: the files (expanded, absolute) and how they are read.
-#[derive(Serialize, Deserialize)]
-pub struct PlanInputs {
-    pub files: Vec<PathBuf>,
-    pub read: InputArgs,
-    /// What the plan's scan of the inputs found (the shards open them without scanning while
-    /// it stands; plans without it scan in every step). Its fallback grid, when the dataset has
-    /// no-data, is the plan's file [`FALLBACK_FILE`].
-    #[serde(default)]
-    pub scan: Option<ScanRecord>,
-}
-
-/// The fallback grid of a plan's scan (little-endian f32), beside `shards/plan.json`.
-pub const FALLBACK_FILE: &str = "shards/fallback.f32";
-
 /// An opened dataset and what a bake names it.
 pub struct Opened {
     pub dataset: Dataset,
@@ -133,91 +112,85 @@ pub struct Opened {
 }
 
 impl InputArgs {
-    pub fn bake_options(&self) -> BakeOptions {
-        BakeOptions { tile_size: self.tile_size, max_error: self.max_error, levels: self.levels }
-    }
-
-    fn dataset_options(&self) -> DatasetOptions {
-        let load = LoadOptions {
+    /// The options these flags stand for (what a plan records).
+    pub fn options(&self) -> InputOptions {
+        InputOptions {
+            tile_size: self.tile_size,
+            max_error: self.max_error,
+            levels: self.levels,
             encoding: self.encoding,
             channel: self.channel.clone(),
-            limits: Limits { max_side: self.max_side, max_bytes: self.max_bytes },
-            overrides: Overrides {
-                cell_size: self.cell_size,
-                origin: self.origin,
-                z_scale: self.z_scale,
-                z_offset: self.z_offset,
-            },
-        };
-        DatasetOptions {
-            load,
-            cache_bytes: self.cache_mib.saturating_mul(1 << 20),
-            max_distortion: self.max_distortion / 100.0,
-            scratch: self.scratch_dir.clone(),
+            cell_size: self.cell_size,
+            origin: self.origin,
+            z_scale: self.z_scale,
+            z_offset: self.z_offset,
+            cache_mib: self.cache_mib,
+            scratch_dir: self.scratch_dir.clone(),
+            max_distortion: self.max_distortion,
+            max_side: self.max_side,
+            max_bytes: self.max_bytes,
         }
+    }
+
+    pub fn bake_options(&self) -> BakeOptions {
+        self.options().bake_options()
     }
 
     /// Opens `files` (already expanded) as one dataset with a progress bar for the scan, and
     /// prints its summary unless `quiet`.
     pub fn open(&self, files: Vec<PathBuf>, quiet: bool) -> Result<Opened> {
-        self.open_with(files, None, quiet)
-    }
-
-    /// [`InputArgs::open`], taking the scan's results from `scanned` (a plan's record and
-    /// fallback grid) when it still stands for the files; else scanning them, with a notice.
-    pub fn open_with(
-        &self,
-        files: Vec<PathBuf>,
-        scanned: Option<(&ScanRecord, Option<&[u8]>)>,
-        quiet: bool,
-    ) -> Result<Opened> {
-        bake::check_options(&self.bake_options())?;
-        let ds_opts = self.dataset_options();
-        let scan_bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(0) };
-        scan_bar.set_style(
-            ProgressStyle::with_template("{msg:>16} {bar:40} {human_pos}/{human_len}  ETA {eta}")
-                .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        let progress = |what: &str, done, total| {
-            scan_bar.set_message(what.to_owned());
-            scan_bar.set_length(total);
-            scan_bar.set_position(done);
-        };
-        let dataset = match scanned.map(|(r, f)| Dataset::open_scanned(&files, &ds_opts, r, f, &progress)) {
-            Some(Ok(Ok(ds))) => Ok(ds),
-            Some(Err(e)) => Err(e),
-            Some(Ok(Err(why))) => {
-                eprintln!("{why}: scanning the inputs whole to check them against the plan");
-                Dataset::open(&files, &ds_opts, &progress)
-            }
-            None => Dataset::open(&files, &ds_opts, &progress),
-        };
-        scan_bar.finish_and_clear();
-        let dataset = dataset?;
-        let file_name = |p: &std::path::Path| {
-            p.file_name().map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into())
-        };
-        let name = match files.as_slice() {
-            [one] => file_name(one),
-            [first, rest @ ..] => format!("{} + {} more files", file_name(first), rest.len()),
-            [] => String::new(),
-        };
-        if !quiet {
-            eprintln!("{}", describe(&dataset, &ds_opts));
-        }
-        Ok(Opened { dataset, name, files })
+        open_with(&self.options(), files, None, quiet)
     }
 }
 
-/// The tiles progress bar of a bake (with `--time-limit`).
+/// [`InputArgs::open`] with `opts`, taking the scan's results from `scanned` (a plan's record
+/// and fallback grid) when it still stands for the files; else scanning them, with a notice.
+pub fn open_with(
+    opts: &InputOptions,
+    files: Vec<PathBuf>,
+    scanned: Option<(&ScanRecord, Option<&[u8]>)>,
+    quiet: bool,
+) -> Result<Opened> {
+    bake::check_options(&opts.bake_options())?;
+    let ds_opts = opts.dataset_options();
+    let scan_bar = Bar::stderr("{msg:>16} {bar:40} {human_pos}/{human_len}  ETA {eta}", quiet, None);
+    let progress = |what: &str, done, total| {
+        let bar = scan_bar.bar();
+        bar.set_message(what.to_owned());
+        bar.set_length(total);
+        bar.set_position(done);
+        if total > 0 {
+            scan_bar.show();
+        }
+    };
+    let dataset = match scanned.map(|(r, f)| Dataset::open_scanned(&files, &ds_opts, r, f, &progress)) {
+        Some(Ok(Ok(ds))) => Ok(ds),
+        Some(Err(e)) => Err(e),
+        Some(Ok(Err(why))) => {
+            eprintln!("{why}: scanning the inputs whole to check them against the plan");
+            Dataset::open(&files, &ds_opts, &progress)
+        }
+        None => Dataset::open(&files, &ds_opts, &progress),
+    };
+    scan_bar.finish();
+    let dataset = dataset?;
+    let file_name = |p: &std::path::Path| {
+        p.file_name().map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into())
+    };
+    let name = match files.as_slice() {
+        [one] => file_name(one),
+        [first, rest @ ..] => format!("{} + {} more files", file_name(first), rest.len()),
+        [] => String::new(),
+    };
+    if !quiet {
+        eprintln!("{}", describe(&dataset, &ds_opts));
+    }
+    Ok(Opened { dataset, name, files })
+}
+
+/// The tiles progress bar of a bake (with `--time-limit`): drawn from the bake's start.
 pub fn tiles_bar(quiet: bool, time_limit: Option<f64>) -> Bar {
-    let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(0) };
-    bar.set_style(
-        ProgressStyle::with_template("{bar:40} {pos}/{len} tiles  {per_sec}  ETA {eta}  {elapsed}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    bar.enable_steady_tick(Duration::from_millis(200));
-    Bar(bar, time_limit.map(|s| (Instant::now(), Duration::from_secs_f64(s))))
+    Bar::stderr(TILES_TEMPLATE, quiet, time_limit)
 }
 
 pub fn parse_anchor(s: &str) -> Result<Anchor, String> {
@@ -233,22 +206,20 @@ fn parse_time_limit(s: &str) -> Result<f64, String> {
     }
 }
 
-pub fn run(a: &BakeArgs) -> Result<()> {
+/// `bake INPUTS --out DIR` (a step of a sharded bake, `--plan`, is [`super::plan::run_step`]).
+pub fn run(a: &BakeArgs, quiet: bool) -> Result<()> {
     a.baker.set_threads()?;
-    if let Some(plan) = &a.plan {
-        return super::plan::run_step(a, plan);
-    }
     let Some(out) = &a.out else { anyhow::bail!("bake: --out is required") };
     let store = Store::at(out)?;
     let files = raster::dataset::expand_inputs(&a.inputs)?;
-    let opened = a.input.open(files, a.quiet)?;
-    let progress = tiles_bar(a.quiet, a.time_limit);
+    let opened = a.input.open(files, quiet)?;
     let baker = a.baker.open()?;
+    let progress = tiles_bar(quiet, a.time_limit);
     let input = bake::TerrainInput::of_dataset(&opened.dataset);
     let opts = a.input.bake_options();
     let summary = bake::bake_input(&input, &opened.name, &opts, &baker, &store, &progress);
-    let summary = summary.inspect_err(|_| progress.0.finish_and_clear())?;
-    progress.0.finish_and_clear();
+    progress.finish();
+    let summary = summary?;
     if let Some(anchor) = a.anchor {
         terrastream::bake::export::write_anchor(&store, anchor)?;
     }

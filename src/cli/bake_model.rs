@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use terrastream::bake::model::{self as bake_model, ModelBakeOptions};
+use terrastream::bake::model_tileset::{self as bake_model, ModelBakeOptions};
 use terrastream::model::FileType;
 use terrastream::store::Store;
 
@@ -57,7 +57,7 @@ pub fn run(a: &BakeModelArgs) -> Result<()> {
     #[cfg(feature = "client")]
     {
         let levels: Vec<(u8, u64)> = s.levels.iter().map(|l| (l.level, u64::from(l.count))).collect();
-        if let Some(t) = terrastream::client::eval::analysis::paper::table_3_comparison(&s.file, &levels) {
+        if let Some(t) = terrastream::eval::analysis::paper::table_3_comparison(&s.file, &levels) {
             outln!("{t}");
         }
     }

@@ -32,10 +32,10 @@ pub struct ClientArgs {
     #[arg(long, default_value_t = client::select::DEFAULT_FADE_SECONDS)]
     pub fade: f64,
     /// Frames per second of the replay.
-    #[arg(long, default_value_t = client::stream::session::DEFAULT_FPS)]
+    #[arg(long, default_value_t = client::stream::replay::DEFAULT_FPS)]
     pub fps: f64,
     /// Longest time (s) to hold the last pose waiting for a complete view.
-    #[arg(long, default_value_t = client::stream::session::DEFAULT_SETTLE_S)]
+    #[arg(long, default_value_t = client::stream::replay::DEFAULT_SETTLE_S)]
     pub settle: f64,
     /// Requests running at once.
     #[arg(long, default_value_t = client::stream::fetch::DEFAULT_MAX_IN_FLIGHT)]
@@ -46,18 +46,19 @@ pub struct ClientArgs {
     /// Render frames (wgpu, headless): auto = with any adapter (software included), replaying
     /// without rendering when there is none; on = an adapter or an error; off = never.
     #[arg(long, value_enum, default_value = "auto")]
-    pub render: client::stream::session::RenderMode,
+    pub render: client::stream::replay::RenderMode,
     /// Write every Nth rendered frame as OUT/frames/NNNNN.png plus the settled view as
     /// OUT/frames/final.png; 0 = write none (frames are still rendered and timed).
-    #[arg(long, default_value_t = client::stream::session::DEFAULT_FRAMES_EVERY)]
+    #[arg(long, default_value_t = client::stream::replay::DEFAULT_FRAMES_EVERY)]
     pub frames_every: u32,
     /// Output directory (stats.json, frames/).
     #[arg(long, default_value = "out/client")]
     pub out: PathBuf,
 }
 
-pub fn run(a: &ClientArgs) -> Result<()> {
-    use client::stream::session::{ClientRun, ReplayOptions, SessionOptions};
+pub fn run(a: &ClientArgs, quiet: bool) -> Result<()> {
+    use client::stream::replay::{ClientRun, ReplayOptions};
+    use client::stream::session::SessionOptions;
     let defaults = SessionOptions::default();
     let run = ClientRun {
         url: a.url.clone(),
@@ -80,8 +81,8 @@ pub fn run(a: &ClientArgs) -> Result<()> {
         render: a.render,
         frames_every: a.frames_every,
     };
-    let report = client::stream::session::run_client(&run, |f| {
-        if f.frame % 30 == 0 {
+    let report = client::stream::replay::run_client(&run, |f| {
+        if !quiet && f.frame % 30 == 0 {
             eprintln!(
                 "frame {:>5} t {:>6.2}s {:<6} drawn {:?} in flight {:>2} select {:.3} ms frame {:.1} ms",
                 f.frame,
@@ -124,10 +125,10 @@ pub fn run(a: &ClientArgs) -> Result<()> {
             String::new()
         }
     );
-    let frames = a.out.join(client::stream::session::FRAMES_DIR);
+    let frames = a.out.join(client::stream::replay::FRAMES_DIR);
     if frames.is_dir() {
         outln!("wrote frames to {}", frames.display());
     }
-    outln!("wrote {}", a.out.join(client::stream::session::STATS_FILE).display());
+    outln!("wrote {}", a.out.join(client::stream::replay::STATS_FILE).display());
     Ok(())
 }

@@ -4,7 +4,6 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Result;
-use indicatif::{ProgressBar, ProgressStyle};
 use terrastream::{lod, server};
 
 use super::progress::Bar;
@@ -25,21 +24,16 @@ pub struct DemoArgs {
     pub gpu: lod::GpuMode,
 }
 
-pub fn run(a: &DemoArgs) -> Result<()> {
+pub fn run(a: &DemoArgs, quiet: bool) -> Result<()> {
     let DemoArgs { ref bind, ref dir, no_serve, gpu } = *a;
-    let bar = ProgressBar::new(0);
-    bar.set_style(
-        ProgressStyle::with_template("baking demo terrain {bar:40} {pos}/{len} tiles  ETA {eta}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    let progress = Bar(bar, None);
+    let progress = Bar::stderr("baking demo terrain {bar:40} {pos}/{len} tiles  ETA {eta}", quiet, None);
     let t0 = Instant::now();
     let (baker, notice) = lod::PointBaker::open(gpu, lod::DEFAULT_GPU_BUDGET_MIB << 20)?;
     if let Some(n) = notice {
-        progress.0.println(n);
+        eprintln!("{n}");
     }
     let (store, baked) = server::demo::prepare(dir, &baker, &progress)?;
-    progress.0.finish_and_clear();
+    progress.finish();
     if baked {
         outln!(
             "baked the demo terrain into {} in {:.1} s (point levels: {})",

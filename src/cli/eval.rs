@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use terrastream::client;
+use terrastream::{client, eval};
 
 #[derive(clap::Args)]
 pub struct EvalArgs {
@@ -13,10 +13,10 @@ pub struct EvalArgs {
     #[arg(long, default_value = "eval-report")]
     pub out: PathBuf,
     /// Viewport width in pixels.
-    #[arg(long, default_value_t = client::eval::analysis::DEFAULT_EVAL_WIDTH)]
+    #[arg(long, default_value_t = eval::analysis::DEFAULT_EVAL_WIDTH)]
     pub width: u32,
     /// Viewport height in pixels.
-    #[arg(long, default_value_t = client::eval::analysis::DEFAULT_EVAL_HEIGHT)]
+    #[arg(long, default_value_t = eval::analysis::DEFAULT_EVAL_HEIGHT)]
     pub height: u32,
     /// Horizontal field of view in degrees.
     #[arg(long, default_value_t = client::select::DEFAULT_FOV_DEG)]
@@ -29,19 +29,19 @@ pub struct EvalArgs {
     #[arg(long, value_delimiter = ',')]
     pub distances: Vec<f64>,
     /// Azimuths per distance and elevation, spread evenly over 360°.
-    #[arg(long, default_value_t = client::eval::analysis::DEFAULT_AZIMUTHS)]
+    #[arg(long, default_value_t = eval::analysis::DEFAULT_AZIMUTHS)]
     pub azimuths: u32,
     /// Elevations in degrees [default: terrain 20,45,70 about +Z; models -45,0,45 about +Y].
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     pub elevations: Vec<f64>,
     /// Grid sides N of the instance experiment (N×N instances of the model).
-    #[arg(long, value_delimiter = ',', default_values_t = client::eval::analysis::DEFAULT_GRID_SIDES)]
+    #[arg(long, value_delimiter = ',', default_values_t = eval::analysis::DEFAULT_GRID_SIDES)]
     pub grid: Vec<u32>,
     /// Skip grid sides above this (for slow adapters such as lavapipe).
-    #[arg(long, default_value_t = client::eval::DEFAULT_MAX_GRID)]
+    #[arg(long, default_value_t = eval::DEFAULT_MAX_GRID)]
     pub max_grid: u32,
     /// Frames timed per configuration (median reported; one warm-up frame before).
-    #[arg(long, default_value_t = client::eval::DEFAULT_FRAMES)]
+    #[arg(long, default_value_t = eval::DEFAULT_FRAMES)]
     pub frames: u32,
     /// Also replay this flight (JSON, as `client --flight`) over the tileset with everything
     /// resident: primitives and bytes drawn per frame and bytes streamed, written to
@@ -59,13 +59,10 @@ pub struct EvalArgs {
     /// Skip the large-terrain frame-time experiment on terrain tilesets.
     #[arg(long)]
     pub no_frame_times: bool,
-    /// Print only the summary (no per-camera progress).
-    #[arg(long)]
-    pub quiet: bool,
 }
 
-pub fn run(a: &EvalArgs) -> Result<()> {
-    use client::eval::{self as evaluate, EvalOptions};
+pub fn run(a: &EvalArgs, quiet: bool) -> Result<()> {
+    use eval::{self as evaluate, EvalOptions};
     let opts = EvalOptions {
         width: a.width,
         height: a.height,
@@ -78,7 +75,6 @@ pub fn run(a: &EvalArgs) -> Result<()> {
         max_grid: a.max_grid,
         frames: a.frames,
     };
-    let quiet = a.quiet;
     let (report, samples) = evaluate::run(&a.dir, &opts, |line| {
         if !quiet {
             eprintln!("{line}");
@@ -106,13 +102,13 @@ pub fn run(a: &EvalArgs) -> Result<()> {
         } else {
             client::tree::TileTree::load(&store)?
         };
-        let f = client::stream::flight::Flight::load(flight)?;
+        let f = client::stream::flight_path::Flight::load(flight)?;
         let rule = if a.flight_rule == "coarsest" {
-            evaluate::flight::Rule::Coarsest
+            evaluate::flight_cost::Rule::Coarsest
         } else {
-            evaluate::flight::Rule::Cheapest
+            evaluate::flight_cost::Rule::Cheapest
         };
-        let cost = evaluate::flight::flight_cost(
+        let cost = evaluate::flight_cost::flight_cost(
             flight,
             &tree,
             rule,

@@ -3,12 +3,31 @@
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
-use terrastream::bake::model::{self, ModelLevelTable};
+use terrastream::bake::model_tileset::{self, ModelLevelTable};
 use terrastream::store::{LevelTable, LevelTotals, Store, level_sets};
 use terrastream::tiling::Pyramid;
 use terrastream::tiling::TileKey;
 
 use super::parse_key;
+
+/// What the error columns of a terrain tileset's table mean (docs/lod.md, DESIGN's "Geometric
+/// error"): the figures of the two kinds of level measure different things.
+pub const TERRAIN_LEGEND: &str = "\
+errors: world units, the worst tile of each level. mesh (level 0): max err and worst rms are the
+  vertical deviation from the full-resolution raster (gap 0). points (levels 1..): max err is the
+  largest distance from a drawn point (footprint included) to the surface, worst rms the points'
+  RMS distance, worst gap the largest distance from the surface to its nearest point (the widest
+  hole). Point levels are coarser by design (cells of 2^l leaf cells), so their errors run far
+  above the mesh's; a client draws a level only where the larger of max err and gap is under its
+  pixel threshold on screen.";
+
+/// What the error columns of a model tileset's table mean.
+pub const MODEL_LEGEND: &str = "\
+errors: model units. mesh (level 0): max err and rms are the distances between the file's
+  vertices and their quantized positions (gap 0). points (levels 1..): max err is the largest
+  distance from a drawn point (footprint included) to the model's surface, rms the points' RMS
+  distance, gap the largest distance from the surface to its nearest point (the widest hole);
+  coarser by design, so far above the mesh's.";
 
 #[derive(clap::Args)]
 pub struct InspectArgs {
@@ -27,7 +46,7 @@ pub fn run(a: &InspectArgs) -> Result<()> {
     let store = Store::at(dir)?;
     let manifest = store.manifest()?;
     if tile.is_none() && store.manifest_kind()? == terrastream::store::TilesetKind::Model {
-        let m = model::read_manifest(&store)?;
+        let m = model_tileset::read_manifest(&store)?;
         if json {
             outln!("{}", serde_json::to_string_pretty(&m)?);
             return Ok(());
@@ -46,6 +65,7 @@ pub fn run(a: &InspectArgs) -> Result<()> {
             m.tileset.content_version
         );
         outln!("{}", ModelLevelTable(&m.model.levels));
+        outln!("{MODEL_LEGEND}");
         let nodes: Vec<_> = store.node(TileKey::new(0, 0, 0))?.into_iter().collect();
         outln!("levels per node (a node stores only the levels that pay):");
         for (set, n) in level_sets(&nodes) {
@@ -69,6 +89,7 @@ pub fn run(a: &InspectArgs) -> Result<()> {
                 }
             }
             outln!("{}", LevelTable(&totals));
+            outln!("{TERRAIN_LEGEND}");
         }
         return Ok(());
     }
@@ -87,6 +108,7 @@ pub fn run(a: &InspectArgs) -> Result<()> {
             manifest.content_version
         );
         outln!("{}", LevelTable(&manifest.totals));
+        outln!("{TERRAIN_LEGEND}");
         let pyramid = Pyramid::new(manifest.source.width, manifest.source.height, manifest.tile_size)?;
         let nodes = store.all_nodes(&pyramid)?;
         outln!("levels per node (a node stores only the levels that pay):");

@@ -31,6 +31,11 @@ pub struct Cli {
     /// Log filter (e.g. info, debug, terrastream=trace).
     #[arg(long, global = true, default_value = "warn", env = "TERRASTREAM_LOG")]
     pub log: String,
+    /// No progress output on stderr (bars, per-frame and per-camera lines, the dataset's
+    /// description); what a command prints on stdout, its summary or result, is unchanged.
+    /// Accepted by every command.
+    #[arg(long, short, global = true)]
+    pub quiet: bool,
 }
 
 #[derive(Subcommand)]
@@ -110,22 +115,29 @@ impl BakerArgs {
 
 /// Runs the parsed command.
 pub fn run(cli: Cli) -> Result<()> {
+    let quiet = cli.quiet;
     match cli.command {
-        Command::Bake(a) => bake::run(&a),
-        Command::Plan(a) => plan::run(&a),
+        Command::Bake(a) => match &a.plan {
+            Some(plan_at) => plan::run_step(&a, plan_at, quiet),
+            None => bake::run(&a, quiet),
+        },
+        Command::Plan(a) => plan::run(&a, quiet),
         Command::BakeModel(a) => bake_model::run(&a),
         Command::Inspect(a) => inspect::run(&a),
         Command::Synth(a) => synth::run(&a),
         #[cfg(feature = "server")]
         Command::Serve(a) => serve::run(&a),
         #[cfg(feature = "server")]
-        Command::Demo(a) => demo::run(&a),
+        Command::Demo(a) => demo::run(&a, quiet),
         #[cfg(feature = "client")]
-        Command::Client(a) => client::run(&a),
+        Command::Client(a) => client::run(&a, quiet),
         #[cfg(all(feature = "client", feature = "gpu"))]
-        Command::Eval(a) => eval::run(&a),
-        Command::Export(a) => export::run(&a),
-        Command::Pack(a) => pack::run(&a),
+        Command::Eval(a) => eval::run(&a, quiet),
+        Command::Export(mut a) => {
+            a.quiet |= quiet;
+            export::run(&a)
+        }
+        Command::Pack(a) => pack::run(&a, quiet),
     }
 }
 

@@ -17,12 +17,9 @@ pub struct PackArgs {
     /// replaced whole (written beside it and renamed; in a bucket, one atomic upload).
     #[arg(long)]
     pub out: PathBuf,
-    /// No progress bar.
-    #[arg(long, short)]
-    pub quiet: bool,
 }
 
-pub fn run(a: &PackArgs) -> Result<()> {
+pub fn run(a: &PackArgs, quiet: bool) -> Result<()> {
     let out = a.out.to_string_lossy().into_owned();
     if !out.ends_with(ARCHIVE_SUFFIX) {
         bail!(
@@ -40,7 +37,7 @@ pub fn run(a: &PackArgs) -> Result<()> {
     }
     let files = store.files()?;
     let total: u64 = files.iter().map(|(_, n)| n).sum();
-    let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(total) };
+    let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(total) };
     bar.set_style(
         ProgressStyle::with_template("{bar:40} {bytes}/{total_bytes}  {bytes_per_sec}  ETA {eta}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),

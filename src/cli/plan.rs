@@ -5,11 +5,11 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use terrastream::bake::shard::{self, PLAN_FILE, Plan};
+use terrastream::bake::shard::{self, PLAN_FILE, Plan, PlanInputs};
 use terrastream::raster;
-use terrastream::store::{Store, StoreError};
+use terrastream::store::Store;
 
-use super::bake::{BakeArgs, FALLBACK_FILE, InputArgs, PlanInputs, print_summary, tiles_bar};
+use super::bake::{BakeArgs, InputArgs, open_with, print_summary, tiles_bar};
 
 #[derive(clap::Args)]
 pub struct PlanArgs {
@@ -30,9 +30,6 @@ pub struct PlanArgs {
     pub shard_mib: u64,
     #[command(flatten)]
     pub input: InputArgs,
-    /// No progress bar.
-    #[arg(long, short)]
-    pub quiet: bool,
 }
 
 /// Marks an error as the input's or the plan's fault (a retry cannot succeed): the process exits
@@ -56,13 +53,13 @@ pub const INPUT_REFUSED_EXIT: u8 = 3;
 pub const INDEX_VARS: [&str; 3] =
     ["JOB_COMPLETION_INDEX", "AWS_BATCH_JOB_ARRAY_INDEX", "SLURM_ARRAY_TASK_ID"];
 
-pub fn run(a: &PlanArgs) -> Result<()> {
+pub fn run(a: &PlanArgs, quiet: bool) -> Result<()> {
     let files = raster::dataset::expand_inputs(&a.inputs)?;
     let files: Vec<PathBuf> = files
         .into_iter()
         .map(|f| std::path::absolute(&f).with_context(|| format!("{}", f.display())))
         .collect::<Result<_>>()?;
-    let opened = a.input.open(files, a.quiet)?;
+    let opened = a.input.open(files, quiet)?;
     let (w, h) = {
         let g = opened.dataset.summary();
         (g.width, g.height)
@@ -74,15 +71,17 @@ pub fn run(a: &PlanArgs) -> Result<()> {
     // The scan's results go into the plan, so that the shards open the inputs without reading
     // every sample again (each reads only its own region).
     let (scan, fallback) = opened.dataset.scan_record()?;
-    let inputs = serde_json::to_value(PlanInputs {
-        files: opened.files.clone(),
-        read: a.input.clone(),
-        scan: Some(scan),
-    })?;
+    let inputs = PlanInputs { files: opened.files.clone(), read: a.input.options(), scan: Some(scan) };
     let store = Store::at(&a.out)?;
-    let files: Vec<(&str, &[u8])> = fallback.as_deref().map(|b| (FALLBACK_FILE, b)).into_iter().collect();
-    let plan =
-        shard::write_plan(&input, &opened.name, &a.input.bake_options(), inputs, shards, &files, &store)?;
+    let plan = shard::write_plan(
+        &input,
+        &opened.name,
+        &a.input.bake_options(),
+        inputs,
+        shards,
+        fallback.as_deref(),
+        &store,
+    )?;
     let biggest = plan.shards.iter().map(|s| s.samples).max().unwrap_or(0);
     outln!(
         "plan: {} shards of the subtrees at depth {} ({} tiles each at most, ≤ {:.1} MiB of heights), then a final step for the {} tiles above\n\
@@ -124,21 +123,25 @@ fn shard_index(given: Option<u32>) -> Result<u32> {
     .context(InputRefused)
 }
 
+/// A plan's error as the process reports it: one that cannot be read (an I/O error, a bucket
+/// failing past its retries) may be read on a retry; one that is damaged or of another version
+/// may not ([`InputRefused`]).
+fn refused_unless_io(e: terrastream::bake::BakeError) -> anyhow::Error {
+    let refused = !matches!(e, terrastream::bake::BakeError::Store(_));
+    let e = anyhow::Error::from(e);
+    if refused { e.context(InputRefused) } else { e }
+}
+
 /// `bake --plan TILESET (--shard I | --finish)`.
-pub fn run_step(a: &BakeArgs, plan_at: &Path) -> Result<()> {
+pub fn run_step(a: &BakeArgs, plan_at: &Path, quiet: bool) -> Result<()> {
+    a.baker.set_threads()?;
     let dir = if plan_at.ends_with(PLAN_FILE) {
         plan_at.parent().and_then(Path::parent).unwrap_or(Path::new("."))
     } else {
         plan_at
     };
     let store = Store::at(dir).context(InputRefused)?;
-    // A plan that cannot be read (an I/O error, a bucket failing past its retries) may be read
-    // on a retry; one that is damaged or of another version may not.
-    let plan = match Plan::read(&store).map_err(|e| {
-        let refused = !matches!(e, terrastream::bake::BakeError::Store(_));
-        let e = anyhow::Error::from(e);
-        if refused { e.context(InputRefused) } else { e }
-    })? {
+    let plan = match Plan::read(&store).map_err(refused_unless_io)? {
         Some(p) => p,
         None if store.has_manifest()? => {
             // Every step is idempotent: a step run again after the final one has nothing to do.
@@ -169,39 +172,18 @@ pub fn run_step(a: &BakeArgs, plan_at: &Path) -> Result<()> {
         ))
         .context(InputRefused);
     }
-    let inputs: PlanInputs = serde_json::from_value(plan.inputs.clone())
-        .map_err(|e| anyhow::anyhow!("{}: field `inputs`: {e}", store.describe(PLAN_FILE)))
-        .context(InputRefused)?;
-    let fallback = match inputs.scan.as_ref().filter(|s| s.fallback.is_some()) {
-        Some(scan) => {
-            let Some(len) = scan.fallback_len() else {
-                return Err(anyhow::anyhow!(
-                    "{}: field `inputs.scan.fallback` does not fit the recorded {}x{} samples",
-                    store.describe(PLAN_FILE),
-                    scan.width,
-                    scan.height
-                ))
-                .context(InputRefused);
-            };
-            match store.read_file_within(FALLBACK_FILE, len..=len) {
-                Err(e @ StoreError::Invalid { .. }) => {
-                    return Err(anyhow::Error::from(e)).context(InputRefused);
-                }
-                r => r?,
-            }
-        }
-        None => None,
-    };
+    let fallback = plan.read_fallback(&store).map_err(refused_unless_io)?;
+    let inputs = &plan.inputs;
     let scanned = inputs.scan.as_ref().map(|s| (s, fallback.as_deref()));
-    let opened = inputs.read.open_with(inputs.files, scanned, a.quiet).context(InputRefused)?;
+    let opened = open_with(&inputs.read, inputs.files.clone(), scanned, quiet).context(InputRefused)?;
     let input = terrastream::bake::TerrainInput::of_dataset(&opened.dataset);
     let baker = a.baker.open()?;
-    let progress = tiles_bar(a.quiet, a.time_limit);
+    let progress = tiles_bar(quiet, a.time_limit);
     let r = match step {
         Some(i) => shard::bake_shard(&input, &plan, i, &baker, &store, &progress),
         None => shard::finish_plan(&input, &plan, &baker, &store, &progress),
     };
-    progress.0.finish_and_clear();
+    progress.finish();
     let summary = r.map_err(|e| {
         let refused = matches!(e, terrastream::bake::BakeError::Plan(_));
         let e = anyhow::Error::from(e);

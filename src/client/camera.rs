@@ -3,7 +3,7 @@
 //! derived from it.
 
 use crate::client::ClientError;
-use crate::client::stream::flight::Pose;
+use crate::client::stream::flight_path::Pose;
 use crate::geom::Bounds;
 use glam::DVec3;
 

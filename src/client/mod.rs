@@ -3,9 +3,8 @@
 //! (view-dependent tile and level selection with fades and crack-hiding skirts), [`stream`]
 //! (the request scheduler with its decoded-tile cache, HTTP, camera flights and the streaming
 //! session with flight replay) and, with the `gpu` feature, [`render`] (headless wgpu
-//! rendering of what is drawn, PNG frames). [`eval`] is the first paper's evaluation: pure
-//! cameras, coverage metrics, report and charts, and with the `gpu` feature its runner and the
-//! N×N instance experiment.
+//! rendering of what is drawn, PNG frames). The first paper's evaluation builds on the client
+//! from outside it, in [`crate::eval`]; nothing here imports it.
 //!
 //! Nothing in the pure parts opens a socket, spawns a task or touches a GPU: time is passed in
 //! as seconds, the network sits behind [`stream::fetch::Transport`] and residency behind
@@ -14,7 +13,6 @@
 //! on these types.
 
 pub mod camera;
-pub mod eval;
 #[cfg(feature = "gpu")]
 pub mod render;
 pub mod select;

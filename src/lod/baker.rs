@@ -40,15 +40,15 @@ pub enum PointBaker {
 
 impl PointBaker {
     /// Resolves `mode`; `gpu_budget_bytes` caps one GPU batch. Returns the baker and, when
-    /// `auto` found no adapter, a one-line notice saying the CPU is used.
+    /// `auto` falls back to the CPU, a one-line notice saying why (the choice itself is the
+    /// bake summary's, [`PointBaker::describe`]: said once).
     pub fn open(mode: GpuMode, gpu_budget_bytes: u64) -> Result<(Self, Option<String>), BakerError> {
         if mode == GpuMode::Off {
             return Ok((Self::Cpu, None));
         }
         #[cfg(feature = "gpu")]
         {
-            let on_cpu =
-                |why: String| Ok((Self::Cpu, Some(format!("{why}; baking point levels on the CPU"))));
+            let on_cpu = |why: String| Ok((Self::Cpu, Some(why)));
             let ctx = match crate::gpu::open() {
                 Ok(ctx) => ctx,
                 Err(e) if mode == GpuMode::Auto => return on_cpu(e.to_string()),
@@ -72,10 +72,7 @@ impl PointBaker {
             let _ = gpu_budget_bytes;
             match mode {
                 GpuMode::On => Err(BakerError::NoGpuSupport),
-                _ => Ok((
-                    Self::Cpu,
-                    Some("built without the `gpu` feature; baking point levels on the CPU".into()),
-                )),
+                _ => Ok((Self::Cpu, Some("gpu: this build has no `gpu` feature".into()))),
             }
         }
     }

@@ -550,6 +550,7 @@ fn open_part(
     format: Format,
     opts: &DatasetOptions,
 ) -> Result<(Part, FileGeoref), RasterError> {
+    super::check_encoding(path, format, &opts.load)?;
     let part =
         |source: Box<dyn BlockSource>, format, width, height| whole_part(path, source, format, width, height);
     match format {
@@ -782,6 +783,7 @@ impl Dataset {
                 }
             }
         } else {
+            super::check_encoding(las_files[0], Format::Las, &opts.load)?;
             if let Some(other) = paths.iter().find(|p| !las_files.contains(p)) {
                 return Err(dataset_error(
                     other,

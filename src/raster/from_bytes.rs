@@ -13,6 +13,7 @@ use super::{Format, LoadOptions, LoadedRaster, RasterError, detect, finish, geot
 pub fn load_bytes(name: &Path, bytes: &[u8], opts: &LoadOptions) -> Result<LoadedRaster, RasterError> {
     super::validate_overrides(name, &opts.overrides)?;
     let format = detect(name, &bytes[..bytes.len().min(8)])?;
+    super::check_encoding(name, format, opts)?;
     let reader = Cursor::new(bytes);
     let decoded = match format {
         Format::Png => png::decode(name, reader, opts)?,
@@ -70,8 +71,10 @@ mod tests {
             ("x.hgt", hgt),
             ("short.hgt", vec![0; 10]),
         ];
-        let opts = LoadOptions { encoding: Some(HeightEncoding::Gray16), ..LoadOptions::default() };
         for (name, bytes) in cases {
+            // `--encoding` applies to PNGs only (other files are refused with it).
+            let encoding = (name == "a.png").then_some(HeightEncoding::Gray16);
+            let opts = LoadOptions { encoding, ..LoadOptions::default() };
             let path = write(dir.path(), name, &bytes);
             match (load(&path, &opts), load_bytes(&path, &bytes, &opts)) {
                 (Ok(a), Ok(b)) => {
@@ -82,7 +85,7 @@ mod tests {
                 (a, b) => panic!("{name}: load {:?} but load_bytes {:?}", a.err(), b.err()),
             }
         }
-        let e = load_bytes(Path::new("empty"), &[], &opts).unwrap_err();
+        let e = load_bytes(Path::new("empty"), &[], &LoadOptions::default()).unwrap_err();
         assert!(matches!(e, RasterError::UnknownFormat { .. }), "{e}");
     }
 }

@@ -142,6 +142,18 @@ pub enum HeightEncoding {
     Terrarium,
 }
 
+impl HeightEncoding {
+    /// The name `--encoding` takes: `gray16`, `terrain-rgb`, `terrarium`.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Gray16 => "gray16",
+            Self::TerrainRgb => "terrain-rgb",
+            Self::Terrarium => "terrarium",
+        }
+    }
+}
+
 /// Smallest cell size accepted (world units, after the metric mapping of degree rasters).
 pub const MIN_CELL_SIZE: f64 = 1e-6;
 /// Largest cell size accepted: more than the Earth's circumference, so a global raster of a
@@ -249,8 +261,14 @@ pub enum RasterError {
     )]
     MissingEncoding { path: PathBuf, color: String },
     /// The requested encoding does not fit the PNG's colour type.
-    #[error("{}: encoding {encoding:?} does not apply to a {color} PNG", path.display())]
+    #[error("{}: --encoding {} does not apply to this PNG: its samples are {color}", path.display(), encoding.name())]
     EncodingMismatch { path: PathBuf, encoding: HeightEncoding, color: String },
+    /// `--encoding` was given for a file whose samples are heights already (not a PNG).
+    #[error(
+        "{}: --encoding applies to PNG files only; this {format} file's samples are heights already (remove --encoding)",
+        path.display()
+    )]
+    EncodingNotApplicable { path: PathBuf, format: &'static str },
     /// The requested `OpenEXR` channel does not exist.
     #[error("{}: no channel named \"{name}\"; available channels: {available}", path.display())]
     ChannelNotFound { path: PathBuf, name: String, available: String },
@@ -367,6 +385,22 @@ pub(crate) enum Format {
     Las,
 }
 
+/// Refuses a height encoding (`--encoding`) for a file that is not a PNG: only a PNG's samples
+/// need one to become heights (a VRT passes it on to its sources).
+pub(crate) fn check_encoding(path: &Path, format: Format, opts: &LoadOptions) -> Result<(), RasterError> {
+    let name = match format {
+        Format::Png | Format::Vrt => return Ok(()),
+        Format::Tiff => "GeoTIFF",
+        Format::Exr => "OpenEXR",
+        Format::Hgt => "SRTM HGT",
+        Format::Las => "LAS/LAZ",
+    };
+    match opts.encoding {
+        Some(_) => Err(RasterError::EncodingNotApplicable { path: path.to_owned(), format: name }),
+        None => Ok(()),
+    }
+}
+
 /// Magic bytes decide; the `.hgt` extension is the fallback because SRTM files have no header.
 pub(crate) fn detect(path: &Path, head: &[u8]) -> Result<Format, RasterError> {
     if head.starts_with(PNG_MAGIC) {
@@ -428,6 +462,7 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<LoadedRaster, RasterError
     let mut head = Vec::with_capacity(8);
     (&mut file).take(8).read_to_end(&mut head).map_err(|e| RasterError::io(path, e))?;
     let format = detect(path, &head)?;
+    check_encoding(path, format, opts)?;
     file.seek(SeekFrom::Start(0)).map_err(|e| RasterError::io(path, e))?;
     let reader = BufReader::new(file);
     let decoded = match format {

@@ -84,7 +84,7 @@ fn decode_checked(
     check_size(path, u64::from(width), u64::from(height), opts.limits)?;
 
     let color = decoder.color_type();
-    let color_name = format!("{color:?}");
+    let color_name = color_words(color);
     let image = DynamicImage::from_decoder(decoder).map_err(|e| map_err(path, e))?;
     let mismatch = |encoding| RasterError::EncodingMismatch {
         path: path.to_owned(),
@@ -137,12 +137,33 @@ fn decode_checked(
                 path,
                 FORMAT,
                 format!(
-                    "colour type {color_name}; expected 8/16-bit grayscale or 8-bit RGB/RGBA (terrain-RGB, Terrarium)"
+                    "its samples are {color_name}; expected 8/16-bit grayscale or 8-bit RGB/RGBA (terrain-RGB, Terrarium)"
                 ),
             ));
         }
     };
     Ok(Decoded { width, height, values, georef: FileGeoref::None, format })
+}
+
+/// A PNG's colour type in the words of its format's users ("8-bit RGB", "16-bit grayscale").
+fn color_words(color: image::ColorType) -> String {
+    use image::ColorType as C;
+    match color {
+        C::L8 => "8-bit grayscale",
+        C::La8 => "8-bit grayscale with alpha",
+        C::Rgb8 => "8-bit RGB",
+        C::Rgba8 => "8-bit RGBA",
+        C::L16 => "16-bit grayscale",
+        C::La16 => "16-bit grayscale with alpha",
+        C::Rgb16 => "16-bit RGB",
+        C::Rgba16 => "16-bit RGBA",
+        C::Rgb32F => "32-bit float RGB",
+        C::Rgba32F => "32-bit float RGBA",
+        _ => {
+            return format!("{} bits per pixel in {} channels", color.bits_per_pixel(), color.channel_count());
+        }
+    }
+    .to_owned()
 }
 
 /// Mapbox terrain-RGB: −10000 + (R·65536 + G·256 + B)·0.1 metres.

@@ -254,7 +254,7 @@ impl Server {
             .map_err(|e| ServerError::Config(format!("--gpu: {e}")))?
             .map_err(|e| ServerError::Config(format!("--gpu: {e}")))?;
         if let Some(n) = notice {
-            tracing::warn!("{n}");
+            tracing::warn!("{n}; baking point levels on the CPU");
         }
         tracing::info!(point_baker = %baker.describe(), "point levels will be baked here");
         let baker = Arc::new(baker);

@@ -12,7 +12,7 @@ use serde::Serialize;
 use crate::client::ClientError;
 use crate::client::camera::Camera;
 use crate::client::select::{AllResident, SelectParams, Selector};
-use crate::client::stream::flight::Flight;
+use crate::client::stream::flight_path::Flight;
 use crate::client::tree::{LevelCost, TileTree};
 use crate::geom::Bounds;
 use crate::tiling::TileKey;
@@ -215,7 +215,7 @@ mod tests {
     use crate::client::tree::Synthetic;
 
     fn orbit() -> Flight {
-        Flight::from_json(include_str!("../../../data/flight-orbit.json")).unwrap()
+        Flight::from_json(include_str!("../../data/flight-orbit.json")).unwrap()
     }
 
     /// Costs add up from the index, streamed bytes count each blob once, and a coarser level

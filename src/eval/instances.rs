@@ -20,8 +20,8 @@ use crate::gpu::GpuError;
 
 /// The pipeline's WGSL, for validation without an adapter.
 pub const SHADER: &str = concat!(
-    include_str!("../../../shaders/render/splat.wgsl"),
-    include_str!("../../../shaders/render/instances.wgsl")
+    include_str!("../../shaders/render/splat.wgsl"),
+    include_str!("../../shaders/render/instances.wgsl")
 );
 
 const COLOR: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;

@@ -1,7 +1,7 @@
 //! `terrastream eval`: renders a tileset's full-detail geometry and the client's LOD selection
-//! (blobs read from the tileset directory, no server) from the cameras of [`crate::client::eval::analysis`],
+//! (blobs read from the tileset directory, no server) from the cameras of [`crate::eval::analysis`],
 //! compares them pixel by pixel, runs the instance experiment on model tilesets
-//! ([`crate::client::eval::instances`]) and writes the report (Markdown, PNG charts, sample frames).
+//! ([`crate::eval::instances`]) and writes the report (Markdown, PNG charts, sample frames).
 //!
 //! - Full detail, terrain: every leaf tile's level 0 (the full-resolution TIN; leaves share
 //!   their border vertices, so no skirts). Model: its level 0 (the quantized mesh).
@@ -15,17 +15,17 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::bake::model as bake_model;
+use crate::bake::model_tileset as bake_model;
 use crate::client::ClientError;
-use crate::client::eval::EvalError;
-use crate::client::eval::analysis::{
-    self, CameraPlan, CameraResult, Confusion, DepthDiff, EvalReport, InstanceRow, Subject, linear_depth,
-};
-use crate::client::eval::instances::InstanceBench;
 use crate::client::render::{Renderer, covered, footprint_half};
 use crate::client::select::{AllResident, DrawItem, SelectParams, Selector, skirt_depth};
 use crate::client::tree::TileTree;
 use crate::codec::{self, Blob, Geometry};
+use crate::eval::EvalError;
+use crate::eval::analysis::{
+    self, CameraPlan, CameraResult, Confusion, DepthDiff, EvalReport, InstanceRow, Subject, linear_depth,
+};
+use crate::eval::instances::InstanceBench;
 use crate::geom::Bounds;
 use crate::store::{Store, TilesetKind};
 use crate::tiling::TileKey;

@@ -7,7 +7,7 @@
 //! aggregation), `report` (results, Markdown), `charts` (PNG charts), [`paper`] (the first
 //! paper's published tables, printed beside ours).
 //!
-//! No GPU and no file system here: [`crate::client::eval`] renders and writes, this module only
+//! No GPU and no file system here: [`crate::eval`] renders and writes, this module only
 //! computes on values, so every rule is unit-tested.
 //!
 //! Camera placement: the tileset's bounding sphere (centre `c`, radius `r` = half the box

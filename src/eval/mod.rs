@@ -1,12 +1,17 @@
-//! The first paper's evaluation (section 4.6). [`analysis`] is pure: cameras, coverage
-//! metrics, aggregation, the report and its charts. With the `gpu` feature, the runner
-//! (`terrastream eval`: renders full detail against the LOD selection from the tileset
-//! directory, re-exported here) and [`instances`] (the N×N instance experiment).
+//! The first paper's evaluation (section 4.6), a research harness on top of the client, kept
+//! out of it so a simulator embedding the client does not carry it. [`analysis`] is pure:
+//! cameras, coverage metrics, aggregation, the paper's tables, the report and its charts.
+//! [`flight_cost`] prices a camera flight with everything resident (`eval --flight`). With the
+//! `gpu` feature, the runner (`terrastream eval`: renders full detail against the LOD selection
+//! from the tileset directory, re-exported here) and [`instances`] (the N×N instance
+//! experiment).
+//!
+//! May import the client, `bake`, `store` and the pure core; only the CLI imports it.
 
 use std::path::PathBuf;
 
 pub mod analysis;
-pub mod flight;
+pub mod flight_cost;
 #[cfg(feature = "gpu")]
 pub mod frames;
 #[cfg(feature = "gpu")]
@@ -41,7 +46,7 @@ pub enum EvalError {
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),
     #[error(transparent)]
-    Client(#[from] super::ClientError),
+    Client(#[from] crate::client::ClientError),
     #[cfg(feature = "gpu")]
     #[error(transparent)]
     Gpu(#[from] crate::gpu::GpuError),
