@@ -3,14 +3,11 @@
 use serde_json::{Value, json};
 
 use super::*;
-use crate::codec::Geometry;
-use crate::geom::{Bounds, Errors, Mesh};
-use crate::store::{Manifest, SUBTREE_LEVELS, TilesetKind};
-use crate::tiling::TileKey;
-use crate::codec::{Quantization, decode, encode_mesh, encode_points};
-use crate::geom::PointCloud;
+use crate::codec::{Geometry, Quantization, decode, encode_mesh, encode_points};
+use crate::geom::{Bounds, Errors, Mesh, PointCloud};
 use crate::raster::Georef;
-use crate::store::{LevelTotals, SourceInfo};
+use crate::store::{LevelTotals, Manifest, SUBTREE_LEVELS, SourceInfo, TilesetKind};
+use crate::tiling::TileKey;
 
 #[test]
 fn anchors_parse_and_are_range_checked() {
