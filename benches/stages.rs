@@ -3,7 +3,9 @@
 //! - `tin`: the TIN of one 257×257 leaf tile of `raster::synth::terrain` at 1 m error;
 //! - `codec`: encoding and decoding that tile's quantized mesh, and a point level of it;
 //! - `slicing`: the CPU reference of the 6-direction slicing (`lod::cpu`) for point levels 1
-//!   and 3 of that tile, and measuring level 1 against the mesh;
+//!   and 3 of that tile, and measuring level 1 against the mesh; and the bake and measure of
+//!   `lod::cpu`'s own test terrain (a jittered 102×102-quad grid over 256 units, cell 2), the
+//!   figure its tests used to print;
 //! - `selection`: one frame of `client::select::Selector::select` on a 100,000-node synthetic
 //!   tree, 300 m over the relief looking 20 km ahead, at a 0.02 px threshold with the nearest-
 //!   point distance (the stress setting of `examples/select_bench`), everything resident, once
@@ -104,7 +106,54 @@ fn slicing(c: &mut Criterion) {
             ));
         });
     });
+    let m = jittered_terrain(102, 256.0 / 102.0, 5);
+    let (origin, cell) = ([0.0, 0.0, -50.0], 2.0);
+    g.bench_function(format!("cpu bake jittered grid ({} triangles, cell {cell})", m.triangles.len()), |b| {
+        b.iter(|| cpu::bake_points(black_box(&m), origin, cell));
+    });
+    let pc = cpu::bake_points(&m, origin, cell);
+    g.bench_function("measure jittered grid", |b| {
+        b.iter(|| black_box(cpu::measure_points(black_box(&m), &pc, cell, 0.6)));
+    });
     g.finish();
+}
+
+/// `lod::cpu`'s test terrain: an `n`×`n`-quad grid of spacing `step`, smooth hills and a ridge,
+/// inner vertices moved by up to 0.15 `step` (xorshift from `seed`).
+fn jittered_terrain(n: u32, step: f64, seed: u64) -> terrastream::geom::Mesh {
+    let mut rng = seed;
+    let mut next = || {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        (rng >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let height = |x: f64, y: f64| {
+        20.0 * (x * 0.03).sin() * (y * 0.025).cos()
+            + 8.0 * (x * 0.11 + y * 0.07).sin()
+            + 30.0 / (1.0 + (-(x - 0.6 * y - 40.0) * 0.5).exp())
+    };
+    let mut m = terrastream::geom::Mesh::default();
+    let edge = f64::from(n) * step;
+    for y in 0..=n {
+        for x in 0..=n {
+            let (mut px, mut py) = (f64::from(x) * step, f64::from(y) * step);
+            let z = height(px, py);
+            if px > 0.0 && px < edge && py > 0.0 && py < edge {
+                px += (next() - 0.5) * 0.3 * step;
+                py += (next() - 0.5) * 0.3 * step;
+            }
+            m.positions.push([px, py, z]);
+        }
+    }
+    let id = |x: u32, y: u32| y * (n + 1) + x;
+    for y in 0..n {
+        for x in 0..n {
+            m.triangles.push([id(x, y), id(x + 1, y), id(x + 1, y + 1)]);
+            m.triangles.push([id(x, y), id(x + 1, y + 1), id(x, y + 1)]);
+        }
+    }
+    m
 }
 
 fn selection(c: &mut Criterion) {

@@ -56,12 +56,6 @@ impl<'a> Reader<'a> {
         self.bytes.len()
     }
 
-    /// The bytes not read yet.
-    #[cfg(test)]
-    pub(crate) fn rest(&self) -> &'a [u8] {
-        &self.bytes[self.pos..]
-    }
-
     pub(crate) fn u8(&mut self) -> Result<u8, CodecError> {
         let v = *self.bytes.get(self.pos).ok_or(CodecError::Corrupt(self.name))?;
         self.pos += 1;

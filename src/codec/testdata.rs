@@ -1,16 +1,15 @@
-//! Test inputs for the codec: synthetic and real heightfields, a greedy TIN built with spade (a
-//! stand-in for the `tin` stage, enough to give realistic vertex layouts), voxel-walk point
-//! clouds (a stand-in for `lod`), and a Cesium quantized-mesh-1.0 writer for size comparisons.
+//! Test inputs for the codec: synthetic and real heightfields, their TIN from the `tin` stage
+//! (realistic vertex layouts), voxel-walk point clouds (a stand-in for `lod`), and a Cesium
+//! quantized-mesh-1.0 writer for size comparisons.
+//!
+//! `examples/codec_figures.rs` includes this file too (by path), so the figures it prints are
+//! of the same inputs the tests use; each side uses only some of the helpers.
 
 // Exact float equality is the point of these tests: decoding must be bit-exact.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::float_cmp)]
+#![allow(dead_code)]
 
-use std::cmp::Ordering;
-use std::collections::BinaryHeap;
 use std::io::Write;
-
-use spade::handles::FixedVertexHandle;
-use spade::{DelaunayTriangulation, Point2, Triangulation};
 
 use crate::geom::{Mesh, PointCloud};
 
@@ -99,111 +98,18 @@ pub fn bunny() -> Option<Mesh> {
     Some(m)
 }
 
-#[derive(PartialEq)]
-struct Cand {
-    err: f64,
-    tri: [usize; 3],
-    at: (usize, usize),
-}
-impl Eq for Cand {}
-impl PartialOrd for Cand {
-    fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
-        Some(self.cmp(o))
-    }
-}
-impl Ord for Cand {
-    fn cmp(&self, o: &Self) -> Ordering {
-        self.err.total_cmp(&o.err).then(self.at.cmp(&o.at))
-    }
-}
-
-/// Worst sample of triangle `p` (grid coordinates), by linear interpolation.
-fn scan(hf: &Heights, p: [[f64; 3]; 3]) -> Option<(f64, (usize, usize))> {
-    let (x0, x1) =
-        (p.iter().map(|v| v[0]).fold(f64::MAX, f64::min), p.iter().map(|v| v[0]).fold(f64::MIN, f64::max));
-    let (y0, y1) =
-        (p.iter().map(|v| v[1]).fold(f64::MAX, f64::min), p.iter().map(|v| v[1]).fold(f64::MIN, f64::max));
-    let d = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[1][1] - p[0][1]) * (p[2][0] - p[0][0]);
-    if d == 0.0 {
-        return None;
-    }
-    let mut best: Option<(f64, (usize, usize))> = None;
-    for r in y0 as usize..=y1 as usize {
-        for c in x0 as usize..=x1 as usize {
-            let (x, y) = (c as f64, r as f64);
-            let b1 = ((x - p[0][0]) * (p[2][1] - p[0][1]) - (y - p[0][1]) * (p[2][0] - p[0][0])) / d;
-            let b2 = ((p[1][0] - p[0][0]) * (y - p[0][1]) - (p[1][1] - p[0][1]) * (x - p[0][0])) / d;
-            let b0 = 1.0 - b1 - b2;
-            if b0 < -1e-9 || b1 < -1e-9 || b2 < -1e-9 {
-                continue;
-            }
-            let zi = b0 * p[0][2] + b1 * p[1][2] + b2 * p[2][2];
-            let e = (hf.at(c, r) - zi).abs();
-            if best.is_none_or(|b| e > b.0) {
-                best = Some((e, (c, r)));
-            }
-        }
-    }
-    best
-}
-
-/// Greedy insertion TIN (Garland–Heckbert style) until the maximum vertical error is at most
-/// `max_error`; positions in world units (x = col·cell, y = row·cell).
+/// The `tin` stage's mesh of the whole heightfield (every sample within `max_error` of it);
+/// positions in world units (x = col·cell, y = row·cell, z the sample's own height).
 pub fn greedy_tin(hf: &Heights, max_error: f64) -> Mesh {
-    type Dt = DelaunayTriangulation<Point2<f64>>;
-    let mut dt = Dt::new();
-    let (wm, hm) = ((hf.w - 1) as f64, (hf.h - 1) as f64);
-    for p in [[0.0, 0.0], [wm, 0.0], [0.0, hm], [wm, hm]] {
-        dt.insert(Point2::new(p[0], p[1])).unwrap();
-    }
-    let corners = |dt: &Dt, vs: [FixedVertexHandle; 3]| -> [[f64; 3]; 3] {
-        vs.map(|v| {
-            let p = dt.vertex(v).position();
-            [p.x, p.y, hf.at(p.x as usize, p.y as usize)]
-        })
-    };
-    let mut heap = BinaryHeap::new();
-    let push_face = |dt: &Dt, heap: &mut BinaryHeap<Cand>, vs: [FixedVertexHandle; 3]| {
-        if let Some((err, at)) = scan(hf, corners(dt, vs)) {
-            let mut tri = vs.map(|v| v.index());
-            tri.sort_unstable();
-            heap.push(Cand { err, tri, at });
-        }
-    };
-    for f in dt.inner_faces() {
-        push_face(&dt, &mut heap, f.vertices().map(|v| v.fix()));
-    }
-    while let Some(c) = heap.pop() {
-        if c.err <= max_error {
-            break;
-        }
-        let [a, b, t] = c.tri.map(FixedVertexHandle::from_index);
-        let alive = dt.get_edge_from_neighbors(a, b).is_some_and(|e| {
-            e.opposite_vertex().is_some_and(|v| v.fix() == t)
-                || e.rev().opposite_vertex().is_some_and(|v| v.fix() == t)
-        });
-        if !alive {
-            continue;
-        }
-        let v = dt.insert(Point2::new(c.at.0 as f64, c.at.1 as f64)).unwrap();
-        let faces: Vec<[FixedVertexHandle; 3]> = dt
-            .vertex(v)
-            .out_edges()
-            .filter_map(|e| e.face().as_inner().map(|f| f.vertices().map(|v| v.fix())))
-            .collect();
-        for vs in faces {
-            push_face(&dt, &mut heap, vs);
-        }
-    }
-    let positions = dt
-        .vertices()
-        .map(|v| {
-            let p = v.position();
-            [p.x * hf.cell, p.y * hf.cell, hf.at(p.x as usize, p.y as usize)]
-        })
+    let grid = crate::tiling::NodeGrid { cols: (0..hf.w as u32).collect(), rows: (0..hf.h as u32).collect() };
+    let heights: Vec<f32> = hf.z.iter().map(|&z| z as f32).collect();
+    let tin = crate::tin::build(&grid, &heights, max_error).unwrap();
+    let positions = tin
+        .vertices
+        .iter()
+        .map(|&[c, r]| [f64::from(c) * hf.cell, f64::from(r) * hf.cell, hf.at(c as usize, r as usize)])
         .collect();
-    let triangles = dt.inner_faces().map(|f| f.vertices().map(|v| v.fix().index() as u32)).collect();
-    Mesh { positions, triangles }
+    Mesh { positions, triangles: tin.triangles }
 }
 
 /// Voxel walk: one point per voxel of edge `cell_m` that the surface passes through. With

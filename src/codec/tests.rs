@@ -1,15 +1,12 @@
-//! Tests of this module: round trips, hostile input, and size figures.
+//! Tests of this module: round trips and hostile input (size figures: `examples/codec_figures.rs`).
 
 // Exact float equality is the point of these tests: decoding must be bit-exact.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::float_cmp)]
 
-use std::fmt::Write as _;
-
 use proptest::prelude::*;
 
 use super::testdata::{
-    Rng, bunny, canonical_positions, canonical_triangles, fuji, greedy_tin, quantized_mesh_gzip, synthetic,
-    tin_surface, voxel_points,
+    Rng, canonical_positions, canonical_triangles, greedy_tin, quantized_mesh_gzip, synthetic, voxel_points,
 };
 use super::*;
 
@@ -364,164 +361,6 @@ proptest! {
                 reseal(&mut b);
                 let _ = decode(&b);
             }
-        }
-    }
-}
-
-/// Per-stream sizes of a blob's payload (raw -> stored), for tuning.
-fn stream_report(blob: &[u8]) -> String {
-    let p = &blob[PREFIX_LEN..];
-    let count = usize::from(p[1]);
-    let mut out = format!("mode {}:", p[0]);
-    for i in 0..count {
-        let e = &p[2 + 9 * i..11 + 9 * i];
-        let raw = u32::from_le_bytes(e[1..5].try_into().unwrap());
-        let stored = u32::from_le_bytes(e[5..9].try_into().unwrap());
-        write!(out, " [{raw} -> {stored}]").unwrap();
-    }
-    out
-}
-
-/// Size and speed figures on the real Fuji tile (and a synthetic one), next to Cesium
-/// quantized-mesh-1.0 + gzip. Run with
-/// `cargo test --release codec::tests::report_sizes -- --ignored --nocapture`.
-#[test]
-#[ignore = "slow: prints size figures"]
-fn report_sizes() {
-    if let Some(m) = bunny() {
-        // A closed 3D model: the general coder. 0.1 mm steps on a model about 15 cm across.
-        let b = Bounds::of_points(&m.positions);
-        let q = Quantization { xy_step: 1e-4, z_step: 1e-4 };
-        let t0 = std::time::Instant::now();
-        let blob = encode_mesh(KEY, 0, &b, q, &m, ERRORS).unwrap();
-        let enc = t0.elapsed();
-        let t0 = std::time::Instant::now();
-        decode(&blob).unwrap();
-        let dec = t0.elapsed();
-        let raw = m.positions.len() * 12 + m.triangles.len() * 12;
-        println!(
-            "bunny (general mode): {} vertices, {} triangles; blob {} B = {:.2} B/vertex (f32 + u32 arrays: {:.0} B/vertex); encode {:.1} ms, decode {:.1} ms",
-            m.positions.len(),
-            m.triangles.len(),
-            blob.len(),
-            blob.len() as f64 / m.positions.len() as f64,
-            raw as f64 / m.positions.len() as f64,
-            enc.as_secs_f64() * 1e3,
-            dec.as_secs_f64() * 1e3,
-        );
-        println!("  {}", stream_report(&blob));
-    }
-    let fields = [("fuji 512x512 @30m", fuji()), ("synthetic 513x513 @30m", Some(synthetic(513, 513, 30.0)))];
-    for (name, hf) in fields {
-        let Some(hf) = hf else {
-            println!("{name}: data not found, skipped");
-            continue;
-        };
-        let extent = (hf.w - 1) as f64 * hf.cell;
-        for max_error in [1.0, 2.0, 5.0] {
-            let m = greedy_tin(&hf, max_error);
-            let b = Bounds::of_points(&m.positions);
-            let b = Bounds::new([0.0, 0.0, b.min[2]], [extent, extent, b.max[2]]);
-            for z_step in [0.1, 0.5] {
-                let q = Quantization { xy_step: hf.cell, z_step };
-                let t0 = std::time::Instant::now();
-                let blob = encode_mesh(KEY, 0, &b, q, &m, ERRORS).unwrap();
-                let enc = t0.elapsed();
-                let t0 = std::time::Instant::now();
-                let back = decode(&blob).unwrap();
-                let dec = t0.elapsed();
-                assert!(matches!(back.geometry, Geometry::Mesh(_)));
-                println!("  {}", stream_report(&blob));
-                let qm = quantized_mesh_gzip(&m, extent);
-                let nv = m.positions.len() as f64;
-                println!(
-                    "{name} tin max_err {max_error} m, z_step {z_step}: {} vertices, {} triangles; blob {} B = {:.2} B/vertex; QM+gzip {} B = {:.2} B/vertex; ratio {:.3}; encode {:.1} ms, decode {:.1} ms",
-                    m.positions.len(),
-                    m.triangles.len(),
-                    blob.len(),
-                    blob.len() as f64 / nv,
-                    qm,
-                    qm as f64 / nv,
-                    blob.len() as f64 / qm as f64,
-                    enc.as_secs_f64() * 1e3,
-                    dec.as_secs_f64() * 1e3,
-                );
-            }
-        }
-        let tin = greedy_tin(&hf, 2.0);
-        let (surface, normals) = tin_surface(&hf, &tin);
-        for cell in [60.0, 120.0] {
-            for centres in [true, false] {
-                let pc = voxel_points(&surface, Some(&normals), cell, centres);
-                let b = Bounds::of_points(&pc.positions);
-                let b = Bounds::new([0.0, 0.0, b.min[2]], [extent + cell, extent + cell, b.max[2]]);
-                let q = Quantization { xy_step: cell / 64.0, z_step: cell / 64.0 };
-                let t0 = std::time::Instant::now();
-                let blob = encode_points(KEY, 1, &b, q, &pc, ERRORS).unwrap();
-                let enc = t0.elapsed();
-                let t0 = std::time::Instant::now();
-                let back = decode(&blob).unwrap();
-                let dec = t0.elapsed();
-                // For the LAZ comparison script: quantized points in decoded (sorted) order.
-                if let (Some(dir), Geometry::Points(pts)) =
-                    (std::env::var_os("TERRASTREAM_DUMP_POINTS"), &back.geometry)
-                {
-                    let mut text = String::new();
-                    for (p, n) in pts.positions.iter().zip(&pts.normals) {
-                        let qi: Vec<i64> =
-                            (0..3).map(|a| ((p[a] - b.min[a]) / (cell / 64.0)).round() as i64).collect();
-                        let o = oct_encode(*n).unwrap();
-                        writeln!(text, "{} {} {} {} {}", qi[0], qi[1], qi[2], o[0], o[1]).unwrap();
-                    }
-                    let file = format!("{}-{cell}-{centres}.txt", name.split(' ').next().unwrap());
-                    std::fs::write(std::path::Path::new(&dir).join(file), text).unwrap();
-                }
-                println!("  {}", stream_report(&blob));
-                println!(
-                    "{name} points of the 2 m TIN, cell {cell} m ({}): {} points; blob {} B = {:.3} B/point; encode {:.1} ms, decode {:.1} ms",
-                    if centres { "voxel centres" } else { "sample means" },
-                    pc.positions.len(),
-                    blob.len(),
-                    blob.len() as f64 / pc.positions.len() as f64,
-                    enc.as_secs_f64() * 1e3,
-                    dec.as_secs_f64() * 1e3,
-                );
-            }
-        }
-    }
-}
-
-/// Total stored size and compression time of real blobs' streams at several zstd levels.
-#[test]
-#[ignore = "analysis"]
-fn analyse_zstd_levels() {
-    let Some(hf) = fuji() else { return };
-    let extent = 511.0 * 30.0;
-    let m = greedy_tin(&hf, 2.0);
-    let b = Bounds::of_points(&m.positions);
-    let b = Bounds::new([0.0, 0.0, b.min[2]], [extent, extent, b.max[2]]);
-    let mesh_blob = encode_mesh(KEY, 0, &b, Quantization { xy_step: 30.0, z_step: 0.1 }, &m, ERRORS).unwrap();
-    let (surface, normals) = tin_surface(&hf, &m);
-    let pc = voxel_points(&surface, Some(&normals), 60.0, true);
-    let b = Bounds::of_points(&pc.positions);
-    let q = Quantization { xy_step: 60.0 / 64.0, z_step: 60.0 / 64.0 };
-    let points_blob = encode_points(KEY, 1, &b, q, &pc, ERRORS).unwrap();
-    for (name, blob, names) in [("mesh", &mesh_blob, 5), ("points", &points_blob, 10)] {
-        let h = decode_header(blob).unwrap();
-        let names: Vec<&'static str> = vec!["s"; names];
-        let u = stream::unpack(&blob[PREFIX_LEN..], h.raw_len as usize, &names).unwrap();
-        for level in [3, 9, 12, 15, 17, 19, 22] {
-            let t0 = std::time::Instant::now();
-            let total: usize = u
-                .readers()
-                .iter()
-                .map(|r| {
-                    let raw = r.rest();
-                    zstd::bulk::compress(raw, level).unwrap().len().min(raw.len())
-                })
-                .sum();
-            let t = t0.elapsed();
-            println!("{name} level {level}: {total} B, {:.1} ms", t.as_secs_f64() * 1e3);
         }
     }
 }

@@ -1,7 +1,7 @@
 //! How a point of a level is drawn, which its measured error covers: the point's tangent plane
 //! clipped to the cube of half-width `half` cells centred on it, `half` recorded per level in
 //! the manifest (`footprint_half`). The render shaders (`shaders/render/splat.wgsl`) draw
-//! exactly this; [`super::cpu::measure_points`] measures it.
+//! exactly this; [`super::measure::measure_points`] measures it.
 
 use glam::DVec3;
 

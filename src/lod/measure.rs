@@ -1,5 +1,5 @@
 //! Error measurement of a point level against the mesh it was baked from (see
-//! [`super::cpu::measure_points`] for the definitions). Uniform hash grids of triangles and of
+//! [`measure_points`] for the definitions). Uniform hash grids of triangles and of
 //! points make the nearest-item queries local: each query visits rings of grid cells around
 //! itself, nearest first, and stops as soon as nothing outside the visited box can be closer.
 //! A heightfield (a terrain TIN) is gridded in columns rather than cubes, and each triangle is
@@ -7,8 +7,10 @@
 
 use glam::DVec3;
 
-use super::fasthash::FastMap;
+// FxHash: cell keys come from geometry, not from a network, so SipHash's resistance to
+// adversarial keys is not needed, and it costs several times the rest of a lookup.
 use crate::geom::{Bounds, Errors, Mesh, PointCloud};
+use rustc_hash::FxHashMap as FastMap;
 
 /// Cap on the grid cells all triangle bounding boxes may cover together, as a multiple of the
 /// item count (with a floor): a mesh of few huge triangles measured at a tiny `cell` would
@@ -432,8 +434,23 @@ fn cell_edges(h: f64, column: Option<f64>) -> V3 {
     }
 }
 
-/// See [`super::cpu::measure_points`].
-pub(crate) fn measure(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_half: f64) -> Errors {
+/// Measures a point level against the mesh it was baked from, in world units:
+/// - `max`: the largest distance to the nearest triangle (exact point–triangle distance) from
+///   the level *as drawn*: each point and the corners of its footprint, its tangent plane
+///   clipped to the cube of half-width `footprint_half · cell` centred on it
+///   (the corners reach farthest; where a footprint sticks out past a silhouette or across a
+///   thin part, they measure how far);
+/// - `rms`: the root mean square of the points' own distances;
+/// - `gap`: the largest distance from a surface sample to its nearest point, samples taken on
+///   every triangle along its edges (vertices included) and in rows across it at a spacing of
+///   at most `cell / 4` — so `gap` is the true value within `cell / 8`.
+///
+/// Invalid triangles (index out of range, non-finite vertex) and non-finite points are left
+/// out. An empty mesh gives zeros; no points give `gap` = the mesh's bounding-box diagonal (the
+/// whole surface is a hole). An invalid `cell` (not finite and positive) falls back to
+/// 1/256 of that diagonal. Cost grows with the surface area / cell² (the gap samples).
+#[must_use]
+pub fn measure_points(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_half: f64) -> Errors {
     let tris = valid_triangles(mesh);
     if tris.is_empty() {
         return Errors::default();
@@ -722,14 +739,14 @@ mod tests {
         let bounds = Bounds::of_points(&mesh.positions);
         assert!(heightfield_layer(&tris, &bounds).is_some());
         let want = brute(&mesh, &pc, cell, 0.9);
-        let got = measure(&mesh, &pc, cell, 0.9);
+        let got = measure_points(&mesh, &pc, cell, 0.9);
         assert_eq!(got, want);
         for t in mesh.triangles.iter_mut().step_by(3) {
             t.swap(1, 2);
         }
         assert!(heightfield_layer(&valid_triangles(&mesh), &bounds).is_none());
-        assert_eq!(measure(&mesh, &pc, cell, 0.9), brute(&mesh, &pc, cell, 0.9));
-        assert_eq!(measure(&mesh, &pc, cell, 0.9), want);
+        assert_eq!(measure_points(&mesh, &pc, cell, 0.9), brute(&mesh, &pc, cell, 0.9));
+        assert_eq!(measure_points(&mesh, &pc, cell, 0.9), want);
     }
 
     #[test]

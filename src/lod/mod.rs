@@ -4,11 +4,10 @@
 
 mod baker;
 pub mod cpu;
-mod fasthash;
 mod footprint;
 #[cfg(feature = "gpu")]
 pub mod gpu;
-mod measure;
+pub mod measure;
 pub use footprint::{MODEL_FOOTPRINT_HALF, TERRAIN_FOOTPRINT_HALF};
 
 #[cfg(feature = "gpu")]

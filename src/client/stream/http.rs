@@ -1,10 +1,16 @@
-//! A minimal blocking HTTP/1.1 GET client over `std::net::TcpStream` for the reference client:
-//! one connection per request (`Connection: close`), `Content-Length` or chunked bodies, a
-//! deadline on connect and on every read. Plain `http://` only — the client talks to
-//! `terrastream serve`, which a TLS-terminating proxy fronts in production.
+//! The one HTTP client of the crate and its tests: a blocking HTTP/1.1 GET over
+//! `std::net::TcpStream`, one connection per request (`Connection: close`), `Content-Length`,
+//! chunked or close-delimited bodies, a deadline on connect and on every read. Plain `http://`
+//! only — the client talks to `terrastream serve`, which a TLS-terminating proxy fronts in
+//! production. The integration tests call [`get`] too (`tests/common`), so what they check is
+//! what the client sends and reads.
 //!
-//! Kept dependency-free on purpose: the client's request logic lives in the pure scheduler
-//! ([`crate::client::stream::fetch`]); this only moves bytes, so it needs no async runtime.
+//! The response head and chunk sizes are parsed by `httparse` (hyper's parser, no dependencies
+//! of its own); the rest is moving bytes. A full client crate was weighed and left out:
+//! `reqwest`'s blocking client (in the lock file through `object_store`) or `hyper`'s would
+//! bring a tokio runtime and, for reqwest, a TLS stack into the `client` feature, which the
+//! pure scheduler ([`crate::client::stream::fetch`]) does not need for one GET per connection
+//! on its worker threads.
 
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream, ToSocketAddrs};
@@ -55,16 +61,31 @@ impl BaseUrl {
     }
 }
 
-/// A response: status, the headers we use, body.
+/// Most header lines a response may have.
+const MAX_HEADERS: usize = 64;
+
+/// A response: status, headers, body.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Response {
     pub status: u16,
     /// Raw `Retry-After` header value, if any.
     pub retry_after: Option<String>,
+    /// Every header line in order: (lower-case name, value without surrounding blanks).
+    pub headers: Vec<(String, String)>,
     pub body: Vec<u8>,
 }
 
-/// GETs `path` (absolute, starting with `/`) from `addr`, giving up after `timeout` in total.
+impl Response {
+    /// The first value of header `name` (any case).
+    #[must_use]
+    pub fn header(&self, name: &str) -> Option<&str> {
+        self.headers.iter().find(|(n, _)| n.eq_ignore_ascii_case(name)).map(|(_, v)| v.as_str())
+    }
+}
+
+/// GETs `path` (absolute, starting with `/`) from `addr`, sending `host` as the `Host` header,
+/// giving up after `timeout` in total. Errors: connecting, a timeout (`TimedOut`), a malformed
+/// or oversized head or body (`InvalidData`, the message says which).
 pub fn get(addr: SocketAddr, host: &str, path: &str, timeout: Duration) -> std::io::Result<Response> {
     let deadline = Instant::now() + timeout;
     let left = || {
@@ -82,44 +103,49 @@ pub fn get(addr: SocketAddr, host: &str, path: &str, timeout: Duration) -> std::
     )?;
     let mut buf = Vec::new();
     let mut chunk = vec![0u8; 64 << 10];
-    let head_end = loop {
+    let (head_len, status, headers) = loop {
         s.set_read_timeout(Some(left()?))?;
         let n = s.read(&mut chunk)?;
         if n == 0 {
             return Err(bad("connection closed before the response head"));
         }
         buf.extend_from_slice(&chunk[..n]);
-        if let Some(i) = find(&buf, b"\r\n\r\n") {
-            break i;
-        }
-        if buf.len() > MAX_HEAD_BYTES {
-            return Err(bad("response head too large"));
+        let mut slots = [httparse::EMPTY_HEADER; MAX_HEADERS];
+        let mut head = httparse::Response::new(&mut slots);
+        match head.parse(&buf) {
+            Ok(httparse::Status::Complete(len)) => {
+                let status = head.code.ok_or_else(|| bad("response without a status code"))?;
+                let headers: Vec<(String, String)> = head
+                    .headers
+                    .iter()
+                    .map(|h| {
+                        (h.name.to_ascii_lowercase(), String::from_utf8_lossy(h.value).trim().to_owned())
+                    })
+                    .collect();
+                break (len, status, headers);
+            }
+            Ok(httparse::Status::Partial) if buf.len() <= MAX_HEAD_BYTES => {}
+            Ok(httparse::Status::Partial) | Err(httparse::Error::TooManyHeaders) => {
+                return Err(bad("response head too large"));
+            }
+            Err(e) => return Err(bad(&format!("malformed response head: {e}"))),
         }
     };
-    let head = std::str::from_utf8(&buf[..head_end]).map_err(|_| bad("response head is not UTF-8"))?;
-    let mut lines = head.split("\r\n");
-    let status_line = lines.next().unwrap_or_default();
-    let status: u16 = status_line
-        .split(' ')
-        .nth(1)
-        .and_then(|c| c.parse().ok())
-        .ok_or_else(|| bad(&format!("bad status line {status_line:?}")))?;
     let (mut length, mut chunked, mut retry_after) = (None, false, None);
-    for line in lines {
-        let Some((name, value)) = line.split_once(':') else { continue };
-        let value = value.trim();
-        if name.eq_ignore_ascii_case("content-length") {
-            length = Some(value.parse::<usize>().map_err(|_| bad("bad Content-Length"))?);
-        } else if name.eq_ignore_ascii_case("transfer-encoding") {
-            chunked = value.to_ascii_lowercase().contains("chunked");
-        } else if name.eq_ignore_ascii_case("retry-after") {
-            retry_after = Some(value.to_owned());
+    for (name, value) in &headers {
+        match name.as_str() {
+            "content-length" => {
+                length = Some(value.parse::<usize>().map_err(|_| bad("bad Content-Length"))?);
+            }
+            "transfer-encoding" => chunked = value.to_ascii_lowercase().contains("chunked"),
+            "retry-after" => retry_after = Some(value.clone()),
+            _ => {}
         }
     }
     if length.is_some_and(|l| l > MAX_BODY_BYTES) {
         return Err(bad("response body too large"));
     }
-    let mut body = buf.split_off(head_end + 4);
+    let mut body = buf.split_off(head_len);
     loop {
         if length.is_some_and(|l| body.len() >= l) {
             break;
@@ -142,29 +168,29 @@ pub fn get(addr: SocketAddr, host: &str, path: &str, timeout: Duration) -> std::
     } else if chunked {
         body = dechunk(&body).ok_or_else(|| bad("malformed chunked body"))?;
     }
-    Ok(Response { status, retry_after, body })
+    Ok(Response { status, retry_after, headers, body })
 }
 
 fn bad(msg: &str) -> std::io::Error {
     std::io::Error::new(std::io::ErrorKind::InvalidData, msg.to_owned())
 }
 
-fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
-    hay.windows(needle.len()).position(|w| w == needle)
-}
-
 /// Decodes a chunked transfer-encoded body; `None` when it is malformed or incomplete.
 fn dechunk(mut b: &[u8]) -> Option<Vec<u8>> {
     let mut out = Vec::new();
     loop {
-        let eol = find(b, b"\r\n")?;
-        let size_s = std::str::from_utf8(&b[..eol]).ok()?;
-        let size = usize::from_str_radix(size_s.split(';').next()?.trim(), 16).ok()?;
-        b = &b[eol + 2..];
+        let httparse::Status::Complete((used, size)) = httparse::parse_chunk_size(b).ok()? else {
+            return None;
+        };
+        let size = usize::try_from(size).ok()?;
+        b = &b[used..];
         if size == 0 {
             return Some(out);
         }
-        if b.len() < size + 2 || out.len() + size > MAX_BODY_BYTES {
+        if b.len() < size.checked_add(2)?
+            || out.len() + size > MAX_BODY_BYTES
+            || &b[size..size + 2] != b"\r\n"
+        {
             return None;
         }
         out.extend_from_slice(&b[..size]);
@@ -191,6 +217,7 @@ mod tests {
         assert_eq!(dechunk(b"3\r\nabc\r\n2;x=1\r\nde\r\n0\r\n\r\n").unwrap(), b"abcde");
         assert!(dechunk(b"5\r\nab").is_none());
         assert!(dechunk(b"zz\r\n").is_none());
+        assert!(dechunk(b"3\r\nabcXY0\r\n\r\n").is_none(), "chunk not closed by CRLF");
     }
 
     #[test]
@@ -217,6 +244,7 @@ mod tests {
         });
         let r = get(addr, "h", "/a", Duration::from_secs(5)).unwrap();
         assert_eq!((r.status, r.body.as_slice()), (200, b"hello".as_slice()));
+        assert_eq!((r.header("CONTENT-length"), r.headers.len()), (Some("5"), 1));
         let r = get(addr, "h", "/a", Duration::from_secs(5)).unwrap();
         assert_eq!((r.status, r.retry_after.as_deref()), (503, Some("2")));
         t.join().unwrap();

@@ -1,4 +1,4 @@
-//! Tests of this module: round trips, hostile input, and size figures.
+//! Tests of this module: round trips and hostile input.
 
 // Exact float equality is the point of these tests: decoding must be bit-exact.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::float_cmp)]
@@ -54,6 +54,19 @@ fn oct_axes_are_exact() {
         assert_eq!(oct_decode(oct_encode(n).unwrap()), n);
     }
     assert_eq!(oct_encode([0.0, 0.0, 5.0]), Some([127, 127]));
+}
+
+#[test]
+fn oct_decoding_is_canonical() {
+    // The fuzz case: (100, 0) lies on the folded seam and stands for the direction of (154, 0).
+    assert_eq!(oct_decode([100, 0]).map(f32::to_bits), oct_decode([154, 0]).map(f32::to_bits));
+    for u in 0..=255_u8 {
+        for v in 0..=255_u8 {
+            let n = oct_decode([u, v]);
+            let b = oct_encode(n).unwrap();
+            assert_eq!(oct_decode_raw(b).map(f32::to_bits), n.map(f32::to_bits), "({u}, {v}) -> {b:?}");
+        }
+    }
 }
 
 #[test]
@@ -181,73 +194,5 @@ proptest! {
             raw[i] ^= 1 << rng.below(8);
         }
         let _ = decode(&frame, pc.positions.len(), &raw, p.raw_len);
-    }
-}
-
-fn entropy<T: std::hash::Hash + Eq>(vals: impl Iterator<Item = T>) -> f64 {
-    let mut m = std::collections::HashMap::new();
-    let mut n = 0usize;
-    for v in vals {
-        *m.entry(v).or_insert(0usize) += 1;
-        n += 1;
-    }
-    let n = n as f64;
-    m.values().map(|&c| -(c as f64 / n) * (c as f64 / n).log2()).sum::<f64>()
-}
-
-/// Compares normal predictors (order-0 entropy, bits per point for u + v, and joint).
-#[test]
-#[ignore = "analysis"]
-fn analyse_normal_predictors() {
-    use crate::codec::testdata::{fuji, greedy_tin, tin_surface};
-    let Some(hf) = fuji() else { return };
-    let tin = greedy_tin(&hf, 2.0);
-    let (surface, normals) = tin_surface(&hf, &tin);
-    for centres in [true, false] {
-        let pc = voxel_points(&surface, Some(&normals), 60.0, centres);
-        let (frame, _, _) = setup(&pc, 60.0 / 64.0);
-        let p = encode(&frame, &pc).unwrap();
-        let back = decode(&frame, pc.positions.len(), &p.payload, p.raw_len).unwrap();
-        let oct: Vec<[u8; 2]> = back.normals.iter().map(|&n| oct_encode(n).unwrap()).collect();
-        // Rebuild cells in decoded order.
-        let q: Vec<[i64; 3]> =
-            back.positions.iter().enumerate().map(|(i, &x)| frame.quantize(x, i).unwrap()).collect();
-        let shift = 6;
-        let key = |i: usize| (q[i][1] >> shift, q[i][0] >> shift);
-        let mut first: std::collections::HashMap<(i64, i64), usize> = std::collections::HashMap::default();
-        for i in 0..q.len() {
-            first.entry(key(i)).or_insert(i);
-        }
-        let mut res: Vec<Vec<(i16, i16)>> = vec![Vec::new(); 5];
-        for i in 0..q.len() {
-            let (cy, cx) = key(i);
-            let prev = if i > 0 { oct[i - 1] } else { [127, 127] };
-            let left = first.get(&(cy, cx - 1)).map(|&j| oct[j]);
-            let up = first.get(&(cy - 1, cx)).map(|&j| oct[j]);
-            let ul = first.get(&(cy - 1, cx - 1)).map(|&j| oct[j]);
-            let o = oct[i];
-            let r = |p: [u8; 2]| (i16::from(o[0]) - i16::from(p[0]), i16::from(o[1]) - i16::from(p[1]));
-            res[0].push(r(prev));
-            res[1].push(r(left.unwrap_or(prev)));
-            res[2].push(r(up.unwrap_or(prev)));
-            let avg = match (left, up) {
-                (Some(a), Some(b)) => [u8::midpoint(a[0], b[0]), u8::midpoint(a[1], b[1])],
-                _ => left.or(up).unwrap_or(prev),
-            };
-            res[3].push(r(avg));
-            let medp = match (left, up, ul) {
-                (Some(a), Some(b), Some(c)) => {
-                    [0, 1].map(|k| med(i64::from(a[k]), i64::from(b[k]), i64::from(c[k])).clamp(0, 255) as u8)
-                }
-                _ => avg,
-            };
-            res[4].push(r(medp));
-        }
-        for (name, r) in ["prev", "left", "up", "avg", "med"].iter().zip(&res) {
-            let hu = entropy(r.iter().map(|x| x.0));
-            let hv = entropy(r.iter().map(|x| x.1));
-            let hj = entropy(r.iter().copied());
-            println!("centres {centres} {name}: H(u) + H(v) = {:.2}, H(u, v) = {hj:.2} bits", hu + hv);
-        }
     }
 }

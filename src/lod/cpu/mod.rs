@@ -1,5 +1,5 @@
 //! CPU reference of the first paper's 6-direction orthographic slicing: bakes one point level of
-//! a tile's TIN, and measures a point level against its mesh.
+//! a tile's TIN. Measuring a level against its mesh is `lod::measure` (re-exported here).
 //!
 //! The GPU bake (`lod::gpu`) must reproduce this module cell by cell (≥ 99.5 % of occupied
 //! cells agree, agreeing cells' points within 1/1000 of a cell), so what follows is the
@@ -120,8 +120,13 @@ use accumulate::{PackedCodec, WideCodec, accumulate, valid_triangles};
 use fill::{fill_holes, finish};
 use rasterize::floor_i64;
 
-use super::fasthash::FastMap;
-use crate::geom::{Errors, Mesh, PointCloud, triangle_normal};
+// FxHash: cell keys come from geometry, not from a network, so SipHash's resistance to
+// adversarial keys is not needed, and it costs several times the rest of a lookup.
+use crate::geom::{Mesh, PointCloud, triangle_normal};
+use rustc_hash::FxHashMap as FastMap;
+
+/// Measuring a level is its own module (`lod::measure`); re-exported where callers look for it.
+pub use super::measure::measure_points;
 
 /// Fractional bits of the fixed-point position offsets: units of `cell / 2^16`.
 pub const POSITION_FRACTION_BITS: u32 = 16;
@@ -289,26 +294,6 @@ pub fn bake_cells(
         }
     }
     (out, stats)
-}
-
-/// Measures a point level against the mesh it was baked from, in world units:
-/// - `max`: the largest distance to the nearest triangle (exact point–triangle distance) from
-///   the level *as drawn*: each point and the corners of its footprint, its tangent plane
-///   clipped to the cube of half-width `footprint_half · cell` centred on it
-///   (the corners reach farthest; where a footprint sticks out past a silhouette or across a
-///   thin part, they measure how far);
-/// - `rms`: the root mean square of the points' own distances;
-/// - `gap`: the largest distance from a surface sample to its nearest point, samples taken on
-///   every triangle along its edges (vertices included) and in rows across it at a spacing of
-///   at most `cell / 4` — so `gap` is the true value within `cell / 8`.
-///
-/// Invalid triangles (index out of range, non-finite vertex) and non-finite points are left
-/// out. An empty mesh gives zeros; no points give `gap` = the mesh's bounding-box diagonal (the
-/// whole surface is a hole). An invalid `cell` (not finite and positive) falls back to
-/// 1/256 of that diagonal. Cost grows with the surface area / cell² (the gap samples).
-#[must_use]
-pub fn measure_points(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_half: f64) -> Errors {
-    super::measure::measure(mesh, points, cell, footprint_half)
 }
 
 /// Cell key, ordered as the output: by `k`, then `j`, then `i`.

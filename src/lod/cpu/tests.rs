@@ -1,4 +1,5 @@
 use super::*;
+use crate::geom::Errors;
 use crate::lod::measure::point_triangle_dist2;
 use proptest::prelude::*;
 
@@ -509,39 +510,6 @@ fn codecs_round_trip() {
         assert_eq!(WideCodec.encode(x, 2) < WideCodec.encode(y, 0), order(x) < order(y));
     }
     assert!(WideCodec.encode([i32::MIN, 0, -1], 0) < WideCodec.encode([i32::MAX, 0, -1], 0));
-}
-
-/// Timing of a 256×256 terrain tile at cell = 2 (run with `--release --ignored`).
-#[test]
-#[ignore = "timing; run in release"]
-fn time_terrain_tile() {
-    for (n, step) in [(85, 3.0), (102, 2.5)] {
-        let m = terrain(n, step * 256.0 / (f64::from(n) * step), 5);
-        let cell = 2.0;
-        let origin = [0.0, 0.0, -50.0];
-        // The minimum of many runs: the least disturbed by other work on the machine.
-        let mut stats = BakeStats::default();
-        let mut cloud = PointCloud::default();
-        let mut times = Vec::new();
-        for _ in 0..40 {
-            let t = std::time::Instant::now();
-            (cloud, stats) = bake_points_with_stats(&m, origin, cell);
-            times.push(t.elapsed().as_secs_f64());
-        }
-        times.sort_by(f64::total_cmp);
-        let (bake, median) = (times[0], times[times.len() / 2]);
-        let t = std::time::Instant::now();
-        let e = measure_points(&m, &cloud, cell, 0.6);
-        let measure = t.elapsed().as_secs_f64();
-        eprintln!(
-            "{} triangles: bake {:.2} ms (median {:.2}; {} points, {stats:?}), measure {:.1} ms {e:?}",
-            m.triangles.len(),
-            bake * 1e3,
-            median * 1e3,
-            cloud.positions.len(),
-            measure * 1e3
-        );
-    }
 }
 
 proptest! {
