@@ -154,13 +154,13 @@ mod tests {
     fn the_tiles_bar_draws_nothing_before_the_bake_starts() {
         let tape = Tape::default();
         let bar = Bar::new(TILES_TEMPLATE, ProgressDrawTarget::term_like(Box::new(tape.clone())), None);
-        bar.bar().tick();
+        bar.bar().force_draw();
         bar.bar().println("a notice printed before the bake");
         std::thread::sleep(std::time::Duration::from_millis(450));
         assert!(!tape.text().contains("tiles"), "drawn before the start: {:?}", tape.text());
         bar.start(8, 0);
         bar.node_done();
-        bar.bar().tick();
+        bar.bar().force_draw();
         assert!(tape.text().contains("1/8 tiles"), "{:?}", tape.text());
         assert!(!tape.text().contains("0/0"), "{:?}", tape.text());
         bar.finish();

@@ -550,7 +550,6 @@ fn open_part(
     format: Format,
     opts: &DatasetOptions,
 ) -> Result<(Part, FileGeoref), RasterError> {
-    super::check_encoding(path, format, &opts.load)?;
     let part =
         |source: Box<dyn BlockSource>, format, width, height| whole_part(path, source, format, width, height);
     match format {
@@ -751,6 +750,16 @@ impl Dataset {
             return Err(dataset_error(Path::new("bake"), "no input files"));
         };
         super::validate_overrides(first_path, &opts.load.overrides)?;
+        // `--encoding` is a PNG's: refused when no input is one (or a VRT, whose sources may be).
+        if opts.load.encoding.is_some() {
+            let formats: Vec<(&PathBuf, Format)> =
+                paths.iter().filter_map(|p| format_of(p).ok().map(|(_, f)| (p, f))).collect();
+            if let Some((p, f)) = formats.first()
+                && formats.iter().all(|(_, f)| !matches!(f, Format::Png | Format::Vrt))
+            {
+                super::check_encoding(p, *f, &opts.load)?;
+            }
+        }
         if !(opts.max_distortion.is_finite() && opts.max_distortion >= 0.0) {
             return Err(dataset_error(
                 first_path,
@@ -783,7 +792,6 @@ impl Dataset {
                 }
             }
         } else {
-            super::check_encoding(las_files[0], Format::Las, &opts.load)?;
             if let Some(other) = paths.iter().find(|p| !las_files.contains(p)) {
                 return Err(dataset_error(
                     other,

@@ -386,7 +386,8 @@ pub(crate) enum Format {
 }
 
 /// Refuses a height encoding (`--encoding`) for a file that is not a PNG: only a PNG's samples
-/// need one to become heights (a VRT passes it on to its sources).
+/// need one to become heights (a VRT passes it on to its sources). A dataset refuses it when
+/// none of its inputs is a PNG or a VRT.
 pub(crate) fn check_encoding(path: &Path, format: Format, opts: &LoadOptions) -> Result<(), RasterError> {
     let name = match format {
         Format::Png | Format::Vrt => return Ok(()),

@@ -160,7 +160,11 @@ fn color_words(color: image::ColorType) -> String {
         C::Rgb32F => "32-bit float RGB",
         C::Rgba32F => "32-bit float RGBA",
         _ => {
-            return format!("{} bits per pixel in {} channels", color.bits_per_pixel(), color.channel_count());
+            return format!(
+                "{} bits per pixel in {} channels",
+                color.bits_per_pixel(),
+                color.channel_count()
+            );
         }
     }
     .to_owned()

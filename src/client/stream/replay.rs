@@ -6,7 +6,9 @@
 //! Frames are paced at `fps` and the flight advances `1/fps` per frame, so a slow frame delays
 //! the flight instead of skipping poses.
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
+#[cfg(feature = "gpu")]
+use std::time::Instant;
 
 use serde::Serialize;
 
