@@ -16,7 +16,7 @@
 
 pub mod archive;
 pub mod export;
-pub mod model;
+pub mod model_manifest;
 #[cfg(feature = "s3")]
 pub mod remote;
 #[cfg(not(feature = "s3"))]
