@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use terrastream::store::{ARCHIVE_SUFFIX, Store, remote};
+use terrastream::store::{ARCHIVE_SUFFIX, Bucket, Store, is_remote};
 
 #[derive(clap::Args)]
 pub struct PackArgs {
@@ -49,7 +49,7 @@ pub fn run(a: &PackArgs) -> Result<()> {
     let t0 = Instant::now();
     // Written beside the target under a temporary name, renamed into place when whole; for a
     // bucket, into the local temporary directory first and then uploaded as one object.
-    let target_remote = remote::is_remote(&out) && !out.starts_with("file://");
+    let target_remote = is_remote(&out) && !out.starts_with("file://");
     let local_target = PathBuf::from(out.strip_prefix("file://").unwrap_or(&out));
     let tmp = if target_remote {
         tempfile::Builder::new().prefix("terrastream-pack-").suffix(ARCHIVE_SUFFIX).tempfile()
@@ -74,7 +74,7 @@ pub fn run(a: &PackArgs) -> Result<()> {
     bar.finish_and_clear();
     if target_remote {
         let (parent, name) = out.rsplit_once('/').unwrap_or((&out, ""));
-        let r = remote::Remote::open(parent)?;
+        let r = Bucket::open(parent)?;
         r.put_file(name, tmp.path())?;
     } else {
         tmp.persist(&local_target)
