@@ -240,6 +240,7 @@ pub fn run(a: &BakeArgs) -> Result<()> {
     }
     let Some(out) = &a.out else { anyhow::bail!("bake: --out is required") };
     let store = Store::at(out)?;
+    store.check_out()?;
     let files = raster::dataset::expand_inputs(&a.inputs)?;
     let opened = a.input.open(files, a.quiet)?;
     let progress = tiles_bar(a.quiet, a.time_limit);

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use terrastream::store::{ARCHIVE_SUFFIX, Bucket, Store, is_remote};
+use terrastream::store::{ARCHIVE_SUFFIX, Bucket, Store, check_out_file, is_remote};
 
 #[derive(clap::Args)]
 pub struct PackArgs {
@@ -34,6 +34,12 @@ pub fn run(a: &PackArgs) -> Result<()> {
             "pack --out {out}: a web server takes no uploads here; write the archive to a file or s3://BUCKET/KEY{ARCHIVE_SUFFIX} and publish it from there"
         );
     }
+    let target_remote = is_remote(&out) && !out.starts_with("file://");
+    let local_target = PathBuf::from(out.strip_prefix("file://").unwrap_or(&out));
+    if !target_remote {
+        // Before any work: a missing folder is named, not reported as a temporary file.
+        check_out_file(&local_target)?;
+    }
     let store = Store::at(&a.dir)?;
     if store.archive().is_some() {
         bail!("pack: {} is already an archive", a.dir.display());
@@ -49,8 +55,6 @@ pub fn run(a: &PackArgs) -> Result<()> {
     let t0 = Instant::now();
     // Written beside the target under a temporary name, renamed into place when whole; for a
     // bucket, into the local temporary directory first and then uploaded as one object.
-    let target_remote = is_remote(&out) && !out.starts_with("file://");
-    let local_target = PathBuf::from(out.strip_prefix("file://").unwrap_or(&out));
     let tmp = if target_remote {
         tempfile::Builder::new().prefix("terrastream-pack-").suffix(ARCHIVE_SUFFIX).tempfile()
     } else {

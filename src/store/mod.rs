@@ -28,7 +28,7 @@ use std::sync::Arc;
 use backend::Sweep;
 pub use backend::bucket::{self, Bucket};
 use backend::local::io;
-pub use backend::local::{LocalDir, write_atomic};
+pub use backend::local::{LocalDir, check_out_file, write_atomic};
 pub use backend::packed::Packed;
 pub use backend::{Backend, Location, is_remote};
 
@@ -505,6 +505,13 @@ impl Store {
     #[must_use]
     pub fn dir(&self) -> &Path {
         self.location().as_path()
+    }
+
+    /// Checks, before any input is read, that a bake can write the tileset here: a path that
+    /// cannot become a folder (a file, a path under a file, a dangling symbolic link) or a
+    /// packed tileset is refused with the error [`Store::begin_bake`] would give after the work.
+    pub fn check_out(&self) -> Result<(), StoreError> {
+        self.backend.check_writable()
     }
 
     /// A file of the tileset (relative path); `Ok(None)` when it does not exist.

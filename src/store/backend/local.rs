@@ -243,6 +243,32 @@ pub fn check_out_dir(dir: &Path) -> Result<(), StoreError> {
     Ok(())
 }
 
+/// A clear error for an output file that cannot be written at `path` because its folder is
+/// missing or is not a folder (said before any work, not as a failed temporary file).
+pub fn check_out_file(path: &Path) -> Result<(), StoreError> {
+    let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) else { return Ok(()) };
+    if dir.is_dir() {
+        return Ok(());
+    }
+    let invalid = |message: String| StoreError::Invalid { path: path.to_owned(), message };
+    // The nearest folder above that exists says what is wrong: a file where a folder should be,
+    // or folders that are missing.
+    let mut up = Some(dir);
+    while let Some(p) = up {
+        if p.as_os_str().is_empty() {
+            break;
+        }
+        if fs::symlink_metadata(p).is_ok() {
+            if !p.is_dir() {
+                return Err(invalid(format!("cannot be written: {} is not a folder", p.display())));
+            }
+            break;
+        }
+        up = p.parent();
+    }
+    Err(invalid(format!("cannot be written: its folder {} does not exist", dir.display())))
+}
+
 /// Calls `f` with the path, type and name of every entry of `dir`; a folder that does not exist
 /// has none.
 fn for_each_entry(
@@ -321,5 +347,22 @@ mod tests {
         let names: Vec<_> =
             fs::read_dir(p.parent().unwrap()).unwrap().map(|e| e.unwrap().file_name()).collect();
         assert_eq!(names.len(), 1);
+    }
+
+    /// An output file whose folder is missing, or is a file, is named as such.
+    #[test]
+    fn out_files_whose_folder_cannot_hold_them_say_why() {
+        let dir = tempfile::tempdir().unwrap();
+        check_out_file(&dir.path().join("a.tsa")).unwrap();
+        check_out_file(Path::new("a.tsa")).unwrap();
+        let missing = dir.path().join("a");
+        let e = check_out_file(&missing.join("b.tsa")).unwrap_err().to_string();
+        assert!(e.contains(&format!("its folder {} does not exist", missing.display())), "{e}");
+        let e = check_out_file(&missing.join("c/b.tsa")).unwrap_err().to_string();
+        assert!(e.contains(&format!("its folder {} does not exist", missing.join("c").display())), "{e}");
+        let file = dir.path().join("f");
+        fs::write(&file, b"x").unwrap();
+        let e = check_out_file(&file.join("c/b.tsa")).unwrap_err().to_string();
+        assert!(e.contains(&format!("{} is not a folder", file.display())), "{e}");
     }
 }
