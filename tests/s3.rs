@@ -60,7 +60,7 @@ fn tbin(endpoint: &str) -> Command {
 /// configured by the environment).
 fn objects(_endpoint: &str, url: &str) -> BTreeMap<String, Vec<u8>> {
     let store = terrastream::store::Store::at(Path::new(url)).unwrap();
-    let r = store.remote().unwrap();
+    let r = store.bucket().unwrap();
     r.list("").unwrap().into_iter().map(|(k, _)| (k.clone(), r.get(&k).unwrap().unwrap())).collect()
 }
 

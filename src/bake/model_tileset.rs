@@ -43,7 +43,7 @@
 //! Nothing is written until the model has been read, baked and encoded in memory, so a bad
 //! model leaves `--out` untouched.
 
-pub use crate::store::model::{ModelInfo, ModelLevel, ModelLevelTable, ModelManifest};
+pub use crate::store::model_manifest::{ModelInfo, ModelLevel, ModelLevelTable, ModelManifest};
 
 use std::path::Path;
 use std::time::Instant;

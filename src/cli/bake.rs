@@ -211,6 +211,7 @@ pub fn run(a: &BakeArgs, quiet: bool) -> Result<()> {
     a.baker.set_threads()?;
     let Some(out) = &a.out else { anyhow::bail!("bake: --out is required") };
     let store = Store::at(out)?;
+    store.check_out()?;
     let files = raster::dataset::expand_inputs(&a.inputs)?;
     let opened = a.input.open(files, quiet)?;
     let baker = a.baker.open()?;

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use terrastream::store::{ARCHIVE_SUFFIX, Store, remote};
+use terrastream::store::{ARCHIVE_SUFFIX, Bucket, Store, check_out_file, is_remote};
 
 #[derive(clap::Args)]
 pub struct PackArgs {
@@ -31,6 +31,12 @@ pub fn run(a: &PackArgs, quiet: bool) -> Result<()> {
             "pack --out {out}: a web server takes no uploads here; write the archive to a file or s3://BUCKET/KEY{ARCHIVE_SUFFIX} and publish it from there"
         );
     }
+    let target_remote = is_remote(&out) && !out.starts_with("file://");
+    let local_target = PathBuf::from(out.strip_prefix("file://").unwrap_or(&out));
+    if !target_remote {
+        // Before any work: a missing folder is named, not reported as a temporary file.
+        check_out_file(&local_target)?;
+    }
     let store = Store::at(&a.dir)?;
     if store.archive().is_some() {
         bail!("pack: {} is already an archive", a.dir.display());
@@ -46,8 +52,6 @@ pub fn run(a: &PackArgs, quiet: bool) -> Result<()> {
     let t0 = Instant::now();
     // Written beside the target under a temporary name, renamed into place when whole; for a
     // bucket, into the local temporary directory first and then uploaded as one object.
-    let target_remote = remote::is_remote(&out) && !out.starts_with("file://");
-    let local_target = PathBuf::from(out.strip_prefix("file://").unwrap_or(&out));
     let tmp = if target_remote {
         tempfile::Builder::new().prefix("terrastream-pack-").suffix(ARCHIVE_SUFFIX).tempfile()
     } else {
@@ -71,7 +75,7 @@ pub fn run(a: &PackArgs, quiet: bool) -> Result<()> {
     bar.finish_and_clear();
     if target_remote {
         let (parent, name) = out.rsplit_once('/').unwrap_or((&out, ""));
-        let r = remote::Remote::open(parent)?;
+        let r = Bucket::open(parent)?;
         r.put_file(name, tmp.path())?;
     } else {
         tmp.persist(&local_target)

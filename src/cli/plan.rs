@@ -54,6 +54,7 @@ pub const INDEX_VARS: [&str; 3] =
     ["JOB_COMPLETION_INDEX", "AWS_BATCH_JOB_ARRAY_INDEX", "SLURM_ARRAY_TASK_ID"];
 
 pub fn run(a: &PlanArgs, quiet: bool) -> Result<()> {
+    Store::at(&a.out)?.check_out()?;
     let files = raster::dataset::expand_inputs(&a.inputs)?;
     let files: Vec<PathBuf> = files
         .into_iter()

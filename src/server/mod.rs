@@ -215,7 +215,7 @@ pub struct Server {
 impl Server {
     /// Loads the on-demand sources, scans the store, starts the bake workers and binds.
     pub async fn bind(config: Config) -> Result<Self, ServerError> {
-        let remote = crate::store::remote::is_remote(&config.store.to_string_lossy());
+        let remote = crate::store::is_remote(&config.store.to_string_lossy());
         if remote {
             // The server only reads a bucket: what writes into the store needs a directory.
             if !config.sources.is_empty() || config.admin_token.is_some() {

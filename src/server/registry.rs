@@ -185,7 +185,7 @@ enum Found {
 pub struct Registry {
     root: PathBuf,
     /// The bucket prefix, when the store is in object storage.
-    remote: Option<crate::store::remote::Remote>,
+    remote: Option<crate::store::Bucket>,
     on_demand: HashMap<String, OnDemand>,
     map: RwLock<HashMap<String, Arc<Tileset>>>,
 }
@@ -194,11 +194,8 @@ impl Registry {
     /// The registry of the store at `root` (a directory, or a bucket URL opened here).
     pub fn new(root: &Path, on_demand: HashMap<String, OnDemand>) -> Result<Self, ServerError> {
         let text = root.to_string_lossy();
-        let remote = if crate::store::remote::is_remote(&text) {
-            Some(crate::store::remote::Remote::open(&text)?)
-        } else {
-            None
-        };
+        let remote =
+            if crate::store::is_remote(&text) { Some(crate::store::Bucket::open(&text)?) } else { None };
         Ok(Self { root: root.to_owned(), remote, on_demand, map: RwLock::new(HashMap::new()) })
     }
 
@@ -240,9 +237,9 @@ impl Registry {
     /// Re-scans a store in a bucket: one delimited listing, then a HEAD of each folder's
     /// manifest (archives' sizes and times come with the listing). A tileset whose manifest
     /// cannot be looked at now stays loaded (its reads fail as `503`).
-    // Without `s3` a `Remote` cannot exist, so the code after `r.child` is unreachable there.
+    // Without `s3` a `Bucket` cannot exist, so the code after `r.child` is unreachable there.
     #[cfg_attr(not(feature = "s3"), allow(unreachable_code, unused_variables))]
-    fn scan_remote(&self, r: &crate::store::remote::Remote) -> Result<(), ServerError> {
+    fn scan_remote(&self, r: &crate::store::Bucket) -> Result<(), ServerError> {
         let (folders, objects) = r.list_top()?;
         let current: HashMap<String, Arc<Tileset>> = self.map.read().map(|m| m.clone()).unwrap_or_default();
         let mut found: Vec<(String, Found)> = Vec::new();
@@ -260,7 +257,7 @@ impl Registry {
         let mut next = HashMap::with_capacity(found.len());
         for (name, f) in found {
             // Ok: an archive object's name; Err: a folder tileset's prefix.
-            let (st, store): (_, Result<String, crate::store::remote::Remote>) = match &f {
+            let (st, store): (_, Result<String, crate::store::Bucket>) = match &f {
                 Found::Archive(file, st) => (*st, Ok(file.clone())),
                 Found::Prefix(p) => {
                     let child = r.child(p);
@@ -292,7 +289,7 @@ impl Registry {
             }
             let opened = match store {
                 Ok(file) => Store::archive_at(&format!("{}/{file}", r.url())),
-                Err(child) => Ok(Store::from_remote(child)),
+                Err(child) => Ok(Store::from_bucket(child)),
             };
             match opened.map_err(ServerError::from).and_then(|s| load_complete(&name, s, st, None)) {
                 Ok(ts) => {

@@ -1,4 +1,5 @@
-//! The tileset directory: layout, manifest and index chunks, atomic blob writes, resume.
+//! Tilesets: their layout, manifest and index chunks, atomic writes, resume; the files live in
+//! one [`Backend`] (a local directory, a bucket prefix or a packed archive; see [`backend`]).
 //!
 //! ```text
 //! DIR/tileset.json                  manifest, written last (its presence = a complete bake)
@@ -11,20 +12,24 @@
 //!                                   bake (no manifest yet) can be resumed and checked
 //! ```
 //!
-//! Every file is written to a temporary name in the same directory and renamed into place, so a
-//! reader (or a resumed bake) sees either the old file or the complete new one, never a torn one.
+//! Every file is written whole and atomically (in a directory: to a temporary name in the same
+//! folder, renamed into place; in a bucket: one PUT), so a reader (or a resumed bake) sees either
+//! the old file or the complete new one, never a torn one.
 
 pub mod archive;
-pub mod model;
-#[cfg(feature = "s3")]
-pub mod remote;
-#[cfg(not(feature = "s3"))]
-#[path = "no_remote.rs"]
-pub mod remote;
+pub mod backend;
+pub mod model_manifest;
 
-use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use backend::Sweep;
+pub use backend::bucket::{self, Bucket};
+use backend::local::io;
+pub use backend::local::{LocalDir, check_out_file, write_atomic};
+pub use backend::packed::Packed;
+pub use backend::{Backend, Location, is_remote};
 
 use serde::{Deserialize, Serialize};
 
@@ -94,10 +99,6 @@ pub enum StoreError {
          or bytes as a finer level); `terrastream inspect --tile {key}` lists the levels it has"
     )]
     LevelNotStored { path: PathBuf, key: TileKey, level: u8 },
-}
-
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
-    move |source| StoreError::Io { path: path.to_owned(), source }
 }
 
 /// What a level is and how it was made.
@@ -383,15 +384,11 @@ pub fn chunk_root(key: TileKey) -> TileKey {
     TileKey::new(key.z - dz, key.x >> dz, key.y >> dz)
 }
 
-/// A tileset: a local directory (the default and the fast path) or a prefix in object storage
-/// ([`Store::at`] with an `s3://` URL).
+/// A tileset, in one [`Backend`]: a local directory (the default and the fast path), a prefix
+/// in object storage ([`Store::at`] with an `s3://` URL) or a packed archive (read-only).
 #[derive(Debug, Clone)]
 pub struct Store {
-    /// The directory; for a remote tileset its URL (so paths in messages read as URLs).
-    dir: PathBuf,
-    remote: Option<std::sync::Arc<remote::Remote>>,
-    /// A packed tileset (`.tsa`, local or in a bucket): read-only.
-    archive: Option<std::sync::Arc<archive::Archive>>,
+    backend: Arc<dyn Backend>,
 }
 
 /// The blob of a node's level, relative to the tileset.
@@ -412,32 +409,42 @@ pub fn chunk_rel(root: TileKey) -> String {
     format!("index/{}/{}/{}.json", root.z, root.x, root.y)
 }
 
+/// The folder of a node's blobs and markers, relative to the tileset.
+fn node_rel(key: TileKey) -> String {
+    format!("tiles/{}/{}/{}", key.z, key.x, key.y)
+}
+
+/// Top folders of the tileset that hold files a bake writes, and how deep below the top their
+/// files lie at most (`tiles/{z}/{x}/{y}/`, one more for what may sit beside a blob).
+const WRITTEN_FOLDERS: [&str; 2] = ["tiles", "index"];
+const WRITTEN_DEPTH: u32 = 5;
+
 impl Store {
     /// Opens an existing or new tileset directory (nothing is created until the first write).
     #[must_use]
     pub fn new(dir: &Path) -> Self {
-        Self { dir: dir.to_owned(), remote: None, archive: None }
+        Self::with(LocalDir::new(dir))
+    }
+
+    /// The tileset in `backend`.
+    #[must_use]
+    pub fn with(backend: impl Backend) -> Self {
+        Self { backend: Arc::new(backend) }
     }
 
     /// Opens a tileset by location: a path, a `file://` URL, or object storage (`s3://BUCKET/PREFIX`,
-    /// configured from the environment; see [`remote`]). Nothing is requested until the first
-    /// read or write.
+    /// configured from the environment; see [`bucket`]); a name ending in `.tsa` is a packed
+    /// tileset ([`Store::archive_at`]). Nothing is requested until the first read or write.
     pub fn at(location: &Path) -> Result<Self, StoreError> {
         let text = location.to_string_lossy();
         if let Some(path) = text.strip_prefix("file://") {
             return Ok(Self::new(Path::new(path)));
         }
-        let text = text.strip_prefix("file://").unwrap_or(&text);
         if text.ends_with(ARCHIVE_SUFFIX) {
-            return Self::archive_at(text);
+            return Self::archive_at(&text);
         }
-        if remote::is_remote(text) {
-            let r = remote::Remote::open(text)?;
-            return Ok(Self {
-                dir: PathBuf::from(r.url()),
-                remote: Some(std::sync::Arc::new(r)),
-                archive: None,
-            });
+        if is_remote(&text) {
+            return Ok(Self::from_bucket(Bucket::open(&text)?));
         }
         Ok(Self::new(location))
     }
@@ -446,8 +453,8 @@ impl Store {
     /// without `.tsa` (as `serve` names it).
     #[must_use]
     pub fn name(&self) -> Option<String> {
-        let n = self.dir.file_name()?.to_string_lossy().into_owned();
-        Some(if self.archive.is_some() {
+        let n = self.dir().file_name()?.to_string_lossy().into_owned();
+        Some(if self.archive().is_some() {
             n.strip_suffix(ARCHIVE_SUFFIX).map_or(n.clone(), str::to_owned)
         } else {
             n
@@ -456,89 +463,64 @@ impl Store {
 
     /// The tileset at an opened bucket prefix.
     #[must_use]
-    pub fn from_remote(r: remote::Remote) -> Self {
-        Self { dir: PathBuf::from(r.url()), remote: Some(std::sync::Arc::new(r)), archive: None }
+    pub fn from_bucket(r: Bucket) -> Self {
+        Self::with(r)
     }
 
     /// A packed tileset: a local `.tsa` file or one in a bucket, opened for reading (its footer
     /// and directory root are read and checked now).
     pub fn archive_at(location: &str) -> Result<Self, StoreError> {
-        let refused = |message: String| StoreError::Remote { url: location.to_owned(), message };
-        let a = if remote::is_remote(location) {
-            let r = remote::Remote::open(location)?;
-            let len = r.size("")?.ok_or_else(|| refused("no such archive".into()))?;
-            archive::Archive::open(Box::new(remote::RemoteSource::new(r)), len)
-        } else {
-            archive::Archive::open_file(Path::new(location))
-        }
-        .map_err(|e| refused(e.to_string()))?;
-        Ok(Self { dir: PathBuf::from(location), remote: None, archive: Some(std::sync::Arc::new(a)) })
+        Ok(Self::with(Packed::open(location)?))
+    }
+
+    /// The backend the tileset is in.
+    #[must_use]
+    pub fn backend(&self) -> &dyn Backend {
+        self.backend.as_ref()
+    }
+
+    /// Where the tileset is.
+    #[must_use]
+    pub fn location(&self) -> &Location {
+        self.backend.location()
     }
 
     /// The archive, when the tileset is a packed one.
     #[must_use]
     pub fn archive(&self) -> Option<&archive::Archive> {
-        self.archive.as_deref()
+        let any: &dyn std::any::Any = self.backend.as_ref();
+        any.downcast_ref::<Packed>().map(Packed::archive)
     }
 
-    /// Refuses writing into a packed tileset.
-    fn writable(&self) -> Result<(), StoreError> {
-        if self.archive.is_some() {
-            return Err(StoreError::Invalid {
-                path: self.dir.clone(),
-                message: "a packed tileset (.tsa) is read-only; bake into a directory or bucket prefix and pack it again".into(),
-            });
-        }
-        Ok(())
-    }
-
-    /// The object-storage location, when the tileset is not a local directory.
+    /// The object-storage location, when the tileset is a bucket prefix.
     #[must_use]
-    pub fn remote(&self) -> Option<&remote::Remote> {
-        self.remote.as_deref()
+    pub fn bucket(&self) -> Option<&Bucket> {
+        let any: &dyn std::any::Any = self.backend.as_ref();
+        any.downcast_ref::<Bucket>()
     }
 
-    /// The directory (for a remote tileset, its URL as a path: for messages only).
+    /// The directory (for a tileset in a bucket or an archive, its location as a path: for
+    /// messages only).
     #[must_use]
     pub fn dir(&self) -> &Path {
-        &self.dir
+        self.location().as_path()
+    }
+
+    /// Checks, before any input is read, that a bake can write the tileset here: a path that
+    /// cannot become a folder (a file, a path under a file, a dangling symbolic link) or a
+    /// packed tileset is refused with the error [`Store::begin_bake`] would give after the work.
+    pub fn check_out(&self) -> Result<(), StoreError> {
+        self.backend.check_writable()
     }
 
     /// A file of the tileset (relative path); `Ok(None)` when it does not exist.
     fn get(&self, rel: &str) -> Result<Option<Vec<u8>>, StoreError> {
-        if let Some(a) = &self.archive {
-            return a.read(rel).map_err(|e| self.archive_err(rel, &e));
-        }
-        if let Some(r) = &self.remote {
-            return r.get(rel);
-        }
-        let path = self.dir.join(rel);
-        match fs::read(&path) {
-            Ok(b) => Ok(Some(b)),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-            Err(e) => Err(io(&path)(e)),
-        }
+        self.backend.read(rel)
     }
 
     /// Writes a file of the tileset whole: a temporary file renamed into place, or one PUT.
     fn put(&self, rel: &str, bytes: &[u8]) -> Result<(), StoreError> {
-        self.writable()?;
-        match &self.remote {
-            Some(r) => r.put(rel, bytes),
-            None => write_atomic(&self.dir.join(rel), bytes),
-        }
-    }
-
-    fn delete(&self, rel: &str) -> Result<(), StoreError> {
-        self.writable()?;
-        match &self.remote {
-            Some(r) => r.delete(rel),
-            None => remove_if_present(&self.dir.join(rel)),
-        }
-    }
-
-    fn archive_err(&self, rel: &str, e: &archive::ArchiveError) -> StoreError {
-        StoreError::Remote { url: format!("{} ({rel})", self.dir.display()), message: e.to_string() }
+        self.backend.write(rel, bytes)
     }
 
     /// A file of the tileset by its relative path, for the server: `Ok(None)` when it does not
@@ -546,53 +528,21 @@ impl Store {
     /// archive ranges on the blocking pool.
     #[cfg(feature = "server")]
     pub async fn get_async(&self, rel: &str) -> Result<Option<bytes::Bytes>, StoreError> {
-        if self.archive.is_some() {
-            let (me, rel2) = (self.clone(), rel.to_owned());
-            return tokio::task::spawn_blocking(move || me.get(&rel2))
-                .await
-                .map_err(|e| StoreError::Remote { url: self.describe(rel), message: e.to_string() })?
-                .map(|b| b.map(bytes::Bytes::from));
-        }
-        if let Some(r) = &self.remote {
-            return r.get_async(rel).await;
-        }
-        let path = self.dir.join(rel);
-        match tokio::fs::read(&path).await {
-            Ok(b) => Ok(Some(bytes::Bytes::from(b))),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-            Err(e) => Err(io(&path)(e)),
-        }
+        self.backend.read_async(rel).await
     }
 
     /// Whether a file of the tileset exists, for the server.
     #[cfg(feature = "server")]
     pub async fn exists_async(&self, rel: &str) -> Result<bool, StoreError> {
-        if let Some(a) = &self.archive {
-            // The root is in memory; a page read is one small range at most.
-            let (a, rel2) = (a.clone(), rel.to_owned());
-            return tokio::task::spawn_blocking(move || a.entry(&rel2).map(|e| e.is_some()))
-                .await
-                .map_err(|e| StoreError::Remote { url: self.describe(rel), message: e.to_string() })?
-                .map_err(|e| self.archive_err(rel, &e));
-        }
-        if let Some(r) = &self.remote {
-            return r.exists_async(rel).await;
-        }
-        Ok(tokio::fs::metadata(self.dir.join(rel)).await.is_ok_and(|m| m.is_file()))
+        self.backend.exists_async(rel).await
     }
 
     fn exists(&self, rel: &str) -> Result<bool, StoreError> {
-        if let Some(a) = &self.archive {
-            return a.entry(rel).map(|e| e.is_some()).map_err(|e| self.archive_err(rel, &e));
-        }
-        match &self.remote {
-            Some(r) => r.exists(rel),
-            None => Ok(self.dir.join(rel).is_file()),
-        }
+        self.backend.exists(rel)
     }
 
     fn get_json<T: for<'de> Deserialize<'de>>(&self, rel: &str) -> Result<T, StoreError> {
-        let path = self.dir.join(rel);
+        let path = self.location().join(rel);
         let bytes = self.get(rel)?.ok_or_else(|| {
             io(&path)(std::io::Error::new(
                 std::io::ErrorKind::NotFound,
@@ -604,12 +554,12 @@ impl Store {
 
     #[must_use]
     pub fn blob_path(&self, key: TileKey, level: u8) -> PathBuf {
-        self.dir.join(blob_rel(key, level))
+        self.location().join(&blob_rel(key, level))
     }
 
     #[must_use]
     pub fn chunk_path(&self, root: TileKey) -> PathBuf {
-        self.dir.join(chunk_rel(root))
+        self.location().join(&chunk_rel(root))
     }
 
     /// Every file of the tileset a reader needs, as relative paths with their sizes, in path
@@ -617,31 +567,7 @@ impl Store {
     /// and blobs moved aside as `.corrupt` are left out. A directory tree deeper than 16 levels
     /// is refused (a tileset is 6 deep).
     pub fn files(&self) -> Result<Vec<(String, u64)>, StoreError> {
-        let mut out: Vec<(String, u64)> = if let Some(a) = &self.archive {
-            a.entries().map_err(|e| self.archive_err("", &e))?.into_iter().map(|e| (e.path, e.len)).collect()
-        } else if let Some(r) = &self.remote {
-            r.list("")?
-        } else {
-            let mut out = Vec::new();
-            let mut stack = vec![(self.dir.clone(), String::new(), 0u32)];
-            while let Some((dir, rel, depth)) = stack.pop() {
-                if depth > 16 {
-                    return Err(StoreError::Invalid { path: dir, message: "folders nested too deep".into() });
-                }
-                for entry in fs::read_dir(&dir).map_err(io(&dir))? {
-                    let entry = entry.map_err(io(&dir))?;
-                    let name = entry.file_name().to_string_lossy().into_owned();
-                    let child = if rel.is_empty() { name.clone() } else { format!("{rel}/{name}") };
-                    let md = entry.metadata().map_err(io(&entry.path()))?;
-                    if md.is_dir() {
-                        stack.push((entry.path(), child, depth + 1));
-                    } else if md.is_file() {
-                        out.push((child, md.len()));
-                    }
-                }
-            }
-            out
-        };
+        let mut out = self.backend.list()?;
         out.retain(|(rel, _)| {
             !rel.starts_with("shards/")
                 && !rel.split('/').any(|c| c.starts_with('.'))
@@ -668,13 +594,13 @@ impl Store {
         }
         let files = self.files()?;
         let werr = |e: archive::ArchiveError| StoreError::Invalid {
-            path: self.dir.clone(),
+            path: self.dir().to_owned(),
             message: format!("packing: {e}"),
         };
         let mut w = archive::ArchiveWriter::new(out).map_err(werr)?;
         for (rel, _) in &files {
             let bytes = self.get(rel)?.ok_or_else(|| StoreError::Invalid {
-                path: self.dir.join(rel),
+                path: self.location().join(rel),
                 message: "vanished while packing (is a bake still writing here?)".into(),
             })?;
             w.add(rel, &bytes).map_err(werr)?;
@@ -691,21 +617,18 @@ impl Store {
 
     #[must_use]
     pub fn manifest_path(&self) -> PathBuf {
-        self.dir.join(MANIFEST_FILE)
+        self.location().join(MANIFEST_FILE)
     }
 
     /// Prepares the directory for a bake with `options`, resuming an interrupted or complete
     /// bake with the same options. Refuses a non-empty foreign directory and a tileset baked
     /// with other options. Returns true when an earlier bake is being resumed.
     pub fn begin_bake(&self, options: &serde_json::Value) -> Result<bool, StoreError> {
-        self.writable()?;
-        if self.remote.is_none() {
-            // Before anything is read under it: a path that cannot be a tileset folder is
-            // named as such, not as a failed read of a file inside it.
-            check_out_dir(&self.dir)?;
-        }
+        // Before anything is read under it: a path that cannot be a tileset folder is named as
+        // such, not as a failed read of a file inside it.
+        self.backend.check_writable()?;
         let earlier = if let Some(bytes) = self.get(STATE_FILE)? {
-            let path = self.dir.join(STATE_FILE);
+            let path = self.location().join(STATE_FILE);
             Some(
                 serde_json::from_slice::<serde_json::Value>(&bytes)
                     .map_err(|source| StoreError::Json { path, source })?,
@@ -722,51 +645,20 @@ impl Store {
                 self.remove_stale_temps()?;
                 Ok(true)
             }
-            Some(prev) => {
-                Err(StoreError::OptionsChanged { path: self.dir.clone(), what: diff_keys(&prev, options) })
-            }
-            None if self.remote.is_some() => self.begin_remote(options),
+            Some(prev) => Err(StoreError::OptionsChanged {
+                path: self.dir().to_owned(),
+                what: diff_keys(&prev, options),
+            }),
             None => {
-                let state = self.dir.join(STATE_FILE);
-                check_out_dir(&self.dir)?;
-                if self.dir.exists() {
-                    for entry in fs::read_dir(&self.dir).map_err(io(&self.dir))? {
-                        let entry = entry.map_err(io(&self.dir))?;
-                        let name = entry.file_name();
-                        // A bake killed before its options record was first written leaves
-                        // only that record's temporary file: the directory is still an empty
-                        // one of ours, not a foreign one.
-                        if entry.file_type().map_err(io(&entry.path()))?.is_file()
-                            && name.to_string_lossy().starts_with(&format!(".{STATE_FILE}."))
-                            && stale_temp(&name.to_string_lossy())
-                        {
-                            fs::remove_file(entry.path()).map_err(io(&entry.path()))?;
-                            continue;
-                        }
-                        return Err(StoreError::NotATileset { path: self.dir.clone() });
-                    }
+                let state = self.location().join(STATE_FILE);
+                if self.backend.create_first(STATE_FILE, &to_json(options, &state)?)? {
+                    Ok(false)
+                } else {
+                    // Another bake began here between the check and the write: check it as a
+                    // resume.
+                    self.begin_bake(options)
                 }
-                fs::create_dir_all(&self.dir).map_err(io(&self.dir))?;
-                write_atomic(&state, &to_json(options, &state)?)?;
-                Ok(false)
             }
-        }
-    }
-
-    /// [`Store::begin_bake`] of a new remote tileset: the prefix must hold nothing; the options
-    /// record is created only if absent (a conditional create), so two bakes started at once
-    /// into one prefix cannot both begin.
-    fn begin_remote(&self, options: &serde_json::Value) -> Result<bool, StoreError> {
-        let Some(r) = &self.remote else { return Ok(false) };
-        if !r.is_empty()? {
-            return Err(StoreError::NotATileset { path: self.dir.clone() });
-        }
-        let state = self.dir.join(STATE_FILE);
-        if r.put_new(STATE_FILE, &to_json(options, &state)?)? {
-            Ok(false)
-        } else {
-            // Another bake began here between the listing and the write: check it as a resume.
-            self.begin_bake(options)
         }
     }
 
@@ -790,25 +682,17 @@ impl Store {
         rel: &str,
         lens: std::ops::RangeInclusive<u64>,
     ) -> Result<Option<Vec<u8>>, StoreError> {
-        let size = if let Some(a) = &self.archive {
-            a.entry(rel).map_err(|e| self.archive_err(rel, &e))?.map(|e| e.len)
-        } else if let Some(r) = &self.remote {
-            r.size(rel)?
-        } else {
-            let path = self.dir.join(rel);
-            match fs::metadata(&path) {
-                Ok(m) => Some(m.len()),
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
-                Err(e) => return Err(io(&path)(e)),
-            }
-        };
+        let size = self.backend.size(rel)?;
         let wrong = |size: u64| {
             let expected = if lens.start() == lens.end() {
                 format!("{} bytes were expected", lens.start())
             } else {
                 format!("{} to {} bytes were expected", lens.start(), lens.end())
             };
-            StoreError::Invalid { path: self.dir.join(rel), message: format!("is {size} bytes; {expected}") }
+            StoreError::Invalid {
+                path: self.location().join(rel),
+                message: format!("is {size} bytes; {expected}"),
+            }
         };
         match size {
             None => Ok(None),
@@ -828,41 +712,21 @@ impl Store {
 
     /// Removes a folder of the tileset (relative path) and everything in it; nothing when absent.
     pub fn remove_folder(&self, rel: &str) -> Result<(), StoreError> {
-        if let Some(r) = &self.remote {
-            return r.delete_folder(rel);
-        }
-        let path = self.dir.join(rel);
-        match fs::remove_dir_all(&path) {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(io(&path)(e)),
-            _ => Ok(()),
-        }
+        self.backend.remove_folder(rel)
     }
 
     /// Where a relative path of the tileset is, for messages.
     #[must_use]
     pub fn describe(&self, rel: &str) -> String {
-        self.dir.join(rel).display().to_string()
+        self.location().join(rel).display().to_string()
     }
 
     /// [`Store::remove_stale_temps`] in the folders of `keys`' blobs only: what a shard of a
     /// sharded bake cleans on resume (the tileset's other folders belong to other shards, whose
     /// writers may run on other machines where this one's process table says nothing).
     pub fn remove_stale_temps_of(&self, keys: &[TileKey]) -> Result<u64, StoreError> {
-        if self.remote.is_some() || self.archive.is_some() {
-            return Ok(0);
-        }
-        let mut removed = 0u64;
-        for key in keys {
-            let dir = self.dir.join(format!("tiles/{}/{}/{}", key.z, key.x, key.y));
-            for_each_entry(&dir, |path, ty, name| {
-                if ty.is_file() && stale_temp(name) {
-                    fs::remove_file(path).map_err(io(path))?;
-                    removed += 1;
-                }
-                Ok(())
-            })?;
-        }
-        Ok(removed)
+        let folders: Vec<String> = keys.iter().map(|&k| node_rel(k)).collect();
+        self.backend.remove_temps(Sweep::Folders(&folders), false)
     }
 
     /// Checks that the tileset was begun ([`Store::begin_bake`]) with `options`, without
@@ -872,11 +736,11 @@ impl Store {
         if &prev == options {
             Ok(())
         } else {
-            Err(StoreError::OptionsChanged { path: self.dir.clone(), what: diff_keys(&prev, options) })
+            Err(StoreError::OptionsChanged { path: self.dir().to_owned(), what: diff_keys(&prev, options) })
         }
     }
 
-    /// Removes the temporary files of [`write_atomic`] (`.NAME.PID.N.tmp`) that a process which
+    /// Removes the temporary files of an atomic write (`.NAME.PID.N.tmp`) that a process which
     /// no longer runs left in the tileset (killed mid-write). Files of a live process other than
     /// this one are kept (where `/proc` tells; elsewhere all are removed). Walks only the
     /// tileset's own layout (root, `tiles/` and `index/` down to their blob depth). Returns how
@@ -887,29 +751,10 @@ impl Store {
 
     /// [`Store::remove_stale_temps`], or with `every` all temporary files whoever wrote them:
     /// what the final step of a sharded bake does once every shard has finished (a shard killed
-    /// on another machine left them; this machine's process table cannot tell).
+    /// on another machine left them; this machine's process table cannot tell). Object stores
+    /// have no temporary names (a PUT is atomic) and archives are read-only: nothing to remove.
     pub fn remove_temps(&self, every: bool) -> Result<u64, StoreError> {
-        if self.remote.is_some() || self.archive.is_some() {
-            // Object stores have no temporary names: a PUT is atomic.
-            return Ok(0);
-        }
-        let mut removed = 0u64;
-        let mut stack = vec![(self.dir.clone(), 0u32)];
-        while let Some((dir, depth)) = stack.pop() {
-            for_each_entry(&dir, |path, ty, name| {
-                if ty.is_dir() {
-                    let ours = depth > 0 || name == "tiles" || name == "index";
-                    if ours && depth < 5 {
-                        stack.push((path.to_path_buf(), depth + 1));
-                    }
-                } else if ty.is_file() && (stale_temp(name) || (every && temp_owner(name).is_some())) {
-                    fs::remove_file(path).map_err(io(path))?;
-                    removed += 1;
-                }
-                Ok(())
-            })?;
-        }
-        Ok(removed)
+        self.backend.remove_temps(Sweep::Tree { folders: &WRITTEN_FOLDERS, depth: WRITTEN_DEPTH }, every)
     }
 
     /// Marks the bake complete by writing the manifest, last.
@@ -945,14 +790,13 @@ impl Store {
 
     pub fn write_blob(&self, key: TileKey, level: u8, bytes: &[u8]) -> Result<(), StoreError> {
         self.put(&blob_rel(key, level), bytes)?;
-        if self.remote.is_some() {
-            // A fresh remote bake has no markers: ask only when resuming would find one.
-            if self.exists(&unpaid_rel(key, level))? {
-                self.delete(&unpaid_rel(key, level))?;
-            }
-            return Ok(());
+        // A fresh bake has no markers: remove one only when resuming finds it (in a bucket, a
+        // HEAD rather than a DELETE, which is a write).
+        let marker = unpaid_rel(key, level);
+        if self.exists(&marker)? {
+            self.backend.remove(&marker)?;
         }
-        remove_if_present(&self.unpaid_path(key, level))
+        Ok(())
     }
 
     /// The empty marker saying a node's level was baked and did not pay
@@ -960,14 +804,14 @@ impl Store {
     /// left out on purpose from a blob lost since (which it bakes again) by it.
     #[must_use]
     pub fn unpaid_path(&self, key: TileKey, level: u8) -> PathBuf {
-        self.dir.join(unpaid_rel(key, level))
+        self.location().join(&unpaid_rel(key, level))
     }
 
     /// Records that `level` of `key` is not stored (it did not pay): writes the marker and
     /// removes any blob an earlier bake left for it.
     pub fn write_unpaid(&self, key: TileKey, level: u8) -> Result<(), StoreError> {
         self.put(&unpaid_rel(key, level), b"")?;
-        self.delete(&blob_rel(key, level))
+        self.backend.remove(&blob_rel(key, level))
     }
 
     /// True when [`Store::write_unpaid`] marked `level` of `key` as not stored.
@@ -1032,13 +876,6 @@ impl Store {
     }
 }
 
-fn remove_if_present(path: &Path) -> Result<(), StoreError> {
-    match fs::remove_file(path) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(io(path)(e)),
-        _ => Ok(()),
-    }
-}
-
 fn to_json<T: Serialize>(v: &T, path: &Path) -> Result<Vec<u8>, StoreError> {
     let mut out =
         serde_json::to_vec_pretty(v).map_err(|source| StoreError::Json { path: path.to_owned(), source })?;
@@ -1068,115 +905,10 @@ pub fn diff_keys(a: &serde_json::Value, b: &serde_json::Value) -> String {
     }
 }
 
-/// Writes `bytes` to `path` via a temporary file in the same directory, synced, then renamed.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), StoreError> {
-    let dir = path.parent().unwrap_or(Path::new("."));
-    fs::create_dir_all(dir).map_err(io(dir))?;
-    let mut tmp = tempfile_in(dir, path)?;
-    let result = (|| {
-        tmp.1.write_all(bytes)?;
-        tmp.1.sync_data()
-    })();
-    if let Err(e) = result {
-        let _ = fs::remove_file(&tmp.0);
-        return Err(io(path)(e));
-    }
-    drop(tmp.1);
-    fs::rename(&tmp.0, path).map_err(|e| {
-        let _ = fs::remove_file(&tmp.0);
-        io(path)(e)
-    })
-}
-
-/// A clear error for an output path that cannot become a directory: a dangling symbolic link
-/// (which `create_dir_all` reports as "File exists"), a file, or a path under a file.
-fn check_out_dir(dir: &Path) -> Result<(), StoreError> {
-    let invalid = |message: String| StoreError::Invalid { path: dir.to_owned(), message };
-    if let Ok(meta) = fs::symlink_metadata(dir)
-        && meta.file_type().is_symlink()
-        && !dir.exists()
-    {
-        let target = fs::read_link(dir).map_or_else(|_| "?".into(), |t| t.display().to_string());
-        return Err(invalid(format!(
-            "is a symbolic link to {target}, which does not exist; create the target directory or remove the link"
-        )));
-    }
-    if dir.exists() && !dir.is_dir() {
-        return Err(invalid("exists and is not a directory".into()));
-    }
-    let mut up = dir.parent();
-    while let Some(p) = up {
-        if p.as_os_str().is_empty() {
-            break;
-        }
-        if p.exists() {
-            if !p.is_dir() {
-                return Err(invalid(format!("{} is not a directory", p.display())));
-            }
-            break;
-        }
-        up = p.parent();
-    }
-    Ok(())
-}
-
-/// Calls `f` with the path, type and name of every entry of `dir`; a folder that does not exist
-/// has none.
-fn for_each_entry(
-    dir: &Path,
-    mut f: impl FnMut(&Path, fs::FileType, &str) -> Result<(), StoreError>,
-) -> Result<(), StoreError> {
-    let entries = match fs::read_dir(dir) {
-        Ok(e) => e,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
-        Err(e) => return Err(io(dir)(e)),
-    };
-    for entry in entries {
-        let entry = entry.map_err(io(dir))?;
-        let path = entry.path();
-        let ty = entry.file_type().map_err(io(&path))?;
-        f(&path, ty, &entry.file_name().to_string_lossy())?;
-    }
-    Ok(())
-}
-
-/// Whether `name` is a [`write_atomic`] temporary file of this process or of one that no longer
-/// runs (where `/proc` tells; elsewhere every one counts as stale).
-fn stale_temp(name: &str) -> bool {
-    temp_owner(name).is_some_and(|pid| {
-        pid == std::process::id()
-            || !Path::new("/proc/self").exists()
-            || !Path::new(&format!("/proc/{pid}")).exists()
-    })
-}
-
-/// The process id in a [`write_atomic`] temporary file name `.NAME.PID.N.tmp`.
-fn temp_owner(name: &str) -> Option<u32> {
-    let rest = name.strip_prefix('.')?.strip_suffix(".tmp")?;
-    let mut parts = rest.rsplitn(3, '.');
-    let attempt = parts.next()?;
-    let pid = parts.next()?;
-    let target = parts.next()?;
-    let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
-    (digits(attempt) && !target.is_empty()).then_some(())?;
-    digits(pid).then(|| pid.parse().ok())?
-}
-
-fn tempfile_in(dir: &Path, path: &Path) -> Result<(PathBuf, fs::File), StoreError> {
-    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("file");
-    for attempt in 0..100u32 {
-        let tmp = dir.join(format!(".{name}.{}.{attempt}.tmp", std::process::id()));
-        match fs::OpenOptions::new().write(true).create_new(true).open(&tmp) {
-            Ok(f) => return Ok((tmp, f)),
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}
-            Err(e) => return Err(io(&tmp)(e)),
-        }
-    }
-    Err(StoreError::Invalid { path: path.to_owned(), message: "could not create a temporary file".into() })
-}
-
 #[cfg(test)]
 mod tests {
+    use std::fs;
+
     use super::*;
 
     /// Index entries: level ids as written, numbered by position when an older index has none,
@@ -1250,15 +982,6 @@ mod tests {
     }
 
     #[test]
-    fn temp_names_are_recognised() {
-        assert_eq!(temp_owner(".1.tsb.4242.0.tmp"), Some(4242));
-        assert_eq!(temp_owner(".tileset.json.7.12.tmp"), Some(7));
-        for name in ["1.tsb", ".1.tsb.tmp", ".x.4242.tmp", ".x.a.0.tmp", "..1.0.tmp", ".1.tsb.42.0.tmpx"] {
-            assert_eq!(temp_owner(name), None, "{name}");
-        }
-    }
-
-    #[test]
     fn resume_removes_temps_of_dead_writers_only() {
         let dir = tempfile::tempdir().unwrap();
         let store = Store::new(dir.path());
@@ -1301,18 +1024,6 @@ mod tests {
         fs::write(other.join(format!(".{STATE_FILE}.1.0.tmp")), b"x").unwrap(); // pid 1 is alive
         fs::write(other.join("notes.txt"), b"x").unwrap();
         assert!(matches!(Store::new(&other).begin_bake(&opts), Err(StoreError::NotATileset { .. })));
-    }
-
-    #[test]
-    fn atomic_write_replaces_and_leaves_no_temp() {
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("a/b/c.bin");
-        write_atomic(&p, b"one").unwrap();
-        write_atomic(&p, b"two").unwrap();
-        assert_eq!(fs::read(&p).unwrap(), b"two");
-        let names: Vec<_> =
-            fs::read_dir(p.parent().unwrap()).unwrap().map(|e| e.unwrap().file_name()).collect();
-        assert_eq!(names.len(), 1);
     }
 
     #[test]

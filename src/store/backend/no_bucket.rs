@@ -1,24 +1,19 @@
 //! Object storage in a build without the `s3` feature: URLs are refused with a clear error.
 
-use super::StoreError;
+use super::{Backend, Location};
+use crate::store::StoreError;
 
 /// The URL schemes this build opens: none.
 pub const SCHEMES: &[&str] = &[];
-
-/// Whether `location` names object storage (a URL with a scheme other than `file://`).
-#[must_use]
-pub fn is_remote(location: &str) -> bool {
-    location.contains("://") && !location.starts_with("file://")
-}
 
 /// Folder names, and object names with their sizes and last-modified times (Unix ms).
 pub type Listing = (Vec<String>, Vec<(String, u64, i64)>);
 
 /// Never constructed in this build.
 #[derive(Debug, Clone)]
-pub enum Remote {}
+pub enum Bucket {}
 
-impl Remote {
+impl Bucket {
     pub fn open(url: &str) -> Result<Self, StoreError> {
         Err(StoreError::Remote {
             url: url.to_owned(),
@@ -79,17 +74,61 @@ impl Remote {
     }
 }
 
-/// Never constructed in this build.
-pub struct RemoteSource(Remote);
+impl Backend for Bucket {
+    fn location(&self) -> &Location {
+        match *self {}
+    }
+    fn read(&self, _: &str) -> Result<Option<Vec<u8>>, StoreError> {
+        match *self {}
+    }
+    fn size(&self, _: &str) -> Result<Option<u64>, StoreError> {
+        match *self {}
+    }
+    fn exists(&self, _: &str) -> Result<bool, StoreError> {
+        match *self {}
+    }
+    fn list(&self) -> Result<Vec<(String, u64)>, StoreError> {
+        match *self {}
+    }
+    fn write(&self, _: &str, _: &[u8]) -> Result<(), StoreError> {
+        match *self {}
+    }
+    fn remove(&self, _: &str) -> Result<(), StoreError> {
+        match *self {}
+    }
+    fn remove_folder(&self, _: &str) -> Result<(), StoreError> {
+        match *self {}
+    }
+    fn check_writable(&self) -> Result<(), StoreError> {
+        match *self {}
+    }
+    fn create_first(&self, _: &str, _: &[u8]) -> Result<bool, StoreError> {
+        match *self {}
+    }
+    #[cfg(feature = "server")]
+    fn read_async<'a>(
+        &'a self,
+        _: &'a str,
+    ) -> super::BoxFuture<'a, Result<Option<bytes::Bytes>, StoreError>> {
+        match *self {}
+    }
+    #[cfg(feature = "server")]
+    fn exists_async<'a>(&'a self, _: &'a str) -> super::BoxFuture<'a, Result<bool, StoreError>> {
+        match *self {}
+    }
+}
 
-impl RemoteSource {
+/// Never constructed in this build.
+pub struct BucketSource(Bucket);
+
+impl BucketSource {
     #[must_use]
-    pub fn new(r: Remote) -> Self {
+    pub fn new(r: Bucket) -> Self {
         Self(r)
     }
 }
 
-impl super::archive::RangeSource for RemoteSource {
+impl crate::store::archive::RangeSource for BucketSource {
     fn read_range(&self, _: u64, _: u64) -> std::io::Result<Vec<u8>> {
         match self.0 {}
     }

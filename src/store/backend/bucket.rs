@@ -1,8 +1,9 @@
 //! Tilesets in object storage (`s3://BUCKET/PREFIX`; `gs://` and `az://` with the `gcs` and
 //! `azure` features), and packed archives on any web server that answers range requests
-//! (`https://HOST/PATH/NAME.tsa`, read-only), through the `object_store` crate: the few operations a [`super::Store`]
-//! needs — get, put, delete, exists, list — each blocking on a small runtime of this module for
-//! the synchronous bake, and async for the server.
+//! (`https://HOST/PATH/NAME.tsa`, read-only, through [`BucketSource`]), through the
+//! `object_store` crate: the few operations a [`crate::store::Store`] needs — get, put, delete,
+//! exists, list — each blocking on a small runtime of this module for the synchronous bake, and
+//! async for the server.
 //!
 //! Configuration comes from the usual environment variables of each service (for S3:
 //! `AWS_ACCESS_KEY_ID`, `AWS_SECRET_ACCESS_KEY`, `AWS_SESSION_TOKEN`, `AWS_REGION` or
@@ -21,7 +22,8 @@ use futures_util::StreamExt;
 use object_store::path::Path as ObjPath;
 use object_store::{ObjectStore, ObjectStoreExt, PutMode, PutOptions, PutPayload};
 
-use super::StoreError;
+use super::{Backend, Location};
+use crate::store::StoreError;
 
 /// How long one request may take before it is abandoned (and retried).
 pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(30);
@@ -39,12 +41,6 @@ pub const SCHEMES: &[&str] = &[
     #[cfg(feature = "azure")]
     "az://",
 ];
-
-/// Whether `location` names object storage (a URL with a scheme other than `file://`).
-#[must_use]
-pub fn is_remote(location: &str) -> bool {
-    location.contains("://") && !location.starts_with("file://")
-}
 
 /// Backoff from 100 ms doubling to 5 s, [`MAX_RETRIES`] retries within [`RETRY_TIMEOUT`].
 /// `TERRASTREAM_S3_RETRIES` and `TERRASTREAM_S3_TIMEOUT_S` override the retries and the
@@ -111,37 +107,39 @@ where
 /// Folder names, and object names with their sizes and last-modified times (Unix ms).
 pub type Listing = (Vec<String>, Vec<(String, u64, i64)>);
 
-/// An archive in a bucket, read by range GETs (each retried like any request).
-pub struct RemoteSource(Remote);
+/// An archive in a bucket or on a web server, read by range GETs (each retried like any
+/// request).
+pub struct BucketSource(Bucket);
 
-impl RemoteSource {
+impl BucketSource {
     #[must_use]
-    pub fn new(r: Remote) -> Self {
+    pub fn new(r: Bucket) -> Self {
         Self(r)
     }
 }
 
-impl super::archive::RangeSource for RemoteSource {
+impl crate::store::archive::RangeSource for BucketSource {
     fn read_range(&self, start: u64, len: u64) -> std::io::Result<Vec<u8>> {
         let r = &self.0;
         match block(r.get_range_async("", start..start + len)) {
             Ok(Some(b)) => Ok(b.to_vec()),
-            Ok(None) => Err(std::io::Error::new(std::io::ErrorKind::NotFound, format!("{}: gone", r.url))),
+            Ok(None) => Err(std::io::Error::new(std::io::ErrorKind::NotFound, format!("{}: gone", r.url()))),
             Err(e) => Err(std::io::Error::other(e.to_string())),
         }
     }
 }
 
-/// A tileset's location in object storage.
+/// A tileset's location in object storage (or, for [`BucketSource`], one object on a web
+/// server).
 #[derive(Debug, Clone)]
-pub struct Remote {
+pub struct Bucket {
     /// The URL as given, without a trailing slash (for messages and display).
-    url: String,
+    location: Location,
     store: Arc<dyn ObjectStore>,
     prefix: ObjPath,
 }
 
-impl Remote {
+impl Bucket {
     /// Opens `url` (`s3://BUCKET/PREFIX`, …) with the environment's configuration. Nothing is
     /// requested until the first operation.
     pub fn open(url: &str) -> Result<Self, StoreError> {
@@ -184,11 +182,11 @@ impl Remote {
             ),
             // A plain web server or CDN: one packed archive, read by HEAD and range GETs.
             "http" | "https" => {
-                if !parsed.path().ends_with(super::ARCHIVE_SUFFIX) {
+                if !parsed.path().ends_with(crate::store::ARCHIVE_SUFFIX) {
                     return Err(bad(format!(
                         "an {}:// URL can only name a packed archive (NAME{}), read by range requests: a web server cannot list or write a folder (use s3:// for a bucket)",
                         parsed.scheme(),
-                        super::ARCHIVE_SUFFIX
+                        crate::store::ARCHIVE_SUFFIX
                     )));
                 }
                 let mut origin = parsed.clone();
@@ -211,12 +209,13 @@ impl Remote {
                 )));
             }
         };
-        Ok(Self { url, store, prefix })
+        Ok(Self { location: Location::Url(url), store, prefix })
     }
 
+    /// The URL, without a trailing slash.
     #[must_use]
     pub fn url(&self) -> &str {
-        &self.url
+        self.location.as_url().unwrap_or_default()
     }
 
     fn key(&self, rel: &str) -> ObjPath {
@@ -228,7 +227,7 @@ impl Remote {
     }
 
     fn err(&self, rel: &str, e: &object_store::Error) -> StoreError {
-        StoreError::Remote { url: format!("{}/{rel}", self.url), message: e.to_string() }
+        StoreError::Remote { url: format!("{}/{rel}", self.url()), message: e.to_string() }
     }
 
     /// The object's bytes; `Ok(None)` when it does not exist.
@@ -332,13 +331,13 @@ impl Remote {
         ))
     }
 
-    /// [`Remote::list_top_async`], blocking: folder names, and objects with their sizes and
+    /// [`Bucket::list_top_async`], blocking: folder names, and objects with their sizes and
     /// last-modified times (Unix ms).
     pub fn list_top(&self) -> Result<Listing, StoreError> {
         block(self.list_top_async())
     }
 
-    /// [`Remote::stamp_async`], blocking.
+    /// [`Bucket::stamp_async`], blocking.
     pub fn stamp(&self, rel: &str) -> Result<Option<(u64, i64)>, StoreError> {
         block(self.stamp_async(rel))
     }
@@ -346,7 +345,11 @@ impl Remote {
     /// The tileset under `name` (a sub-prefix or object below this one), for the server's store.
     #[must_use]
     pub fn child(&self, name: &str) -> Self {
-        Self { url: format!("{}/{name}", self.url), store: self.store.clone(), prefix: self.key(name) }
+        Self {
+            location: Location::Url(format!("{}/{name}", self.url())),
+            store: self.store.clone(),
+            prefix: self.key(name),
+        }
     }
 
     /// Uploads the local file `path` as the object `rel` (a multipart upload in parts of 16 MiB,
@@ -409,5 +412,66 @@ impl Remote {
             self.delete(&name)?;
         }
         Ok(())
+    }
+}
+
+impl Backend for Bucket {
+    fn location(&self) -> &Location {
+        &self.location
+    }
+
+    fn read(&self, rel: &str) -> Result<Option<Vec<u8>>, StoreError> {
+        self.get(rel)
+    }
+
+    fn size(&self, rel: &str) -> Result<Option<u64>, StoreError> {
+        Bucket::size(self, rel)
+    }
+
+    fn exists(&self, rel: &str) -> Result<bool, StoreError> {
+        Bucket::exists(self, rel)
+    }
+
+    fn list(&self) -> Result<Vec<(String, u64)>, StoreError> {
+        Bucket::list(self, "")
+    }
+
+    fn write(&self, rel: &str, bytes: &[u8]) -> Result<(), StoreError> {
+        self.put(rel, bytes)
+    }
+
+    fn remove(&self, rel: &str) -> Result<(), StoreError> {
+        self.delete(rel)
+    }
+
+    fn remove_folder(&self, rel: &str) -> Result<(), StoreError> {
+        self.delete_folder(rel)
+    }
+
+    /// Nothing to check before the first request: a prefix is any string.
+    fn check_writable(&self) -> Result<(), StoreError> {
+        Ok(())
+    }
+
+    /// The prefix must hold nothing; `rel` is created only if absent (a conditional create), so
+    /// two bakes started at once into one prefix cannot both begin.
+    fn create_first(&self, rel: &str, bytes: &[u8]) -> Result<bool, StoreError> {
+        if !self.is_empty()? {
+            return Err(StoreError::NotATileset { path: self.location.as_path().to_owned() });
+        }
+        self.put_new(rel, bytes)
+    }
+
+    #[cfg(feature = "server")]
+    fn read_async<'a>(
+        &'a self,
+        rel: &'a str,
+    ) -> super::BoxFuture<'a, Result<Option<bytes::Bytes>, StoreError>> {
+        Box::pin(self.get_async(rel))
+    }
+
+    #[cfg(feature = "server")]
+    fn exists_async<'a>(&'a self, rel: &'a str) -> super::BoxFuture<'a, Result<bool, StoreError>> {
+        Box::pin(Bucket::exists_async(self, rel))
     }
 }
