@@ -207,38 +207,13 @@ pub fn serve(mut cmd: Command) -> Served {
 /// A response: status, headers (lower-case names), body.
 pub type Got = (u16, Vec<(String, String)>, Vec<u8>);
 
-/// One GET on its own connection: status, headers (lower-case names) and body; `None` when the
-/// connection fails.
+/// One GET on its own connection, through the library's HTTP client (the one the reference
+/// client streams with): status, headers (lower-case names) and body; `None` when the connection
+/// or the response fails.
 pub fn http_get(addr: std::net::SocketAddr, path: &str) -> Option<Got> {
-    use std::io::{Read, Write};
-    let mut s = std::net::TcpStream::connect(addr).ok()?;
-    s.set_read_timeout(Some(Duration::from_mins(1))).ok()?;
-    write!(s, "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n").ok()?;
-    let mut raw = Vec::new();
-    s.read_to_end(&mut raw).ok()?;
-    let end = raw.windows(4).position(|w| w == b"\r\n\r\n")?;
-    let head = String::from_utf8_lossy(&raw[..end]).into_owned();
-    let mut lines = head.split("\r\n");
-    let status = lines.next()?.split(' ').nth(1)?.parse().ok()?;
-    let headers: Vec<(String, String)> = lines
-        .filter_map(|l| l.split_once(':'))
-        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_owned()))
-        .collect();
-    let mut body = raw[end + 4..].to_vec();
-    if headers.iter().any(|(k, v)| k == "transfer-encoding" && v.contains("chunked")) {
-        let mut out = Vec::new();
-        let mut b = body.as_slice();
-        while let Some(eol) = b.windows(2).position(|w| w == b"\r\n") {
-            let size = usize::from_str_radix(std::str::from_utf8(&b[..eol]).ok()?.trim(), 16).ok()?;
-            if size == 0 {
-                break;
-            }
-            out.extend_from_slice(b.get(eol + 2..eol + 2 + size)?);
-            b = b.get(eol + 2 + size + 2..)?;
-        }
-        body = out;
-    }
-    Some((status, headers, body))
+    let r =
+        terrastream::client::stream::http::get(addr, &addr.to_string(), path, Duration::from_mins(1)).ok()?;
+    Some((r.status, r.headers, r.body))
 }
 
 /// The URLs of every resource of tileset `name` whose files are `files` (paths relative to the
