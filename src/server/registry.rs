@@ -127,7 +127,7 @@ fn load_provisional(name: &str, dir: &Path, source: Arc<Source>, options: &serde
     let manifest = Manifest {
         format: crate::store::MANIFEST_FORMAT.into(),
         version: crate::store::MANIFEST_VERSION,
-        content_version: format!("s{:08x}", crc32fast::hash(&options_text)),
+        content_version: format!("s{:016x}", xxhash_rust::xxh3::xxh3_64(&options_text)),
         source: crate::store::SourceInfo {
             file: options["source"]["file"].as_str().unwrap_or_default().to_owned(),
             format: raster.format.clone(),

@@ -366,15 +366,25 @@ pub struct Manifest {
     pub point_baker: String,
 }
 
-/// A tileset's content version: the CRC-32 of every blob's checksum, in node order and level
-/// order within a node, as 8 hex digits. It changes whenever any blob's content does.
+/// A tileset's content version: the 64-bit XXH3 of every stored level's record — level id,
+/// payload CRC-32, stored bytes, vertex/point and triangle counts, measured errors — in node order
+/// and level order within a node, as 16 hex digits. Clients cache `?v=` URLs for a year, so the
+/// version is 64 bits wide (a 32-bit one has even odds of two versions colliding by ~77,000);
+/// a blob whose bytes change changes its checksum, length or figures, and so the version.
 #[must_use]
 pub fn content_version<'a>(levels: impl IntoIterator<Item = &'a NodeLevel>) -> String {
-    let mut hasher = crc32fast::Hasher::new();
+    let mut hasher = xxhash_rust::xxh3::Xxh3Default::new();
     for l in levels {
+        hasher.update(&[l.level]);
         hasher.update(&l.checksum.to_le_bytes());
+        hasher.update(&l.bytes.to_le_bytes());
+        hasher.update(&l.count.to_le_bytes());
+        hasher.update(&l.triangles.to_le_bytes());
+        for e in [l.errors.max, l.errors.rms, l.errors.gap] {
+            hasher.update(&e.to_bits().to_le_bytes());
+        }
     }
-    format!("{:08x}", hasher.finalize())
+    format!("{:016x}", hasher.digest())
 }
 
 /// The index chunk root holding `key`.
@@ -910,6 +920,43 @@ mod tests {
     use std::fs;
 
     use super::*;
+
+    /// The content version is 64 bits (16 hex digits) and moves with every figure of every
+    /// level it covers, and with their order.
+    #[test]
+    fn content_version_is_64_bits_and_covers_every_level_figure() {
+        let base = NodeLevel {
+            level: 1,
+            errors: crate::geom::Errors { max: 1.0, rms: 0.5, gap: 0.25 },
+            count: 100,
+            triangles: 0,
+            bytes: 400,
+            checksum: 0xdead_beef,
+        };
+        let other = NodeLevel { level: 0, count: 7, ..base };
+        let v = content_version([&base, &other]);
+        assert_eq!(v.len(), 16);
+        assert!(v.bytes().all(|b| b.is_ascii_hexdigit()));
+        assert_eq!(v, content_version([&base, &other]), "deterministic");
+        assert_ne!(v, content_version([&other, &base]), "order");
+        let changed: [fn(&mut NodeLevel); 7] = [
+            |l| l.level = 2,
+            |l| l.errors.max = 1.5,
+            |l| l.errors.rms = 0.75,
+            |l| l.errors.gap = 0.5,
+            |l| l.count = 101,
+            |l| l.bytes = 401,
+            |l| l.checksum ^= 1,
+        ];
+        for (i, change) in changed.iter().enumerate() {
+            let mut l = base;
+            change(&mut l);
+            assert_ne!(v, content_version([&l, &other]), "figure {i} left the version unchanged");
+        }
+        let mut l = base;
+        l.triangles = 3;
+        assert_ne!(v, content_version([&l, &other]));
+    }
 
     /// Index entries: level ids as written, numbered by position when an older index has none,
     /// and refused (naming the node) when mixed, out of order or without the mesh.
