@@ -51,6 +51,7 @@ fn setup() -> State {
         heights: Heightfield { width: w, height: h, data: terrastream::raster::synth::terrain(w, h, 7) },
         georef: Georef { dx: 10.0, dy: -10.0, ..Georef::default() },
         nodata_filled: 0,
+        nodata_fallback: 0,
         format: "synthetic".into(),
     };
     let opts = BakeOptions { tile_size: 32, max_error: 2.0, levels: 2 };
