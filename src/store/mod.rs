@@ -33,7 +33,7 @@ pub use backend::{Backend, Location, is_remote};
 
 use serde::{Deserialize, Serialize};
 
-use crate::geom::{Bounds, Errors};
+use crate::geom::{Bounds, ErrorFigures};
 use crate::raster::Georef;
 use crate::tiling::TileKey;
 
@@ -133,7 +133,7 @@ pub struct NodeLevel {
     /// recorded lists every level in order, and reading it numbers them by position.
     #[serde(default = "unnumbered")]
     pub level: u8,
-    pub errors: Errors,
+    pub errors: ErrorFigures,
     /// Vertices (mesh) or points.
     pub count: u32,
     /// Triangles (mesh only, 0 for points).
@@ -272,7 +272,7 @@ pub struct LevelTotals {
     pub count: u64,
     pub triangles: u64,
     pub bytes: u64,
-    pub worst: Errors,
+    pub worst: ErrorFigures,
 }
 
 /// The per-level table `bake` and `inspect` print: one header line and one line per level

@@ -8,7 +8,7 @@ use serde_json::{Value, json};
 use super::glb::{GENERATOR, glb, mesh_skirt_depth};
 use super::placement::{Anchor, Placement};
 use crate::codec::{Blob, Kind};
-use crate::geom::{Bounds, Errors};
+use crate::geom::{Bounds, ErrorFigures};
 use crate::store::{IndexChunk, LevelSpec, Manifest, NodeEntry, NodeLevel, SUBTREE_LEVELS, TilesetKind};
 use crate::tiling::{Pyramid, TileKey};
 
@@ -118,7 +118,7 @@ impl TilesetInfo {
             bounds: self.planned_bounds(key),
             levels: vec![NodeLevel {
                 level: 0,
-                errors: Errors { max: bound, rms: 0.0, gap: 0.0 },
+                errors: ErrorFigures { max: bound, rms: 0.0, gap: 0.0 },
                 count: 0,
                 triangles: 0,
                 bytes: 0,
