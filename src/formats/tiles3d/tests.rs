@@ -17,9 +17,15 @@ fn anchors_parse_and_are_range_checked() {
         Anchor { lon: -70.5, lat: -33.4, height: 520.0 }
     );
     for bad in ["200,0", "0,95", "a,b", "1", "1,2,3,4", "0,0,1e300", "NaN,0", "inf,0", ""] {
-        let e = Anchor::parse(bad).unwrap_err();
+        let e = Anchor::parse(bad).unwrap_err().to_string();
         assert!(e.contains("anchor"), "{bad}: {e}");
     }
+    let e = |s: &str| Anchor::parse(s).unwrap_err().to_string();
+    assert_eq!(e("1"), r#"anchor "1": expected LON,LAT or LON,LAT,HEIGHT"#);
+    assert_eq!(e("a,0"), r#"anchor "a,0": longitude "a" is not a number"#);
+    assert_eq!(e("0,95"), r#"anchor "0,95": latitude 95 is not within -90..90 degrees"#);
+    assert_eq!(e("200,0"), r#"anchor "200,0": longitude 200 is not within -180..180 degrees"#);
+    assert_eq!(e("0,0,2e7"), r#"anchor "0,0,2e7": height 20000000 is not within ±1e7 m"#);
 }
 
 #[test]

@@ -6,6 +6,7 @@ use serde::Deserialize;
 use serde_json::{Value, json};
 
 use super::glb::{GENERATOR, glb, mesh_skirt_depth};
+use super::Tiles3dError;
 use super::placement::{Anchor, Placement};
 use crate::codec::{Blob, Kind};
 use crate::geom::{Bounds, ErrorFigures};
@@ -62,14 +63,13 @@ impl TilesetInfo {
         bytes: &[u8],
         anchor: Option<Anchor>,
         query: String,
-    ) -> Result<Self, String> {
-        let v: Value = serde_json::from_slice(bytes).map_err(|e| format!("manifest: {e}"))?;
+    ) -> Result<Self, Tiles3dError> {
+        let v: Value = serde_json::from_slice(bytes).map_err(Tiles3dError::Manifest)?;
         let kind = match v.get("kind") {
             None => TilesetKind::Terrain,
-            Some(k) => TilesetKind::deserialize(k)
-                .map_err(|_| format!("manifest: `kind` is {k}, not terrain or model"))?,
+            Some(k) => TilesetKind::deserialize(k).map_err(|_| Tiles3dError::ManifestKind(k.clone()))?,
         };
-        let manifest = Manifest::deserialize(&v).map_err(|e| format!("manifest: {e}"))?;
+        let manifest = Manifest::deserialize(&v).map_err(Tiles3dError::Manifest)?;
         let place = Placement::of(&manifest, kind, anchor);
         let mut info = Self::new(name, kind, manifest, place, query);
         info.provisional = v.get("on_demand") == Some(&Value::Bool(true));
