@@ -69,8 +69,15 @@ fn codec(c: &mut Criterion) {
     let mut g = c.benchmark_group("codec");
     g.bench_function(format!("encode mesh ({} vertices)", nm.mesh.positions.len()), |b| {
         b.iter(|| {
-            codec::encode_mesh(key, 0, &nm.bounds, nm.quantization, black_box(&nm.mesh), ErrorFigures::default())
-                .expect("mesh")
+            codec::encode_mesh(
+                key,
+                0,
+                &nm.bounds,
+                nm.quantization,
+                black_box(&nm.mesh),
+                ErrorFigures::default(),
+            )
+            .expect("mesh")
         });
     });
     g.bench_function(format!("decode mesh ({} bytes)", mesh_blob.len()), |b| {

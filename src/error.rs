@@ -76,10 +76,7 @@ mod tests {
     #[test]
     fn every_stage_converts_and_keeps_its_message() {
         let p = || PathBuf::from("/x/y");
-        assert!(matches!(
-            kept(RasterError::ZeroSize { path: p(), width: 0, height: 3 }),
-            Error::Raster(_)
-        ));
+        assert!(matches!(kept(RasterError::ZeroSize { path: p(), width: 0, height: 3 }), Error::Raster(_)));
         assert!(matches!(kept(TilingError::BadTileSize(0)), Error::Tiling(_)));
         assert!(matches!(kept(TinError::BadMaxError(-1.0)), Error::Tin(_)));
         assert!(matches!(kept(CodecError::BadMagic(*b"XXXX")), Error::Codec(_)));

@@ -6,6 +6,7 @@
 //! included, resolved to the deepest module file that exists. A child naming its own ancestor
 //! (`super::Item` of the parent's `mod.rs`) is Rust's ordinary module nesting, not an import
 //! between modules, and is not counted.
+#![allow(clippy::unwrap_used, clippy::items_after_statements)]
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -179,7 +180,9 @@ fn no_module_imports_one_above_it_in_the_pipeline() {
         }
         for to in tos {
             match layer_of(&to[0]) {
-                Some(lt) if lt > lf => wrong.push(format!("{} imports {} (a later stage)", name(&from), name(&to))),
+                Some(lt) if lt > lf => {
+                    wrong.push(format!("{} imports {} (a later stage)", name(&from), name(&to)));
+                }
                 None => wrong.push(format!("{} is in no layer of docs/architecture.md", name(&to))),
                 _ => {}
             }
@@ -249,7 +252,8 @@ fn no_import_circles() {
         next: 0,
         circles: Vec::new(),
     };
-    let nodes: BTreeSet<Module> = edges.iter().flat_map(|(k, v)| std::iter::once(k.clone()).chain(v.iter().cloned())).collect();
+    let nodes: BTreeSet<Module> =
+        edges.iter().flat_map(|(k, v)| std::iter::once(k.clone()).chain(v.iter().cloned())).collect();
     for v in &nodes {
         if !t.index.contains_key(v) {
             t.visit(v);
@@ -268,7 +272,8 @@ fn the_reader_finds_grouped_and_relative_paths() {
         "use crate::{codec, store::{Store, SUBTREE_LEVELS}};\n// crate::eval::x in a comment\nuse super::super::tiling::TileKey;\nlet a = super::cache::Entry;",
     );
     let got: BTreeSet<String> = refs.iter().map(|p| p.join("::")).collect();
-    for want in ["codec", "store::Store", "store::SUBTREE_LEVELS", "tiling::TileKey", "server::cache::Entry"] {
+    for want in ["codec", "store::Store", "store::SUBTREE_LEVELS", "tiling::TileKey", "server::cache::Entry"]
+    {
         assert!(got.contains(want), "{want} not found in {got:?}");
     }
     assert!(!got.iter().any(|p| p.starts_with("eval")), "a comment was read: {got:?}");

@@ -8,9 +8,7 @@
 use std::io;
 
 use crate::formats::interchange::{self, Format};
-use crate::formats::tiles3d::{
-    Anchor, AnchorRangeError, Tiles3dError, TilesetInfo, chunk_tileset, tile_glb,
-};
+use crate::formats::tiles3d::{Anchor, AnchorRangeError, Tiles3dError, TilesetInfo, chunk_tileset, tile_glb};
 
 /// Errors of the export driver.
 #[derive(Debug, thiserror::Error)]

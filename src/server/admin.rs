@@ -333,7 +333,7 @@ async fn supervise(app: Arc<App>, job: Arc<Job>, work: Work) {
     let spawned = std::thread::Builder::new().name(format!("job-{}", job.id)).spawn(move || {
         let r =
             std::panic::catch_unwind(AssertUnwindSafe(|| bake_to_staging(&work, &job2.id, &baker, &job2)))
-                .unwrap_or_else(|_| Err(JobError::Panicked));
+                .unwrap_or(Err(JobError::Panicked));
         let _ = std::fs::remove_file(&work.upload);
         // Nobody listening (the job was ended without us): discard what was baked.
         if let Err(Ok(staging)) = tx.send(r) {
@@ -354,7 +354,7 @@ async fn supervise(app: Arc<App>, job: Arc<Job>, work: Work) {
         }
     };
     let outcome = tokio::select! {
-        r = rx => Some(r.unwrap_or_else(|_| Err(JobError::ThreadLost))),
+        r = rx => Some(r.unwrap_or(Err(JobError::ThreadLost))),
         state = stopped_late => {
             let why = if state == FAILED { job.timeout_message() } else { format!("job {} was cancelled", job.id) };
             tracing::error!(job = %job.id, "bake job did not stop within {JOB_STOP_GRACE_S} s; ended without it");

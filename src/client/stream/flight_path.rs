@@ -136,7 +136,12 @@ impl Flight {
                 return Err(FlightError::TimeNotFinite { i, t: k.t });
             }
             if i > 0 && k.t <= self.keys[i - 1].t {
-                return Err(FlightError::TimeNotAfter { i, t: k.t, before: i - 1, before_t: self.keys[i - 1].t });
+                return Err(FlightError::TimeNotAfter {
+                    i,
+                    t: k.t,
+                    before: i - 1,
+                    before_t: self.keys[i - 1].t,
+                });
             }
             for (field, value) in [("eye", k.eye), ("target", k.target), ("up", k.up)] {
                 if !DVec3::from_array(value).is_finite() {
@@ -181,7 +186,10 @@ impl Flight {
             return Ok(self.clone());
         }
         if !bounds.is_valid() {
-            return Err(FlightError::InvalidBounds { min: bounds.min.to_array(), max: bounds.max.to_array() });
+            return Err(FlightError::InvalidBounds {
+                min: bounds.min.to_array(),
+                max: bounds.max.to_array(),
+            });
         }
         let size = bounds.size();
         let extent = size[0].max(size[1]);

@@ -5,8 +5,8 @@
 use serde::Deserialize;
 use serde_json::{Value, json};
 
-use super::glb::{GENERATOR, glb, mesh_skirt_depth};
 use super::Tiles3dError;
+use super::glb::{GENERATOR, glb, mesh_skirt_depth};
 use super::placement::{Anchor, Placement};
 use crate::codec::{Blob, Kind};
 use crate::geom::{Bounds, ErrorFigures};
