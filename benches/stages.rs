@@ -28,7 +28,7 @@ use terrastream::client::select::{AllResident, DEFAULT_FOV_DEG, DistanceRule, Se
 use terrastream::client::stream::flight_path::Pose;
 use terrastream::client::tree::{Synthetic, TileTree};
 use terrastream::codec;
-use terrastream::geom::Errors;
+use terrastream::geom::ErrorFigures;
 use terrastream::lod::cpu;
 use terrastream::raster::{Georef, synth};
 use terrastream::tiling::{Pyramid, TileKey};
@@ -69,8 +69,15 @@ fn codec(c: &mut Criterion) {
     let mut g = c.benchmark_group("codec");
     g.bench_function(format!("encode mesh ({} vertices)", nm.mesh.positions.len()), |b| {
         b.iter(|| {
-            codec::encode_mesh(key, 0, &nm.bounds, nm.quantization, black_box(&nm.mesh), Errors::default())
-                .expect("mesh")
+            codec::encode_mesh(
+                key,
+                0,
+                &nm.bounds,
+                nm.quantization,
+                black_box(&nm.mesh),
+                ErrorFigures::default(),
+            )
+            .expect("mesh")
         });
     });
     g.bench_function(format!("decode mesh ({} bytes)", mesh_blob.len()), |b| {

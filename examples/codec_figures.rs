@@ -23,12 +23,12 @@ mod testdata;
 use terrastream::codec::{
     Geometry, PREFIX_LEN, Quantization, decode, decode_header, encode_mesh, encode_points, oct_encode,
 };
-use terrastream::geom::{Bounds, Errors};
+use terrastream::geom::{Bounds, ErrorFigures};
 use terrastream::tiling::TileKey;
 use testdata::{bunny, fuji, greedy_tin, quantized_mesh_gzip, synthetic, tin_surface, voxel_points};
 
 const KEY: TileKey = TileKey::new(3, 5, 6);
-const ERRORS: Errors = Errors { max: 1.5, rms: 0.25, gap: 0.0 };
+const ERRORS: ErrorFigures = ErrorFigures { max: 1.5, rms: 0.25, gap: 0.0 };
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();

@@ -342,8 +342,11 @@ fn a_scan_record_opens_the_same_dataset_without_scanning_and_only_while_it_stand
 
     let not_taken =
         |record: &terrastream::raster::dataset::ScanRecord, fallback: Option<&[u8]>, want: &str| {
-            let why =
-                Dataset::open_scanned(&paths, &opts, record, fallback, &|_, _, _| {}).unwrap().err().unwrap();
+            let why = Dataset::open_scanned(&paths, &opts, record, fallback, &|_, _, _| {})
+                .unwrap()
+                .err()
+                .unwrap()
+                .to_string();
             assert!(why.contains(want), "{why}");
         };
     let mut damaged = fallback.clone();

@@ -90,7 +90,7 @@ fn geotiff_far_corner_overflow_is_a_georef_error() {
 #[test]
 fn decoded_positions_stay_inside_the_header_bounds() {
     use terrastream::codec::{self, Geometry, Quantization};
-    use terrastream::geom::{Bounds, Errors, Mesh};
+    use terrastream::geom::{Bounds, ErrorFigures, Mesh};
     use terrastream::tiling::TileKey;
 
     let bounds = Bounds::new([0.0; 3], [1.0; 3]);
@@ -99,7 +99,7 @@ fn decoded_positions_stay_inside_the_header_bounds() {
         positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.5], [0.0, 1.0, 1.0]],
         triangles: vec![[0, 1, 2]],
     };
-    let errors = Errors { max: 0.0, rms: 0.0, gap: 0.0 };
+    let errors = ErrorFigures { max: 0.0, rms: 0.0, gap: 0.0 };
     let blob = codec::encode_mesh(TileKey { z: 0, x: 0, y: 0 }, 0, &bounds, q, &mesh, errors).unwrap();
     // The header states the bounds grown to the rounded-up position (1.2), and every decoded
     // position lies inside what it states.

@@ -5,7 +5,7 @@
 use arbitrary::Arbitrary;
 use libfuzzer_sys::fuzz_target;
 use terrastream::codec::{self, Geometry, Quantization};
-use terrastream::geom::{Bounds, Errors, Mesh, PointCloud};
+use terrastream::geom::{Bounds, ErrorFigures, Mesh, PointCloud};
 use terrastream::tiling::TileKey;
 use terrastream_fuzz::{canonical_mesh, canonical_points, check_in_bounds};
 
@@ -73,7 +73,7 @@ fuzz_target!(|inp: Input| {
         })
         .collect();
     let key = TileKey { z: inp.key.0, x: inp.key.1, y: inp.key.2 };
-    let errors = Errors {
+    let errors = ErrorFigures {
         max: f64::from(inp.errors[0]) / 16.0,
         rms: f64::from(inp.errors[1]) / 16.0,
         gap: f64::from(inp.errors[2]) / 16.0,

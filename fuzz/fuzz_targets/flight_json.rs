@@ -3,7 +3,7 @@
 //! duration and around it, keep validating after `to_world`, and survive `to_json`.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use terrastream::client::stream::flight::{Flight, Pose};
+use terrastream::client::stream::flight_path::{Flight, Pose};
 use terrastream::geom::Bounds;
 
 fn check_pose(p: &Pose, t: f64) {

@@ -8,7 +8,7 @@
 use std::io;
 
 use crate::formats::interchange::{self, Format};
-use crate::formats::tiles3d::{Anchor, TilesetInfo, chunk_tileset, tile_glb};
+use crate::formats::tiles3d::{Anchor, AnchorRangeError, Tiles3dError, TilesetInfo, chunk_tileset, tile_glb};
 
 /// Errors of the export driver.
 #[derive(Debug, thiserror::Error)]
@@ -22,6 +22,12 @@ pub enum ExportError {
     /// The output file of a single-tile export exists and overwriting was not asked for.
     #[error("{path}: exists; choose another --out or pass --force to overwrite it")]
     Exists { path: std::path::PathBuf },
+    /// The placement record holds an anchor out of range.
+    #[error("{path}: anchor: {source}")]
+    Anchor { path: std::path::PathBuf, source: AnchorRangeError },
+    /// The manifest cannot be read as the 3D Tiles view needs it.
+    #[error("{path}: {source}")]
+    Tiles3d { path: std::path::PathBuf, source: Tiles3dError },
 }
 
 /// Decodes one (tile, level) of a tileset and writes it to `out` (atomically) in `format`. An
@@ -80,15 +86,12 @@ pub fn write_anchor(store: &crate::store::Store, anchor: Anchor) -> Result<(), c
 
 /// The tileset's recorded anchor; `Ok(None)` when it has none. A record that cannot be read or
 /// holds an anchor out of range is an error naming the file.
-pub fn read_anchor(store: &crate::store::Store) -> Result<Option<Anchor>, crate::store::StoreError> {
+pub fn read_anchor(store: &crate::store::Store) -> Result<Option<Anchor>, ExportError> {
     let path = store.dir().join(PLACEMENT_FILE);
     let Some(bytes) = store.read_file(PLACEMENT_FILE)? else { return Ok(None) };
     let r: PlacementRecord = serde_json::from_slice(&bytes)
         .map_err(|source| crate::store::StoreError::Json { path: path.clone(), source })?;
-    r.anchor.check().map_err(|message| crate::store::StoreError::Invalid {
-        path,
-        message: format!("anchor: {message}"),
-    })?;
+    r.anchor.check().map_err(|source| ExportError::Anchor { path, source })?;
     Ok(Some(r.anchor))
 }
 
@@ -99,7 +102,7 @@ pub fn tiles3d_info(
     name: &str,
     anchor: Option<Anchor>,
     query: String,
-) -> Result<TilesetInfo, crate::store::StoreError> {
+) -> Result<TilesetInfo, ExportError> {
     // Checks the format and version; the kind and a model's levels come from the raw JSON.
     store.manifest()?;
     let path = store.manifest_path();
@@ -111,7 +114,7 @@ pub fn tiles3d_info(
         None => read_anchor(store)?,
     };
     TilesetInfo::from_manifest_json(name, &bytes, anchor, query)
-        .map_err(|message| crate::store::StoreError::Invalid { path, message })
+        .map_err(|source| ExportError::Tiles3d { path, source })
 }
 
 /// What `export --format 3dtiles` wrote.

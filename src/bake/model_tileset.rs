@@ -52,7 +52,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::codec::{self, Quantization};
-use crate::geom::{Bounds, Errors, Mesh};
+use crate::geom::{Bounds, ErrorFigures, Mesh};
 use crate::lod;
 use crate::lod::PointBaker;
 use crate::model::{self, FileType, MeshError, Model, ModelStats};
@@ -462,7 +462,7 @@ pub fn read_manifest(store: &Store) -> Result<ModelManifest, ModelBakeError> {
 }
 
 /// Max and RMS distance between corresponding positions; gap 0.
-fn displacement(a: &[[f64; 3]], b: &[[f64; 3]]) -> Errors {
+fn displacement(a: &[[f64; 3]], b: &[[f64; 3]]) -> ErrorFigures {
     let mut max = 0.0f64;
     let mut sum = 0.0;
     for (p, q) in a.iter().zip(b) {
@@ -470,7 +470,7 @@ fn displacement(a: &[[f64; 3]], b: &[[f64; 3]]) -> Errors {
         max = max.max(d2);
         sum += d2;
     }
-    Errors { max: max.sqrt(), rms: (sum / a.len().max(1) as f64).sqrt(), gap: 0.0 }
+    ErrorFigures { max: max.sqrt(), rms: (sum / a.len().max(1) as f64).sqrt(), gap: 0.0 }
 }
 
 #[cfg(test)]
@@ -510,7 +510,7 @@ mod tests {
         assert_eq!(s.levels.len(), 4);
         assert_eq!((s.levels[0].count, s.levels[0].triangles), (4, 4));
         // Unit coordinates sit on the quantization grid exactly.
-        assert_eq!(s.levels[0].errors, Errors::default());
+        assert_eq!(s.levels[0].errors, ErrorFigures::default());
         for w in s.levels[1..].windows(2) {
             assert!(w[1].count < w[0].count, "{:?}", s.levels);
         }
@@ -551,7 +551,7 @@ mod tests {
     fn levels_pay_only_when_cheaper_in_primitives_and_bytes() {
         let l = |count: u32, bytes: u64| NodeLevel {
             level: 0,
-            errors: Errors::default(),
+            errors: ErrorFigures::default(),
             count,
             triangles: 0,
             bytes,

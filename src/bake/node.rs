@@ -5,7 +5,7 @@
 //! node, so both write the same bytes.
 
 use crate::codec::{self, Quantization};
-use crate::geom::{Bounds, Errors, Mesh, PointCloud};
+use crate::geom::{Bounds, ErrorFigures, Mesh, PointCloud};
 use crate::lod::{self, PointBaker};
 use crate::raster::{Georef, LoadedRaster, WindowReader};
 use crate::store::{self, NodeEntry, NodeLevel, Store, StoreError};
@@ -71,7 +71,7 @@ pub struct NodeMesh {
     pub key: TileKey,
     pub bounds: Bounds,
     pub mesh: Mesh,
-    pub mesh_errors: Errors,
+    pub mesh_errors: ErrorFigures,
     pub quantization: Quantization,
     /// Edge of the node's level-1 cell (doubling per level).
     pub level1_cell: f64,
@@ -88,7 +88,7 @@ impl NodeMesh {
 
     /// Quantizes a baked cloud of `level` as its blob stores it and measures its errors.
     #[must_use]
-    pub fn finish_level(&self, level: u8, pc: PointCloud) -> (PointCloud, Errors, Quantization) {
+    pub fn finish_level(&self, level: u8, pc: PointCloud) -> (PointCloud, ErrorFigures, Quantization) {
         let (pc, q) = self.quantize_level(level, pc);
         let errors = self.measure_level(level, &pc);
         (pc, errors, q)
@@ -112,7 +112,7 @@ impl NodeMesh {
 
     /// The errors of a quantized cloud of `level` against this node's mesh.
     #[must_use]
-    pub fn measure_level(&self, level: u8, pc: &PointCloud) -> Errors {
+    pub fn measure_level(&self, level: u8, pc: &PointCloud) -> ErrorFigures {
         let (_, cell) = self.level_grid(level);
         lod::cpu::measure_points(&self.mesh, pc, cell, lod::TERRAIN_FOOTPRINT_HALF)
     }

@@ -193,7 +193,7 @@ pub fn tiles_bar(quiet: bool, time_limit: Option<f64>) -> Bar {
     Bar::stderr(TILES_TEMPLATE, quiet, time_limit)
 }
 
-pub fn parse_anchor(s: &str) -> Result<Anchor, String> {
+pub fn parse_anchor(s: &str) -> Result<Anchor, terrastream::formats::tiles3d::AnchorError> {
     Anchor::parse(s)
 }
 

@@ -24,8 +24,13 @@ use std::path::PathBuf;
 /// Errors of the client's pure parts; each names the input and the problem.
 #[derive(Debug, thiserror::Error)]
 pub enum ClientError {
-    #[error("{path}: {message}")]
-    Flight { path: PathBuf, message: String },
+    #[error("{path}: {source}")]
+    Flight { path: PathBuf, source: stream::flight_path::FlightError },
+    /// A flight that cannot be placed on the tileset being replayed.
+    #[error("camera: {0}")]
+    FlightFrame(#[source] stream::flight_path::FlightError),
+    #[error("client: {0}")]
+    Url(#[from] stream::http::UrlError),
     #[error("camera: {0}")]
     Camera(String),
     #[error("tile tree: {0}")]

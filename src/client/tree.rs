@@ -9,7 +9,7 @@
 use std::collections::HashMap;
 
 use crate::client::ClientError;
-use crate::geom::{Bounds, Errors};
+use crate::geom::{Bounds, ErrorFigures};
 use crate::store::{self, IndexChunk, Manifest, NodeEntry, NodeLevel, Store};
 use crate::tiling::{Pyramid, TileKey};
 
@@ -348,7 +348,7 @@ impl TileTree {
         self.index.get(&key).copied()
     }
 
-    /// The node's geometric error per level id (world units; `Errors::geometric`);
+    /// The node's geometric error per level id (world units; `ErrorFigures::geometric`);
     /// `f64::INFINITY` for a level it does not store.
     #[must_use]
     pub fn level_errors(&self, id: NodeId) -> &[f64] {
@@ -484,7 +484,7 @@ pub fn entry(key: TileKey, bounds: Bounds, errors: &[f64]) -> NodeEntry {
             .enumerate()
             .map(|(l, &e)| NodeLevel {
                 level: l as u8,
-                errors: Errors { max: e, rms: e, gap: 0.0 },
+                errors: ErrorFigures { max: e, rms: e, gap: 0.0 },
                 count: 0,
                 triangles: 0,
                 bytes: 0,

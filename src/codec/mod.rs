@@ -20,7 +20,7 @@
 //! | 80 | 8 | `z_step: f64` | quantization step of z |
 //! | 88 | 4 | `vertex_count: u32` | mesh vertices, or points |
 //! | 92 | 4 | `triangle_count: u32` | mesh triangles; 0 for points |
-//! | 96 | 24 | `errors: [f64; 3]` | measured `max`, `rms`, `gap` ([`Errors`]) |
+//! | 96 | 24 | `errors: [f64; 3]` | measured `max`, `rms`, `gap` ([`ErrorFigures`]) |
 //! | 120 | 4 | `raw_len: u32` | total size of the payload's streams once decompressed |
 //! | 124 | 4 | `payload_len: u32` | payload size as stored |
 //! | 128 | 4 | `checksum: u32` | CRC-32 (IEEE, `crc32fast`) of the stored payload |
@@ -122,7 +122,7 @@ mod stream;
 #[cfg(test)]
 mod testdata;
 
-use crate::geom::{Bounds, Errors, Mesh, PointCloud};
+use crate::geom::{Bounds, ErrorFigures, Mesh, PointCloud};
 use crate::tiling::TileKey;
 
 pub use points::{oct_decode, oct_encode, quantize_normals};
@@ -197,7 +197,7 @@ pub struct BlobHeader {
     pub vertex_count: u32,
     /// Mesh triangles; 0 for points.
     pub triangle_count: u32,
-    pub errors: Errors,
+    pub errors: ErrorFigures,
     /// Total size of the payload's streams once decompressed.
     pub raw_len: u32,
     /// Payload size as stored.
@@ -275,7 +275,7 @@ pub enum CodecError {
     #[error("blob: normal {index} {normal:?} is not a finite non-zero vector")]
     BadNormal { index: usize, normal: [f32; 3] },
     #[error("blob: errors {0:?} must be finite and non-negative")]
-    InvalidErrors(Errors),
+    InvalidErrors(ErrorFigures),
     #[error("blob: {count} {what} exceed the limit of {max}")]
     TooLarge { what: &'static str, count: usize, max: usize },
     #[error("blob: zstd compression failed")]
@@ -446,7 +446,7 @@ fn bincode_config() -> impl bincode::config::Config {
     bincode::config::standard().with_little_endian().with_fixed_int_encoding().with_limit::<256>()
 }
 
-fn check_errors(e: Errors) -> Result<(), CodecError> {
+fn check_errors(e: ErrorFigures) -> Result<(), CodecError> {
     let ok = |v: f64| v.is_finite() && v >= 0.0;
     if ok(e.max) && ok(e.rms) && ok(e.gap) { Ok(()) } else { Err(CodecError::InvalidErrors(e)) }
 }
@@ -469,7 +469,7 @@ fn assemble(
     quant: Quantization,
     vertex_count: u32,
     triangle_count: u32,
-    errors: Errors,
+    errors: ErrorFigures,
     packed: &stream::Packed,
 ) -> Result<Vec<u8>, CodecError> {
     let too_large =
@@ -515,7 +515,7 @@ pub fn encode_mesh(
     bounds: &Bounds,
     q: Quantization,
     mesh: &Mesh,
-    errors: Errors,
+    errors: ErrorFigures,
 ) -> Result<Vec<u8>, CodecError> {
     QuantGrid::new(bounds, q)?;
     let bounds = &quantized_bounds(bounds, &mesh.positions, q);
@@ -535,7 +535,7 @@ pub fn encode_points(
     bounds: &Bounds,
     q: Quantization,
     points: &PointCloud,
-    errors: Errors,
+    errors: ErrorFigures,
 ) -> Result<Vec<u8>, CodecError> {
     QuantGrid::new(bounds, q)?;
     check_errors(errors)?;
@@ -588,7 +588,7 @@ impl PointsDraft {
 
     /// The blob with `errors` in its header. Errors: errors that are not finite and
     /// non-negative, a payload over the size limit.
-    pub fn finish(&self, errors: Errors) -> Result<Vec<u8>, CodecError> {
+    pub fn finish(&self, errors: ErrorFigures) -> Result<Vec<u8>, CodecError> {
         check_errors(errors)?;
         assemble(
             Kind::Points,

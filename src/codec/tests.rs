@@ -11,7 +11,7 @@ use super::testdata::{
 use super::*;
 
 const KEY: TileKey = TileKey::new(3, 5, 6);
-const ERRORS: Errors = Errors { max: 1.5, rms: 0.25, gap: 0.0 };
+const ERRORS: ErrorFigures = ErrorFigures { max: 1.5, rms: 0.25, gap: 0.0 };
 
 fn tin_blob() -> (Mesh, Bounds, Quantization, Vec<u8>) {
     let hf = synthetic(49, 49, 30.0);
@@ -29,7 +29,7 @@ fn points_blob() -> (PointCloud, Bounds, Quantization, Vec<u8>) {
     let pc = voxel_points(&hf, None, 60.0, false);
     let b = Bounds::new([0.0, 0.0, 0.0], [1500.0, 1500.0, 2000.0]);
     let q = Quantization { xy_step: 60.0 / 64.0, z_step: 60.0 / 64.0 };
-    let blob = encode_points(KEY, 2, &b, q, &pc, Errors { max: 3.0, rms: 1.0, gap: 40.0 }).unwrap();
+    let blob = encode_points(KEY, 2, &b, q, &pc, ErrorFigures { max: 3.0, rms: 1.0, gap: 40.0 }).unwrap();
     (pc, b, q, blob)
 }
 
@@ -165,26 +165,26 @@ fn points_draft_length_is_known_before_the_errors() {
     let (pc, b, q, _) = points_blob();
     let draft = draft_points(KEY, 2, &b, q, &pc).unwrap();
     for e in [
-        Errors::default(),
-        Errors { max: 3.0, rms: 1.0, gap: 40.0 },
-        Errors { max: 1e300, rms: 0.5, gap: 7.25 },
+        ErrorFigures::default(),
+        ErrorFigures { max: 3.0, rms: 1.0, gap: 40.0 },
+        ErrorFigures { max: 1e300, rms: 0.5, gap: 7.25 },
     ] {
         let blob = draft.finish(e).unwrap();
         assert_eq!(blob.len(), draft.len());
         assert_eq!(blob, encode_points(KEY, 2, &b, q, &pc, e).unwrap());
         assert_eq!(decode_header(&blob).unwrap().errors, e);
     }
-    assert!(draft.finish(Errors { max: f64::NAN, rms: 0.0, gap: 0.0 }).is_err());
-    assert!(draft.finish(Errors { max: 1.0, rms: -1.0, gap: 0.0 }).is_err());
+    assert!(draft.finish(ErrorFigures { max: f64::NAN, rms: 0.0, gap: 0.0 }).is_err());
+    assert!(draft.finish(ErrorFigures { max: 1.0, rms: -1.0, gap: 0.0 }).is_err());
 }
 
 #[test]
 fn empty_geometry_is_allowed() {
     let b = Bounds::new([0.0; 3], [10.0; 3]);
     let q = Quantization { xy_step: 1.0, z_step: 1.0 };
-    let blob = encode_mesh(KEY, 0, &b, q, &Mesh::default(), Errors::default()).unwrap();
+    let blob = encode_mesh(KEY, 0, &b, q, &Mesh::default(), ErrorFigures::default()).unwrap();
     assert_eq!(decode(&blob).unwrap().geometry, Geometry::Mesh(Mesh::default()));
-    let blob = encode_points(KEY, 1, &b, q, &PointCloud::default(), Errors::default()).unwrap();
+    let blob = encode_points(KEY, 1, &b, q, &PointCloud::default(), ErrorFigures::default()).unwrap();
     assert_eq!(decode(&blob).unwrap().geometry, Geometry::Points(PointCloud::default()));
 }
 
@@ -196,7 +196,7 @@ fn quantization_is_exact() {
     let positions: Vec<[f64; 3]> =
         (0..500).map(|_| std::array::from_fn(|a| b.min[a] + rng.unit() * (b.max[a] - b.min[a]))).collect();
     let pc = PointCloud { positions: positions.clone(), normals: vec![[0.0, 0.0, 1.0]; 500] };
-    let blob = encode_points(KEY, 1, &b, q, &pc, Errors::default()).unwrap();
+    let blob = encode_points(KEY, 1, &b, q, &pc, ErrorFigures::default()).unwrap();
     let Geometry::Points(back) = decode(&blob).unwrap().geometry else { panic!("kind") };
     assert_eq!(
         canonical_positions(&back.positions),
@@ -212,7 +212,7 @@ fn invalid_inputs_are_named() {
     let m = Mesh { positions: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], triangles: vec![[0, 1, 2]] };
     let b = Bounds::new([0.0; 3], [10.0; 3]);
     let q = Quantization { xy_step: 1.0, z_step: 1.0 };
-    let enc = |b: &Bounds, q: Quantization, m: &Mesh, e: Errors| encode_mesh(KEY, 0, b, q, m, e);
+    let enc = |b: &Bounds, q: Quantization, m: &Mesh, e: ErrorFigures| encode_mesh(KEY, 0, b, q, m, e);
     assert!(matches!(enc(&Bounds::empty(), q, &m, ERRORS), Err(CodecError::InvalidBounds { .. })));
     let flipped = Bounds::new([1.0; 3], [0.0; 3]);
     assert!(matches!(enc(&flipped, q, &m, ERRORS), Err(CodecError::InvalidBounds { .. })));
@@ -222,7 +222,7 @@ fn invalid_inputs_are_named() {
     }
     let r = enc(&b, Quantization { xy_step: 1e-12, z_step: 1.0 }, &m, ERRORS);
     assert!(matches!(r, Err(CodecError::QuantizationRange { axis: 0, .. })));
-    let r = enc(&b, q, &m, Errors { max: f64::NAN, ..ERRORS });
+    let r = enc(&b, q, &m, ErrorFigures { max: f64::NAN, ..ERRORS });
     assert!(matches!(r, Err(CodecError::InvalidErrors(_))));
     let mut m2 = m.clone();
     m2.triangles.push([0, 1, 3]);

@@ -12,7 +12,7 @@ use serde::Serialize;
 use crate::client::ClientError;
 use crate::client::camera::Camera;
 use crate::client::select::{AllResident, SelectParams, Selector};
-use crate::client::stream::flight_path::Flight;
+use crate::client::stream::flight_path::{Flight, FlightError};
 use crate::client::tree::{LevelCost, TileTree};
 use crate::geom::Bounds;
 use crate::tiling::TileKey;
@@ -122,9 +122,9 @@ pub fn flight_cost(
     threshold_px: f64,
     fps: f64,
 ) -> Result<FlightCost, ClientError> {
-    let bad = |message: String| ClientError::Flight { path: flight_path.into(), message };
+    let bad = |source: FlightError| ClientError::Flight { path: flight_path.into(), source };
     if !(fps.is_finite() && fps > 0.0) {
-        return Err(bad(format!("flight replay: fps {fps} must be positive")));
+        return Err(bad(FlightError::Fps(fps)));
     }
     let world = flight.to_world(bounds).map_err(bad)?;
     let duration = world.duration();

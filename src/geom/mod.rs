@@ -78,7 +78,7 @@ pub struct PointCloud {
     pub normals: Vec<[f32; 3]>,
 }
 
-/// Errors measured for one (tile, level), in world units.
+/// Error figures measured for one (tile, level), in world units (a value, not an error type).
 ///
 /// For a mesh: `max`/`rms` are the vertical deviation from the full-resolution raster and `gap`
 /// is 0. For points: `max`/`rms` are the distances from the points to the surface they were
@@ -86,13 +86,13 @@ pub struct PointCloud {
 #[derive(
     Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize, bincode::Encode, bincode::Decode,
 )]
-pub struct Errors {
+pub struct ErrorFigures {
     pub max: f64,
     pub rms: f64,
     pub gap: f64,
 }
 
-impl Errors {
+impl ErrorFigures {
     /// The single geometric error a client uses for screen-space error: the worse of the
     /// deviation and the gap.
     #[must_use]

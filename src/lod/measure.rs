@@ -9,7 +9,7 @@ use glam::DVec3;
 
 // FxHash: cell keys come from geometry, not from a network, so SipHash's resistance to
 // adversarial keys is not needed, and it costs several times the rest of a lookup.
-use crate::geom::{Bounds, Errors, Mesh, PointCloud};
+use crate::geom::{Bounds, ErrorFigures, Mesh, PointCloud};
 use rustc_hash::FxHashMap as FastMap;
 
 /// Cap on the grid cells all triangle bounding boxes may cover together, as a multiple of the
@@ -450,10 +450,10 @@ fn cell_edges(h: f64, column: Option<f64>) -> V3 {
 /// whole surface is a hole). An invalid `cell` (not finite and positive) falls back to
 /// 1/256 of that diagonal. Cost grows with the surface area / cell² (the gap samples).
 #[must_use]
-pub fn measure_points(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_half: f64) -> Errors {
+pub fn measure_points(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_half: f64) -> ErrorFigures {
     let tris = valid_triangles(mesh);
     if tris.is_empty() {
-        return Errors::default();
+        return ErrorFigures::default();
     }
     let mut bounds = Bounds::empty();
     for (t, _) in &tris {
@@ -465,7 +465,7 @@ pub fn measure_points(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_hal
     let pts: Vec<V3> =
         points.positions.iter().map(|&p| DVec3::from_array(p)).filter(|p| p.is_finite()).collect();
     if pts.is_empty() {
-        return Errors { max: 0.0, rms: 0.0, gap: diag };
+        return ErrorFigures { max: 0.0, rms: 0.0, gap: diag };
     }
 
     let base = if cell.is_finite() && cell > 0.0 {
@@ -621,7 +621,7 @@ pub fn measure_points(mesh: &Mesh, points: &PointCloud, cell: f64, footprint_hal
     }
     let gap2 = state.0;
 
-    Errors { max: max2.sqrt(), rms: (sum2 / pts.len() as f64).sqrt(), gap: gap2.sqrt() }
+    ErrorFigures { max: max2.sqrt(), rms: (sum2 / pts.len() as f64).sqrt(), gap: gap2.sqrt() }
 }
 
 #[cfg(test)]
@@ -671,7 +671,7 @@ mod tests {
 
     /// Errors by brute force: every query against every triangle, every gap sample against
     /// every point.
-    fn brute(mesh: &Mesh, pc: &PointCloud, cell: f64, half: f64) -> Errors {
+    fn brute(mesh: &Mesh, pc: &PointCloud, cell: f64, half: f64) -> ErrorFigures {
         let tris = valid_triangles(mesh);
         let near = |q: V3| tris.iter().map(|(t, _)| point_triangle_dist2(q, t)).fold(f64::INFINITY, f64::min);
         let (mut max2, mut sum2) = (0.0f64, 0.0f64);
@@ -698,7 +698,7 @@ mod tests {
         for (t, owned) in &tris {
             sample_triangle(t, *owned, cell / 4.0, &mut sample);
         }
-        Errors { max: max2.sqrt(), rms: (sum2 / pts.len() as f64).sqrt(), gap: gap2.sqrt() }
+        ErrorFigures { max: max2.sqrt(), rms: (sum2 / pts.len() as f64).sqrt(), gap: gap2.sqrt() }
     }
 
     #[test]

@@ -137,6 +137,25 @@ pub struct FileStamp {
     pub modified_ns: u64,
 }
 
+/// Why a [`ScanRecord`] cannot stand for the files being opened ([`Dataset::open_scanned`]): the
+/// caller scans them instead.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ScanMismatch {
+    #[error("point clouds are gridded on every open")]
+    PointClouds,
+    #[error(
+        "{} has changed since the scan (length {} bytes, modified {} ns; recorded {} bytes, {} ns)",
+        .now.path.display(), .now.len, .now.modified_ns, .recorded.len, .recorded.modified_ns
+    )]
+    FileChanged { now: FileStamp, recorded: FileStamp },
+    #[error("{files} input files; the scan recorded {recorded}")]
+    FileCount { files: usize, recorded: usize },
+    #[error("the dataset is {width}x{height} samples; the scan recorded {recorded_width}x{recorded_height}")]
+    Size { width: u32, height: u32, recorded_width: u32, recorded_height: u32 },
+    #[error("the recorded fallback grid is missing or does not match the dataset")]
+    Fallback,
+}
+
 /// The shape of a recorded fallback grid (block columns and rows) and its bytes' CRC-32.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct FallbackRecord {
@@ -654,34 +673,25 @@ impl Dataset {
         record: &ScanRecord,
         fallback: Option<&[u8]>,
         progress: &(dyn Fn(&str, u64, u64) + Sync),
-    ) -> Result<Result<Self, String>, RasterError> {
+    ) -> Result<Result<Self, ScanMismatch>, RasterError> {
         if paths.iter().any(|p| format_of(p).is_ok_and(|(_, f)| f == Format::Las)) {
-            return Ok(Err("point clouds are gridded on every open".into()));
+            return Ok(Err(ScanMismatch::PointClouds));
         }
         let mut ds = Self::open_unscanned(paths, opts, progress)?;
         let stamps = ds.stamps()?;
         if let Some((now, then)) = stamps.iter().zip(&record.files).find(|(a, b)| a != b) {
-            return Ok(Err(format!(
-                "{} has changed since the scan (length {} bytes, modified {} ns; recorded {} bytes, {} ns)",
-                now.path.display(),
-                now.len,
-                now.modified_ns,
-                then.len,
-                then.modified_ns
-            )));
+            return Ok(Err(ScanMismatch::FileChanged { now: now.clone(), recorded: then.clone() }));
         }
         if stamps.len() != record.files.len() {
-            return Ok(Err(format!(
-                "{} input files; the scan recorded {}",
-                stamps.len(),
-                record.files.len()
-            )));
+            return Ok(Err(ScanMismatch::FileCount { files: stamps.len(), recorded: record.files.len() }));
         }
         if (ds.width, ds.height) != (record.width, record.height) {
-            return Ok(Err(format!(
-                "the dataset is {}x{} samples; the scan recorded {}x{}",
-                ds.width, ds.height, record.width, record.height
-            )));
+            return Ok(Err(ScanMismatch::Size {
+                width: ds.width,
+                height: ds.height,
+                recorded_width: record.width,
+                recorded_height: record.height,
+            }));
         }
         let (bc, br) = (ds.width.div_ceil(BLOCK), ds.height.div_ceil(BLOCK));
         match (&record.fallback, fallback) {
@@ -696,7 +706,7 @@ impl Dataset {
                 ds.fallback = Some(Fallback { grid, cols: bc as usize, rows: br as usize });
             }
             _ => {
-                return Ok(Err("the recorded fallback grid is missing or does not match the dataset".into()));
+                return Ok(Err(ScanMismatch::Fallback));
             }
         }
         ds.summary.nodata_filled = record.nodata_filled;

@@ -287,6 +287,22 @@ pub async fn upload(
     Ok(r)
 }
 
+/// Why a bake job's thread gave no tileset; its text is the job's `error`.
+#[derive(Debug, thiserror::Error)]
+enum JobError {
+    /// Cancelled or past `--job-timeout` before the bake began: the reason.
+    #[error("{0}")]
+    Stopped(String),
+    #[error(transparent)]
+    Load(#[from] crate::raster::RasterError),
+    #[error(transparent)]
+    Bake(#[from] crate::bake::BakeError),
+    #[error("the bake panicked")]
+    Panicked,
+    #[error("the bake thread ended without a result")]
+    ThreadLost,
+}
+
 /// What a job bakes.
 struct Work {
     root: PathBuf,
@@ -312,12 +328,12 @@ async fn supervise(app: Arc<App>, job: Arc<Job>, work: Work) {
         return;
     };
     job.set_running();
-    let (tx, rx) = tokio::sync::oneshot::channel::<Result<PathBuf, String>>();
+    let (tx, rx) = tokio::sync::oneshot::channel::<Result<PathBuf, JobError>>();
     let (job2, baker, upload) = (job.clone(), app.baker.clone(), work.upload.clone());
     let spawned = std::thread::Builder::new().name(format!("job-{}", job.id)).spawn(move || {
         let r =
             std::panic::catch_unwind(AssertUnwindSafe(|| bake_to_staging(&work, &job2.id, &baker, &job2)))
-                .unwrap_or_else(|_| Err("the bake panicked".to_owned()));
+                .unwrap_or(Err(JobError::Panicked));
         let _ = std::fs::remove_file(&work.upload);
         // Nobody listening (the job was ended without us): discard what was baked.
         if let Err(Ok(staging)) = tx.send(r) {
@@ -338,7 +354,7 @@ async fn supervise(app: Arc<App>, job: Arc<Job>, work: Work) {
         }
     };
     let outcome = tokio::select! {
-        r = rx => Some(r.unwrap_or_else(|_| Err("the bake thread ended without a result".to_owned()))),
+        r = rx => Some(r.unwrap_or(Err(JobError::ThreadLost))),
         state = stopped_late => {
             let why = if state == FAILED { job.timeout_message() } else { format!("job {} was cancelled", job.id) };
             tracing::error!(job = %job.id, "bake job did not stop within {JOB_STOP_GRACE_S} s; ended without it");
@@ -355,7 +371,7 @@ async fn supervise(app: Arc<App>, job: Arc<Job>, work: Work) {
 
 /// The end of a job whose bake thread returned: publish the staged tileset if the job still
 /// may (not cancelled, not past its deadline), else discard it.
-fn conclude(app: &App, job: &Job, r: Result<PathBuf, String>) {
+fn conclude(app: &App, job: &Job, r: Result<PathBuf, JobError>) {
     let stop = job.cancelled();
     match r {
         Ok(staging) => {
@@ -415,7 +431,7 @@ fn conclude(app: &App, job: &Job, r: Result<PathBuf, String>) {
             } else {
                 tracing::info!(job = %job.id, "running bake job cancelled");
             }
-            job.finish(state, Some(e));
+            job.finish(state, Some(e.to_string()));
         }
     }
 }
@@ -445,23 +461,21 @@ async fn stream_to(path: &FsPath, body: Body, limit: u64) -> Result<(), Option<P
 
 /// Loads the upload and bakes it into the job's staging directory `.job-{id}`; returns that
 /// directory, complete. A failed or stopped bake removes it.
-fn bake_to_staging(work: &Work, id: &str, baker: &PointBaker, job: &Job) -> Result<PathBuf, String> {
+fn bake_to_staging(work: &Work, id: &str, baker: &PointBaker, job: &Job) -> Result<PathBuf, JobError> {
     let load = LoadOptions {
         encoding: work.encoding,
         overrides: Overrides { cell_size: work.cell_size, ..Overrides::default() },
         ..LoadOptions::default()
     };
     if let Some(why) = job.cancelled() {
-        return Err(why);
+        return Err(JobError::Stopped(why));
     }
-    let raster = crate::raster::load(&work.upload, &load).map_err(|e| e.to_string())?;
+    let raster = crate::raster::load(&work.upload, &load)?;
     let staging: PathBuf = work.root.join(format!(".job-{id}"));
-    let r = crate::bake::bake_terrain(&raster, &work.name, &work.opts, baker, &Store::new(&staging), job)
-        .map(|_| ())
-        .map_err(|e| e.to_string());
+    let r = crate::bake::bake_terrain(&raster, &work.name, &work.opts, baker, &Store::new(&staging), job);
     if let Err(e) = r {
         let _ = std::fs::remove_dir_all(&staging);
-        return Err(e);
+        return Err(e.into());
     }
     Ok(staging)
 }

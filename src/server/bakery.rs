@@ -21,7 +21,22 @@ use crate::lod::PointBaker;
 use crate::tiling::TileKey;
 
 /// `None` while baking; then the bake's outcome.
-pub type Outcome = Option<Result<(), String>>;
+pub type Outcome = Option<Result<(), BakeFailure>>;
+
+/// Why an on-demand bake of a node gave no blobs. Cloned to every request waiting for the bake
+/// (so the bake's own error is shared behind an `Arc`).
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum BakeFailure {
+    #[error(transparent)]
+    Bake(Arc<crate::bake::BakeError>),
+    #[error("the bake panicked")]
+    Panicked,
+    #[error("tileset has no source raster")]
+    NoSource,
+    /// The node's bake failed less than [`FAILED_BAKE_RETRY_S`] ago; it is not tried again yet.
+    #[error("{0} (not retried until {FAILED_BAKE_RETRY_S} s after the failure)")]
+    Recent(#[source] Box<BakeFailure>),
+}
 
 /// Seconds a client is asked to wait when the queue is full.
 pub const QUEUE_FULL_RETRY_AFTER_S: u32 = 2;
@@ -41,7 +56,7 @@ struct Job {
 
 type Flights = Mutex<HashMap<(String, TileKey), watch::Receiver<Outcome>>>;
 /// Recent failed bakes by node: when, and the error.
-type Failures = Mutex<HashMap<(String, TileKey), (Instant, String)>>;
+type Failures = Mutex<HashMap<(String, TileKey), (Instant, BakeFailure)>>;
 
 pub struct Bakery {
     tx: Mutex<Option<SyncSender<Job>>>,
@@ -131,19 +146,19 @@ impl Bakery {
 
 impl Bakery {
     /// The error of a bake of `key` that failed less than `FAILED_BAKE_RETRY_S` ago.
-    fn recent_failure(&self, tileset: &str, key: TileKey) -> Option<String> {
+    fn recent_failure(&self, tileset: &str, key: TileKey) -> Option<BakeFailure> {
         let mut f = self.failures.lock().ok()?;
         let k = (tileset.to_owned(), key);
         let (at, e) = f.get(&k)?;
         if at.elapsed() < Duration::from_secs(FAILED_BAKE_RETRY_S) {
-            return Some(format!("{e} (not retried until {FAILED_BAKE_RETRY_S} s after the failure)"));
+            return Some(BakeFailure::Recent(Box::new(e.clone())));
         }
         f.remove(&k);
         None
     }
 }
 
-fn remember_failure(failures: &Failures, tileset: &str, key: TileKey, error: &str) {
+fn remember_failure(failures: &Failures, tileset: &str, key: TileKey, error: &BakeFailure) {
     let Ok(mut f) = failures.lock() else { return };
     if f.len() >= MAX_FAILURES {
         let horizon = Duration::from_secs(FAILED_BAKE_RETRY_S);
@@ -154,7 +169,7 @@ fn remember_failure(failures: &Failures, tileset: &str, key: TileKey, error: &st
             f.remove(&oldest);
         }
     }
-    f.insert((tileset.to_owned(), key), (Instant::now(), error.to_owned()));
+    f.insert((tileset.to_owned(), key), (Instant::now(), error.clone()));
 }
 
 fn worker(
@@ -179,9 +194,9 @@ fn worker(
             Some(src) => std::panic::catch_unwind(AssertUnwindSafe(|| {
                 crate::bake::bake_node(&src.raster, key, &src.opts, baker, &ts.store)
             }))
-            .map_err(|_| "the bake panicked".to_owned())
-            .and_then(|r| r.map(|_| ()).map_err(|e| e.to_string())),
-            None => Err("tileset has no source raster".to_owned()),
+            .map_err(|_| BakeFailure::Panicked)
+            .and_then(|r| r.map(|_| ()).map_err(|e| BakeFailure::Bake(Arc::new(e)))),
+            None => Err(BakeFailure::NoSource),
         };
         metrics.bakes_running.fetch_sub(1, Ordering::Relaxed);
         match &result {

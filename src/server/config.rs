@@ -75,35 +75,55 @@ pub struct SourceSpec {
     pub levels: Option<u8>,
 }
 
+/// Why a `--source` value cannot be read; each names the value (`spec`) as given.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SourceSpecError {
+    #[error("expected NAME=RASTER, got {spec:?}")]
+    NoName { spec: String },
+    #[error("tileset name {name:?} must match [a-z0-9_-]{{1,64}}")]
+    BadName { name: String },
+    #[error("no raster path in {spec:?}")]
+    NoRaster { spec: String },
+    #[error("expected key=value, got {option:?} in {spec:?}")]
+    NotKeyValue { option: String, spec: String },
+    /// `what` is "number" or "integer".
+    #[error("{key}={value:?} in {spec:?} is not a valid {what}")]
+    BadValue { key: String, value: String, spec: String, what: &'static str },
+    #[error("unknown source option {key:?} in {spec:?} (encoding, cell_size, tile_size, max_error, levels)")]
+    UnknownOption { key: String, spec: String },
+}
+
 impl std::str::FromStr for SourceSpec {
-    type Err = String;
+    type Err = SourceSpecError;
     /// `NAME=RASTER[,key=value…]` with keys encoding, cell_size, tile_size, max_error, levels.
-    fn from_str(s: &str) -> Result<Self, String> {
-        let (name, rest) = s.split_once('=').ok_or_else(|| format!("expected NAME=RASTER, got {s:?}"))?;
+    fn from_str(s: &str) -> Result<Self, SourceSpecError> {
+        let (name, rest) = s.split_once('=').ok_or_else(|| SourceSpecError::NoName { spec: s.to_owned() })?;
         if !super::valid_name(name) {
-            return Err(format!("tileset name {name:?} must match [a-z0-9_-]{{1,64}}"));
+            return Err(SourceSpecError::BadName { name: name.to_owned() });
         }
         let mut parts = rest.split(',');
         let raster = parts.next().unwrap_or_default();
         if raster.is_empty() {
-            return Err(format!("no raster path in {s:?}"));
+            return Err(SourceSpecError::NoRaster { spec: s.to_owned() });
         }
         let mut spec = Self { name: name.to_owned(), raster: PathBuf::from(raster), ..Self::default() };
         for kv in parts {
-            let (k, v) =
-                kv.split_once('=').ok_or_else(|| format!("expected key=value, got {kv:?} in {s:?}"))?;
-            let num = |what: &str| format!("{k}={v:?} in {s:?} is not a valid {what}");
+            let (k, v) = kv
+                .split_once('=')
+                .ok_or_else(|| SourceSpecError::NotKeyValue { option: kv.to_owned(), spec: s.to_owned() })?;
+            let num = |what: &'static str| SourceSpecError::BadValue {
+                key: k.to_owned(),
+                value: v.to_owned(),
+                spec: s.to_owned(),
+                what,
+            };
             match k {
                 "encoding" => spec.encoding = Some(v.to_owned()),
                 "cell_size" => spec.cell_size = Some(v.parse().map_err(|_| num("number"))?),
                 "tile_size" => spec.tile_size = Some(v.parse().map_err(|_| num("integer"))?),
                 "max_error" => spec.max_error = Some(v.parse().map_err(|_| num("number"))?),
                 "levels" => spec.levels = Some(v.parse().map_err(|_| num("integer"))?),
-                _ => {
-                    return Err(format!(
-                        "unknown source option {k:?} in {s:?} (encoding, cell_size, tile_size, max_error, levels)"
-                    ));
-                }
+                _ => return Err(SourceSpecError::UnknownOption { key: k.to_owned(), spec: s.to_owned() }),
             }
         }
         Ok(spec)
@@ -405,6 +425,21 @@ mod tests {
                 .unwrap_err()
                 .to_string();
         assert!(e.contains("--idle-timeout"), "{e}");
+    }
+
+    #[test]
+    fn source_spec_errors_say_what_is_wrong() {
+        let e = |s: &str| s.parse::<SourceSpec>().unwrap_err().to_string();
+        assert_eq!(e("x"), r#"expected NAME=RASTER, got "x""#);
+        assert_eq!(e("Bad=x"), r#"tileset name "Bad" must match [a-z0-9_-]{1,64}"#);
+        assert_eq!(e("a="), r#"no raster path in "a=""#);
+        assert_eq!(e("a=/r,foo"), r#"expected key=value, got "foo" in "a=/r,foo""#);
+        assert_eq!(e("a=/r,levels=x"), r#"levels="x" in "a=/r,levels=x" is not a valid integer"#);
+        assert_eq!(e("a=/r,cell_size=x"), r#"cell_size="x" in "a=/r,cell_size=x" is not a valid number"#);
+        assert_eq!(
+            e("a=/r,colour=red"),
+            r#"unknown source option "colour" in "a=/r,colour=red" (encoding, cell_size, tile_size, max_error, levels)"#
+        );
     }
 
     #[test]

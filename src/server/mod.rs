@@ -33,13 +33,13 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
-pub use bakery::FAILED_BAKE_RETRY_S;
+pub use bakery::{BakeFailure, FAILED_BAKE_RETRY_S};
 pub use config::{
     Config, DEFAULT_BAKE_QUEUE, DEFAULT_BAKE_WORKERS, DEFAULT_BIND, DEFAULT_CACHE_BYTES,
     DEFAULT_HEADER_TIMEOUT_S, DEFAULT_IDLE_TIMEOUT_S, DEFAULT_JOB_TIMEOUT_S, DEFAULT_JOB_TTL_S,
     DEFAULT_MAX_BODY_BYTES, DEFAULT_MAX_CONNECTIONS, DEFAULT_MAX_CONNECTIONS_PER_CLIENT,
     DEFAULT_MAX_IN_FLIGHT, DEFAULT_POLL_MS, DEFAULT_RATE_LIMIT, DEFAULT_REQUEST_TIMEOUT_S,
-    DEFAULT_SHUTDOWN_TIMEOUT_S, LogFormat, PartialConfig, SourceSpec,
+    DEFAULT_SHUTDOWN_TIMEOUT_S, LogFormat, PartialConfig, SourceSpec, SourceSpecError,
 };
 pub use metrics::Metrics;
 

@@ -33,7 +33,7 @@ pub use backend::{Backend, Location, is_remote};
 
 use serde::{Deserialize, Serialize};
 
-use crate::geom::{Bounds, Errors};
+use crate::geom::{Bounds, ErrorFigures};
 use crate::raster::Georef;
 use crate::tiling::TileKey;
 
@@ -133,7 +133,7 @@ pub struct NodeLevel {
     /// recorded lists every level in order, and reading it numbers them by position.
     #[serde(default = "unnumbered")]
     pub level: u8,
-    pub errors: Errors,
+    pub errors: ErrorFigures,
     /// Vertices (mesh) or points.
     pub count: u32,
     /// Triangles (mesh only, 0 for points).
@@ -181,29 +181,40 @@ struct RawNodeEntry {
     levels: Vec<NodeLevel>,
 }
 
+/// Why an index entry's levels are not a node's: the JSON reader reports it with its position.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum NodeEntryError {
+    /// An entry without level ids lists more levels than ids exist.
+    #[error("node {key}: {count} levels")]
+    TooManyLevels { key: TileKey, count: usize },
+    #[error("node {key}: some levels have a `level` id and some do not")]
+    MixedIds { key: TileKey },
+    #[error("node {key}: the first level must be level 0 (the mesh)")]
+    FirstNotMesh { key: TileKey },
+    #[error("node {key}: level ids must increase (level {level} after {after})")]
+    IdsNotIncreasing { key: TileKey, level: u8, after: u8 },
+}
+
 impl TryFrom<RawNodeEntry> for NodeEntry {
-    type Error = String;
-    fn try_from(raw: RawNodeEntry) -> Result<Self, String> {
+    type Error = NodeEntryError;
+    fn try_from(raw: RawNodeEntry) -> Result<Self, NodeEntryError> {
         let RawNodeEntry { key, bounds, mut levels } = raw;
         let unnumbered = levels.iter().filter(|l| l.level == UNNUMBERED).count();
         if unnumbered == levels.len() {
             if levels.len() > usize::from(UNNUMBERED) {
-                return Err(format!("node {key}: {} levels", levels.len()));
+                return Err(NodeEntryError::TooManyLevels { key, count: levels.len() });
             }
             for (i, l) in levels.iter_mut().enumerate() {
                 l.level = i as u8;
             }
         } else if unnumbered > 0 {
-            return Err(format!("node {key}: some levels have a `level` id and some do not"));
+            return Err(NodeEntryError::MixedIds { key });
         }
         if levels.first().map(|l| l.level) != Some(0) {
-            return Err(format!("node {key}: the first level must be level 0 (the mesh)"));
+            return Err(NodeEntryError::FirstNotMesh { key });
         }
         if let Some(w) = levels.windows(2).find(|w| w[1].level <= w[0].level) {
-            return Err(format!(
-                "node {key}: level ids must increase (level {} after {})",
-                w[1].level, w[0].level
-            ));
+            return Err(NodeEntryError::IdsNotIncreasing { key, level: w[1].level, after: w[0].level });
         }
         Ok(Self { key, bounds, levels })
     }
@@ -272,7 +283,7 @@ pub struct LevelTotals {
     pub count: u64,
     pub triangles: u64,
     pub bytes: u64,
-    pub worst: Errors,
+    pub worst: ErrorFigures,
 }
 
 /// The per-level table `bake` and `inspect` print: one header line and one line per level
@@ -995,6 +1006,10 @@ mod tests {
             let err = parse(bad).unwrap_err().to_string();
             assert!(err.contains(why) && err.contains("1/0/1"), "{err}");
         }
+        assert_eq!(
+            parse(entry(vec![level(Some(0)), level(Some(2)), level(Some(2))])).unwrap_err().to_string(),
+            "node 1/0/1: level ids must increase (level 2 after 2)"
+        );
         // Written and read back, an entry is unchanged (what the store_json fuzz target holds).
         let text = serde_json::to_string(&e).unwrap();
         assert_eq!(serde_json::from_str::<NodeEntry>(&text).unwrap(), e);

@@ -8,7 +8,7 @@ use super::{
     LevelSpec, LevelTotals, MANIFEST_FORMAT, MANIFEST_VERSION, Manifest, NodeLevel, SUBTREE_LEVELS,
     SourceInfo, Store, StoreError, TilesetKind, content_version,
 };
-use crate::geom::{Bounds, Errors};
+use crate::geom::{Bounds, ErrorFigures};
 use crate::raster::Georef;
 
 /// One level of a model bake, as reported and stored in the manifest.
@@ -33,7 +33,7 @@ pub struct ModelLevel {
     pub occupied: Option<u64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub filled: Option<u64>,
-    pub errors: Errors,
+    pub errors: ErrorFigures,
     pub bytes: u64,
     /// False for a level that was baked and did not pay (`store::levels_that_pay`): it has no
     /// blob and the index does not list it. Absent in manifests from before levels had to pay.

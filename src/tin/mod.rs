@@ -11,7 +11,7 @@
 use spade::handles::FixedVertexHandle;
 use spade::{DelaunayTriangulation, HasPosition, InsertionError, Point2, Triangulation};
 
-use crate::geom::Errors;
+use crate::geom::ErrorFigures;
 use crate::tiling::{NodeGrid, Span};
 
 #[derive(Debug, thiserror::Error)]
@@ -768,7 +768,7 @@ pub fn measure_vertical(
     triangles: &[[u32; 3]],
     span: Span,
     heights: &[f32],
-) -> Result<Errors, TinError> {
+) -> Result<ErrorFigures, TinError> {
     let (nc, nr) = (span.cols() as usize, span.rows() as usize);
     if heights.len() != nc * nr {
         return Err(TinError::SizeMismatch { heights: heights.len(), cols: nc, rows: nr });
@@ -807,7 +807,7 @@ pub fn measure_vertical_strips<E>(
     span: Span,
     strip_samples: usize,
     mut read: impl FnMut(u32, u32, &mut Vec<f32>) -> Result<(), E>,
-) -> Result<Errors, StripError<E>> {
+) -> Result<ErrorFigures, StripError<E>> {
     let (nc, nr) = (span.cols() as usize, span.rows() as usize);
     let strip_rows = (strip_samples / nc.max(1)).clamp(1, nr.max(1));
     let xs = Axis { start: f64::from(span.col0), step: 1.0, n: nc, last: f64::from(span.col1), unit: true };
@@ -865,7 +865,7 @@ pub fn measure_vertical_strips<E>(
     if count != total {
         return Err(StripError::Tin(TinError::Uncovered { missing: total - count, total }));
     }
-    Ok(Errors { max, rms: (sum2 / total as f64).sqrt(), gap: 0.0 })
+    Ok(ErrorFigures { max, rms: (sum2 / total as f64).sqrt(), gap: 0.0 })
 }
 
 #[cfg(test)]

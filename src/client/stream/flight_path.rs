@@ -30,6 +30,40 @@ use crate::geom::Bounds;
 /// The up direction when a key gives none.
 pub const DEFAULT_UP: [f64; 3] = [0.0, 0.0, 1.0];
 
+/// What is wrong with a flight; each names the key and field (`keys[i].t`).
+#[derive(Debug, thiserror::Error)]
+pub enum FlightError {
+    /// The flight file cannot be read.
+    #[error("{0}")]
+    Read(#[source] std::io::Error),
+    #[error("invalid flight JSON: {0}")]
+    Json(#[source] serde_json::Error),
+    #[error("keys: a flight needs at least one key")]
+    NoKeys,
+    #[error("keys[{i}].t: {t} is not a finite time")]
+    TimeNotFinite { i: usize, t: f64 },
+    #[error("keys[{i}].t: {t} is not after keys[{before}].t = {before_t}")]
+    TimeNotAfter { i: usize, t: f64, before: usize, before_t: f64 },
+    /// `field` is "eye", "target" or "up".
+    #[error("keys[{i}].{field}: {value:?} is not finite")]
+    NotFinite { i: usize, field: &'static str, value: [f64; 3] },
+    #[error("keys[{i}]: eye and target are the same point {eye:?}")]
+    SamePoint { i: usize, eye: [f64; 3] },
+    #[error("keys[{i}].up: {up:?} is not a direction")]
+    UpNotDirection { i: usize, up: [f64; 3] },
+    #[error("keys[{i}].up: {up:?} is parallel to the view direction")]
+    UpAlongView { i: usize, up: [f64; 3] },
+    #[error("tileset bounds {min:?} .. {max:?} are not valid")]
+    InvalidBounds { min: [f64; 3], max: [f64; 3] },
+    #[error("tileset has no horizontal extent; a normalized flight needs one")]
+    NoExtent,
+    #[error("{0}")]
+    Serialize(#[source] serde_json::Error),
+    /// A replay of the flight asked for a frame rate that is not a positive number.
+    #[error("flight replay: fps {0} must be positive")]
+    Fps(f64),
+}
+
 /// The frame a flight's positions are given in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -78,51 +112,51 @@ pub struct Flight {
 
 impl Flight {
     /// Parses and validates a flight; the error says which key and field is wrong.
-    pub fn from_json(text: &str) -> Result<Self, String> {
-        let f: Self = serde_json::from_str(text).map_err(|e| format!("invalid flight JSON: {e}"))?;
+    pub fn from_json(text: &str) -> Result<Self, FlightError> {
+        let f: Self = serde_json::from_str(text).map_err(FlightError::Json)?;
         f.validate()?;
         Ok(f)
     }
 
     /// Reads a flight file.
     pub fn load(path: &Path) -> Result<Self, ClientError> {
-        let err = |message: String| ClientError::Flight { path: path.to_owned(), message };
-        let text = std::fs::read_to_string(path).map_err(|e| err(e.to_string()))?;
+        let err = |source: FlightError| ClientError::Flight { path: path.to_owned(), source };
+        let text = std::fs::read_to_string(path).map_err(|e| err(FlightError::Read(e)))?;
         Self::from_json(&text).map_err(err)
     }
 
     /// Checks keys: at least one, finite and strictly increasing times, finite positions, eye
     /// distinct from target, up non-zero and not along the view direction.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), FlightError> {
         if self.keys.is_empty() {
-            return Err("keys: a flight needs at least one key".into());
+            return Err(FlightError::NoKeys);
         }
         for (i, k) in self.keys.iter().enumerate() {
             if !k.t.is_finite() {
-                return Err(format!("keys[{i}].t: {} is not a finite time", k.t));
+                return Err(FlightError::TimeNotFinite { i, t: k.t });
             }
             if i > 0 && k.t <= self.keys[i - 1].t {
-                return Err(format!(
-                    "keys[{i}].t: {} is not after keys[{}].t = {}",
-                    k.t,
-                    i - 1,
-                    self.keys[i - 1].t
-                ));
+                return Err(FlightError::TimeNotAfter {
+                    i,
+                    t: k.t,
+                    before: i - 1,
+                    before_t: self.keys[i - 1].t,
+                });
             }
-            for (name, v) in [("eye", k.eye), ("target", k.target), ("up", k.up)] {
-                if !DVec3::from_array(v).is_finite() {
-                    return Err(format!("keys[{i}].{name}: {v:?} is not finite"));
+            for (field, value) in [("eye", k.eye), ("target", k.target), ("up", k.up)] {
+                if !DVec3::from_array(value).is_finite() {
+                    return Err(FlightError::NotFinite { i, field, value });
                 }
             }
             let (eye, target) = (DVec3::from_array(k.eye), DVec3::from_array(k.target));
             let Some(dir) = (target - eye).try_normalize() else {
-                return Err(format!("keys[{i}]: eye and target are the same point {:?}", k.eye));
+                return Err(FlightError::SamePoint { i, eye: k.eye });
             };
             let Some(up) = DVec3::from_array(k.up).try_normalize() else {
-                return Err(format!("keys[{i}].up: {:?} is not a direction", k.up));
+                return Err(FlightError::UpNotDirection { i, up: k.up });
             };
             if (dir.cross(up)).length() < 1e-6 {
-                return Err(format!("keys[{i}].up: {:?} is parallel to the view direction", k.up));
+                return Err(FlightError::UpAlongView { i, up: k.up });
             }
         }
         Ok(())
@@ -147,21 +181,20 @@ impl Flight {
 
     /// The same flight in world units for a tileset with `bounds` (a world flight is returned
     /// as is).
-    pub fn to_world(&self, bounds: &Bounds) -> Result<Self, String> {
+    pub fn to_world(&self, bounds: &Bounds) -> Result<Self, FlightError> {
         if self.frame == Frame::World {
             return Ok(self.clone());
         }
         if !bounds.is_valid() {
-            return Err(format!(
-                "tileset bounds {:?} .. {:?} are not valid",
-                bounds.min.to_array(),
-                bounds.max.to_array()
-            ));
+            return Err(FlightError::InvalidBounds {
+                min: bounds.min.to_array(),
+                max: bounds.max.to_array(),
+            });
         }
         let size = bounds.size();
         let extent = size[0].max(size[1]);
         if extent <= 0.0 {
-            return Err("tileset has no horizontal extent; a normalized flight needs one".into());
+            return Err(FlightError::NoExtent);
         }
         let map = |p: [f64; 3]| {
             [bounds.min[0] + p[0] * size[0], bounds.min[1] + p[1] * size[1], bounds.min[2] + p[2] * extent]
@@ -213,8 +246,8 @@ impl Flight {
     }
 
     /// Pretty JSON of the flight.
-    pub fn to_json(&self) -> Result<String, String> {
-        serde_json::to_string_pretty(self).map_err(|e| e.to_string())
+    pub fn to_json(&self) -> Result<String, FlightError> {
+        serde_json::to_string_pretty(self).map_err(FlightError::Serialize)
     }
 }
 
@@ -250,7 +283,7 @@ mod tests {
 
     #[test]
     fn errors_name_key_and_field() {
-        let e = |s: &str| Flight::from_json(s).unwrap_err();
+        let e = |s: &str| Flight::from_json(s).unwrap_err().to_string();
         assert!(e(r#"{"keys":[]}"#).contains("at least one key"));
         assert!(
             e(r#"{"keys":[{"t":1,"eye":[0,0,1],"target":[1,0,0]},{"t":1,"eye":[0,0,1],"target":[1,0,0]}]}"#)

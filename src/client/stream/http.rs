@@ -21,6 +21,19 @@ pub const MAX_BODY_BYTES: usize = 256 << 20;
 /// Largest response head accepted.
 const MAX_HEAD_BYTES: usize = 64 << 10;
 
+/// What is wrong with a `--url`, or why its host has no address.
+#[derive(Debug, thiserror::Error)]
+pub enum UrlError {
+    #[error("--url {url:?}: only http:// URLs are supported")]
+    NotHttp { url: String },
+    #[error("--url {url:?}: no host")]
+    NoHost { url: String },
+    #[error("{authority}: {source}")]
+    Resolve { authority: String, source: std::io::Error },
+    #[error("{authority}: resolves to no address")]
+    NoAddress { authority: String },
+}
+
 /// A parsed `http://host:port/prefix` base URL.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct BaseUrl {
@@ -32,13 +45,11 @@ pub struct BaseUrl {
 
 impl BaseUrl {
     /// Parses `http://HOST[:PORT][/PREFIX]`; the error says what is wrong with the URL.
-    pub fn parse(url: &str) -> Result<Self, String> {
-        let rest = url
-            .strip_prefix("http://")
-            .ok_or_else(|| format!("--url {url:?}: only http:// URLs are supported"))?;
+    pub fn parse(url: &str) -> Result<Self, UrlError> {
+        let rest = url.strip_prefix("http://").ok_or_else(|| UrlError::NotHttp { url: url.to_owned() })?;
         let (authority, path) = rest.find('/').map_or((rest, ""), |i| (&rest[..i], &rest[i..]));
         if authority.is_empty() {
-            return Err(format!("--url {url:?}: no host"));
+            return Err(UrlError::NoHost { url: url.to_owned() });
         }
         let authority =
             if authority.rsplit_once(':').is_some_and(|(_, p)| p.bytes().all(|b| b.is_ascii_digit()))
@@ -52,12 +63,12 @@ impl BaseUrl {
     }
 
     /// Resolves the host (first address).
-    pub fn resolve(&self) -> Result<SocketAddr, String> {
+    pub fn resolve(&self) -> Result<SocketAddr, UrlError> {
         self.authority
             .to_socket_addrs()
-            .map_err(|e| format!("{}: {e}", self.authority))?
+            .map_err(|source| UrlError::Resolve { authority: self.authority.clone(), source })?
             .next()
-            .ok_or_else(|| format!("{}: resolves to no address", self.authority))
+            .ok_or_else(|| UrlError::NoAddress { authority: self.authority.clone() })
     }
 }
 
@@ -208,8 +219,8 @@ mod tests {
         assert_eq!((u.authority.as_str(), u.prefix.as_str()), ("127.0.0.1:8080", ""));
         let u = BaseUrl::parse("http://example.org/terrain/v1").unwrap();
         assert_eq!((u.authority.as_str(), u.prefix.as_str()), ("example.org:80", "/terrain/v1"));
-        assert!(BaseUrl::parse("https://x").unwrap_err().contains("only http://"));
-        assert!(BaseUrl::parse("http:///x").unwrap_err().contains("no host"));
+        assert!(BaseUrl::parse("https://x").unwrap_err().to_string().contains("only http://"));
+        assert!(BaseUrl::parse("http:///x").unwrap_err().to_string().contains("no host"));
     }
 
     #[test]

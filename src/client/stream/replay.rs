@@ -116,7 +116,7 @@ pub fn replay(
     if !(opts.speed.is_finite() && opts.speed > 0.0) {
         return Err(ClientError::Camera(format!("speed {} must be positive", opts.speed)));
     }
-    let world = flight.to_world(&session.manifest().bounds).map_err(ClientError::Camera)?;
+    let world = flight.to_world(&session.manifest().bounds).map_err(ClientError::FlightFrame)?;
     let t0 = session.now();
     let mut frames = Vec::new();
     let mut settle_start = None;

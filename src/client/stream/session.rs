@@ -200,8 +200,8 @@ impl Session {
     /// Fetches the tileset's manifest from `url` (`http://host:port[/prefix]`) and starts the
     /// workers; index chunks and blobs follow frame by frame.
     pub fn connect(url: &str, tileset: &str, opts: SessionOptions) -> Result<Self, ClientError> {
-        let base = BaseUrl::parse(url).map_err(net)?;
-        let addr = base.resolve().map_err(net)?;
+        let base = BaseUrl::parse(url)?;
+        let addr = base.resolve()?;
         let timeout = Duration::from_secs_f64(opts.fetch.timeout_s.clamp(0.001, 3600.0));
         let path = format!("{}/tilesets/{tileset}/tileset.json", base.prefix);
         let resp =

@@ -20,8 +20,24 @@ pub mod placement;
 pub mod tileset;
 
 pub use glb::{GENERATOR, GLB_TYPE, glb, mesh_skirt_depth};
-pub use placement::{Anchor, AnchorFrom, Axes, DEFAULT_ANCHOR, MAX_ANCHOR_HEIGHT, Placement};
+pub use placement::{
+    Anchor, AnchorError, AnchorFrom, AnchorRangeError, Axes, DEFAULT_ANCHOR, MAX_ANCHOR_HEIGHT, Placement,
+};
 pub use tileset::{TilesetInfo, chunk_tileset, tile_glb};
+
+/// Errors of the 3D Tiles view: an anchor that cannot be read or lies out of range, a manifest
+/// that cannot be read as a tileset's.
+#[derive(Debug, thiserror::Error)]
+pub enum Tiles3dError {
+    #[error(transparent)]
+    Anchor(#[from] AnchorError),
+    #[error(transparent)]
+    AnchorRange(#[from] AnchorRangeError),
+    #[error("manifest: {0}")]
+    Manifest(#[source] serde_json::Error),
+    #[error("manifest: `kind` is {0}, not terrain or model")]
+    ManifestKind(serde_json::Value),
+}
 
 #[cfg(test)]
 mod tests;

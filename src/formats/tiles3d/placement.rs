@@ -16,6 +16,29 @@ pub const DEFAULT_ANCHOR: Anchor = Anchor { lon: 0.0, lat: 0.0, height: 0.0 };
 /// Largest |height| of an anchor, metres (as raster heights).
 pub const MAX_ANCHOR_HEIGHT: f64 = crate::raster::MAX_HEIGHT;
 
+/// An anchor coordinate out of range ([`Anchor::check`]).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum AnchorRangeError {
+    #[error("longitude {0} is not within -180..180 degrees")]
+    Longitude(f64),
+    #[error("latitude {0} is not within -90..90 degrees")]
+    Latitude(f64),
+    #[error("height {0} is not within ±1e7 m")]
+    Height(f64),
+}
+
+/// Why a text is not an anchor ([`Anchor::parse`]); each names the text as given.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AnchorError {
+    #[error("anchor {text:?}: expected LON,LAT or LON,LAT,HEIGHT")]
+    Syntax { text: String },
+    /// `what` is "longitude", "latitude" or "height".
+    #[error("anchor {text:?}: {what} {value:?} is not a number")]
+    NotANumber { text: String, what: &'static str, value: String },
+    #[error("anchor {text:?}: {source}")]
+    OutOfRange { text: String, source: AnchorRangeError },
+}
+
 /// A geographic position: WGS84 longitude and latitude in degrees, ellipsoidal height in metres.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Anchor {
@@ -27,33 +50,37 @@ pub struct Anchor {
 
 impl Anchor {
     /// Parses `LON,LAT[,H]` (degrees, degrees, metres). Errors name the value and the range.
-    pub fn parse(s: &str) -> Result<Self, String> {
+    pub fn parse(s: &str) -> Result<Self, AnchorError> {
         let parts: Vec<&str> = s.split(',').map(str::trim).collect();
         if !(2..=3).contains(&parts.len()) {
-            return Err(format!("anchor {s:?}: expected LON,LAT or LON,LAT,HEIGHT"));
+            return Err(AnchorError::Syntax { text: s.to_owned() });
         }
-        let num = |t: &str, what: &str| {
-            t.parse::<f64>().map_err(|_| format!("anchor {s:?}: {what} {t:?} is not a number"))
+        let num = |t: &str, what: &'static str| {
+            t.parse::<f64>().map_err(|_| AnchorError::NotANumber {
+                text: s.to_owned(),
+                what,
+                value: t.to_owned(),
+            })
         };
         let a = Self {
             lon: num(parts[0], "longitude")?,
             lat: num(parts[1], "latitude")?,
             height: parts.get(2).map_or(Ok(0.0), |t| num(t, "height"))?,
         };
-        a.check().map_err(|e| format!("anchor {s:?}: {e}"))?;
+        a.check().map_err(|source| AnchorError::OutOfRange { text: s.to_owned(), source })?;
         Ok(a)
     }
 
     /// Checks the ranges: longitude −180..180, latitude −90..90, |height| ≤ 1e7 m.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), AnchorRangeError> {
         if !(self.lon.is_finite() && (-180.0..=180.0).contains(&self.lon)) {
-            return Err(format!("longitude {} is not within -180..180 degrees", self.lon));
+            return Err(AnchorRangeError::Longitude(self.lon));
         }
         if !(self.lat.is_finite() && (-90.0..=90.0).contains(&self.lat)) {
-            return Err(format!("latitude {} is not within -90..90 degrees", self.lat));
+            return Err(AnchorRangeError::Latitude(self.lat));
         }
         if !(self.height.is_finite() && self.height.abs() <= MAX_ANCHOR_HEIGHT) {
-            return Err(format!("height {} is not within ±1e7 m", self.height));
+            return Err(AnchorRangeError::Height(self.height));
         }
         Ok(())
     }

@@ -4,7 +4,7 @@ use serde_json::{Value, json};
 
 use super::*;
 use crate::codec::{Geometry, Quantization, decode, encode_mesh, encode_points};
-use crate::geom::{Bounds, Errors, Mesh, PointCloud};
+use crate::geom::{Bounds, ErrorFigures, Mesh, PointCloud};
 use crate::raster::Georef;
 use crate::store::{LevelTotals, Manifest, SUBTREE_LEVELS, SourceInfo, TilesetKind};
 use crate::tiling::TileKey;
@@ -17,9 +17,15 @@ fn anchors_parse_and_are_range_checked() {
         Anchor { lon: -70.5, lat: -33.4, height: 520.0 }
     );
     for bad in ["200,0", "0,95", "a,b", "1", "1,2,3,4", "0,0,1e300", "NaN,0", "inf,0", ""] {
-        let e = Anchor::parse(bad).unwrap_err();
+        let e = Anchor::parse(bad).unwrap_err().to_string();
         assert!(e.contains("anchor"), "{bad}: {e}");
     }
+    let e = |s: &str| Anchor::parse(s).unwrap_err().to_string();
+    assert_eq!(e("1"), r#"anchor "1": expected LON,LAT or LON,LAT,HEIGHT"#);
+    assert_eq!(e("a,0"), r#"anchor "a,0": longitude "a" is not a number"#);
+    assert_eq!(e("0,95"), r#"anchor "0,95": latitude 95 is not within -90..90 degrees"#);
+    assert_eq!(e("200,0"), r#"anchor "200,0": longitude 200 is not within -180..180 degrees"#);
+    assert_eq!(e("0,0,2e7"), r#"anchor "0,0,2e7": height 20000000 is not within ±1e7 m"#);
 }
 
 #[test]
@@ -113,7 +119,8 @@ fn glb_positions_are_the_blobs_grid_placed_and_triangles_face_up() {
         let mesh = grid_mesh([10.0, dy], |c, r| (c * r) as f64 * relief / 16.0 + 0.3);
         let bounds = Bounds::of_points(&mesh.positions);
         let q = Quantization { xy_step: 10.0, z_step };
-        let bytes = encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, Errors::default()).unwrap();
+        let bytes =
+            encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, ErrorFigures::default()).unwrap();
         let blob = decode(&bytes).unwrap();
         let m = manifest(frame, bounds);
         let place = Placement::of(&m, TilesetKind::Terrain, None);
@@ -157,8 +164,9 @@ fn skirts_hang_on_the_grid_below_inner_borders_only() {
     let mesh = grid_mesh([10.0, -10.0], |c, _| c as f64);
     let bounds = Bounds::of_points(&mesh.positions);
     let q = Quantization { xy_step: 10.0, z_step: 0.125 };
-    let blob = decode(&encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, Errors::default()).unwrap())
-        .unwrap();
+    let blob =
+        decode(&encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, ErrorFigures::default()).unwrap())
+            .unwrap();
     let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None);
     let plain = read_positions(&glb(&blob, &place, None)).1;
     // The dataset is larger than the tile on every side but the west one: no skirt there.
@@ -177,9 +185,10 @@ fn skirts_hang_on_the_grid_below_inner_borders_only() {
         let frame = Georef { dx: 10.0, dy, ..Georef::default() };
         let mesh = grid_mesh([10.0, dy], |c, _| c as f64);
         let bounds = Bounds::of_points(&mesh.positions);
-        let blob =
-            decode(&encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, Errors::default()).unwrap())
-                .unwrap();
+        let blob = decode(
+            &encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, ErrorFigures::default()).unwrap(),
+        )
+        .unwrap();
         let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None);
         let g = glb(&blob, &place, Some((0.3, None)));
         let (json, pos) = read_positions(&g);
@@ -215,8 +224,9 @@ fn point_normals_are_unit_bytes_in_gltf_axes() {
     let pc = PointCloud { positions: positions.clone(), normals: normals.clone() };
     let bounds = Bounds::of_points(&positions);
     let q = Quantization { xy_step: 0.01, z_step: 0.01 };
-    let blob = decode(&encode_points(TileKey::new(0, 0, 0), 1, &bounds, q, &pc, Errors::default()).unwrap())
-        .unwrap();
+    let blob =
+        decode(&encode_points(TileKey::new(0, 0, 0), 1, &bounds, q, &pc, ErrorFigures::default()).unwrap())
+            .unwrap();
     let frame = Georef { dx: 1.0, dy: -1.0, ..Georef::default() };
     let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None);
     let glb = glb(&blob, &place, None);

@@ -5,10 +5,11 @@
 use serde::Deserialize;
 use serde_json::{Value, json};
 
+use super::Tiles3dError;
 use super::glb::{GENERATOR, glb, mesh_skirt_depth};
 use super::placement::{Anchor, Placement};
 use crate::codec::{Blob, Kind};
-use crate::geom::{Bounds, Errors};
+use crate::geom::{Bounds, ErrorFigures};
 use crate::store::{IndexChunk, LevelSpec, Manifest, NodeEntry, NodeLevel, SUBTREE_LEVELS, TilesetKind};
 use crate::tiling::{Pyramid, TileKey};
 
@@ -62,14 +63,13 @@ impl TilesetInfo {
         bytes: &[u8],
         anchor: Option<Anchor>,
         query: String,
-    ) -> Result<Self, String> {
-        let v: Value = serde_json::from_slice(bytes).map_err(|e| format!("manifest: {e}"))?;
+    ) -> Result<Self, Tiles3dError> {
+        let v: Value = serde_json::from_slice(bytes).map_err(Tiles3dError::Manifest)?;
         let kind = match v.get("kind") {
             None => TilesetKind::Terrain,
-            Some(k) => TilesetKind::deserialize(k)
-                .map_err(|_| format!("manifest: `kind` is {k}, not terrain or model"))?,
+            Some(k) => TilesetKind::deserialize(k).map_err(|_| Tiles3dError::ManifestKind(k.clone()))?,
         };
-        let manifest = Manifest::deserialize(&v).map_err(|e| format!("manifest: {e}"))?;
+        let manifest = Manifest::deserialize(&v).map_err(Tiles3dError::Manifest)?;
         let place = Placement::of(&manifest, kind, anchor);
         let mut info = Self::new(name, kind, manifest, place, query);
         info.provisional = v.get("on_demand") == Some(&Value::Bool(true));
@@ -118,7 +118,7 @@ impl TilesetInfo {
             bounds: self.planned_bounds(key),
             levels: vec![NodeLevel {
                 level: 0,
-                errors: Errors { max: bound, rms: 0.0, gap: 0.0 },
+                errors: ErrorFigures { max: bound, rms: 0.0, gap: 0.0 },
                 count: 0,
                 triangles: 0,
                 bytes: 0,

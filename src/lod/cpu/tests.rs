@@ -1,5 +1,5 @@
 use super::*;
-use crate::geom::Errors;
+use crate::geom::ErrorFigures;
 use crate::lod::measure::point_triangle_dist2;
 use proptest::prelude::*;
 
@@ -454,7 +454,7 @@ fn degenerate_inputs_give_empty_results() {
     assert_eq!(stats.skipped_triangles, 3);
 
     let cloud = bake_points(&m, [0.0; 3], 0.5);
-    assert_eq!(measure_points(&Mesh::default(), &cloud, 0.5, 0.6), Errors::default());
+    assert_eq!(measure_points(&Mesh::default(), &cloud, 0.5, 0.6), ErrorFigures::default());
     let e = measure_points(&m, &PointCloud::default(), 0.5, 0.6);
     assert!(e.max == 0.0 && (e.gap - 8.0f64.sqrt()).abs() < 1e-12, "{e:?}");
 }
@@ -550,7 +550,7 @@ proptest! {
 
 /// The errors with every point measured as a point (no normals, so no footprints): what the
 /// slicing itself put where, before the footprints the renderer draws around each point.
-fn point_errors(m: &Mesh, cloud: &PointCloud, cell: f64) -> Errors {
+fn point_errors(m: &Mesh, cloud: &PointCloud, cell: f64) -> ErrorFigures {
     let bare =
         PointCloud { positions: cloud.positions.clone(), normals: vec![[0.0; 3]; cloud.positions.len()] };
     measure_points(m, &bare, cell, 0.6)
