@@ -938,7 +938,7 @@ mod tests {
     fn content_version_is_64_bits_and_covers_every_level_figure() {
         let base = NodeLevel {
             level: 1,
-            errors: crate::geom::Errors { max: 1.0, rms: 0.5, gap: 0.25 },
+            errors: crate::geom::ErrorFigures { max: 1.0, rms: 0.5, gap: 0.25 },
             count: 100,
             triangles: 0,
             bytes: 400,
