@@ -190,7 +190,7 @@ pub(super) fn open<R: Read + Seek>(
             return Err(RasterError::unsupported(
                 path,
                 FORMAT,
-                format!("colour type {other:?}; expected a single grayscale band"),
+                format!("{}; expected a single grayscale band", colour_words(other)),
             ));
         }
     }
@@ -459,6 +459,26 @@ pub fn write_tiled_f32<W: std::io::Write + Seek>(
     }
     out.seek(SeekFrom::End(0))?;
     out.flush()
+}
+
+/// A TIFF colour type in a user's words ("8-bit palette colour"), not the decoder's type name.
+fn colour_words(c: ColorType) -> String {
+    let (what, bits) = match c {
+        ColorType::Gray(b) => ("grayscale", b),
+        ColorType::RGB(b) => ("RGB", b),
+        ColorType::Palette(b) => ("palette colour", b),
+        ColorType::GrayA(b) => ("grayscale with alpha", b),
+        ColorType::RGBA(b) => ("RGB with alpha", b),
+        ColorType::CMYK(b) => ("CMYK", b),
+        ColorType::CMYKA(b) => ("CMYK with alpha", b),
+        ColorType::YCbCr(b) => ("YCbCr colour", b),
+        ColorType::Lab(b) => ("CIE L*a*b* colour", b),
+        ColorType::Multiband { bit_depth, num_samples } => {
+            return format!("{num_samples} bands of {bit_depth}-bit samples");
+        }
+        _ => return format!("a colour type of {}-bit samples this reader does not know", c.bit_depth()),
+    };
+    format!("{bits}-bit {what}")
 }
 
 #[cfg(test)]
@@ -806,5 +826,28 @@ mod tests {
         assert_eq!(super::geokeys(&[1, 1, 0, 5, 1024, 0, 1]), (None, None));
         assert_eq!(super::geokeys(&[1, 1, 0, 1, 1024, 0, 1, 2]), (Some(2), None));
         let _ = FileGeoref::None;
+    }
+
+    /// Colour types are named in words, never by the decoder's type names.
+    #[test]
+    fn colour_types_are_said_in_words() {
+        use super::colour_words;
+        use tiff::ColorType;
+        assert_eq!(colour_words(ColorType::Palette(8)), "8-bit palette colour");
+        assert_eq!(colour_words(ColorType::RGB(16)), "16-bit RGB");
+        assert_eq!(
+            colour_words(ColorType::Multiband { bit_depth: 8, num_samples: 5 }),
+            "5 bands of 8-bit samples"
+        );
+        for c in [
+            ColorType::GrayA(8),
+            ColorType::RGBA(8),
+            ColorType::CMYK(8),
+            ColorType::YCbCr(8),
+            ColorType::Lab(8),
+        ] {
+            let w = colour_words(c);
+            assert!(!w.contains('(') && !w.contains("RGBA") && !w.contains("GrayA"), "{w}");
+        }
     }
 }
