@@ -8,6 +8,7 @@ pub mod bake;
 #[cfg(feature = "client")]
 pub mod client;
 pub mod codec;
+pub mod crs;
 mod error;
 #[cfg(feature = "client")]
 pub mod eval;

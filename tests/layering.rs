@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 /// Pipeline layers, lowest first (docs/architecture.md). `error` gathers every stage's error
 /// type into `crate::Error` for the binary, so it is the one module that names all others.
 const LAYERS: &[&[&str]] = &[
-    &["raster", "tiling", "geom", "gpu"],
+    &["crs", "raster", "tiling", "geom", "gpu"],
     &["tin", "codec", "lod"],
     &["store", "model"],
     &["formats", "bake"],
