@@ -469,7 +469,7 @@ fn a_truncated_tiled_tiff_is_an_error_naming_it_and_nothing_is_baked() {
 fn vrt_text(size: (u32, u32), band_extra: &str, sources: &[(String, [u32; 4], [u32; 4], &str)]) -> String {
     use std::fmt::Write;
     let mut s = format!(
-        "<VRTDataset rasterXSize=\"{}\" rasterYSize=\"{}\">\n  <SRS>PROJCS[\"test\",GEOGCS[\"WGS 84\"]]</SRS>\n  \
+        "<VRTDataset rasterXSize=\"{}\" rasterYSize=\"{}\">\n  <SRS>EPSG:32633</SRS>\n  \
          <GeoTransform>-5.0, 10.0, 0.0, 1005.0, 0.0, -10.0</GeoTransform>\n  <VRTRasterBand dataType=\"Float32\" band=\"1\">{band_extra}\n",
         size.0, size.1
     );

@@ -95,8 +95,15 @@ pub struct InputOptions {
     pub cache_mib: u64,
     /// Directory for scratch files.
     pub scratch_dir: Option<PathBuf>,
-    /// Largest accepted distortion of the metric frame over a geographic dataset, in percent.
-    pub max_distortion: f64,
+    /// `--crs`: the inputs' horizontal CRS (instead of what they state).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub crs: Option<crate::crs::Crs>,
+    /// `--vertical-datum`: what the inputs' heights are measured from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vertical_datum: Option<crate::crs::VerticalDatum>,
+    /// `--geoid-grid`: the geoid of the vertical datum, a GTX file.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geoid_grid: Option<PathBuf>,
     /// Largest side of a file decoded whole, in samples.
     pub max_side: u32,
     /// Largest heights of a file decoded whole, in bytes.
@@ -120,12 +127,14 @@ impl InputOptions {
                 origin: self.origin,
                 z_scale: self.z_scale,
                 z_offset: self.z_offset,
+                crs: self.crs.clone(),
+                vertical: self.vertical_datum,
+                geoid_grid: self.geoid_grid.clone(),
             },
         };
         DatasetOptions {
             load,
             cache_bytes: self.cache_mib.saturating_mul(1 << 20),
-            max_distortion: self.max_distortion / 100.0,
             scratch: self.scratch_dir.clone(),
         }
     }

@@ -241,7 +241,7 @@ impl<'a> TerrainInput<'a> {
     pub fn of(raster: &'a LoadedRaster) -> Self {
         Self {
             reader: &raster.heights,
-            georef: raster.georef,
+            georef: raster.georef.clone(),
             format: raster.format.clone(),
             nodata_filled: raster.nodata_filled,
             nodata_fallback: raster.nodata_fallback,
@@ -255,7 +255,7 @@ impl<'a> TerrainInput<'a> {
         let s = ds.summary();
         Self {
             reader: ds,
-            georef: *ds.georef(),
+            georef: ds.georef().clone(),
             format: s.format.clone(),
             nodata_filled: s.nodata_filled,
             nodata_fallback: s.nodata_fallback,
@@ -408,7 +408,7 @@ pub(crate) fn publish(
             height,
             nodata_filled: input.nodata_filled,
         },
-        frame: input.georef,
+        frame: input.georef.clone(),
         tile_size: opts.tile_size,
         depth: pyramid.depth,
         subtree_levels: SUBTREE_LEVELS,

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use terrastream::bake::shard::InputOptions;
 use terrastream::bake::{self, BakeOptions, BakeSummary};
+use terrastream::crs::{Crs, VerticalDatum};
 use terrastream::formats::tiles3d::Anchor;
 use terrastream::raster::dataset::{Dataset, DatasetOptions, ScanRecord};
 use terrastream::raster::{self, HeightEncoding};
@@ -12,6 +13,11 @@ use terrastream::store::Store;
 use terrastream::tiling;
 
 use super::parse_pair;
+
+/// `--crs`: a CRS and the vertical datum it names, if any.
+fn parse_crs(s: &str) -> Result<(Crs, Option<VerticalDatum>), String> {
+    Crs::parse(s).map_err(|e| e.to_string())
+}
 use super::progress::{Bar, TILES_TEMPLATE, peak_rss_mib};
 
 #[derive(clap::Args)]
@@ -73,11 +79,11 @@ pub struct InputArgs {
     /// OpenEXR channel to read (default: the first float channel).
     #[arg(long)]
     pub channel: Option<String>,
-    /// Horizontal cell size in metres (overrides the file's georeference); for LAS/LAZ inputs, the
-    /// grid's cell (required).
+    /// Cell size in metres of a raster without a coordinate system (refused for one with a CRS:
+    /// its grid says); for LAS/LAZ inputs, the grid's cell (required).
     #[arg(long)]
     pub cell_size: Option<f64>,
-    /// World position of sample (0, 0) as X,Y (overrides the file's georeference).
+    /// World position of sample (0, 0) as X,Y of a raster without a coordinate system.
     #[arg(long, value_parser = parse_pair, allow_hyphen_values = true)]
     pub origin: Option<(f64, f64)>,
     /// Multiply raw sample values by this.
@@ -93,9 +99,19 @@ pub struct InputArgs {
     /// temporary directory). The files are unnamed and vanish when the bake ends.
     #[arg(long)]
     pub scratch_dir: Option<PathBuf>,
-    /// Largest accepted distortion of the metric frame over a geographic dataset, in percent.
-    #[arg(long, default_value_t = raster::dataset::DEFAULT_MAX_DISTORTION * 100.0)]
-    pub max_distortion: f64,
+    /// The inputs' horizontal coordinate system, for inputs that state none or instead of what
+    /// they state: EPSG:NNNN, EPSG:NNNN+VVVV (with a vertical CRS: 5773 EGM96, 3855 EGM2008), a
+    /// PROJ string, or WKT with an EPSG identifier.
+    #[arg(long, value_parser = parse_crs)]
+    pub crs: Option<(Crs, Option<VerticalDatum>)>,
+    /// What the heights are measured from (default: the input's; `.hgt` is EGM96; otherwise the
+    /// ellipsoid). Globe outputs (3D Tiles) are always ellipsoidal.
+    #[arg(long, value_enum)]
+    pub vertical_datum: Option<VerticalDatum>,
+    /// The geoid grid of --vertical-datum as a GTX file (EGM96 15′ is built in; EGM2008 needs
+    /// one, e.g. PROJ's egm08_25.gtx).
+    #[arg(long)]
+    pub geoid_grid: Option<PathBuf>,
     /// Refuse files decoded whole (PNG, OpenEXR) with a side longer than this many samples.
     #[arg(long, default_value_t = raster::DEFAULT_MAX_SIDE)]
     pub max_side: u32,
@@ -126,7 +142,9 @@ impl InputArgs {
             z_offset: self.z_offset,
             cache_mib: self.cache_mib,
             scratch_dir: self.scratch_dir.clone(),
-            max_distortion: self.max_distortion,
+            crs: self.crs.as_ref().map(|c| c.0.clone()),
+            vertical_datum: self.vertical_datum.or(self.crs.as_ref().and_then(|c| c.1)),
+            geoid_grid: self.geoid_grid.clone(),
             max_side: self.max_side,
             max_bytes: self.max_bytes,
         }
@@ -232,8 +250,8 @@ pub fn print_summary(s: &BakeSummary, out: &std::path::Path) {
     outln!("{}", bake::BakeReport { summary: s, out, peak_rss_mib: peak_rss_mib() });
 }
 
-/// The dataset summary printed before the bake: files, grid, extent, CRS kind, no-data, distortion.
-fn describe(ds: &Dataset, opts: &DatasetOptions) -> String {
+/// The dataset summary printed before the bake: files, grid, extent, CRS, no-data, heights.
+fn describe(ds: &Dataset, _opts: &DatasetOptions) -> String {
     use std::fmt::Write;
     let s = ds.summary();
     let g = ds.georef();
@@ -241,7 +259,7 @@ fn describe(ds: &Dataset, opts: &DatasetOptions) -> String {
         [one] => one.display().to_string(),
         many => format!("{} files ({} … {})", many.len(), many[0].display(), many[many.len() - 1].display()),
     };
-    let unit = if s.crs == "geographic" { "°" } else { "" };
+    let unit = if g.crs.as_ref().is_some_and(|c| c.crs.is_geographic()) { "°" } else { "" };
     let mut out = format!(
         "{files}: {}×{} {} samples, {} CRS, extent x {:.6}{unit}..{:.6}{unit}, y {:.6}{unit}..{:.6}{unit}, cell {:.3} × {:.3} m, {} no-data filled",
         s.width,
@@ -283,13 +301,26 @@ fn describe(ds: &Dataset, opts: &DatasetOptions) -> String {
             u64::from(s.width) * u64::from(s.height)
         );
     }
-    if let Some(d) = s.distortion {
-        let _ = write!(
-            out,
-            "\nmetric frame: east-west scale of the central latitude, off by {:.3} % at the extent's edges (accepted: {:.2} %)",
-            d * 100.0,
-            opts.max_distortion * 100.0
-        );
+    match s.vertical {
+        Some(v) => {
+            let _ = write!(
+                out,
+                "\nheights: {} ({})",
+                v.name(),
+                match v {
+                    VerticalDatum::Ellipsoid =>
+                        "the input states no vertical datum, so its heights are taken as ellipsoidal; give --vertical-datum if they are not",
+                    VerticalDatum::Egm96 | VerticalDatum::Egm2008 =>
+                        "orthometric: globe outputs add the geoid's undulation",
+                }
+            );
+        }
+        None => {
+            let _ = write!(
+                out,
+                "\nno coordinate system: a local frame; globe outputs need --anchor (or --crs on a georeferenced grid)"
+            );
+        }
     }
     out
 }

@@ -33,8 +33,8 @@ use tiff::decoder::{ChunkType, Decoder};
 
 use super::nodata::{self, FALLBACK_BLOCK};
 use super::{
-    FileGeoref, Format, Georef, LoadOptions, MAX_HEIGHT, MAX_RELIEF_CELLS, RasterError, WindowReader,
-    geotiff, hgt,
+    FileCrs, FileGeoref, Format, Georef, LoadOptions, MAX_HEIGHT, MAX_RELIEF_CELLS, RasterError,
+    WindowReader, geotiff, hgt,
 };
 use super::{las, vrt};
 
@@ -48,8 +48,6 @@ pub const MAX_DATASET_SIDE: u32 = 1 << 20;
 pub const DEFAULT_CACHE_BYTES: u64 = 512 << 20;
 /// Smallest block cache budget accepted, in bytes.
 pub const MIN_CACHE_BYTES: u64 = 4 << 20;
-/// Default largest distortion of the metric frame over a geographic dataset's extent.
-pub const DEFAULT_MAX_DISTORTION: f64 = 0.05;
 
 /// What opening a dataset needs besides its files.
 #[derive(Debug, Clone)]
@@ -58,9 +56,6 @@ pub struct DatasetOptions {
     pub load: LoadOptions,
     /// Budget of the block caches, in bytes.
     pub cache_bytes: u64,
-    /// Largest accepted relative error of the metric frame's east-west scale over the extent of a
-    /// geographic dataset (0.05 = 5 %).
-    pub max_distortion: f64,
     /// Directory for scratch files (the gridded point clouds); `None` = the system's temporary
     /// directory.
     pub scratch: Option<PathBuf>,
@@ -68,12 +63,7 @@ pub struct DatasetOptions {
 
 impl Default for DatasetOptions {
     fn default() -> Self {
-        Self {
-            load: LoadOptions::default(),
-            cache_bytes: DEFAULT_CACHE_BYTES,
-            max_distortion: DEFAULT_MAX_DISTORTION,
-            scratch: None,
-        }
+        Self { load: LoadOptions::default(), cache_bytes: DEFAULT_CACHE_BYTES, scratch: None }
     }
 }
 
@@ -85,16 +75,16 @@ pub struct DatasetSummary {
     pub format: String,
     pub width: u32,
     pub height: u32,
-    /// "projected", "geographic" or "none" (no georeference).
-    pub crs: &'static str,
+    /// The CRS (`EPSG:n` or a PROJ string); "local" for a metric grid that names none, "none"
+    /// without georeference.
+    pub crs: String,
+    /// What the heights are measured from (with a CRS).
+    pub vertical: Option<crate::crs::VerticalDatum>,
     /// Extent of the sample centres in the files' own units: [x_min, y_min, x_max, y_max].
     pub extent: [f64; 4],
     pub nodata_filled: u64,
     /// Of the filled samples, those beyond [`FILL_REACH`] (set from the fallback grid).
     pub nodata_fallback: u64,
-    /// Geographic datasets: the largest relative error of the metric frame's east-west scale
-    /// over the extent (the frame uses the scale at the central latitude).
-    pub distortion: Option<f64>,
     /// CRC-32 of every filled height, row-major, little-endian f32 (the bake's source checksum).
     pub crc32: String,
     /// Point clouds: what the gridding read and used.
@@ -489,7 +479,7 @@ fn open_input(
     path: &Path,
     opts: &DatasetOptions,
     frames: &mut Vec<(FileGeoref, u32, u32)>,
-) -> Result<Vec<(Part, FileGeoref)>, RasterError> {
+) -> Result<Vec<(Part, FileGeoref, FileCrs)>, RasterError> {
     let (file, format) = format_of(path)?;
     if format != Format::Vrt {
         return Ok(vec![open_part(path, file, format, opts)?]);
@@ -526,7 +516,7 @@ fn open_input(
                 ),
             ));
         }
-        let (mut part, _own_georef) =
+        let (mut part, _own_georef, _own_crs) =
             open_part(&src.file, file, format, opts).map_err(|e| in_vrt(path, &src.element, &e))?;
         if let Some((w, h)) = src.whole_file
             && (w, h) != (part.file_width, part.file_height)
@@ -552,7 +542,8 @@ fn open_input(
         part.width = w.min(part.file_width - sx);
         part.height = h.min(part.file_height - sy);
         part.nodata = src.nodata.iter().filter(|v| !v.is_nan()).map(|&v| v as f32).collect();
-        parts.push((part, shifted(v.georef, src.dst.0, src.dst.1)));
+        // The VRT's <SRS> says what its grid means; its sources' own keys are not read.
+        parts.push((part, shifted(v.georef, src.dst.0, src.dst.1), v.crs.clone()));
     }
     Ok(parts)
 }
@@ -568,7 +559,7 @@ fn open_part(
     file: File,
     format: Format,
     opts: &DatasetOptions,
-) -> Result<(Part, FileGeoref), RasterError> {
+) -> Result<(Part, FileGeoref, FileCrs), RasterError> {
     let part =
         |source: Box<dyn BlockSource>, format, width, height| whole_part(path, source, format, width, height);
     match format {
@@ -606,11 +597,12 @@ fn open_part(
                 nodata: h.nodata,
                 buffer_bytes,
             };
-            Ok((part(Box::new(source), "geotiff", h.width, h.height), h.georef))
+            Ok((part(Box::new(source), "geotiff", h.width, h.height), h.georef, h.crs))
         }
         Format::Hgt => {
             let (side, georef) = hgt::header(path)?;
-            Ok((part(Box::new(HgtSource { file: Mutex::new(file), side }), "hgt", side, side), georef))
+            let part = part(Box::new(HgtSource { file: Mutex::new(file), side }), "hgt", side, side);
+            Ok((part, georef, hgt::file_crs()))
         }
         Format::Png | Format::Exr => {
             let reader = BufReader::new(file);
@@ -627,7 +619,7 @@ fn open_part(
                 ));
             }
             let src = MemorySource { width: d.width, height: d.height, values: d.values };
-            Ok((part(Box::new(src), d.format, d.width, d.height), d.georef))
+            Ok((part(Box::new(src), d.format, d.width, d.height), d.georef, d.crs))
         }
         Format::Vrt | Format::Las => Err(dataset_error(path, "a VRT or point cloud is not one raster file")),
     }
@@ -770,15 +762,6 @@ impl Dataset {
                 super::check_encoding(p, *f, &opts.load)?;
             }
         }
-        if !(opts.max_distortion.is_finite() && opts.max_distortion >= 0.0) {
-            return Err(dataset_error(
-                first_path,
-                format!(
-                    "--max-distortion must be a finite percentage ≥ 0, got {}",
-                    opts.max_distortion * 100.0
-                ),
-            ));
-        }
         if opts.cache_bytes < MIN_CACHE_BYTES {
             return Err(dataset_error(
                 first_path,
@@ -790,15 +773,17 @@ impl Dataset {
         }
         let mut parts = Vec::with_capacity(paths.len());
         let mut georefs = Vec::with_capacity(paths.len());
+        let mut crss: Vec<(PathBuf, FileCrs)> = Vec::with_capacity(paths.len());
         let mut frames = Vec::new();
         let mut points = None;
         let las_files: Vec<&PathBuf> =
             paths.iter().filter(|p| format_of(p).is_ok_and(|(_, f)| f == Format::Las)).collect();
         if las_files.is_empty() {
             for p in paths {
-                for (part, g) in open_input(p, opts, &mut frames)? {
+                for (part, g, c) in open_input(p, opts, &mut frames)? {
                     parts.push(part);
                     georefs.push(g);
+                    crss.push((p.clone(), c));
                 }
             }
         } else {
@@ -820,44 +805,54 @@ impl Dataset {
                 _ => "las+laz",
             };
             let (w, h, g) = (grid.width, grid.height, grid.georef);
+            let grid_crs = grid.crs.clone();
             points = Some(grid.stats.clone());
             let source = LasSource { grid, scratch };
             parts.push(whole_part(first_path, Box::new(source), format, w, h));
             georefs.push(g);
+            crss.push((first_path.clone(), grid_crs));
         }
         if parts.is_empty() {
             return Err(dataset_error(first_path, "no source of the VRT lies inside its files"));
         }
         let (width, height, file_georef) = place(&mut parts, &georefs, &frames)?;
-        let mut georef = super::base_georef(first_path, file_georef, height)?;
-        super::apply_overrides(&mut georef, &opts.load.overrides);
-        super::check_frame(first_path, &georef, &opts.load.overrides, width, height)?;
-
-        let (kind, x0, y0, dx, dy) = frame_of(file_georef);
-        let far = |o: f64, d: f64, n: u32| o + d * f64::from(n - 1);
-        let (xa, xb, ya, yb) = (x0, far(x0, dx, width), y0, far(y0, dy, height));
-        let extent = [xa.min(xb), ya.min(yb), xa.max(xb), ya.max(yb)];
-        let distortion = (kind == "geographic").then(|| {
-            let centre = f64::midpoint(ya, yb);
-            let m = |lat: f64| super::metres_per_degree(lat).0;
-            [ya, yb].iter().map(|&lat| (m(lat) / m(centre) - 1.0).abs()).fold(0.0, f64::max)
-        });
-        if let Some(d) = distortion
-            && d > opts.max_distortion
+        // One coordinate system for all: the first input's (or --crs); another is named.
+        let file_crs = crss.first().map(|c| c.1.clone()).unwrap_or_default();
+        if opts.load.overrides.crs.is_none()
+            && let Some((other, c)) = crss.iter().find(|(_, c)| c.horizontal != file_crs.horizontal)
         {
+            let name = |c: &FileCrs| c.horizontal.as_ref().map_or("no CRS", |h| h.definition()).to_owned();
             return Err(dataset_error(
-                first_path,
+                other,
                 format!(
-                    "the geographic dataset spans latitudes {:.4}°..{:.4}°: the metric frame (scale of the central \
-                     latitude) is off by {:.2} % at its edges, more than the accepted {:.2} %; bake it in parts, \
-                     reproject it to a metric CRS, or raise --max-distortion",
-                    extent[1],
-                    extent[3],
-                    d * 100.0,
-                    opts.max_distortion * 100.0
+                    "is in {} but {} is in {}; warping between coordinate systems is not supported yet: \
+                     reproject the inputs to one CRS first (gdalwarp -t_srs)",
+                    name(c),
+                    crss[0].0.display(),
+                    name(&file_crs)
                 ),
             ));
         }
+        // Point clouds: --cell-size is the gridding cell, not an override of a georeference.
+        let overrides = if points.is_some() {
+            super::Overrides { cell_size: None, ..opts.load.overrides.clone() }
+        } else {
+            opts.load.overrides.clone()
+        };
+        let mut georef = super::base_georef(first_path, file_georef, &file_crs, &overrides, width, height)?;
+        super::apply_overrides(&mut georef, &overrides);
+        super::check_frame(first_path, &georef, &overrides, width, height)?;
+
+        let (_, x0, y0, dx, dy) = frame_of(file_georef);
+        let far = |o: f64, d: f64, n: u32| o + d * f64::from(n - 1);
+        let (xa, xb, ya, yb) = (x0, far(x0, dx, width), y0, far(y0, dy, height));
+        let extent = [xa.min(xb), ya.min(yb), xa.max(xb), ya.max(yb)];
+        let vertical = georef.crs.as_ref().map(|_| georef.vertical);
+        let crs_name = match &georef.crs {
+            Some(g) => g.crs.definition().to_owned(),
+            None if matches!(file_georef, FileGeoref::None) => "none".to_owned(),
+            None => "local".to_owned(),
+        };
         let formats: Vec<&str> = parts.iter().map(|p| p.format).collect();
         let format = if formats.iter().all(|f| *f == formats[0]) { formats[0] } else { "mixed" };
         // Half to the files' blocks, half to the filled dataset blocks.
@@ -874,11 +869,11 @@ impl Dataset {
                 format: format.to_owned(),
                 width,
                 height,
-                crs: kind,
+                crs: crs_name,
+                vertical,
                 extent,
                 nodata_filled: 0,
                 nodata_fallback: 0,
-                distortion,
                 crc32: String::new(),
                 points,
             },
@@ -1022,7 +1017,7 @@ impl Dataset {
         // Per block: (no-data count, mean, min z, max z).
         type Stats = (u64, f32, f32, f32);
         let (bc, br) = (self.width.div_ceil(BLOCK), self.height.div_ceil(BLOCK));
-        let g = self.georef;
+        let g = self.georef.clone();
         let mut means = Vec::with_capacity(bc as usize * br as usize);
         let (mut nodata, mut min, mut max) = (0u64, f32::INFINITY, f32::NEG_INFINITY);
         let mut crc = crc32fast::Hasher::new();

@@ -15,7 +15,7 @@ use tiff::decoder::{Decoder, DecodingResult};
 use tiff::tags::Tag;
 use tiff::{ColorType, TiffError, TiffFormatError};
 
-use super::{Decoded, FileGeoref, Limits, RasterError, check_size};
+use super::{Decoded, FileCrs, FileGeoref, Limits, RasterError, check_size};
 
 const FORMAT: &str = "TIFF";
 
@@ -40,6 +40,73 @@ pub(super) fn map_err(path: &Path, e: TiffError) -> RasterError {
         TiffError::IoError(io) => RasterError::io(path, io),
         other => RasterError::corrupt(path, FORMAT, other.to_string()),
     }
+}
+
+/// The coordinate system a `GeoKeyDirectory` states: `ProjectedCSTypeGeoKey` (3072) or
+/// `GeographicTypeGeoKey` (2048) as EPSG codes, `VerticalCSTypeGeoKey` (4096). A key whose
+/// value is not supported is refused, naming the key and the value.
+fn crs_of_keys(path: &Path, dir: &[u16], model: Option<u16>) -> Result<FileCrs, RasterError> {
+    let count = dir.get(3).map_or(0, |&n| usize::from(n));
+    let short = |id: u16| {
+        dir.get(4..)
+            .unwrap_or(&[])
+            .chunks_exact(4)
+            .take(count)
+            .find(|k| k[0] == id && k[1] == 0)
+            .map(|k| k[3])
+    };
+    let refuse = |key: &str, value: u16, why: String| RasterError::Crs {
+        path: path.to_owned(),
+        message: format!("{key} {value}: {why}"),
+    };
+    let by_code = |key: &str, code: u16| {
+        crate::crs::Crs::from_epsg(u32::from(code)).map_err(|e| refuse(key, code, e.to_string()))
+    };
+    const USER_DEFINED: u16 = 32767;
+    let horizontal = match (model, short(3072), short(2048)) {
+        (Some(MODEL_PROJECTED) | None, Some(USER_DEFINED), _) => {
+            return Err(refuse(
+                "ProjectedCSTypeGeoKey",
+                USER_DEFINED,
+                "a user-defined projection; give the CRS with --crs".into(),
+            ));
+        }
+        (Some(MODEL_PROJECTED) | None, Some(code), _) => Some(by_code("ProjectedCSTypeGeoKey", code)?),
+        (_, _, Some(USER_DEFINED)) => {
+            return Err(refuse(
+                "GeographicTypeGeoKey",
+                USER_DEFINED,
+                "a user-defined datum; give the CRS with --crs".into(),
+            ));
+        }
+        (Some(MODEL_GEOGRAPHIC), _, Some(code)) => Some(by_code("GeographicTypeGeoKey", code)?),
+        _ => None,
+    };
+    if let Some(c) = &horizontal
+        && c.is_geographic() != (model == Some(MODEL_GEOGRAPHIC))
+        && model.is_some()
+    {
+        return Err(RasterError::Crs {
+            path: path.to_owned(),
+            message: format!(
+                "GTModelTypeGeoKey {} does not fit {} ({})",
+                model.unwrap_or(0),
+                c.definition(),
+                if c.is_geographic() { "geographic" } else { "projected" }
+            ),
+        });
+    }
+    let vertical = match short(4096) {
+        None => None,
+        Some(code) => Some(crate::crs::VerticalDatum::from_epsg(u32::from(code)).ok_or_else(|| {
+            refuse(
+                "VerticalCSTypeGeoKey",
+                code,
+                "expected 5773 (EGM96 height) or 3855 (EGM2008 height)".into(),
+            )
+        })?),
+    };
+    Ok(FileCrs { horizontal, vertical })
 }
 
 /// `GTModelTypeGeoKey` and `GTRasterTypeGeoKey` from a `GeoKeyDirectory`; keys stored outside
@@ -146,6 +213,7 @@ pub(super) struct Header {
     pub height: u32,
     pub nodata: Option<f64>,
     pub georef: FileGeoref,
+    pub crs: FileCrs,
 }
 
 /// Opens a TIFF whose signature was already checked and reads its header: one band of a
@@ -198,9 +266,13 @@ pub(super) fn open<R: Read + Seek>(
     let nodata = nodata(path, &mut dec)?;
     let affine = affine(path, &mut dec)?;
     let keys = dec.find_tag(Tag::GeoKeyDirectoryTag).map_err(|e| map_err(path, e))?;
-    let (model, raster) = match keys {
-        Some(v) => geokeys(&v.into_u16_vec().map_err(|e| map_err(path, e))?),
-        None => (None, None),
+    let (model, raster, crs) = match keys {
+        Some(v) => {
+            let dir = v.into_u16_vec().map_err(|e| map_err(path, e))?;
+            let (model, raster) = geokeys(&dir);
+            (model, raster, crs_of_keys(path, &dir, model)?)
+        }
+        None => (None, None, FileCrs::default()),
     };
 
     let georef = match affine {
@@ -225,7 +297,7 @@ pub(super) fn open<R: Read + Seek>(
     };
 
     check_extent(path, georef, width, height)?;
-    Ok((dec, Header { width, height, nodata, georef }))
+    Ok((dec, Header { width, height, nodata, georef, crs }))
 }
 
 /// Converts one decoded image or chunk to f32 values, no-data as NaN.
@@ -257,7 +329,7 @@ pub(super) fn decode(path: &Path, reader: impl Read + Seek, limits: Limits) -> R
     let (mut dec, h) = open(path, reader, limits.decoder_bytes())?;
     check_size(path, h.width.into(), h.height.into(), limits)?;
     let values = values_of(&dec.read_image().map_err(|e| map_err(path, e))?, h.nodata);
-    Ok(Decoded { width: h.width, height: h.height, values, georef: h.georef, format: "geotiff" })
+    Ok(Decoded { width: h.width, height: h.height, values, georef: h.georef, crs: h.crs, format: "geotiff" })
 }
 
 /// Rejects a georeference whose far corner cannot be represented: finite origin and steps can
@@ -403,7 +475,12 @@ pub fn write_tiled_f32<W: std::io::Write + Seek>(
         (339, 3, 1, u16s(&[3])),
         (33550, 12, 3, f64s(&[step.0.abs(), -step.1, 0.0])),
         (33922, 12, 6, f64s(&[0.0, 0.0, 0.0, origin.0, origin.1, 0.0])),
-        (34735, 3, 12, u16s(&[1, 1, 0, 2, 1024, 0, 1, model_key, 1025, 0, 1, 2])),
+        // Geographic: WGS 84 (GeographicTypeGeoKey 4326); projected: no CRS (a local frame).
+        if model == Model::Geographic {
+            (34735, 3, 16, u16s(&[1, 1, 0, 3, 1024, 0, 1, model_key, 1025, 0, 1, 2, 2048, 0, 1, 4326]))
+        } else {
+            (34735, 3, 12, u16s(&[1, 1, 0, 2, 1024, 0, 1, model_key, 1025, 0, 1, 2]))
+        },
     ];
     if let Some(nd) = nodata {
         let mut text = format!("{nd}").into_bytes();

@@ -7,7 +7,7 @@
 use std::io::Read;
 use std::path::Path;
 
-use super::{Decoded, FileGeoref, Limits, RasterError, check_size};
+use super::{Decoded, FileCrs, FileGeoref, Limits, RasterError, check_size};
 
 const VOID: i16 = i16::MIN;
 
@@ -124,6 +124,12 @@ fn georef(side: u32, south: i32, west: i32) -> FileGeoref {
     FileGeoref::Geographic { lon0: f64::from(west), lat0: f64::from(south) + 1.0, dlon: step, dlat: -step }
 }
 
+/// What an SRTM tile's coordinates mean: WGS 84 longitude and latitude, heights above the EGM96
+/// geoid (the SRTM product specification).
+pub(super) fn file_crs() -> FileCrs {
+    FileCrs { horizontal: Some(crate::crs::Crs::wgs84()), vertical: Some(crate::crs::VerticalDatum::Egm96) }
+}
+
 /// A tile's side and georeference from its name and length, without reading it.
 pub(super) fn header(path: &Path) -> Result<(u32, FileGeoref), RasterError> {
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
@@ -141,6 +147,7 @@ fn samples(bytes: &[u8], side: u32, south: i32, west: i32) -> Decoded {
         height: side,
         values: values(bytes),
         georef: georef(side, south, west),
+        crs: file_crs(),
         format: "hgt",
     }
 }

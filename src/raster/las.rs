@@ -76,6 +76,8 @@ pub struct Gridded {
     pub width: u32,
     pub height: u32,
     pub(crate) georef: FileGeoref,
+    /// The coordinate system the files' VLRs state (none yet: read by a later change).
+    pub(crate) crs: super::FileCrs,
     pub stats: PointStats,
     raster: Mutex<File>,
 }
@@ -395,7 +397,7 @@ pub fn grid(
     }
     raster.flush().map_err(scratch_err)?;
     let georef = FileGeoref::Projected { x0: c0 as f64 * cell, y0: rtop as f64 * cell, dx: cell, dy: -cell };
-    Ok(Gridded { width, height, georef, stats, raster: Mutex::new(raster) })
+    Ok(Gridded { width, height, georef, crs: super::FileCrs::default(), stats, raster: Mutex::new(raster) })
 }
 
 impl Gridded {

@@ -24,6 +24,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::crs::{Crs, CrsGrid, Frame, VerticalDatum};
+
 #[doc(hidden)]
 pub use from_bytes::{load_bytes, load_hgt_bytes_any_side};
 
@@ -74,44 +76,18 @@ impl WindowReader for Heightfield {
     }
 }
 
-/// How a geographic (degree) raster was mapped to the local metric frame.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct GeographicMapping {
-    /// Longitude/latitude (degrees) of sample (0, 0).
-    pub lon0: f64,
-    pub lat0: f64,
-    /// Degrees per column / per row (row step is negative for north-up rasters).
-    pub dlon: f64,
-    pub dlat: f64,
-    /// Metres per degree used for the mapping (at the raster's central latitude).
-    pub metres_per_deg_lon: f64,
-    pub metres_per_deg_lat: f64,
-}
-
-impl GeographicMapping {
-    /// Builds the mapping for a `rows`-row raster, taking the metres per degree at its central
-    /// latitude so the distortion is spread evenly over the raster.
-    #[must_use]
-    pub fn new(lon0: f64, lat0: f64, dlon: f64, dlat: f64, rows: u32) -> Self {
-        let centre = lat0 + dlat * (f64::from(rows.max(1)) - 1.0) / 2.0;
-        let (m_lon, m_lat) = metres_per_degree(centre);
-        Self { lon0, lat0, dlon, dlat, metres_per_deg_lon: m_lon, metres_per_deg_lat: m_lat }
-    }
-}
-
-/// Metres per degree of (longitude, latitude) at latitude `lat_deg` on the WGS84 ellipsoid
-/// (the usual truncated series; good to ~1 cm per degree).
-#[must_use]
-pub fn metres_per_degree(lat_deg: f64) -> (f64, f64) {
-    let phi = lat_deg.to_radians();
-    let lat = 111_132.954 - 559.822 * (2.0 * phi).cos() + 1.175 * (4.0 * phi).cos();
-    let lon = 111_412.84 * phi.cos() - 93.5 * (3.0 * phi).cos();
-    (lon, lat)
-}
+pub use crate::crs::metres_per_degree;
 
 /// World frame: `x = x0 + col·dx`, `y = y0 + row·dy`, `z = z0 + value·dz` (z already applied to
-/// `Heightfield::data`, recorded for the manifest).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+/// `Heightfield::data`, recorded for the manifest), and where that grid lies on the Earth.
+///
+/// The world frame is metric: with a CRS, `dx`, `dy` are the cell's ground size in metres at the
+/// centre of the data (degrees times metres per degree for a geographic CRS; the CRS's unit and
+/// its projection's point scale for a projected one), `x0`, `y0` the first sample's CRS
+/// coordinates in metres (0, 0 for a geographic CRS). Placement on the Earth never uses that
+/// approximation: [`Georef::frame`] maps a world point back to its CRS coordinates exactly
+/// (`crs`: the grid in the CRS) and converts those.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Georef {
     pub x0: f64,
     pub y0: f64,
@@ -119,14 +95,73 @@ pub struct Georef {
     pub dy: f64,
     pub z0: f64,
     pub dz: f64,
-    /// Present when the source was in degrees.
-    pub geographic: Option<GeographicMapping>,
+    /// The grid in its coordinate reference system; `None` for a local frame (a raster without
+    /// georeference, or a metric grid that names no CRS).
+    #[serde(default)]
+    pub crs: Option<CrsGrid>,
+    /// What the heights are measured from.
+    #[serde(default = "ellipsoid")]
+    pub vertical: VerticalDatum,
+    /// The geoid grid file of `vertical`, when it is not the embedded EGM96.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geoid_grid: Option<PathBuf>,
+}
+
+fn ellipsoid() -> VerticalDatum {
+    VerticalDatum::Ellipsoid
 }
 
 impl Default for Georef {
     /// The frame of a raster without georeference: unit cells, origin at sample (0, 0).
     fn default() -> Self {
-        Self { x0: 0.0, y0: 0.0, dx: 1.0, dy: 1.0, z0: 0.0, dz: 1.0, geographic: None }
+        Self {
+            x0: 0.0,
+            y0: 0.0,
+            dx: 1.0,
+            dy: 1.0,
+            z0: 0.0,
+            dz: 1.0,
+            crs: None,
+            vertical: VerticalDatum::Ellipsoid,
+            geoid_grid: None,
+        }
+    }
+}
+
+/// Why a georeferenced frame cannot be placed on the Earth.
+#[derive(Debug, thiserror::Error)]
+pub enum FrameError {
+    #[error(transparent)]
+    Geoid(#[from] crate::crs::GeoidError),
+    #[error("heights on {0} need a geoid grid: give --geoid-grid FILE.gtx (PROJ's egm08_25.gtx for EGM2008)")]
+    NoGrid(&'static str),
+}
+
+impl Georef {
+    /// The exact way from this world frame to the Earth; `None` for a local frame.
+    pub fn frame(&self) -> Result<Option<Frame>, FrameError> {
+        let Some(grid) = &self.crs else { return Ok(None) };
+        let geoid = match (self.vertical, &self.geoid_grid) {
+            (VerticalDatum::Ellipsoid, _) => None,
+            (_, Some(path)) => Some(std::sync::Arc::new(crate::crs::Geoid::from_gtx(path)?)),
+            (VerticalDatum::Egm96, None) => Some(crate::crs::Geoid::egm96()?),
+            (v @ VerticalDatum::Egm2008, None) => return Err(FrameError::NoGrid(v.name())),
+        };
+        Ok(Some(Frame {
+            x0: self.x0,
+            y0: self.y0,
+            dx: self.dx,
+            dy: self.dy,
+            grid: grid.clone(),
+            vertical: self.vertical,
+            geoid,
+        }))
+    }
+
+    /// True when the frame lies on the Earth (it has a CRS).
+    #[must_use]
+    pub fn is_placed(&self) -> bool {
+        self.crs.is_some()
     }
 }
 
@@ -192,12 +227,20 @@ impl Limits {
 }
 
 /// User overrides of the file's georeference.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct Overrides {
+    /// Cell size of a raster without georeference (refused for one with a CRS).
     pub cell_size: Option<f64>,
+    /// World position of sample (0, 0) of a raster without georeference (refused with a CRS).
     pub origin: Option<(f64, f64)>,
     pub z_scale: Option<f64>,
     pub z_offset: Option<f64>,
+    /// `--crs`: the horizontal CRS of inputs that state none, or instead of what they state.
+    pub crs: Option<Crs>,
+    /// `--vertical-datum` (or the vertical part of `--crs EPSG:h+v`): instead of the input's.
+    pub vertical: Option<VerticalDatum>,
+    /// `--geoid-grid`: the geoid of `vertical` as a GTX file (else EGM96 is embedded).
+    pub geoid_grid: Option<PathBuf>,
 }
 
 #[derive(Debug, Clone, Default)]
@@ -289,6 +332,11 @@ pub enum RasterError {
         path.display()
     )]
     HgtLength { path: PathBuf, len: u64 },
+    /// The coordinate system cannot be used: a CRS key or text that is not supported (named
+    /// with its value), degrees without a datum, `--crs` on a file without a grid, or an
+    /// override that a CRS makes meaningless.
+    #[error("{}: coordinate system: {message}", path.display())]
+    Crs { path: PathBuf, message: String },
     /// The file's own georeference is unusable (zero or non-finite cell size, ...).
     #[error("{}: invalid georeference in file: {message}", path.display())]
     BadGeoref { path: PathBuf, message: String },
@@ -326,6 +374,13 @@ impl RasterError {
     }
 }
 
+/// The coordinate system a file states, before `--crs` and `--vertical-datum`.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub(crate) struct FileCrs {
+    pub(crate) horizontal: Option<Crs>,
+    pub(crate) vertical: Option<VerticalDatum>,
+}
+
 /// Georeference as the file states it, before the metric mapping and the overrides.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) enum FileGeoref {
@@ -345,6 +400,7 @@ pub(crate) struct Decoded {
     height: u32,
     values: Vec<f32>,
     georef: FileGeoref,
+    crs: FileCrs,
     format: &'static str,
 }
 
@@ -488,7 +544,7 @@ pub(crate) fn not_in_memory(path: &Path, format: Format) -> RasterError {
 
 /// Shared tail of every format: fill no-data, build the world frame, apply z.
 fn finish(path: &Path, decoded: Decoded, overrides: &Overrides) -> Result<LoadedRaster, RasterError> {
-    let Decoded { width, height, mut values, georef, format } = decoded;
+    let Decoded { width, height, mut values, georef, crs, format } = decoded;
     // Decoders allocate exactly width·height; a mismatch would be a decoder bug, reported
     // rather than indexed past.
     if values.len() as u64 != u64::from(width) * u64::from(height) {
@@ -502,7 +558,7 @@ fn finish(path: &Path, decoded: Decoded, overrides: &Overrides) -> Result<Loaded
         nodata::fill_local(width as usize, height as usize, &mut values)
             .ok_or_else(|| RasterError::AllNoData { path: path.to_owned(), samples: values.len() as u64 })?;
 
-    let mut frame = base_georef(path, georef, height)?;
+    let mut frame = base_georef(path, georef, &crs, overrides, width, height)?;
     apply_overrides(&mut frame, overrides);
     check_frame(path, &frame, overrides, width, height)?;
     apply_z(path, &mut values, &frame)?;
@@ -517,36 +573,88 @@ fn finish(path: &Path, decoded: Decoded, overrides: &Overrides) -> Result<Loaded
     })
 }
 
-pub(crate) fn base_georef(path: &Path, georef: FileGeoref, rows: u32) -> Result<Georef, RasterError> {
+/// The world frame of a file's grid in its coordinate system ([`Georef`]): `--crs` or the file's
+/// own CRS decides how the grid's numbers are read (degrees for a geographic CRS, the CRS's units
+/// for a projected one); a grid without a CRS stays a local frame (metres, unplaced).
+pub(crate) fn base_georef(
+    path: &Path,
+    georef: FileGeoref,
+    file_crs: &FileCrs,
+    o: &Overrides,
+    width: u32,
+    height: u32,
+) -> Result<Georef, RasterError> {
     let bad = |message: String| RasterError::BadGeoref { path: path.to_owned(), message };
     let usable_step = |s: f64| s.is_finite() && s != 0.0;
-    match georef {
-        FileGeoref::None => Ok(Georef::default()),
-        FileGeoref::Projected { x0, y0, dx, dy } => {
-            if !(usable_step(dx) && usable_step(dy) && x0.is_finite() && y0.is_finite()) {
-                return Err(bad(format!("origin ({x0}, {y0}), cell size ({dx}, {dy})")));
+    let horizontal = o.crs.clone().or_else(|| file_crs.horizontal.clone());
+    let (x0, y0, dx, dy) = match georef {
+        FileGeoref::None => {
+            if let Some(c) = &o.crs {
+                return Err(RasterError::Crs {
+                    path: path.to_owned(),
+                    message: format!(
+                        "--crs {} needs a georeferenced grid and this file has none; give it one through a GDAL VRT \
+                         (<SRS> and <GeoTransform>)",
+                        c.definition()
+                    ),
+                });
             }
-            Ok(Georef { x0, y0, dx, dy, ..Georef::default() })
+            return Ok(Georef::default());
         }
+        FileGeoref::Projected { x0, y0, dx, dy } => (x0, y0, dx, dy),
         FileGeoref::Geographic { lon0, lat0, dlon, dlat } => {
-            if !(usable_step(dlon) && usable_step(dlat) && lon0.is_finite() && lat0.is_finite()) {
-                return Err(bad(format!("origin ({lon0}°, {lat0}°), cell size ({dlon}°, {dlat}°)")));
+            if horizontal.is_none() {
+                return Err(RasterError::Crs {
+                    path: path.to_owned(),
+                    message:
+                        "the grid is in degrees but names no geographic CRS (datum); give --crs, e.g. --crs \
+                              EPSG:4326 for WGS 84"
+                            .into(),
+                });
             }
-            let last_lat = lat0 + dlat * f64::from(rows.saturating_sub(1));
-            if lat0.abs() > 90.0 || last_lat.abs() > 90.0 {
-                return Err(bad(format!("latitudes {lat0}°..{last_lat}° leave the range ±90°")));
-            }
-            let m = GeographicMapping::new(lon0, lat0, dlon, dlat, rows);
-            Ok(Georef {
-                x0: 0.0,
-                y0: 0.0,
-                dx: dlon * m.metres_per_deg_lon,
-                dy: dlat * m.metres_per_deg_lat,
-                geographic: Some(m),
-                ..Georef::default()
-            })
+            (lon0, lat0, dlon, dlat)
+        }
+    };
+    if !(usable_step(dx) && usable_step(dy) && x0.is_finite() && y0.is_finite()) {
+        return Err(bad(format!("origin ({x0}, {y0}), cell size ({dx}, {dy})")));
+    }
+    let Some(crs) = horizontal else {
+        // A metric grid that names no CRS: a local frame.
+        return Ok(Georef { x0, y0, dx, dy, ..Georef::default() });
+    };
+    for (given, what) in [(o.cell_size.is_some(), "--cell-size"), (o.origin.is_some(), "--origin")] {
+        if given {
+            return Err(RasterError::Crs {
+                path: path.to_owned(),
+                message: format!(
+                    "{what} applies to rasters without a coordinate system; this one is in {} (its grid gives \
+                     the cell size and position): remove {what}",
+                    crs.definition()
+                ),
+            });
         }
     }
+    let vertical = o.vertical.or(file_crs.vertical).unwrap_or(VerticalDatum::Ellipsoid);
+    let far = |v: f64, d: f64, n: u32| v + d * f64::from(n.saturating_sub(1));
+    let (xc, yc) = (f64::midpoint(x0, far(x0, dx, width)), f64::midpoint(y0, far(y0, dy, height)));
+    let grid = CrsGrid { crs: crs.clone(), e0: x0, n0: y0, de: dx, dn: dy };
+    let base = Georef { crs: Some(grid), vertical, geoid_grid: o.geoid_grid.clone(), ..Georef::default() };
+    if crs.is_geographic() {
+        let last_lat = far(y0, dy, height);
+        if y0.abs() > 90.0 || last_lat.abs() > 90.0 {
+            return Err(bad(format!("latitudes {y0}°..{last_lat}° leave the range ±90°")));
+        }
+        let (m_lon, m_lat) = metres_per_degree(yc);
+        // At a pole the east-west scale vanishes; the frame keeps cells square there.
+        let m_lon = m_lon.max(m_lat * 1e-3);
+        return Ok(Georef { x0: 0.0, y0: 0.0, dx: dx * m_lon, dy: dy * m_lat, ..base });
+    }
+    let (kx, ky) = crs.ground_scale(xc, yc).map_err(|e| RasterError::Crs {
+        path: path.to_owned(),
+        message: format!("the centre of the grid cannot be converted: {e}"),
+    })?;
+    let unit = crs.unit_metres();
+    Ok(Georef { x0: x0 * unit, y0: y0 * unit, dx: dx * kx, dy: dy * ky, ..base })
 }
 
 /// The world frame within the limits: cell sizes in [`MIN_CELL_SIZE`]..=[`MAX_CELL_SIZE`] and
@@ -662,6 +770,7 @@ pub(crate) fn validate_overrides(path: &Path, o: &Overrides) -> Result<(), Raste
 }
 
 pub(crate) fn apply_overrides(g: &mut Georef, o: &Overrides) {
+    // With a CRS, [`base_georef`] refused both.
     if let Some(c) = o.cell_size {
         g.dx = c.copysign(g.dx);
         g.dy = c.copysign(g.dy);

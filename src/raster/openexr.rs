@@ -190,6 +190,7 @@ pub(super) fn decode(
         height: height as u32,
         values,
         georef: FileGeoref::None,
+        crs: super::FileCrs::default(),
         format: "exr",
     })
 }

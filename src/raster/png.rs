@@ -142,7 +142,7 @@ fn decode_checked(
             ));
         }
     };
-    Ok(Decoded { width, height, values, georef: FileGeoref::None, format })
+    Ok(Decoded { width, height, values, georef: FileGeoref::None, crs: super::FileCrs::default(), format })
 }
 
 /// A PNG's colour type in the words of its format's users ("8-bit RGB", "16-bit grayscale").

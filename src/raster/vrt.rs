@@ -12,7 +12,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{FileGeoref, RasterError};
+use super::{FileCrs, FileGeoref, RasterError};
 
 /// Largest VRT file read, in bytes.
 pub const MAX_VRT_BYTES: u64 = 64 << 20;
@@ -47,6 +47,8 @@ pub struct Vrt {
     pub height: u32,
     /// Georeference of the VRT's sample (0, 0) centre.
     pub(crate) georef: FileGeoref,
+    /// The `<SRS>`'s coordinate system (none without one).
+    pub(crate) crs: FileCrs,
     pub sources: Vec<Source>,
 }
 
@@ -56,28 +58,6 @@ fn unsupported(path: &Path, message: impl Into<String>) -> RasterError {
 
 fn corrupt(path: &Path, message: impl Into<String>) -> RasterError {
     RasterError::corrupt(path, FORMAT, message)
-}
-
-/// Whether a VRT's `<SRS>` text names a geographic CRS: WKT (1 or 2) whose outermost CRS is
-/// geographic, a PROJ string with `+proj=longlat`, or one of the common geographic EPSG codes.
-/// Anything else, and no SRS at all, counts as projected (as a GeoTIFF without GeoKeys does).
-fn srs_is_geographic(srs: &str) -> bool {
-    const GEOGRAPHIC_EPSG: [u32; 14] =
-        [4326, 4258, 4269, 4283, 4617, 4674, 4167, 4612, 6318, 4979, 4937, 7844, 4490, 4019];
-    let s = srs.trim_start().to_ascii_uppercase();
-    if s.contains("PROJCS[") || s.contains("PROJCRS[") || s.contains("PROJECTEDCRS[") {
-        return false;
-    }
-    if ["GEOGCS[", "GEOGCRS[", "GEODCRS[", "GEOGRAPHICCRS[", "GEODETICCRS["].iter().any(|k| s.starts_with(k))
-    {
-        return true;
-    }
-    if s.contains("+PROJ=LONGLAT") || s.contains("+PROJ=LATLONG") {
-        return true;
-    }
-    s.strip_prefix("EPSG:")
-        .and_then(|c| c.trim().parse::<u32>().ok())
-        .is_some_and(|c| GEOGRAPHIC_EPSG.contains(&c))
 }
 
 /// Parses a VRT's text. `path` names the VRT in messages and resolves `relativeToVRT` names.
@@ -135,9 +115,18 @@ pub fn parse(path: &Path, text: &str) -> Result<Vrt, RasterError> {
     if gt[1] == 0.0 || gt[5] == 0.0 {
         return Err(corrupt(path, "<GeoTransform> has a zero cell size"));
     }
-    let srs = child("SRS").and_then(|n| n.text()).unwrap_or("");
+    let srs = child("SRS").and_then(|n| n.text()).unwrap_or("").trim();
     let (x0, y0) = (gt[0] + 0.5 * gt[1], gt[3] + 0.5 * gt[5]);
-    let georef = if srs_is_geographic(srs) {
+    let crs = if srs.is_empty() {
+        FileCrs::default()
+    } else {
+        let (horizontal, vertical) = crate::crs::Crs::parse(srs).map_err(|e| RasterError::Crs {
+            path: path.to_owned(),
+            message: format!("<SRS>{}</SRS>: {e}", srs.chars().take(120).collect::<String>()),
+        })?;
+        FileCrs { horizontal: Some(horizontal), vertical }
+    };
+    let georef = if crs.horizontal.as_ref().is_some_and(crate::crs::Crs::is_geographic) {
         FileGeoref::Geographic { lon0: x0, lat0: y0, dlon: gt[1], dlat: gt[5] }
     } else {
         FileGeoref::Projected { x0, y0, dx: gt[1], dy: gt[5] }
@@ -331,7 +320,7 @@ pub fn parse(path: &Path, text: &str) -> Result<Vrt, RasterError> {
     if sources.is_empty() {
         return Err(corrupt(path, "its band has no source inside the VRT's extent"));
     }
-    Ok(Vrt { width, height, georef, sources })
+    Ok(Vrt { width, height, georef, crs, sources })
 }
 
 #[cfg(test)]
@@ -341,7 +330,7 @@ mod tests {
     fn vrt(band: &str) -> String {
         format!(
             r#"<VRTDataset rasterXSize="20" rasterYSize="10">
-  <SRS>PROJCS["WGS 84 / UTM zone 33N",GEOGCS["WGS 84"]]</SRS>
+  <SRS>PROJCS["WGS 84 / UTM zone 33N",GEOGCS["WGS 84"],AUTHORITY["EPSG","32633"]]</SRS>
   <GeoTransform> 1000.0, 2.0, 0.0, 5000.0, 0.0, -2.0</GeoTransform>
   <VRTRasterBand dataType="Float32" band="1">{band}</VRTRasterBand>
 </VRTDataset>"#
@@ -375,13 +364,17 @@ mod tests {
     fn geographic_srs_and_negative_offsets() {
         let s = vrt(r#"<SimpleSource><SourceFilename>t.hgt</SourceFilename>
               <SrcRect xOff="0" yOff="0" xSize="30" ySize="30"/><DstRect xOff="-3" yOff="-4" xSize="30" ySize="30"/></SimpleSource>"#)
-        .replace(r#"PROJCS["WGS 84 / UTM zone 33N",GEOGCS["WGS 84"]]"#, r#"GEOGCS["WGS 84",DATUM["WGS_1984"]]"#);
+        .replace(
+            r#"PROJCS["WGS 84 / UTM zone 33N",GEOGCS["WGS 84"],AUTHORITY["EPSG","32633"]]"#,
+            r#"GEOGCS["WGS 84",DATUM["WGS_1984"],AUTHORITY["EPSG","4326"]]"#,
+        );
         let v = parse_str(&s).unwrap();
         assert!(matches!(v.georef, FileGeoref::Geographic { .. }));
         assert_eq!((v.sources[0].src, v.sources[0].dst), ((3, 4, 20, 10), (0, 0)));
-        assert!(srs_is_geographic("EPSG:4326"));
-        assert!(!srs_is_geographic("EPSG:32633"));
-        assert!(!srs_is_geographic(""));
+        assert_eq!(v.crs.horizontal.as_ref().and_then(crate::crs::Crs::epsg), Some(4326));
+        // An SRS that names no EPSG identifier is refused, naming the element.
+        let e = parse_str(&s.replace(r#"AUTHORITY["EPSG","4326"]"#, "")).unwrap_err().to_string();
+        assert!(e.contains("<SRS>") && e.contains("coordinate system"), "{e}");
     }
 
     #[test]

@@ -135,7 +135,7 @@ fn load_provisional(name: &str, dir: &Path, source: Arc<Source>, options: &serde
             height: hf.height,
             nodata_filled: raster.nodata_filled,
         },
-        frame: raster.georef,
+        frame: raster.georef.clone(),
         tile_size: source.opts.tile_size,
         depth: source.pyramid.depth,
         subtree_levels: crate::store::SUBTREE_LEVELS,

@@ -160,22 +160,17 @@ impl Placement {
         let c = b.center();
         let (origin, axes) = match kind {
             TilesetKind::Terrain => {
-                let axes = if m.frame.geographic.is_some() || m.frame.dy < 0.0 {
-                    Axes::NorthUp
-                } else {
-                    Axes::RowsSouth
-                };
+                let axes =
+                    if m.frame.crs.is_some() || m.frame.dy < 0.0 { Axes::NorthUp } else { Axes::RowsSouth };
                 ([c.x, c.y, 0.0], axes)
             }
             TilesetKind::Model => ([c.x, b.min.y, c.z], Axes::ModelYUp),
         };
-        let source = match (kind, m.frame.geographic) {
-            (TilesetKind::Terrain, Some(g)) if m.frame.dx != 0.0 && m.frame.dy != 0.0 => {
-                let col = (origin[0] - m.frame.x0) / m.frame.dx;
-                let row = (origin[1] - m.frame.y0) / m.frame.dy;
-                let a = Anchor { lon: g.lon0 + col * g.dlon, lat: g.lat0 + row * g.dlat, height: 0.0 };
+        let source = match (kind, m.frame.frame()) {
+            (TilesetKind::Terrain, Ok(Some(f))) => f.to_geodetic(origin).ok().and_then(|(lon, lat, _)| {
+                let a = Anchor { lon, lat, height: 0.0 };
                 a.check().is_ok().then_some(a)
-            }
+            }),
             _ => None,
         };
         let (anchor, from) = match (anchor, source) {
