@@ -250,8 +250,9 @@ fn srtm_hgt_with_voids_bakes_in_a_local_metric_frame() {
         ok(bin().args(["bake", "--quiet", "--levels", "1", "--max-error", "5", "--out"]).arg(&out).arg(&hgt));
     assert!(summary.contains("200 no-data samples filled"), "{summary}");
     let m = Store::new(&out).manifest().unwrap();
-    let geo = m.frame.geographic.expect("hgt is geographic");
-    assert_eq!((geo.lon0, geo.lat0), (138.0, 36.0));
+    let geo = m.frame.crs.clone().expect("hgt is geographic");
+    assert_eq!((geo.e0, geo.n0, geo.crs.definition()), (138.0, 36.0, "EPSG:4326"));
+    assert_eq!(m.frame.vertical, terrastream::crs::VerticalDatum::Egm96);
     // 3 arc-seconds is about 92 m north-south and 75 m east-west at 35.5° N.
     assert!((m.frame.dy + 92.5).abs() < 1.0, "dy {}", m.frame.dy);
     assert!((m.frame.dx - 75.5).abs() < 1.0, "dx {}", m.frame.dx);

@@ -23,7 +23,7 @@ fn case(name: &str) -> Vec<u8> {
 fn load_raster(name: &str, bytes: &[u8]) -> Result<raster::LoadedRaster, RasterError> {
     let opts = LoadOptions { limits: LIMITS, ..LoadOptions::default() };
     let r = raster::load_bytes(Path::new(name), bytes, &opts)?;
-    let (h, g) = (&r.heights, r.georef);
+    let (h, g) = (&r.heights, &r.georef);
     assert_eq!(h.width as usize * h.height as usize, h.data.len());
     assert!(h.data.iter().all(|v| v.is_finite()));
     for v in [g.x0, g.y0, g.dx, g.dy, g.z0, g.dz] {

@@ -75,7 +75,7 @@ fn gridding_follows_the_documented_rule() {
     let ds = open(&[a.clone(), b.clone()], 1.0).unwrap();
     let s = ds.summary();
     // Columns x = 10..=13, rows y = 22 (top) ..= 20.
-    assert_eq!((s.width, s.height, s.crs), (4, 3, "projected"));
+    assert_eq!((s.width, s.height, s.crs.as_str()), (4, 3, "local"));
     assert_eq!(s.extent, [10.0, 20.0, 13.0, 22.0]);
     assert_eq!(s.format, "las+laz");
     let p = s.points.clone().unwrap();

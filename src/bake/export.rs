@@ -206,7 +206,9 @@ pub fn export_3dtiles(
             } else {
                 stage.join(format!("index/{}/{}/{}.json", c.root.z, c.root.x, c.root.y))
             };
-            let mut bytes = serde_json::to_vec(&chunk_tileset(&info, c, root)).unwrap_or_default();
+            let doc = chunk_tileset(&info, c, root)
+                .map_err(|source| ExportError::Tiles3d { path: store.dir().to_owned(), source })?;
+            let mut bytes = serde_json::to_vec(&doc).unwrap_or_default();
             bytes.push(b'\n');
             write_file(&path, &bytes).map_err(io_err(&path))?;
             docs += 1;
@@ -239,7 +241,8 @@ pub fn export_3dtiles(
                 }
                 .into());
             }
-            let glb = tile_glb(&info, &blob);
+            let glb = tile_glb(&info, &blob)
+                .map_err(|source| ExportError::Tiles3d { path: path.clone(), source })?;
             let dest = stage.join(format!("tiles/{}/{}/{}/{level}.glb", key.z, key.x, key.y));
             write_file(&dest, &glb).map_err(io_err(&dest))?;
             glb_bytes.fetch_add(glb.len() as u64, Ordering::Relaxed);

@@ -279,7 +279,7 @@ impl Crs {
         // A step of about a metre, in the CRS's units.
         let s = 1.0 / self.unit_metres();
         let dist = |a: (f64, f64), b: (f64, f64)| {
-            let phi = ((a.1 + b.1) / 2.0).to_radians();
+            let phi = f64::midpoint(a.1, b.1).to_radians();
             let w = (1.0 - ecef::E2 * phi.sin() * phi.sin()).sqrt();
             let n = ecef::A / w;
             let m = ecef::A * (1.0 - ecef::E2) / (w * w * w);

@@ -1,5 +1,6 @@
 //! Reference values from PROJ 9.5 (pyproj 3.7, `Transformer.from_crs(code, 4979, always_xy=True)`),
 //! an implementation independent of proj4rs.
+#![allow(clippy::float_cmp)]
 
 use super::*;
 

@@ -46,6 +46,7 @@ pub(super) fn map_err(path: &Path, e: TiffError) -> RasterError {
 /// `GeographicTypeGeoKey` (2048) as EPSG codes, `VerticalCSTypeGeoKey` (4096). A key whose
 /// value is not supported is refused, naming the key and the value.
 fn crs_of_keys(path: &Path, dir: &[u16], model: Option<u16>) -> Result<FileCrs, RasterError> {
+    const USER_DEFINED: u16 = 32767;
     let count = dir.get(3).map_or(0, |&n| usize::from(n));
     let short = |id: u16| {
         dir.get(4..)
@@ -62,7 +63,6 @@ fn crs_of_keys(path: &Path, dir: &[u16], model: Option<u16>) -> Result<FileCrs, 
     let by_code = |key: &str, code: u16| {
         crate::crs::Crs::from_epsg(u32::from(code)).map_err(|e| refuse(key, code, e.to_string()))
     };
-    const USER_DEFINED: u16 = 32767;
     let horizontal = match (model, short(3072), short(2048)) {
         (Some(MODEL_PROJECTED) | None, Some(USER_DEFINED), _) => {
             return Err(refuse(
@@ -570,7 +570,7 @@ mod tests {
     use tiff::tags::Tag;
 
     use super::super::test_util::{assert_names_path, load, write};
-    use super::super::{FileGeoref, GeographicMapping, Georef, RasterError, metres_per_degree};
+    use super::super::{FileGeoref, Georef, RasterError, metres_per_degree};
 
     /// `GeoTIFF` tags to attach to a test image.
     #[derive(Default)]
@@ -692,7 +692,7 @@ mod tests {
         assert_eq!(r.heights.data, data.iter().map(|&v| f32::from(v)).collect::<Vec<_>>());
         let g = r.georef;
         assert_eq!((g.x0, g.y0, g.dx, g.dy), (500_015.0, 3_999_985.0, 30.0, -30.0));
-        assert_eq!(g.geographic, None);
+        assert_eq!(g.crs, None);
     }
 
     #[test]
@@ -757,7 +757,10 @@ mod tests {
     #[test]
     fn geographic_maps_to_metres() {
         let dir = tempfile::tempdir().unwrap();
-        let keys = geokeys(2, 1);
+        let mut keys = geokeys(2, 1);
+        // GeographicTypeGeoKey 4326: WGS 84.
+        keys[3] = 3;
+        keys.extend([2048, 0, 1, 4326]);
         let step = 1.0 / 3600.0;
         let geo = Geo {
             scale: Some([step, step, 0.0]),
@@ -767,12 +770,11 @@ mod tests {
         };
         let p = strip_tiff::<colortype::Gray16>(dir.path(), 3, 3, &[1; 9], &geo);
         let g = load(&p).unwrap().georef;
-        let m = g.geographic.unwrap();
+        let m = g.crs.clone().unwrap();
         let (lon0, lat0) = (138.0 + step / 2.0, 36.0 - step / 2.0);
-        let expect = GeographicMapping::new(lon0, lat0, step, -step, 3);
-        assert_eq!(m, expect);
+        assert_eq!((m.e0, m.n0, m.de, m.dn), (lon0, lat0, step, -step));
+        assert_eq!(m.crs.epsg(), Some(4326));
         let (m_lon, m_lat) = metres_per_degree(lat0 - step);
-        assert!((m.metres_per_deg_lon - m_lon).abs() < 1e-9 && (m.metres_per_deg_lat - m_lat).abs() < 1e-9);
         assert_eq!((g.x0, g.y0), (0.0, 0.0));
         assert!((g.dx - step * m_lon).abs() < 1e-9 && (g.dy + step * m_lat).abs() < 1e-9);
         assert!((g.dx - 25.0).abs() < 0.5, "about 25 m per arc-second of longitude at 36°N: {}", g.dx);

@@ -157,7 +157,7 @@ fn samples(bytes: &[u8], side: u32, south: i32, west: i32) -> Decoded {
 #[allow(clippy::unwrap_used, clippy::float_cmp)]
 mod tests {
     use super::super::test_util::{assert_names_path, load, write};
-    use super::super::{GeographicMapping, LoadOptions, RasterError, load as load_with, metres_per_degree};
+    use super::super::{LoadOptions, RasterError, load as load_with, metres_per_degree};
     use super::{Limits, corner_from_name};
     use std::path::Path;
 
@@ -208,11 +208,11 @@ mod tests {
         assert!(r.heights.data.iter().all(|v| v.is_finite()));
 
         let g = r.georef;
-        let m = g.geographic.unwrap();
+        let m = g.crs.clone().unwrap();
         let step = 1.0 / 1200.0;
-        assert_eq!(m, GeographicMapping::new(138.0, 36.0, step, -step, 1201));
+        assert_eq!((m.e0, m.n0, m.de, m.dn), (138.0, 36.0, step, -step));
+        assert_eq!((m.crs.epsg(), g.vertical), (Some(4326), crate::crs::VerticalDatum::Egm96));
         let (m_lon, m_lat) = metres_per_degree(35.5);
-        assert!((m.metres_per_deg_lon - m_lon).abs() < 1e-9 && (m.metres_per_deg_lat - m_lat).abs() < 1e-9);
         assert!((g.dx - step * m_lon).abs() < 1e-9 && (g.dy + step * m_lat).abs() < 1e-9);
         assert!((g.dx - 75.6).abs() < 0.5 && (g.dy + 92.4).abs() < 0.5, "{} {}", g.dx, g.dy);
     }
@@ -223,8 +223,8 @@ mod tests {
         let p = write(dir.path(), "s12w077.HGT", &tile(3601, |_, _| false));
         let r = load(&p).unwrap();
         assert_eq!((r.heights.width, r.heights.height), (3601, 3601));
-        let m = r.georef.geographic.unwrap();
-        assert_eq!((m.lon0, m.lat0, m.dlon, m.dlat), (-77.0, -11.0, 1.0 / 3600.0, -1.0 / 3600.0));
+        let m = r.georef.crs.unwrap();
+        assert_eq!((m.e0, m.n0, m.de, m.dn), (-77.0, -11.0, 1.0 / 3600.0, -1.0 / 3600.0));
     }
 
     #[test]
@@ -266,8 +266,8 @@ mod tests {
         let r = any(Path::new("N35E138.hgt"), &tile(5, voids), 5, &opts).unwrap();
         assert_eq!((r.heights.width, r.heights.height, r.nodata_filled), (5, 5, 1));
         assert_eq!(r.heights.get(4, 3), 34.0);
-        let m = r.georef.geographic.unwrap();
-        assert_eq!(m, GeographicMapping::new(138.0, 36.0, 0.25, -0.25, 5));
+        let m = r.georef.crs.clone().unwrap();
+        assert_eq!((m.e0, m.n0, m.de, m.dn), (138.0, 36.0, 0.25, -0.25));
         for (bytes, side) in [(tile(5, voids), 4), (tile(1, |_, _| false), 1), (vec![0; 7], 2)] {
             let e = any(Path::new("N35E138.hgt"), &bytes, side, &opts).unwrap_err();
             assert!(matches!(e, RasterError::HgtLength { .. }), "{e}");

@@ -1039,6 +1039,7 @@ mod tests {
             origin: Some((1000.0, -5.0)),
             z_scale: Some(0.5),
             z_offset: Some(-10.0),
+            ..Overrides::default()
         };
         let r = load(&p, &LoadOptions { overrides, ..LoadOptions::default() }).unwrap();
         let g = r.georef;
@@ -1182,18 +1183,29 @@ mod tests {
 
     #[test]
     fn geographic_mapping_uses_central_latitude() {
-        let g = base_georef(
-            Path::new("x"),
-            FileGeoref::Geographic { lon0: 10.0, lat0: 46.0, dlon: 0.5, dlat: -0.5 },
-            5,
-        )
-        .unwrap();
-        let m = g.geographic.unwrap();
+        let wgs84 = FileCrs { horizontal: Some(Crs::wgs84()), vertical: None };
+        let o = Overrides::default();
+        let geo = FileGeoref::Geographic { lon0: 10.0, lat0: 46.0, dlon: 0.5, dlat: -0.5 };
+        let g = base_georef(Path::new("x"), geo, &wgs84, &o, 5, 5).unwrap();
+        let m = g.crs.clone().unwrap();
+        assert_eq!((m.e0, m.n0, m.de, m.dn), (10.0, 46.0, 0.5, -0.5));
         let (m_lon, m_lat) = metres_per_degree(45.0);
-        assert_eq!((m.metres_per_deg_lon, m.metres_per_deg_lat), (m_lon, m_lat));
         assert_eq!((g.x0, g.y0), (0.0, 0.0));
         assert!((g.dx - 0.5 * m_lon).abs() < 1e-9 && (g.dy + 0.5 * m_lat).abs() < 1e-9);
-        let e = base_georef(Path::new("x"), FileGeoref::Projected { x0: 0.0, y0: 0.0, dx: 0.0, dy: 1.0 }, 1);
+        assert_eq!(g.vertical, VerticalDatum::Ellipsoid);
+        let bad = FileGeoref::Projected { x0: 0.0, y0: 0.0, dx: 0.0, dy: 1.0 };
+        let e = base_georef(Path::new("x"), bad, &FileCrs::default(), &o, 1, 1);
         assert!(matches!(e, Err(RasterError::BadGeoref { .. })));
+        // Degrees without a datum are refused, not guessed; --cell-size with a CRS too.
+        let e = base_georef(Path::new("x"), geo, &FileCrs::default(), &o, 5, 5).unwrap_err().to_string();
+        assert!(e.contains("--crs") && e.contains("degrees"), "{e}");
+        let cell = Overrides { cell_size: Some(90.0), ..Overrides::default() };
+        let e = base_georef(Path::new("x"), geo, &wgs84, &cell, 5, 5).unwrap_err().to_string();
+        assert!(e.contains("--cell-size") && e.contains("EPSG:4326"), "{e}");
+        // A projected CRS in US survey feet: cells in ground metres.
+        let feet = FileCrs { horizontal: Some(Crs::from_epsg(2276).unwrap()), vertical: None };
+        let grid = FileGeoref::Projected { x0: 2_400_000.0, y0: 7_000_000.0, dx: 10.0, dy: -10.0 };
+        let g = base_georef(Path::new("x"), grid, &feet, &o, 100, 100).unwrap();
+        assert!((g.dx / 3.048 - 1.0).abs() < 2e-3 && (g.dy / -3.048 - 1.0).abs() < 2e-3, "{} {}", g.dx, g.dy);
     }
 }

@@ -85,7 +85,7 @@ pub(super) async fn root(
     let ts = tileset(&app, &name)?;
     let info = info(&ts, true).await?;
     let (c, growing) = chunk(&app, &ts, TileKey::new(0, 0, 0)).await?;
-    let entry = json_entry(&chunk_tileset(&info, &c, true));
+    let entry = json_entry(&chunk_tileset(&info, &c, true).map_err(|e| placement_problem(&ts.name, &e))?);
     Ok(send(&method, &headers, &entry, "application/json", if growing { NO_CACHE } else { SHORT }))
 }
 
@@ -119,7 +119,7 @@ pub(super) async fn subtree(
     }
     let info = info(&ts, false).await?;
     let (c, growing) = chunk(&app, &ts, key).await?;
-    let entry = json_entry(&chunk_tileset(&info, &c, false));
+    let entry = json_entry(&chunk_tileset(&info, &c, false).map_err(|e| placement_problem(&ts.name, &e))?);
     if growing {
         return Ok(send(&method, &headers, &entry, "application/json", NO_CACHE));
     }
@@ -160,10 +160,18 @@ pub(super) async fn glb(
     .map_err(|e| {
         tracing::error!(tileset = %ts.name, tile = %key, level, error = %e, "a verified blob does not decode");
         Problem::internal("corrupt-blob", format!("tile {key} level {level} does not decode"))
-    })?;
+    })?
+    .map_err(|e| placement_problem(&ts.name, &e))?;
     let entry = Entry { etag: etag_value(&etag_of(&glb)), bytes: Bytes::from(glb) };
     app.cache.insert(ck, entry.clone());
     Ok(send(&method, &headers, &entry, GLB_TYPE, cache))
+}
+
+/// A tileset that cannot be placed on the Earth (its geoid grid unreadable, a point outside
+/// its CRS's domain): a server-side fault, logged and named.
+fn placement_problem(name: &str, e: &crate::formats::tiles3d::Tiles3dError) -> Problem {
+    tracing::error!(tileset = %name, error = %e, "cannot place the tileset on the Earth");
+    Problem::internal("placement", format!("tileset {name:?} cannot be placed on the Earth: {e}"))
 }
 
 /// `GET /viewer`: the viewer page (it reads `?tileset=NAME` itself).

@@ -5,7 +5,9 @@
 
 use serde_json::{Value, json};
 
+use super::earth;
 use super::placement::{Axes, Placement};
+use crate::crs::{Frame, PlaceError};
 use crate::codec::{Blob, Geometry};
 use crate::geom::{Bounds, Mesh, add_skirts, skirt_depth};
 use crate::tiling::TileKey;
@@ -36,9 +38,15 @@ pub fn mesh_skirt_depth(own: f64) -> f64 {
 /// as `POINTS` with normals. Positions are the blob's integer grid: `UNSIGNED_SHORT` with
 /// `KHR_mesh_quantization` when every axis fits 16 bits, else the same integers as `FLOAT`
 /// (exact below 2²⁴); normals are `BYTE` normalized.
-#[must_use]
-pub fn glb(blob: &Blob, place: &Placement, skirt: Option<(f64, Option<&Bounds>)>) -> Vec<u8> {
+///
+/// On the Earth (`place.earth`), positions are `FLOAT` in the east-north-up frame at the node's
+/// centre, which the node's `matrix` holds ([`super::earth`]); fails only for a point outside
+/// its CRS's or geoid's domain.
+pub fn glb(blob: &Blob, place: &Placement, skirt: Option<(f64, Option<&Bounds>)>) -> Result<Vec<u8>, PlaceError> {
     let h = &blob.header;
+    if let Some(frame) = &place.earth {
+        return glb_on_earth(blob, frame, skirt);
+    }
     let step = [h.quant.xy_step, h.quant.xy_step, h.quant.z_step];
     let min = h.bounds[0];
     match &blob.geometry {
@@ -67,15 +75,80 @@ pub fn glb(blob: &Blob, place: &Placement, skirt: Option<(f64, Option<&Bounds>)>
                 }
             }
             let pos = Positions::new(&all.positions, min, step, place);
-            let normals = mesh_normals(all, &tris[..first_wall], tops, place);
-            Gltf::mesh(&pos, &tris, &normals, h.key, h.level).finish()
+            let g: Vec<glam::DVec3> =
+                all.positions.iter().map(|p| glam::DVec3::from_array(place.gltf_of(*p))).collect();
+            let normals = mesh_normals(&g, &tris[..first_wall], tops);
+            let mut gltf = Gltf::new(h.key, h.level);
+            let acc = gltf.positions(&pos);
+            Ok(gltf.mesh(acc, pos.ints.len(), &tris, &normals).finish())
         }
         Geometry::Points(points) => {
             let pos = Positions::new(&points.positions, min, step, place);
             let map = place.axis_map();
             let normals: Vec<[i8; 3]> =
                 points.normals.iter().map(|n| oct_free_i8(map.map(|(a, s)| s * f64::from(n[a])))).collect();
-            Gltf::points(&pos, &normals, h.key, h.level).finish()
+            let mut gltf = Gltf::new(h.key, h.level);
+            let acc = gltf.positions(&pos);
+            Ok(gltf.points(acc, &normals).finish())
+        }
+    }
+}
+
+/// [`glb`] for a tileset on the Earth: every position from its world point through the exact
+/// frame, relative to the east-north-up frame at the node's centre.
+fn glb_on_earth(blob: &Blob, frame: &Frame, skirt: Option<(f64, Option<&Bounds>)>) -> Result<Vec<u8>, PlaceError> {
+    let h = &blob.header;
+    let b = Bounds::new(h.bounds[0], h.bounds[1]);
+    let enu = earth::node_frame(frame, &b)?;
+    let matrix = earth::gltf_matrix(&enu);
+    let mirrored = earth::mirrored(frame, &b)?;
+    match &blob.geometry {
+        Geometry::Mesh(mesh) => {
+            let skirted = match skirt {
+                Some((depth, outer)) if !mesh.triangles.is_empty() => Some(add_skirts(mesh, depth, outer)),
+                _ => None,
+            };
+            let (all, tops, first_wall): (&Mesh, &[u32], usize) = match &skirted {
+                Some(s) => (&s.mesh, &s.skirt_tops, s.first_skirt_triangle),
+                None => (mesh, &[], mesh.triangles.len()),
+            };
+            let g = earth::gltf_positions(frame, &enu, &all.positions)?;
+            // Top triangles face up: the sign of their summed area seen from above (east, north
+            // = glTF x, −z); walls face outward in the world frame, so turn where it mirrors.
+            let area: f64 = all.triangles[..first_wall]
+                .iter()
+                .map(|t| {
+                    let [a, b, c] = t.map(|i| g[i as usize]);
+                    (b[0] - a[0]) * (-(c[2] - a[2])) - (-(b[2] - a[2])) * (c[0] - a[0])
+                })
+                .sum();
+            let flip_top = area < 0.0;
+            let mut tris = all.triangles.clone();
+            for (i, t) in tris.iter_mut().enumerate() {
+                if if i < first_wall { flip_top } else { mirrored } {
+                    t.swap(1, 2);
+                }
+            }
+            let dg: Vec<glam::DVec3> = g.iter().map(|p| glam::DVec3::from_array(*p)).collect();
+            let normals = mesh_normals(&dg, &tris[..first_wall], tops);
+            let mut gltf = Gltf::new(h.key, h.level);
+            let acc = gltf.float_positions(&g, matrix);
+            Ok(gltf.mesh(acc, g.len(), &tris, &normals).finish())
+        }
+        Geometry::Points(points) => {
+            let g = earth::gltf_positions(frame, &enu, &points.positions)?;
+            let normals = points
+                .positions
+                .iter()
+                .zip(&points.normals)
+                .map(|(p, n)| {
+                    let d = earth::gltf_direction(frame, &enu, *p, n.map(f64::from))?;
+                    Ok(oct_free_i8(d))
+                })
+                .collect::<Result<Vec<_>, PlaceError>>()?;
+            let mut gltf = Gltf::new(h.key, h.level);
+            let acc = gltf.float_positions(&g, matrix);
+            Ok(gltf.points(acc, &normals).finish())
         }
     }
 }
@@ -104,9 +177,7 @@ fn turns(mesh: &Mesh, place: &Placement) -> bool {
 /// triangles (`top`, already facing the right way); a skirt vertex takes the normal of the
 /// border vertex it hangs below (`tops`, in order from the first skirt vertex), so a wall
 /// shades like the surface above it, as Cesium's quantized-mesh skirts do.
-fn mesh_normals(mesh: &Mesh, top: &[[u32; 3]], tops: &[u32], place: &Placement) -> Vec<[i8; 3]> {
-    let g: Vec<glam::DVec3> =
-        mesh.positions.iter().map(|p| glam::DVec3::from_array(place.gltf_of(*p))).collect();
+fn mesh_normals(g: &[glam::DVec3], top: &[[u32; 3]], tops: &[u32]) -> Vec<[i8; 3]> {
     let mut sums = vec![glam::DVec3::ZERO; g.len()];
     for t in top {
         let [a, b, c] = t.map(|i| g[i as usize]);
@@ -294,11 +365,33 @@ impl Gltf {
         }]);
     }
 
-    fn mesh(p: &Positions, tris: &[[u32; 3]], normals: &[[i8; 3]], key: TileKey, level: u8) -> Self {
-        let mut g = Self::new(key, level);
-        let pos = g.positions(p);
+    /// `FLOAT` positions in the frame `matrix` (the glTF node's, column-major).
+    fn float_positions(&mut self, g: &[[f64; 3]], matrix: [f64; 16]) -> usize {
+        let mut b = Vec::with_capacity(g.len() * 12);
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        for p in g {
+            for a in 0..3 {
+                let v = p[a] as f32;
+                lo[a] = lo[a].min(v);
+                hi[a] = hi[a].max(v);
+                b.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        if g.is_empty() {
+            (lo, hi) = ([0.0; 3], [0.0; 3]);
+        }
+        let view = self.view(&b, Some(12), ARRAY_BUFFER);
+        let acc = self.accessor(json!({
+            "bufferView": view, "componentType": GLTF_FLOAT, "count": g.len(), "type": "VEC3", "min": lo, "max": hi,
+        }));
+        self.json["nodes"] = json!([{ "mesh": 0, "matrix": matrix }]);
+        acc
+    }
+
+    fn mesh(mut self, pos: usize, vertices: usize, tris: &[[u32; 3]], normals: &[[i8; 3]]) -> Self {
+        let g = &mut self;
         let nrm = g.normals(normals);
-        let (view, component) = if p.ints.len() <= MAX_U16_VERTICES {
+        let (view, component) = if vertices <= MAX_U16_VERTICES {
             let b: Vec<u8> = tris.iter().flatten().flat_map(|&i| (i as u16).to_le_bytes()).collect();
             (g.view(&b, None, ELEMENT_ARRAY_BUFFER), GLTF_U16)
         } else {
@@ -309,18 +402,16 @@ impl Gltf {
             g.accessor(json!({ "bufferView": view, "componentType": component, "count": tris.len() * 3, "type": "SCALAR" }));
         g.material([0.64, 0.60, 0.50], false);
         g.json["meshes"] = json!([{ "primitives": [{ "attributes": { "POSITION": pos, "NORMAL": nrm }, "indices": idx, "mode": 4, "material": 0 }] }]);
-        g
+        self
     }
 
-    fn points(p: &Positions, normals: &[[i8; 3]], key: TileKey, level: u8) -> Self {
-        let mut g = Self::new(key, level);
-        let pos = g.positions(p);
-        let nrm = g.normals(normals);
-        g.material([0.78, 0.70, 0.52], true);
-        g.json["meshes"] = json!([{
+    fn points(mut self, pos: usize, normals: &[[i8; 3]]) -> Self {
+        let nrm = self.normals(normals);
+        self.material([0.78, 0.70, 0.52], true);
+        self.json["meshes"] = json!([{
             "primitives": [{ "attributes": { "POSITION": pos, "NORMAL": nrm }, "mode": 0, "material": 0 }]
         }]);
-        g
+        self
     }
 
     /// The GLB container: header, JSON chunk (space-padded), BIN chunk (zero-padded).

@@ -15,6 +15,7 @@
 //! One file per part: [`placement`] (anchor, axes, the east-north-up frame), [`mod@glb`] (the
 //! glTF binary of a blob), [`tileset`] (tileset JSON, and the GLB of a stored tile as it lists it).
 
+pub mod earth;
 pub mod glb;
 pub mod placement;
 pub mod tileset;
@@ -37,6 +38,12 @@ pub enum Tiles3dError {
     Manifest(#[source] serde_json::Error),
     #[error("manifest: `kind` is {0}, not terrain or model")]
     ManifestKind(serde_json::Value),
+    /// The tileset's frame cannot be placed on the Earth (its geoid grid cannot be read).
+    #[error("placement: {0}")]
+    Frame(#[from] crate::raster::FrameError),
+    /// A point of the tileset cannot be placed (outside its CRS's or geoid's domain).
+    #[error("placement: {0}")]
+    Place(#[from] crate::crs::PlaceError),
 }
 
 #[cfg(test)]

@@ -7,7 +7,12 @@
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
+use std::sync::Arc;
+
+use super::earth::EarthFrame;
+use crate::crs::PlaceError;
 use crate::geom::Bounds;
+use crate::raster::FrameError;
 use crate::store::{Manifest, TilesetKind};
 
 /// Where a tileset with no anchor of its own is placed: 0° E, 0° N, height 0 (stated in the
@@ -141,21 +146,27 @@ pub enum Axes {
     ModelYUp,
 }
 
-/// A tileset's place on the globe: the anchor, the world point placed there and the axes.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// A tileset's place on the globe. With a coordinate system (`earth`), every vertex is placed
+/// exactly ([`super::earth`]) and the anchor only names the data's centre; without one (a local
+/// frame, a model), the anchor, the world point placed there and the axes.
+#[derive(Debug, Clone)]
 pub struct Placement {
     pub anchor: Anchor,
     pub from: AnchorFrom,
     /// The world point at the anchor.
     pub origin: [f64; 3],
     pub axes: Axes,
+    /// The exact frame of a tileset with a coordinate system.
+    pub earth: Option<EarthFrame>,
 }
 
 impl Placement {
     /// The placement of a tileset: `anchor` (from `--anchor`) wins; a geographic terrain source
     /// is anchored at the centre of its data; anything else at [`DEFAULT_ANCHOR`].
-    #[must_use]
-    pub fn of(m: &Manifest, kind: TilesetKind, anchor: Option<Anchor>) -> Self {
+    ///
+    /// A terrain tileset with a coordinate system is placed by it, exactly, whatever `anchor`
+    /// says; its frame fails only when its geoid grid cannot be read.
+    pub fn of(m: &Manifest, kind: TilesetKind, anchor: Option<Anchor>) -> Result<Self, FrameError> {
         let b = &m.bounds;
         let c = b.center();
         let (origin, axes) = match kind {
@@ -166,19 +177,31 @@ impl Placement {
             }
             TilesetKind::Model => ([c.x, b.min.y, c.z], Axes::ModelYUp),
         };
-        let source = match (kind, m.frame.frame()) {
-            (TilesetKind::Terrain, Ok(Some(f))) => f.to_geodetic(origin).ok().and_then(|(lon, lat, _)| {
-                let a = Anchor { lon, lat, height: 0.0 };
-                a.check().is_ok().then_some(a)
-            }),
-            _ => None,
+        let earth = match kind {
+            TilesetKind::Terrain => m.frame.frame()?.map(Arc::new),
+            TilesetKind::Model => None,
         };
-        let (anchor, from) = match (anchor, source) {
-            (Some(a), _) => (a, AnchorFrom::Option),
-            (None, Some(a)) => (a, AnchorFrom::Source),
+        let source = earth.as_ref().and_then(|f| {
+            f.to_geodetic(origin).ok().and_then(|(lon, lat, height)| {
+                let a = Anchor { lon, lat, height };
+                a.check().is_ok().then_some(a)
+            })
+        });
+        let (anchor, from) = match (source, anchor) {
+            (Some(a), _) => (a, AnchorFrom::Source),
+            (None, Some(a)) => (a, AnchorFrom::Option),
             (None, None) => (DEFAULT_ANCHOR, AnchorFrom::Default),
         };
-        Self { anchor, from, origin, axes }
+        Ok(Self { anchor, from, origin, axes, earth })
+    }
+
+    /// A tile's `boundingVolume` for a world box: a `region` on the Earth, a `box` in the
+    /// tileset frame otherwise.
+    pub fn bounding_volume(&self, b: &Bounds) -> Result<Value, PlaceError> {
+        match &self.earth {
+            Some(f) => Ok(json!({ "region": super::earth::region(f, b)? })),
+            None => Ok(json!({ "box": self.enu_box(b) })),
+        }
     }
 
     /// Per glTF axis: the world axis it reads and its sign (glTF = east, up, −north).
@@ -222,6 +245,18 @@ impl Placement {
 
     /// The `asset.extras.terrastream` fields that say where the tileset is and why.
     pub(super) fn describe(&self) -> Value {
+        if let Some(f) = &self.earth {
+            return json!({
+                "placement": "exact",
+                "centre": { "lon": self.anchor.lon, "lat": self.anchor.lat, "height": self.anchor.height },
+                "frame": {
+                    "crs": f.grid.crs.record(),
+                    "vertical_datum": f.vertical,
+                    "geoid": f.geoid.as_ref().map(|g| g.name.clone()),
+                },
+                "note": "every vertex placed from its sample's longitude, latitude and ellipsoidal height; each GLB's node matrix is the east-north-up frame at its node's centre",
+            });
+        }
         let north = match self.axes {
             Axes::NorthUp => "+y",
             Axes::RowsSouth => "-y",

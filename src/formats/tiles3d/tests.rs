@@ -123,8 +123,8 @@ fn glb_positions_are_the_blobs_grid_placed_and_triangles_face_up() {
             encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, ErrorFigures::default()).unwrap();
         let blob = decode(&bytes).unwrap();
         let m = manifest(frame, bounds);
-        let place = Placement::of(&m, TilesetKind::Terrain, None);
-        let glb = glb(&blob, &place, None);
+        let place = Placement::of(&m, TilesetKind::Terrain, None).unwrap();
+        let glb = glb(&blob, &place, None).unwrap();
         let (json, got) = read_positions(&glb);
         let big = relief / z_step > 65_535.0;
         assert_eq!(json["accessors"][0]["componentType"], if big { 5126 } else { 5123 });
@@ -167,11 +167,11 @@ fn skirts_hang_on_the_grid_below_inner_borders_only() {
     let blob =
         decode(&encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, ErrorFigures::default()).unwrap())
             .unwrap();
-    let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None);
-    let plain = read_positions(&glb(&blob, &place, None)).1;
+    let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None).unwrap();
+    let plain = read_positions(&glb(&blob, &place, None).unwrap()).1;
     // The dataset is larger than the tile on every side but the west one: no skirt there.
     let outer = Bounds::new([0.0, -100.0, 0.0], [100.0, 40.0, 10.0]);
-    let (_, skirted) = read_positions(&glb(&blob, &place, Some((0.3, Some(&outer)))));
+    let (_, skirted) = read_positions(&glb(&blob, &place, Some((0.3, Some(&outer)))).unwrap());
     assert_eq!(plain.len(), 25);
     // 16 border vertices, less the 4 on the west edge that get no wall (the corners stay).
     assert!(skirted.len() > 25, "{}", skirted.len());
@@ -189,8 +189,8 @@ fn skirts_hang_on_the_grid_below_inner_borders_only() {
             &encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, ErrorFigures::default()).unwrap(),
         )
         .unwrap();
-        let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None);
-        let g = glb(&blob, &place, Some((0.3, None)));
+        let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None).unwrap();
+        let g = glb(&blob, &place, Some((0.3, None))).unwrap();
         let (json, pos) = read_positions(&g);
         let jl = u32::from_le_bytes(g[12..16].try_into().unwrap()) as usize;
         let bin = &g[28 + jl..];
@@ -228,8 +228,8 @@ fn point_normals_are_unit_bytes_in_gltf_axes() {
         decode(&encode_points(TileKey::new(0, 0, 0), 1, &bounds, q, &pc, ErrorFigures::default()).unwrap())
             .unwrap();
     let frame = Georef { dx: 1.0, dy: -1.0, ..Georef::default() };
-    let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None);
-    let glb = glb(&blob, &place, None);
+    let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None).unwrap();
+    let glb = glb(&blob, &place, None).unwrap();
     let jl = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
     let json: Value = serde_json::from_slice(&glb[20..20 + jl]).unwrap();
     let bin = &glb[28 + jl..];
@@ -256,7 +256,7 @@ fn models_stand_on_their_base_at_the_anchor() {
     let bounds = Bounds::new([-1.0, 2.0, -3.0], [1.0, 6.0, 5.0]);
     let m = manifest(Georef::default(), bounds);
     let a = Anchor { lon: 1.0, lat: 2.0, height: 3.0 };
-    let place = Placement::of(&m, TilesetKind::Model, Some(a));
+    let place = Placement::of(&m, TilesetKind::Model, Some(a)).unwrap();
     assert_eq!((place.from, place.anchor), (AnchorFrom::Option, a));
     // The base centre is the origin; +y is up, −z is north (glTF's own axes).
     assert_eq!(place.enu_of([0.0, 2.0, 1.0]), [0.0, 0.0, 0.0]);

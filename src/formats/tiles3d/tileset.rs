@@ -70,7 +70,7 @@ impl TilesetInfo {
             Some(k) => TilesetKind::deserialize(k).map_err(|_| Tiles3dError::ManifestKind(k.clone()))?,
         };
         let manifest = Manifest::deserialize(&v).map_err(Tiles3dError::Manifest)?;
-        let place = Placement::of(&manifest, kind, anchor);
+        let place = Placement::of(&manifest, kind, anchor)?;
         let mut info = Self::new(name, kind, manifest, place, query);
         info.provisional = v.get("on_demand") == Some(&Value::Bool(true));
         if let Some(levels) = v.pointer("/model/levels").and_then(Value::as_array) {
@@ -149,18 +149,22 @@ fn prefix(root: bool) -> &'static str {
 /// stored levels, coarsest first, `REPLACE` down to level 0 and then to the children), nodes
 /// below the chunk as external tilesets. `root` gives the tileset's root document (with the
 /// `transform` and the tileset-wide extras); otherwise the external tileset of that chunk.
-#[must_use]
-pub fn chunk_tileset(info: &TilesetInfo, chunk: &IndexChunk, root: bool) -> Value {
+pub fn chunk_tileset(info: &TilesetInfo, chunk: &IndexChunk, root: bool) -> Result<Value, Tiles3dError> {
     let nodes: std::collections::HashMap<TileKey, &NodeEntry> =
         chunk.nodes.iter().map(|n| (n.key, n)).collect();
     let pre = prefix(root);
-    let mut tile = node_tiles(info, &nodes, chunk.root, chunk.root, pre)
-        .unwrap_or_else(|| json!({ "boundingVolume": { "box": info.place.enu_box(&info.manifest.bounds) }, "geometricError": 0.0 }));
+    let mut tile = match node_tiles(info, &nodes, chunk.root, chunk.root, pre)? {
+        Some(t) => t,
+        None => json!({ "boundingVolume": info.place.bounding_volume(&info.manifest.bounds)?, "geometricError": 0.0 }),
+    };
     let head_error = tile["geometricError"].as_f64().unwrap_or(0.0);
     let mut asset =
         json!({ "version": "1.1", "generator": GENERATOR, "tilesetVersion": info.manifest.content_version });
     let geometric_error = if root {
-        tile["transform"] = json!(info.place.anchor.enu_to_ecef());
+        // With a coordinate system every GLB carries its own frame and the regions are absolute.
+        if info.place.earth.is_none() {
+            tile["transform"] = json!(info.place.anchor.enu_to_ecef());
+        }
         let mut extras = info.place.describe();
         extras["tileset"] = json!(info.name);
         extras["kind"] = json!(info.kind);
@@ -181,7 +185,7 @@ pub fn chunk_tileset(info: &TilesetInfo, chunk: &IndexChunk, root: bool) -> Valu
     } else {
         head_error
     };
-    json!({ "asset": asset, "geometricError": geometric_error, "root": tile })
+    Ok(json!({ "asset": asset, "geometricError": geometric_error, "root": tile }))
 }
 
 /// The chain of tiles of node `key` (coarsest level first), with its children below level 0.
@@ -191,36 +195,34 @@ fn node_tiles(
     chunk: TileKey,
     key: TileKey,
     pre: &str,
-) -> Option<Value> {
+) -> Result<Option<Value>, Tiles3dError> {
     let planned;
     let (node, provisional) = match nodes.get(&key) {
         Some(n) => (*n, false),
         None if info.provisional => {
-            planned = info.planned_node(key)?;
+            let Some(p) = info.planned_node(key) else { return Ok(None) };
+            planned = p;
             (&planned, true)
         }
-        None => return None,
+        None => return Ok(None),
     };
     let last = key.z >= chunk.z.saturating_add(SUBTREE_LEVELS - 1);
-    let children: Vec<Value> = info
-        .children(key)
-        .into_iter()
-        .filter_map(|c| {
-            if last {
-                Some(reference_tile(info, node, c, pre))
-            } else {
-                node_tiles(info, nodes, chunk, c, pre)
-            }
-        })
-        .collect();
+    let mut children = Vec::new();
+    for c in info.children(key) {
+        if last {
+            children.push(reference_tile(info, node, c, pre)?);
+        } else if let Some(t) = node_tiles(info, nodes, chunk, c, pre)? {
+            children.push(t);
+        }
+    }
     let mut below = children;
     let mut head = None;
     for l in &node.levels {
-        let t = level_tile(info, node, l, std::mem::take(&mut below), pre, provisional);
+        let t = level_tile(info, node, l, std::mem::take(&mut below), pre, provisional)?;
         below = vec![t.clone()];
         head = Some(t);
     }
-    head
+    Ok(head)
 }
 
 fn level_tile(
@@ -230,7 +232,7 @@ fn level_tile(
     children: Vec<Value>,
     pre: &str,
     provisional: bool,
-) -> Value {
+) -> Result<Value, Tiles3dError> {
     let key = node.key;
     let kind = info
         .manifest
@@ -259,7 +261,7 @@ fn level_tile(
         extras["provisional"] = json!(true);
     }
     let mut t = json!({
-        "boundingVolume": { "box": info.place.enu_box(&b) },
+        "boundingVolume": info.place.bounding_volume(&b)?,
         "geometricError": l.errors.geometric(),
         "refine": "REPLACE",
         "content": { "uri": format!("{pre}tiles/{}/{}/{}/{}.glb{}", key.z, key.x, key.y, l.level, info.query) },
@@ -268,31 +270,30 @@ fn level_tile(
     if !children.is_empty() {
         t["children"] = Value::Array(children);
     }
-    t
+    Ok(t)
 }
 
 /// A tile standing for the subtree of `child` (a chunk root below this chunk): its content is
 /// that chunk's external tileset. Its box is the child's extent at the dataset's height range
 /// and its error the parent's mesh error (the chunk file says the rest).
-fn reference_tile(info: &TilesetInfo, parent: &NodeEntry, child: TileKey, pre: &str) -> Value {
+fn reference_tile(info: &TilesetInfo, parent: &NodeEntry, child: TileKey, pre: &str) -> Result<Value, Tiles3dError> {
     let mut b = info.planned_bounds(child);
     let parent_error = parent.levels.first().map_or(0.0, |l| l.errors.max);
     b.min.z = b.min.z.min(parent.bounds.min.z) - mesh_skirt_depth(parent_error);
     b.max.z = b.max.z.max(parent.bounds.max.z);
-    json!({
-        "boundingVolume": { "box": info.place.enu_box(&b) },
+    Ok(json!({
+        "boundingVolume": info.place.bounding_volume(&b)?,
         "geometricError": parent.levels.first().map_or(0.0, |l| l.errors.geometric()),
         "refine": "REPLACE",
         "content": { "uri": format!("{pre}index/{}/{}/{}.json{}", child.z, child.x, child.y, info.query) },
         "extras": { "terrastream": { "key": child.to_string(), "subtree": true } },
-    })
+    }))
 }
 
 /// The GLB of one stored (tile, level), from its verified blob: a terrain mesh gets skirts below
 /// its inner borders (none on the dataset's outer border), as the tileset JSON's boxes allow for.
-#[must_use]
-pub fn tile_glb(info: &TilesetInfo, blob: &Blob) -> Vec<u8> {
+pub fn tile_glb(info: &TilesetInfo, blob: &Blob) -> Result<Vec<u8>, Tiles3dError> {
     let skirt = (info.kind == TilesetKind::Terrain && blob.header.kind == Kind::Mesh)
         .then(|| (mesh_skirt_depth(blob.header.errors.max), Some(&info.manifest.bounds)));
-    glb(blob, &info.place, skirt)
+    Ok(glb(blob, &info.place, skirt)?)
 }
