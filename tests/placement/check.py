@@ -28,10 +28,12 @@ import subprocess
 import sys
 import time
 import urllib.parse
+import warnings
 from pathlib import Path
 
 import numpy as np
 import rasterio
+import rasterio.errors
 from pyproj import CRS, Transformer
 
 CORNER_TOL_M = 0.05
@@ -39,6 +41,9 @@ VERTEX_MARGIN_M = 0.1
 # A skirt vertex hangs under a border vertex of the top surface: within this fraction of the
 # height difference horizontally (a cone of half-angle atan(0.25) = 14 degrees).
 SKIRT_CONE = 0.25
+# ... and within this fraction of the raster's sample spacing (a surface neighbour is a sample or
+# more away).
+SKIRT_MAX_OFFSET = 0.25
 # Samples a vertex may lie outside the raster's sample centres before it counts as outside.
 EDGE_EPS_PX = 1e-3
 # A vertex this close to the Earth's axis is at a pole (its longitude means nothing).
@@ -152,6 +157,10 @@ class Source:
         if not self.transform.is_rectilinear:
             raise CheckError(f"{path}: a rotated georeference; not handled by this checker")
         self.crs = crs.sub_crs_list[0] if crs.is_compound else crs
+        # A compound CRS's vertical part says the heights' unit (e.g. metres under a feet grid).
+        self.vertical = crs.sub_crs_list[1] if crs.is_compound and len(crs.sub_crs_list) > 1 else None
+        if self.vertical is not None and self.vertical.axis_info:
+            self.values = self.values * self.vertical.axis_info[0].unit_conversion_factor
         self.geographic = self.crs.is_geographic
         self.to_ll = Transformer.from_crs(self.crs, LL, always_xy=True)
         self.from_ll = Transformer.from_crs(LL, self.crs, always_xy=True)
@@ -210,7 +219,11 @@ def affine(t, u, v):
 
 def terrain_rgb(path, width, height):
     """Mapbox terrain-RGB: -10000 + (R*65536 + G*256 + B) * 0.1 metres."""
-    with rasterio.open(path) as ds:
+    with warnings.catch_warnings():
+        # A PNG has no georeference: the VRT gives it.
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        ds = rasterio.open(path)
+    with ds:
         if ds.count < 3 or (ds.width, ds.height) != (width, height):
             raise CheckError(f"{path}: not a {width} x {height} RGB image")
         rgb = ds.read([1, 2, 3]).astype(float)
@@ -486,12 +499,14 @@ def to_ecef(lon, lat, h):
     return np.stack([np.asarray(x, float), np.asarray(y, float), np.asarray(z, float)], axis=-1)
 
 
-def find_skirts(p, h, tris, threshold):
+def find_skirts(p, h, tris, threshold, max_offset):
     """Skirt vertices of one mesh tile (see README): a vertex on the border of the tile's mesh
     (an edge of it belongs to one triangle only) that shares a triangle with a vertex lying more
-    than `threshold` above it and within SKIRT_CONE of that height difference horizontally
-    (directly below it). A heightfield TIN has one vertex per horizontal position and its
-    interior vertices are on no border, so only walls hanging from the border qualify."""
+    than `threshold` above it and directly below it: horizontally within SKIRT_CONE of the
+    height difference and within `max_offset` (a fraction of the raster's sample spacing). A
+    heightfield TIN has one vertex per horizontal position, its neighbours a sample or more
+    apart, and its interior vertices on no border, so only walls hanging from the border
+    qualify."""
     n = len(p)
     skirt = np.zeros(n, bool)
     if tris is None or len(tris) == 0:
@@ -505,9 +520,29 @@ def find_skirts(p, h, tris, threshold):
     dh = h[up] - h[lo]
     d2 = np.sum((p[up] - p[lo]) ** 2, axis=1)
     horiz = np.sqrt(np.maximum(d2 - dh * dh, 0.0))
-    under = (dh > threshold) & (horiz < SKIRT_CONE * dh)
+    under = (dh > threshold) & (horiz < SKIRT_CONE * dh) & (horiz < max_offset)
     skirt[lo[under]] = True
     return skirt & border
+
+
+def sample_spacing(sources):
+    """The smallest ground distance (m) between neighbouring sample centres of the files, taken
+    at each file's centre and corners (distances under 1 mm, e.g. along a row on a pole, left
+    out)."""
+    best = math.inf
+    for s in sources:
+        cs = np.array([0, s.width - 1, 0, s.width - 1, (s.width - 1) // 2], float)
+        rs = np.array([0, 0, s.height - 1, s.height - 1, (s.height - 1) // 2], float)
+        a = to_ecef(*s.sample_lonlat(cs, rs), np.zeros(5))
+        for dc, dr in ((1, 0), (0, 1)):
+            c2 = np.where(cs + dc > s.width - 1, cs - dc, cs + dc)
+            r2 = np.where(rs + dr > s.height - 1, rs - dr, rs + dr)
+            b = to_ecef(*s.sample_lonlat(c2, r2), np.zeros(5))
+            d = np.linalg.norm(a - b, axis=1)
+            d = d[d > 1e-3]
+            if len(d):
+                best = min(best, float(d.min()))
+    return best
 
 
 def nearest_distance(targets, points, horizontal_only=None):
@@ -571,7 +606,12 @@ def check_placement(entry, tileset, sources, geoid):
     datum = entry["datum"]
     if datum not in ("ellipsoid", "egm96"):
         raise CheckError(f"datum {datum!r}: no expected heights for it here")
+    for s in sources:
+        code = s.vertical.to_epsg() if s.vertical is not None else None
+        if code is not None and {5773: "egm96"}.get(code) != datum:
+            raise CheckError(f"{s.path.name}: its vertical CRS is EPSG:{code}, the manifest says {datum!r}")
     pts, hs, lons, lats, allowed, skirts = [], [], [], [], [], 0
+    max_offset = SKIRT_MAX_OFFSET * sample_spacing(sources)
     finest = 0
     for t in tiles:
         if not t.leaf or not t.contents:
@@ -585,7 +625,7 @@ def check_placement(entry, tileset, sources, geoid):
         offs = np.cumsum([0] + [len(m[1]) for m in meshes])
         tris = np.concatenate([m[2] + o for m, o in zip(meshes, offs)])
         lon, lat, h = to_llh(p)
-        sk = find_skirts(p, h, tris, max(t.error, VERTEX_MARGIN_M))
+        sk = find_skirts(p, h, tris, max(t.error, VERTEX_MARGIN_M), max_offset)
         used = np.zeros(len(p), bool)
         used[tris.ravel()] = True
         keep = used & ~sk

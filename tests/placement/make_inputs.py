@@ -109,6 +109,13 @@ def synthetic(path, crs, transform, width, height, *, seed, wavelength_m, amplit
     write_tif(path, data, transform, crs, nodata=nodata, description=description)
 
 
+def missing(path):
+    """Shared data not found: an error where CI requires the data, else the input is left out."""
+    if os.environ.get("TERRASTREAM_REQUIRE_DATA"):
+        sys.exit(f"make_inputs.py: {path} not found (TERRASTREAM_REQUIRE_DATA is set)")
+    print(f"warning: {path} not found: left out", file=sys.stderr)
+
+
 def entry(name, files, crs, datum, bake=(), note="", **extra):
     return dict(name=name, files=[str(f) for f in files], crs=crs, datum=datum,
                 bake_args=COMMON_BAKE + list(bake), note=note, **extra)
@@ -215,7 +222,7 @@ def main():
                             heights={"terrain_rgb": str(fuji)},
                             note="fuji.png decoded as terrain-RGB; georeference from the VRT; heights above sea level"))
     else:
-        print(f"warning: {fuji} not found: fuji_6677 left out", file=sys.stderr)
+        missing(fuji)
 
     # 9. An SRTM-like 1 degree tile: 1201 x 1201 big-endian int16, EGM96 heights, a coast (sea
     #    at 0) in the west.
@@ -256,7 +263,7 @@ def main():
         if (geo / file).exists():
             inputs.append(entry(name, [geo / file], crs, datum, bake=bake, note=note))
         else:
-            print(f"warning: {geo / file} not found: {name} left out", file=sys.stderr)
+            missing(geo / file)
 
     manifest = {
         "about": "inputs of tests/placement/check.py; written by make_inputs.py",

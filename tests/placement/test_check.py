@@ -142,16 +142,16 @@ def grid_mesh(n=4, spacing=10.0, skirt_depth=30.0, cliff=None):
 
 def test_skirt_rule():
     p, h, tris, skirts = grid_mesh()
-    found = check.find_skirts(p, h, tris, threshold=1.0)
+    found = check.find_skirts(p, h, tris, threshold=1.0, max_offset=2.5)
     assert sorted(np.nonzero(found)[0].tolist()) == skirts
     # Less deep than the threshold: not a skirt (then checked as a vertex, as it must pass).
     p, h, tris, _ = grid_mesh(skirt_depth=0.5)
-    assert not check.find_skirts(p, h, tris, threshold=1.0).any()
+    assert not check.find_skirts(p, h, tris, threshold=1.0, max_offset=2.5).any()
     # A vertex far below its neighbours but not under one (a pit 10 m across, 30 m deep) is no skirt.
     p, h, tris, _ = grid_mesh()
     p[5, 0] -= 30.0
     h[5] -= 30.0
-    found = check.find_skirts(p, h, tris, threshold=1.0)
+    found = check.find_skirts(p, h, tris, threshold=1.0, max_offset=2.5)
     assert not found[5]
 
 
@@ -188,5 +188,145 @@ def test_deep_pit_is_no_skirt():
     p, h, tris, skirts = grid_mesh()
     p[5, 0] -= 50.0
     h[5] -= 50.0
-    found = check.find_skirts(p, h, tris, threshold=1.0)
+    found = check.find_skirts(p, h, tris, threshold=1.0, max_offset=2.5)
     assert not found[5] and sorted(np.nonzero(found)[0].tolist()) == skirts
+
+
+# ---------------------------------------------------------------------------------------------
+# A positive control: a tileset written here, independently of terrastream, with every sample
+# where PROJ puts it (per-tile east-north-up frames, float positions with a byteStride, skirts on
+# inner borders, one external tileset). The checker must pass it, and fail it when it is moved
+# by 6 cm or when the geoid is left out.
+
+
+def enu_frame(lon, lat, h):
+    lam, phi = np.radians(lon), np.radians(lat)
+    east = [-np.sin(lam), np.cos(lam), 0.0]
+    north = [-np.sin(phi) * np.cos(lam), -np.sin(phi) * np.sin(lam), np.cos(phi)]
+    up = [np.cos(phi) * np.cos(lam), np.cos(phi) * np.sin(lam), np.sin(phi)]
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2] = east, north, up
+    m[:3, 3] = check.to_ecef(np.array([lon]), np.array([lat]), np.array([h]))[0]
+    return m
+
+
+def control_glb(ecef, tris, frame):
+    local = (ecef - frame[:3, 3]) @ frame[:3, :3]  # (e, n, u): the frame is orthonormal
+    gltf = np.stack([local[:, 0], local[:, 2], -local[:, 1]], axis=1).astype("<f4")
+    verts = b"".join(v.tobytes() + b"\0\0\0\0" for v in gltf)  # byteStride 16
+    idx = tris.astype("<u4").tobytes()
+    doc = {
+        "asset": {"version": "2.0"},
+        "buffers": [{"byteLength": len(verts) + len(idx)}],
+        "bufferViews": [{"buffer": 0, "byteLength": len(verts), "byteStride": 16},
+                        {"buffer": 0, "byteOffset": len(verts), "byteLength": len(idx)}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": len(gltf), "type": "VEC3"},
+                      {"bufferView": 1, "componentType": 5125, "count": tris.size, "type": "SCALAR"}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}],
+    }
+    return glb_bytes(doc, verts + idx)
+
+
+def write_control(folder, sources, geoid, datum, shift=(0.0, 0.0, 0.0), leave_out_geoid=False):
+    folder.mkdir(parents=True, exist_ok=True)
+    children = []
+    for f, s in enumerate(sources):
+        halves_c = [(0, s.width // 2), (s.width // 2, s.width - 1)]
+        halves_r = [(0, s.height // 2), (s.height // 2, s.height - 1)]
+        for i, (c0, c1) in enumerate(halves_c):
+            for j, (r0, r1) in enumerate(halves_r):
+                cc, rr = np.meshgrid(np.arange(c0, c1 + 1), np.arange(r0, r1 + 1))
+                lon, lat = s.sample_lonlat(cc.ravel(), rr.ravel())
+                h = s.values[rr.ravel(), cc.ravel()].copy()
+                if datum == "egm96" and not leave_out_geoid:
+                    h += geoid.undulation(lon, lat)
+                ecef = check.to_ecef(lon, lat, h) + np.asarray(shift)
+                w = c1 - c0 + 1
+                tris = []
+                for y in range(r1 - r0):
+                    for x in range(c1 - c0):
+                        a, b, c, d = y * w + x, y * w + x + 1, (y + 1) * w + x, (y + 1) * w + x + 1
+                        tris += [(a, b, d), (a, d, c)]
+                # Skirts 3 m deep along the ellipsoid normal below the inner borders.
+                inner = [k for k in range(len(lon))
+                         if (i == 0 and cc.ravel()[k] == c1) or (j == 0 and rr.ravel()[k] == r1)]
+                first = len(ecef)
+                sk = check.to_ecef(lon[inner], lat[inner], h[inner] - 3.0) + np.asarray(shift)
+                ecef = np.concatenate([ecef, sk])
+                pos = {k: first + n for n, k in enumerate(inner)}
+                for y in range(r1 - r0 + 1):
+                    for x in range(c1 - c0 + 1):
+                        for dx, dy in ((1, 0), (0, 1)):
+                            a, b = y * w + x, (y + dy) * w + x + dx
+                            if a in pos and b in pos and x + dx <= c1 - c0 and y + dy <= r1 - r0:
+                                tris += [(b, a, pos[a]), (b, pos[a], pos[b])]
+                k = len(lon) // 2
+                frame = enu_frame(lon[k], lat[k], float(h[k]))
+                name = f"f{f}_{i}{j}.glb"
+                (folder / name).write_bytes(control_glb(ecef, np.array(tris), frame))
+                tile = {"transform": frame.T.ravel().tolist(), "geometricError": 0.0,
+                        "boundingVolume": {"sphere": [0, 0, 0, 1e6]}, "content": {"uri": name}}
+                if (i, j) == (1, 1):  # through an external tileset whose parent moves it back
+                    away = check.translation([0.0, 0.0, -1000.0])
+                    (folder / f"ext{f}.json").write_text(json.dumps(
+                        {"asset": {"version": "1.1"}, "geometricError": 0.0, "root": tile}))
+                    tile = {"transform": away.T.ravel().tolist(), "geometricError": 1.0,
+                            "boundingVolume": {"sphere": [0, 0, 0, 1e6]}, "content": {"uri": f"ext{f}.json"}}
+                    inner_tile = json.loads((folder / f"ext{f}.json").read_text())
+                    back = np.linalg.inv(away) @ frame
+                    inner_tile["root"]["transform"] = back.T.ravel().tolist()
+                    (folder / f"ext{f}.json").write_text(json.dumps(inner_tile))
+                children.append(tile)
+    (folder / "tileset.json").write_text(json.dumps({
+        "asset": {"version": "1.1"}, "geometricError": 100.0,
+        "root": {"geometricError": 100.0, "boundingVolume": {"sphere": [0, 0, 0, 1e7]}, "children": children}}))
+    return folder / "tileset.json"
+
+
+def control_raster(path, crs, transform, w, h, seed):
+    import rasterio
+    rng = np.random.default_rng(seed)
+    data = (300 + 50 * np.sin(np.arange(w * h) / 7.0) + rng.normal(size=w * h)).astype(np.float32).reshape(h, w)
+    with rasterio.open(path, "w", driver="GTiff", width=w, height=h, count=1, dtype="float32", crs=crs,
+                       transform=transform) as d:
+        d.write(data, 1)
+    return check.Source(path)
+
+
+@pytest.mark.parametrize("case", ["utm_egm96", "antimeridian_0360", "north_pole"])
+def test_positive_control(tmp_path, case):
+    from rasterio.transform import Affine
+    geoid = check.Geoid(check.GEOID_GTX)
+    if case == "utm_egm96":
+        src = [control_raster(tmp_path / "a.tif", "EPSG:32632", Affine(90, 0, 600000, 0, -90, 5200000), 21, 17, 1)]
+        datum = "egm96"
+    elif case == "antimeridian_0360":
+        src = [control_raster(tmp_path / "a.tif", "EPSG:4326", Affine(0.01, 0, 179.9, 0, -0.01, 65.1), 20, 12, 2)]
+        datum = "ellipsoid"
+    else:
+        src = [control_raster(tmp_path / "a.tif", "EPSG:4326", Affine(30, 0, -180, 0, -0.02, 90.01), 12, 9, 3)]
+        datum = "ellipsoid"
+        src[0].values[0, :] = src[0].values[0, 0]  # one height at the pole
+    entry = {"datum": datum}
+    good = check.check_placement(entry, write_control(tmp_path / "good", src, geoid, datum), src, geoid)
+    assert good["corner_max_m"] < 0.005, good
+    assert good["over_tolerance"] == 0 and good["outside"] == 0 and good["checked"] > 0, good
+    assert good["skirt_vertices"] > 0 and good["vertical_max_m"] < 0.01, good
+    moved = check.check_placement(entry, write_control(tmp_path / "moved", src, geoid, datum, shift=(0.06, 0, 0)),
+                                  src, geoid)
+    assert moved["corner_max_m"] > check.CORNER_TOL_M
+    if datum == "egm96":
+        flat = check.check_placement(entry, write_control(tmp_path / "nogeoid", src, geoid, datum,
+                                                          leave_out_geoid=True), src, geoid)
+        assert flat["over_tolerance"] == flat["checked"] > 0
+
+
+def test_steep_border_vertex_is_no_skirt():
+    # A border vertex 50 m below its neighbour one 10 m sample away (78 degrees): inside the cone,
+    # but a sample away horizontally, so not under it.
+    p, h, tris, skirts = grid_mesh(cliff=50.0)
+    found = check.find_skirts(p, h, tris, threshold=1.0, max_offset=2.5)
+    assert sorted(np.nonzero(found)[0].tolist()) == skirts
+    assert check.find_skirts(p, h, tris, threshold=1.0, max_offset=20.0)[3]  # the cone alone would take it
