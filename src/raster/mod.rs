@@ -653,6 +653,14 @@ pub(crate) fn base_georef(
         path: path.to_owned(),
         message: format!("the centre of the grid cannot be converted: {e}"),
     })?;
+    // Conformal projections scale both axes alike; the numeric scales differ in their last
+    // digits, and square cells must stay square (vertices then sit exactly on the grid).
+    let (kx, ky) = if (kx / ky - 1.0).abs() < 1e-6 {
+        let k = (kx * ky).sqrt();
+        (k, k)
+    } else {
+        (kx, ky)
+    };
     let unit = crs.unit_metres();
     Ok(Georef { x0: x0 * unit, y0: y0 * unit, dx: dx * kx, dy: dy * ky, ..base })
 }

@@ -48,7 +48,11 @@ fn mul(a: &[f64; 16], b: &[f64; 16]) -> [f64; 16] {
 }
 
 /// World points in glTF axes of the node frame `enu` (east, up, −north), f64.
-pub fn gltf_positions(frame: &Frame, enu: &[f64; 16], world: &[[f64; 3]]) -> Result<Vec<[f64; 3]>, PlaceError> {
+pub fn gltf_positions(
+    frame: &Frame,
+    enu: &[f64; 16],
+    world: &[[f64; 3]],
+) -> Result<Vec<[f64; 3]>, PlaceError> {
     world
         .iter()
         .map(|&p| {
@@ -59,7 +63,12 @@ pub fn gltf_positions(frame: &Frame, enu: &[f64; 16], world: &[[f64; 3]]) -> Res
 }
 
 /// A world direction at a world point, in glTF axes of the node frame (by a one-metre step).
-pub fn gltf_direction(frame: &Frame, enu: &[f64; 16], at: [f64; 3], dir: [f64; 3]) -> Result<[f64; 3], PlaceError> {
+pub fn gltf_direction(
+    frame: &Frame,
+    enu: &[f64; 16],
+    at: [f64; 3],
+    dir: [f64; 3],
+) -> Result<[f64; 3], PlaceError> {
     let a = ecef::ecef_to_enu(enu, frame.to_ecef(at)?);
     let b = ecef::ecef_to_enu(enu, frame.to_ecef([at[0] + dir[0], at[1] + dir[1], at[2] + dir[2]])?);
     Ok([b[0] - a[0], b[2] - a[2], -(b[1] - a[1])])
@@ -201,7 +210,8 @@ mod tests {
         // glTF (e, u, −n) through m, then y-up → z-up, equals ENU (e, n, u) through enu.
         let (e, n, u) = (12.0, -34.0, 56.0);
         let g = [e, u, -n];
-        let after_m: [f64; 3] = std::array::from_fn(|k| m[k] * g[0] + m[4 + k] * g[1] + m[8 + k] * g[2] + m[12 + k]);
+        let after_m: [f64; 3] =
+            std::array::from_fn(|k| m[k] * g[0] + m[4 + k] * g[1] + m[8 + k] * g[2] + m[12 + k]);
         let z_up = [after_m[0], -after_m[2], after_m[1]];
         let want = ecef::enu_to_ecef_point(&enu, [e, n, u]);
         for k in 0..3 {
@@ -222,7 +232,10 @@ mod tests {
         let f = geographic(0.0, 90.0, 1.0);
         let b = Bounds::new([0.0, 5.0 * f.dy, 0.0], [359.0 * f.dx, 0.0, 0.0]);
         let r = region(&f, &b).unwrap();
-        assert!((r[3].to_degrees() - 90.0).abs() < 1e-9 && (r[0] + std::f64::consts::PI).abs() < 1e-9, "{r:?}");
+        assert!(
+            (r[3].to_degrees() - 90.0).abs() < 1e-9 && (r[0] + std::f64::consts::PI).abs() < 1e-9,
+            "{r:?}"
+        );
     }
 
     #[test]

@@ -7,8 +7,8 @@ use serde_json::{Value, json};
 
 use super::earth;
 use super::placement::{Axes, Placement};
-use crate::crs::{Frame, PlaceError};
 use crate::codec::{Blob, Geometry};
+use crate::crs::{Frame, PlaceError};
 use crate::geom::{Bounds, Mesh, add_skirts, skirt_depth};
 use crate::tiling::TileKey;
 
@@ -42,7 +42,11 @@ pub fn mesh_skirt_depth(own: f64) -> f64 {
 /// On the Earth (`place.earth`), positions are `FLOAT` in the east-north-up frame at the node's
 /// centre, which the node's `matrix` holds ([`super::earth`]); fails only for a point outside
 /// its CRS's or geoid's domain.
-pub fn glb(blob: &Blob, place: &Placement, skirt: Option<(f64, Option<&Bounds>)>) -> Result<Vec<u8>, PlaceError> {
+pub fn glb(
+    blob: &Blob,
+    place: &Placement,
+    skirt: Option<(f64, Option<&Bounds>)>,
+) -> Result<Vec<u8>, PlaceError> {
     let h = &blob.header;
     if let Some(frame) = &place.earth {
         return glb_on_earth(blob, frame, skirt);
@@ -96,7 +100,11 @@ pub fn glb(blob: &Blob, place: &Placement, skirt: Option<(f64, Option<&Bounds>)>
 
 /// [`glb`] for a tileset on the Earth: every position from its world point through the exact
 /// frame, relative to the east-north-up frame at the node's centre.
-fn glb_on_earth(blob: &Blob, frame: &Frame, skirt: Option<(f64, Option<&Bounds>)>) -> Result<Vec<u8>, PlaceError> {
+fn glb_on_earth(
+    blob: &Blob,
+    frame: &Frame,
+    skirt: Option<(f64, Option<&Bounds>)>,
+) -> Result<Vec<u8>, PlaceError> {
     let h = &blob.header;
     let b = Bounds::new(h.bounds[0], h.bounds[1]);
     let enu = earth::node_frame(frame, &b)?;

@@ -155,7 +155,9 @@ pub fn chunk_tileset(info: &TilesetInfo, chunk: &IndexChunk, root: bool) -> Resu
     let pre = prefix(root);
     let mut tile = match node_tiles(info, &nodes, chunk.root, chunk.root, pre)? {
         Some(t) => t,
-        None => json!({ "boundingVolume": info.place.bounding_volume(&info.manifest.bounds)?, "geometricError": 0.0 }),
+        None => {
+            json!({ "boundingVolume": info.place.bounding_volume(&info.manifest.bounds)?, "geometricError": 0.0 })
+        }
     };
     let head_error = tile["geometricError"].as_f64().unwrap_or(0.0);
     let mut asset =
@@ -276,7 +278,12 @@ fn level_tile(
 /// A tile standing for the subtree of `child` (a chunk root below this chunk): its content is
 /// that chunk's external tileset. Its box is the child's extent at the dataset's height range
 /// and its error the parent's mesh error (the chunk file says the rest).
-fn reference_tile(info: &TilesetInfo, parent: &NodeEntry, child: TileKey, pre: &str) -> Result<Value, Tiles3dError> {
+fn reference_tile(
+    info: &TilesetInfo,
+    parent: &NodeEntry,
+    child: TileKey,
+    pre: &str,
+) -> Result<Value, Tiles3dError> {
     let mut b = info.planned_bounds(child);
     let parent_error = parent.levels.first().map_or(0.0, |l| l.errors.max);
     b.min.z = b.min.z.min(parent.bounds.min.z) - mesh_skirt_depth(parent_error);
