@@ -743,11 +743,14 @@ mod tests {
             assert!(matches!(e, RasterError::BadGeoref { .. }), "{e}");
             assert_names_path(&e, &p);
         }
-        // The whole globe in either longitude convention is fine.
+        // The whole globe in either longitude convention is fine (on WGS 84: GeographicTypeGeoKey).
+        let mut wgs84 = keys.clone();
+        wgs84[3] = 3;
+        wgs84.extend([2048, 0, 1, 4326]);
         let globe = Geo {
             scale: Some([120.0, 1.0, 0.0]),
             tie: Some([0.0, 0.0, 0.0, 0.0, 0.0, 0.0]),
-            keys: Some(&keys),
+            keys: Some(&wgs84),
             ..Geo::default()
         };
         let p = strip_tiff::<colortype::Gray16>(dir.path(), 3, 1, &[1; 3], &globe);
