@@ -815,6 +815,7 @@ impl Dataset {
         if parts.is_empty() {
             return Err(dataset_error(first_path, "no source of the VRT lies inside its files"));
         }
+        unwrap_longitudes(&parts, &mut georefs);
         let (width, height, file_georef) = place(&mut parts, &georefs, &frames)?;
         // One coordinate system for all: the first input's (or --crs); another is named.
         let file_crs = crss.first().map(|c| c.1.clone()).unwrap_or_default();
@@ -1157,6 +1158,25 @@ fn hash_rows(crc: &mut crc32fast::Hasher, blocks: &[&[f32]], width: u32) {
 
 /// Places the parts on one grid: checks CRS kind, cell size, alignment and overlaps; returns
 /// the dataset size and its georeference (that of sample (0, 0)).
+/// Geographic files whose longitudes are written in another turn of the circle (a mosaic across
+/// the antimeridian: 179.5°..180° beside −180°..−179.5°, or 0–360 beside −180–180) are moved by
+/// whole turns to lie next to the first file: each file's centre within 180° of the first's.
+fn unwrap_longitudes(parts: &[Part], georefs: &mut [FileGeoref]) {
+    let centre = |g: &FileGeoref, p: &Part| match *g {
+        FileGeoref::Geographic { lon0, dlon, .. } => {
+            Some(lon0 + dlon * f64::from(p.width.saturating_sub(1)) / 2.0)
+        }
+        _ => None,
+    };
+    let Some(first) = georefs.first().zip(parts.first()).and_then(|(g, p)| centre(g, p)) else { return };
+    for (g, p) in georefs.iter_mut().zip(parts) {
+        if let (Some(c), FileGeoref::Geographic { lon0, .. }) = (centre(g, p), g) {
+            let turns = ((first - c) / 360.0).round();
+            *lon0 += turns * 360.0;
+        }
+    }
+}
+
 fn place(
     parts: &mut [Part],
     georefs: &[FileGeoref],

@@ -10,7 +10,8 @@ normalized components, CESIUM_RTC) to get every vertex in ECEF (EPSG:4978), and 
 where the source raster's own georeference (rasterio), PROJ (pyproj) and, for orthometric
 heights, the EGM96 grid put the Earth's surface:
 
-- corners: each file's four corner samples within CORNER_TOL_M of a vertex of the finest meshes;
+- corners: each file's four corner samples (of a mosaic in one CRS: those on the corners of the
+  union of its files) within CORNER_TOL_M of a vertex of the finest meshes;
 - vertices: every finest mesh vertex (skirts excepted) within its tile's geometricError +
   VERTEX_MARGIN_M of the raster height at its longitude/latitude (bilinear, + geoid if EGM96).
 
@@ -641,19 +642,48 @@ def check_placement(entry, tileset, sources, geoid):
     if not len(p):
         raise CheckError("the finest mesh tiles have no vertex")
 
-    # Corners.
+    # Corners: of each file, and of a mosaic only those on the corners of the union of its files
+    # (a file corner inside the mosaic is an ordinary sample, which a TIN need not keep). The
+    # union is taken in the files' own coordinates, longitudes unwrapped against the first file.
+    def crs_xy(s, cols, rows):
+        return affine(s.transform, np.asarray(cols, float) + 0.5, np.asarray(rows, float) + 0.5)
+
+    def unwrap(s, x):
+        if not s.geographic:
+            return np.asarray(x, float)
+        ref = crs_xy(sources[0], [(sources[0].width - 1) / 2], [0])[0][0]
+        return np.asarray(x, float) + 360.0 * np.round((ref - np.asarray(x, float)) / 360.0)
+
+    same_crs = all(s.crs == sources[0].crs for s in sources)
+    if len(sources) > 1 and same_crs:
+        xs, ys = [], []
+        for s in sources:
+            x, y = crs_xy(s, [0, s.width - 1], [0, s.height - 1])
+            xs.extend(unwrap(s, x))
+            ys.extend(np.asarray(y, float))
+        union = (min(xs), max(xs), min(ys), max(ys))
+        cell = abs(sources[0].transform.a)
     corner_rows = []
     for s in sources:
         cc = np.array([0, s.width - 1, 0, s.width - 1])
         rr = np.array([0, 0, s.height - 1, s.height - 1])
+        if len(sources) > 1 and same_crs:
+            x, y = crs_xy(s, cc, rr)
+            x = unwrap(s, x)
+            tol = 1e-6 * cell
+            on = ((np.isclose(x, union[0], atol=tol) | np.isclose(x, union[1], atol=tol))
+                  & (np.isclose(y, union[2], atol=tol) | np.isclose(y, union[3], atol=tol)))
+            cc, rr = cc[on], rr[on]
+            if not len(cc):
+                continue
         clon, clat = s.sample_lonlat(cc, rr)
         v = s.values[rr, cc]
         nodata = np.isnan(v)
-        und = geoid.undulation(clon, clat) if datum == "egm96" else np.zeros(4)
+        und = geoid.undulation(clon, clat) if datum == "egm96" else np.zeros(len(cc))
         ch = np.where(nodata, 0.0, v + und)
         target = to_ecef(clon, clat, ch)
         d = nearest_distance(target, p, (nodata, ch, h))
-        for k in range(4):
+        for k in range(len(cc)):
             corner_rows.append(dict(file=s.path.name, col=int(cc[k]), row=int(rr[k]), lon=float(clon[k]),
                                     lat=float(clat[k]), height=None if nodata[k] else float(ch[k]),
                                     distance_m=float(d[k]), horizontal_only=bool(nodata[k])))
