@@ -207,7 +207,9 @@ pub fn document() -> Value {
                 "Summary": {"type": "object", "properties": {
                     "name": {"type": "string"}, "complete": {"type": "boolean"}, "content_version": {"type": "string"},
                     "source": {}, "tile_size": {"type": "integer"}, "depth": {"type": "integer"}, "levels": {"type": "integer"},
-                    "bounds": {}, "totals": {}, "manifest": {"type": "string", "description": "manifest URL with ?v="}}}}
+                    "bounds": {}, "totals": {}, "manifest": {"type": "string", "description": "manifest URL with ?v="},
+                    "frame": {"type": "object", "description": "the world frame: x = x0 + col·dx, y = y0 + row·dy; crs (the grid in its CRS: definition, proj4, e0, n0, de, dn) or null for a local frame; vertical datum (docs/frames.md)"},
+                    "globe": {"type": ["object", "null"], "description": "where the data lies on the Earth: centre {lon, lat, height} (WGS 84, ellipsoidal), crs, vertical_datum, geoid, region [west, south, east, north (degrees), min height, max height]; null for a local frame"}}}}
         }
     })
 }

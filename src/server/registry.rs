@@ -64,7 +64,7 @@ pub(super) fn etag_of(bytes: &[u8]) -> String {
 }
 
 fn summary(name: &str, m: &Manifest, complete: bool) -> serde_json::Value {
-    serde_json::json!({
+    let mut s = serde_json::json!({
         "name": name,
         "complete": complete,
         "content_version": m.content_version,
@@ -75,7 +75,31 @@ fn summary(name: &str, m: &Manifest, complete: bool) -> serde_json::Value {
         "bounds": m.bounds,
         "totals": m.totals,
         "manifest": format!("/tilesets/{name}/tileset.json?v={}", m.content_version),
-    })
+        "frame": m.frame,
+    });
+    s["globe"] = globe(m);
+    s
+}
+
+/// Where a tileset lies on the Earth, for clients that show it (null for a local frame): the
+/// centre of its data (WGS 84 longitude, latitude, ellipsoidal height), its CRS and vertical
+/// datum, and its region in degrees with the ellipsoidal height range. The exact transform is
+/// `frame` (see docs/frames.md).
+fn globe(m: &Manifest) -> serde_json::Value {
+    let Ok(Some(f)) = m.frame.frame() else { return serde_json::Value::Null };
+    let c = m.bounds.center();
+    let centre = f.to_geodetic([c.x, c.y, c.z]);
+    let region = crate::formats::tiles3d::earth::region(&f, &m.bounds);
+    match (centre, region) {
+        (Ok((lon, lat, height)), Ok(r)) => serde_json::json!({
+            "centre": { "lon": lon, "lat": lat, "height": height },
+            "crs": f.grid.crs.definition(),
+            "vertical_datum": f.vertical,
+            "geoid": f.geoid.as_ref().map(|g| g.name.clone()),
+            "region": [r[0].to_degrees(), r[1].to_degrees(), r[2].to_degrees(), r[3].to_degrees(), r[4], r[5]],
+        }),
+        _ => serde_json::Value::Null,
+    }
 }
 
 /// Loads a complete (manifest present) tileset: a directory, a bucket prefix or an archive.
