@@ -2,6 +2,7 @@
 //! square its name states, no root transform, and a node frame per GLB; a local-frame tileset
 //! keeps its anchor. Expectations come from the file name and the 3D Tiles spec, not from the
 //! project's transforms (the vertex-level check is `tests/placement/`, run in CI).
+#![allow(clippy::unwrap_used, clippy::expect_used)]
 
 mod common;
 

@@ -71,9 +71,9 @@ fn check_loaded(name: &str, result: Result<raster::LoadedRaster, raster::RasterE
                 assert!(v.is_finite(), "georef {what} = {v} ({g:?})");
             }
             assert!(g.dx != 0.0 && g.dy != 0.0 && g.dz != 0.0, "zero georef step {g:?}");
-            if let Some(m) = g.geographic {
-                for v in [m.lon0, m.lat0, m.dlon, m.dlat, m.metres_per_deg_lon, m.metres_per_deg_lat] {
-                    assert!(v.is_finite(), "geographic mapping {m:?}");
+            if let Some(m) = &g.crs {
+                for v in [m.e0, m.n0, m.de, m.dn] {
+                    assert!(v.is_finite(), "grid in its CRS {m:?}");
                 }
             }
             // World coordinates of the far corner must be finite too, or every later stage
