@@ -86,7 +86,7 @@ fn load(p: &Path) -> Result<Georef, RasterError> {
 
 /// WGS 84 longitude and latitude of sample (col, row) of a loaded frame.
 fn lonlat(g: &Georef, col: f64, row: f64) -> (f64, f64) {
-    let f = g.frame().unwrap().expect("a frame on the Earth");
+    let f = g.frame().unwrap().unwrap();
     let (lon, lat, _) = f.to_geodetic([g.x0 + col * g.dx, g.y0 + row * g.dy, 0.0]).unwrap();
     (lon, lat)
 }
@@ -203,11 +203,14 @@ fn geographic_model_in_radians() {
     assert_within("sample (3, 2)", lonlat(&g, 3.0, 2.0), (lon + 3.0 * step, lat - 2.0 * step), 1e-3);
 }
 
+/// A file name, its keys and what the refusal must say.
+type Refusal = (&'static str, Vec<(u16, V)>, &'static str);
+
 /// Refusals name the file, the key and its value.
 #[test]
 fn unsupported_keys_are_refused() {
     let dir = tempfile::tempdir().unwrap();
-    let cases: Vec<(&str, Vec<(u16, V)>, &str)> = vec![
+    let cases: Vec<Refusal> = vec![
         (
             "hotine.tif",
             vec![PROJECTED, USER_PCS, (3075, V::S(3)), (3088, d(10.0)), WGS84],

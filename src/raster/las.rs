@@ -8,8 +8,9 @@
 //! **Coordinate system.** Each file's CRS comes from its (extended) VLRs: the WKT record
 //! (`LASF_Projection` 2112, read by [`Crs::parse`]) when the header's WKT bit is set or it is the
 //! only CRS record, else the GeoTIFF keys (`LASF_Projection` 34735–34737, read as a GeoTIFF's are:
-//! [`super::geotiff::geokeys`]). All files must state the same CRS; `--crs` replaces it. Heights
-//! are the points' z, in metres (a GeoKey VLR stating other vertical units is refused).
+//! [`super::geotiff::geokeys`]). All files must state the same CRS; `--crs` replaces one that was
+//! read. Heights are the points' z, in metres (a GeoKey VLR stating other vertical units is
+//! refused).
 //!
 //! **Rule.** A file is *classified* when it holds at least one ground point (ASPRS class 2). Of a
 //! classified file only the ground points count, and a cell takes their **mean**: ground returns
@@ -185,7 +186,8 @@ fn crs_of_header(path: &Path, h: &las::Header) -> Result<FileCrs, RasterError> {
         .map_err(|m| refuse(format!("the GeoKey VLRs (LASF_Projection {GEO_KEY_RECORD}): {m}")))?;
     if (k.degrees_per_unit - 1.0).abs() > f64::EPSILON {
         return Err(refuse(format!(
-            "the GeoKey VLRs: GeogAngularUnitsGeoKey gives {}° per unit; point coordinates must be in degrees",
+            "the GeoKey VLRs: GeogAngularUnitsGeoKey gives {}° per unit; point coordinates must be in \
+             degrees",
             k.degrees_per_unit
         )));
     }

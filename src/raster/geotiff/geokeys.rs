@@ -669,8 +669,8 @@ fn geodetic(keys: &GeoKeys, deg_per_unit: f64) -> Res<Option<Geodetic>> {
                     GEOG_DATUM,
                     datum.map_or_else(|| "(absent)".to_owned(), |d| d.to_string()),
                     format!(
-                        "a user-defined datum on ellipsoid {ellps_name} without GeogTOWGS84GeoKey: its shift to WGS 84 is \
-                         not stated"
+                        "a user-defined datum on ellipsoid {ellps_name} without GeogTOWGS84GeoKey: its shift to \
+                         WGS 84 is not stated"
                     ),
                 );
             };
@@ -921,7 +921,7 @@ fn projection(keys: &GeoKeys, deg: f64, unit: f64) -> Res<(String, String)> {
         other => {
             let what = ct_name(other).map_or_else(
                 || "not a coordinate transformation of GeoTIFF 1.1".to_owned(),
-                |n| format!("{n} is not supported; give the CRS with --crs"),
+                |n| format!("{n} is not supported"),
             );
             return refuse(PROJ_COORD_TRANS, other, what);
         }

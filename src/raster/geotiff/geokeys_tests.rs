@@ -53,7 +53,7 @@ fn read_keys(keys: &[(u16, V)]) -> Res<KeysCrs> {
 
 fn crs_of(keys: &[(u16, V)]) -> Crs {
     let k = read_keys(keys).unwrap_or_else(|e| panic!("refused: {e}"));
-    k.crs.horizontal.expect("a horizontal CRS")
+    k.crs.horizontal.unwrap()
 }
 
 fn refusal(keys: &[(u16, V)]) -> String {
