@@ -148,6 +148,15 @@ impl Crs {
         })
     }
 
+    /// A CRS from a PROJ string under another name: what a file's own description of it says
+    /// (e.g. a GeoTIFF's user-defined keys). The PROJ string still defines it, and manifests
+    /// record both.
+    pub fn from_proj4_named(proj4: &str, definition: &str) -> Result<Self, CrsError> {
+        let mut c = Self::from_proj4(proj4)?;
+        definition.trim().clone_into(&mut c.definition);
+        Ok(c)
+    }
+
     /// A CRS from what a user or a file gives: `EPSG:n` (or `epsg:n`), a PROJ string, or WKT
     /// (1 or 2) whose outermost CRS carries an EPSG identifier. A vertical part
     /// (`EPSG:32632+5773`, or a compound WKT) is returned separately.

@@ -1,12 +1,14 @@
 //! TIFF/`GeoTIFF` heightfields via the `tiff` crate: one band of any integer or float sample type,
 //! in strips or tiles, with the georeference taken from `ModelPixelScale` + `ModelTiepoint` (or a
-//! rotation-free `ModelTransformation`), the model type (projected or geographic) from the
-//! `GeoKeyDirectory`, and the no-data value from `GDAL_NODATA`.
+//! rotation-free `ModelTransformation`), the model type and the coordinate system from the
+//! GeoKeys ([`geokeys`]: EPSG codes and user-defined CRSs, units, the vertical datum), and the
+//! no-data value from `GDAL_NODATA`.
 //!
 //! Pixel convention: `GeoTIFF` places raster coordinate (0, 0) at the outer corner of the first
 //! pixel when `GTRasterTypeGeoKey` is `PixelIsArea` (the default) and at its centre for
 //! `PixelIsPoint`. Our frame puts `x0, y0` at the *centre* of sample (0, 0), so `PixelIsArea`
-//! files are shifted by half a cell. Angular units are assumed to be degrees.
+//! files are shifted by half a cell. A geographic model's coordinates are converted from
+//! `GeogAngularUnitsGeoKey`'s unit to degrees.
 
 use std::io::{Read, Seek};
 use std::path::Path;
@@ -17,12 +19,11 @@ use tiff::{ColorType, TiffError, TiffFormatError};
 
 use super::{Decoded, FileCrs, FileGeoref, Limits, RasterError, check_size};
 
+pub(crate) mod geokeys;
+use geokeys::{GeoKeys, KeysCrs, MODEL_GEOGRAPHIC, MODEL_PROJECTED};
+
 const FORMAT: &str = "TIFF";
 
-const GT_MODEL_TYPE: u16 = 1024;
-const GT_RASTER_TYPE: u16 = 1025;
-const MODEL_PROJECTED: u16 = 1;
-const MODEL_GEOGRAPHIC: u16 = 2;
 const RASTER_PIXEL_IS_POINT: u16 = 2;
 
 pub(super) fn map_err(path: &Path, e: TiffError) -> RasterError {
@@ -42,88 +43,23 @@ pub(super) fn map_err(path: &Path, e: TiffError) -> RasterError {
     }
 }
 
-/// The coordinate system a `GeoKeyDirectory` states: `ProjectedCSTypeGeoKey` (3072) or
-/// `GeographicTypeGeoKey` (2048) as EPSG codes, `VerticalCSTypeGeoKey` (4096). A key whose
-/// value is not supported is refused, naming the key and the value.
-fn crs_of_keys(path: &Path, dir: &[u16], model: Option<u16>) -> Result<FileCrs, RasterError> {
-    const USER_DEFINED: u16 = 32767;
-    let count = dir.get(3).map_or(0, |&n| usize::from(n));
-    let short = |id: u16| {
-        dir.get(4..)
-            .unwrap_or(&[])
-            .chunks_exact(4)
-            .take(count)
-            .find(|k| k[0] == id && k[1] == 0)
-            .map(|k| k[3])
+/// The coordinate system of a TIFF's GeoKeys ([`geokeys`]): the directory and its double and
+/// ASCII value tags. A key whose value is not supported is refused, naming the key and the value.
+fn keys_of<R: Read + Seek>(path: &Path, dec: &mut Decoder<R>) -> Result<KeysCrs, RasterError> {
+    let Some(dir) = dec.find_tag(Tag::GeoKeyDirectoryTag).map_err(|e| map_err(path, e))? else {
+        return Ok(KeysCrs::default());
     };
-    let refuse = |key: &str, value: u16, why: String| RasterError::Crs {
-        path: path.to_owned(),
-        message: format!("{key} {value}: {why}"),
+    let dir = dir.into_u16_vec().map_err(|e| map_err(path, e))?;
+    let doubles = match dec.find_tag(Tag::GeoDoubleParamsTag).map_err(|e| map_err(path, e))? {
+        Some(v) => v.into_f64_vec().map_err(|e| map_err(path, e))?,
+        None => Vec::new(),
     };
-    let by_code = |key: &str, code: u16| {
-        crate::crs::Crs::from_epsg(u32::from(code)).map_err(|e| refuse(key, code, e.to_string()))
+    let ascii = match dec.find_tag(Tag::GeoAsciiParamsTag).map_err(|e| map_err(path, e))? {
+        Some(v) => v.into_string().map_err(|e| map_err(path, e))?,
+        None => String::new(),
     };
-    let horizontal = match (model, short(3072), short(2048)) {
-        (Some(MODEL_PROJECTED) | None, Some(USER_DEFINED), _) => {
-            return Err(refuse(
-                "ProjectedCSTypeGeoKey",
-                USER_DEFINED,
-                "a user-defined projection; give the CRS with --crs".into(),
-            ));
-        }
-        (Some(MODEL_PROJECTED) | None, Some(code), _) => Some(by_code("ProjectedCSTypeGeoKey", code)?),
-        (_, _, Some(USER_DEFINED)) => {
-            return Err(refuse(
-                "GeographicTypeGeoKey",
-                USER_DEFINED,
-                "a user-defined datum; give the CRS with --crs".into(),
-            ));
-        }
-        (Some(MODEL_GEOGRAPHIC), _, Some(code)) => Some(by_code("GeographicTypeGeoKey", code)?),
-        _ => None,
-    };
-    if let Some(c) = &horizontal
-        && c.is_geographic() != (model == Some(MODEL_GEOGRAPHIC))
-        && model.is_some()
-    {
-        return Err(RasterError::Crs {
-            path: path.to_owned(),
-            message: format!(
-                "GTModelTypeGeoKey {} does not fit {} ({})",
-                model.unwrap_or(0),
-                c.definition(),
-                if c.is_geographic() { "geographic" } else { "projected" }
-            ),
-        });
-    }
-    let vertical = match short(4096) {
-        None => None,
-        Some(code) => Some(crate::crs::VerticalDatum::from_epsg(u32::from(code)).ok_or_else(|| {
-            refuse(
-                "VerticalCSTypeGeoKey",
-                code,
-                "expected 5773 (EGM96 height) or 3855 (EGM2008 height)".into(),
-            )
-        })?),
-    };
-    Ok(FileCrs { horizontal, vertical })
-}
-
-/// `GTModelTypeGeoKey` and `GTRasterTypeGeoKey` from a `GeoKeyDirectory`; keys stored outside
-/// the directory (location ≠ 0) are not short values and are skipped.
-fn geokeys(dir: &[u16]) -> (Option<u16>, Option<u16>) {
-    let count = dir.get(3).map_or(0, |&n| usize::from(n));
-    let (mut model, mut raster) = (None, None);
-    for key in dir.get(4..).unwrap_or(&[]).chunks_exact(4).take(count) {
-        if key[1] == 0 {
-            match key[0] {
-                GT_MODEL_TYPE => model = Some(key[3]),
-                GT_RASTER_TYPE => raster = Some(key[3]),
-                _ => {}
-            }
-        }
-    }
-    (model, raster)
+    geokeys::read(&GeoKeys { dir: &dir, doubles: &doubles, ascii: &ascii })
+        .map_err(|message| RasterError::Crs { path: path.to_owned(), message })
 }
 
 /// The affine map from raster coordinates (I, J) to model (X, Y) without rotation:
@@ -265,15 +201,7 @@ pub(super) fn open<R: Read + Seek>(
 
     let nodata = nodata(path, &mut dec)?;
     let affine = affine(path, &mut dec)?;
-    let keys = dec.find_tag(Tag::GeoKeyDirectoryTag).map_err(|e| map_err(path, e))?;
-    let (model, raster, crs) = match keys {
-        Some(v) => {
-            let dir = v.into_u16_vec().map_err(|e| map_err(path, e))?;
-            let (model, raster) = geokeys(&dir);
-            (model, raster, crs_of_keys(path, &dir, model)?)
-        }
-        None => (None, None, FileCrs::default()),
-    };
+    let KeysCrs { model, raster, crs, degrees_per_unit } = keys_of(path, &mut dec)?;
 
     let georef = match affine {
         None => FileGeoref::None,
@@ -283,7 +211,9 @@ pub(super) fn open<R: Read + Seek>(
             match model {
                 None | Some(MODEL_PROJECTED) => FileGeoref::Projected { x0, y0, dx: a.sx, dy: a.sy },
                 Some(MODEL_GEOGRAPHIC) => {
-                    FileGeoref::Geographic { lon0: x0, lat0: y0, dlon: a.sx, dlat: a.sy }
+                    // In GeogAngularUnitsGeoKey's unit: degrees from here on.
+                    let d = degrees_per_unit;
+                    FileGeoref::Geographic { lon0: x0 * d, lat0: y0 * d, dlon: a.sx * d, dlat: a.sy * d }
                 }
                 Some(other) => {
                     return Err(RasterError::unsupported(
@@ -904,9 +834,11 @@ mod tests {
 
     #[test]
     fn geokey_parsing_tolerates_short_directories() {
-        assert_eq!(super::geokeys(&[]), (None, None));
-        assert_eq!(super::geokeys(&[1, 1, 0, 5, 1024, 0, 1]), (None, None));
-        assert_eq!(super::geokeys(&[1, 1, 0, 1, 1024, 0, 1, 2]), (Some(2), None));
+        use super::geokeys::{GeoKeys, read};
+        let of = |dir: &[u16]| read(&GeoKeys { dir, ..GeoKeys::default() }).map(|k| (k.model, k.raster));
+        assert_eq!(of(&[]), Ok((None, None)));
+        assert_eq!(of(&[1, 1, 0, 5, 1024, 0, 1]), Ok((None, None)));
+        assert_eq!(of(&[1, 1, 0, 1, 1024, 0, 1, 2]), Ok((Some(2), None)));
         let _ = FileGeoref::None;
     }
 

@@ -3,8 +3,14 @@
 //! **Grid.** Cells of `cell` world units whose centres lie on whole multiples of the cell size
 //! (so tiles of one survey gridded apart share a grid): a point at (x, y) belongs to the cell
 //! centred at (round(x / cell)·cell, round(y / cell)·cell). The grid spans the union of the
-//! files' header bounds, north up. The files' CRS is taken to be projected (LiDAR nearly always
-//! is); x, y and z must be in the same units.
+//! files' header bounds, north up, in the files' coordinates (`--cell-size` in their units).
+//!
+//! **Coordinate system.** Each file's CRS comes from its (extended) VLRs: the WKT record
+//! (`LASF_Projection` 2112, read by [`Crs::parse`]) when the header's WKT bit is set or it is the
+//! only CRS record, else the GeoTIFF keys (`LASF_Projection` 34735–34737, read as a GeoTIFF's are:
+//! [`super::geotiff::geokeys`]). All files must state the same CRS; `--crs` replaces one that was
+//! read. Heights are the points' z, in metres (a GeoKey VLR stating other vertical units is
+//! refused).
 //!
 //! **Rule.** A file is *classified* when it holds at least one ground point (ASPRS class 2). Of a
 //! classified file only the ground points count, and a cell takes their **mean**: ground returns
@@ -32,7 +38,9 @@ use std::io::{BufReader, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, PoisonError};
 
-use super::{FileGeoref, RasterError};
+use super::geotiff::geokeys::{self, GeoKeys};
+use super::{FileCrs, FileGeoref, RasterError};
+use crate::crs::Crs;
 
 /// Side of a block of the scratch raster (the dataset's block).
 pub const BLOCK: u32 = 256;
@@ -76,8 +84,8 @@ pub struct Gridded {
     pub width: u32,
     pub height: u32,
     pub(crate) georef: FileGeoref,
-    /// The coordinate system the files' VLRs state (none yet: read by a later change).
-    pub(crate) crs: super::FileCrs,
+    /// The coordinate system the files' VLRs state.
+    pub(crate) crs: FileCrs,
     pub stats: PointStats,
     raster: Mutex<File>,
 }
@@ -143,6 +151,47 @@ fn check_header(path: &Path, h: &las::raw::Header, file_len: u64) -> Result<Head
         }
     }
     Ok(HeaderFacts { points, min: (h.min_x, h.min_y), max: (h.max_x, h.max_y), compressed })
+}
+
+/// The `LASF_Projection` record ids: WKT, and the GeoTIFF key directory, doubles and ASCII.
+const WKT_RECORD: u16 = 2112;
+const GEO_KEY_RECORD: u16 = 34735;
+
+/// The coordinate system a file's (E)VLRs state: the WKT record when the header's WKT bit says
+/// so or it is the only CRS record, else the GeoTIFF keys; none without either.
+fn crs_of_header(path: &Path, h: &las::Header) -> Result<FileCrs, RasterError> {
+    let record = |id: u16| {
+        h.all_vlrs()
+            .find(|v| {
+                v.record_id == id && v.user_id.trim_end_matches('\0').eq_ignore_ascii_case("LASF_Projection")
+            })
+            .map(|v| v.data.as_slice())
+    };
+    let refuse = |message: String| RasterError::Crs { path: path.to_owned(), message };
+    let keys = record(GEO_KEY_RECORD);
+    if let Some(wkt) = record(WKT_RECORD).filter(|_| h.has_wkt_crs() || keys.is_none()) {
+        let text = String::from_utf8_lossy(wkt);
+        let text = text.trim_matches(|c: char| c == '\0' || c.is_whitespace());
+        let (horizontal, vertical) = Crs::parse(text)
+            .map_err(|e| refuse(format!("the WKT VLR (LASF_Projection {WKT_RECORD}): {e}")))?;
+        return Ok(FileCrs { horizontal: Some(horizontal), vertical });
+    }
+    let Some(dir) = keys else { return Ok(FileCrs::default()) };
+    let dir: Vec<u16> = dir.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect();
+    let doubles: Vec<f64> = record(geokeys::GEO_DOUBLE_PARAMS).map_or_else(Vec::new, |b| {
+        b.chunks_exact(8).map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]))).collect()
+    });
+    let ascii = record(geokeys::GEO_ASCII_PARAMS).map(String::from_utf8_lossy).unwrap_or_default();
+    let k = geokeys::read(&GeoKeys { dir: &dir, doubles: &doubles, ascii: &ascii })
+        .map_err(|m| refuse(format!("the GeoKey VLRs (LASF_Projection {GEO_KEY_RECORD}): {m}")))?;
+    if (k.degrees_per_unit - 1.0).abs() > f64::EPSILON {
+        return Err(refuse(format!(
+            "the GeoKey VLRs: GeogAngularUnitsGeoKey gives {}° per unit; point coordinates must be in \
+             degrees",
+            k.degrees_per_unit
+        )));
+    }
+    Ok(k.crs)
 }
 
 /// The grid of a set of header bounds: (first column index, last row index, width, height) in
@@ -259,12 +308,41 @@ pub fn grid(
         });
     }
     let mut facts = Vec::with_capacity(paths.len());
+    let mut crs: Option<FileCrs> = None;
     for p in paths {
         let mut f = File::open(p).map_err(|e| RasterError::io(p, e))?;
         let len = f.metadata().map_err(|e| RasterError::io(p, e))?.len();
         let raw = las::raw::Header::read_from(BufReader::new(&mut f))
             .map_err(|e| bad(p, false, format!("cannot read the header: {e}")))?;
-        facts.push(check_header(p, &raw, len)?);
+        let fact = check_header(p, &raw, len)?;
+        // The header again with its (E)VLRs, for the coordinate system.
+        f.seek(SeekFrom::Start(0)).map_err(|e| RasterError::io(p, e))?;
+        let format = if fact.compressed { FORMAT_LAZ } else { FORMAT_LAS };
+        let header = super::guard_decoder(p, format, || {
+            las::Header::new(BufReader::new(&mut f))
+                .map_err(|e| bad(p, fact.compressed, format!("cannot read the header's records: {e}")))
+        })?;
+        let this = crs_of_header(p, &header)?;
+        match &crs {
+            None => crs = Some(this),
+            Some(first_crs) if *first_crs != this => {
+                let name = |c: &FileCrs| {
+                    let h = c.horizontal.as_ref().map_or("no CRS", Crs::definition);
+                    c.vertical.map_or_else(|| h.to_owned(), |v| format!("{h} with {} heights", v.name()))
+                };
+                return Err(RasterError::Dataset {
+                    path: p.clone(),
+                    message: format!(
+                        "is in {} but {} is in {}; point clouds gridded together must share one coordinate system",
+                        name(&this),
+                        first.display(),
+                        name(first_crs),
+                    ),
+                });
+            }
+            Some(_) => {}
+        }
+        facts.push(fact);
     }
     let (c0, rtop, width, height) = grid_of(first, &facts, cell)?;
     let scratch_err = |e: std::io::Error| RasterError::io(scratch, e);
@@ -397,7 +475,7 @@ pub fn grid(
     }
     raster.flush().map_err(scratch_err)?;
     let georef = FileGeoref::Projected { x0: c0 as f64 * cell, y0: rtop as f64 * cell, dx: cell, dy: -cell };
-    Ok(Gridded { width, height, georef, crs: super::FileCrs::default(), stats, raster: Mutex::new(raster) })
+    Ok(Gridded { width, height, georef, crs: crs.unwrap_or_default(), stats, raster: Mutex::new(raster) })
 }
 
 impl Gridded {
