@@ -126,6 +126,19 @@ impl Crs {
                     .into(),
             ));
         }
+        // A datum other than WGS 84's ellipsoid with no shift to it would be taken as WGS 84:
+        // hundreds of metres off for the classical datums. Refused, not guessed.
+        let has_shift = ["+towgs84=", "+datum=", "+nadgrids=@null"].iter().any(|k| proj4.contains(k));
+        let wgs84_like =
+            ["+ellps=WGS84", "+ellps=GRS80", "+a=6378137 +b=6378137"].iter().any(|k| proj4.contains(k))
+                || !(proj4.contains("+ellps=") || proj4.contains("+a=") || proj4.contains("+R="));
+        if !has_shift && !wgs84_like {
+            return Err(unsupported(
+                "the definition states no datum shift to WGS 84 (+towgs84) for its ellipsoid; give the CRS with \
+                 --crs as a PROJ string with +towgs84 parameters"
+                    .into(),
+            ));
+        }
         if proj4.contains("+geoidgrids=") {
             return Err(unsupported(
                 "+geoidgrids: give the vertical datum with --vertical-datum instead".into(),

@@ -62,6 +62,9 @@ fn parse_codes_proj_strings_and_wkt() {
     assert!(matches!(Crs::parse("utm 32"), Err(CrsError::Syntax { .. })));
     let p = Crs::parse("+proj=utm +zone=33 +datum=WGS84 +units=m +no_defs").unwrap().0;
     assert!(!p.is_geographic());
+    // Anguilla 1957: Clarke 1880 with no shift to WGS 84 in its definition.
+    let e = Crs::parse("EPSG:2000").unwrap_err().to_string();
+    assert!(e.contains("towgs84"), "{e}");
     let e = Crs::parse("+proj=tmerc +nadgrids=ntv2_0.gsb +ellps=clrk66").unwrap_err().to_string();
     assert!(e.contains("nadgrids"), "{e}");
     let wkt1 = r#"PROJCS["WGS 84 / UTM zone 32N",GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563,AUTHORITY["EPSG","7030"]],AUTHORITY["EPSG","6326"]],PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433],AUTHORITY["EPSG","4326"]],PROJECTION["Transverse_Mercator"],UNIT["metre",1],AUTHORITY["EPSG","32632"]]"#;
