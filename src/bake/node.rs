@@ -211,6 +211,9 @@ pub fn node_mesh(
         tin::StripError::Tin(source) => BakeError::Tin { key, source },
         tin::StripError::Read(e) => BakeError::Raster(e),
     })?;
+    // A warped dataset's heights are themselves resampled: their error adds to the mesh's.
+    let mut mesh_errors = mesh_errors;
+    mesh_errors.max += georef.resample_error;
 
     Ok(NodeMesh {
         key,

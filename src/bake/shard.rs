@@ -104,6 +104,9 @@ pub struct InputOptions {
     /// `--geoid-grid`: the geoid of the vertical datum, a GTX file.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub geoid_grid: Option<PathBuf>,
+    /// `--target-crs`: the CRS inputs are warped onto.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target_crs: Option<crate::crs::Crs>,
     /// Largest side of a file decoded whole, in samples.
     pub max_side: u32,
     /// Largest heights of a file decoded whole, in bytes.
@@ -130,6 +133,7 @@ impl InputOptions {
                 crs: self.crs.clone(),
                 vertical: self.vertical_datum,
                 geoid_grid: self.geoid_grid.clone(),
+                target_crs: self.target_crs.clone(),
             },
         };
         DatasetOptions {

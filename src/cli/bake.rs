@@ -112,6 +112,11 @@ pub struct InputArgs {
     /// one, e.g. PROJ's egm08_25.gtx).
     #[arg(long)]
     pub geoid_grid: Option<PathBuf>,
+    /// Warp the inputs onto a grid in this CRS (EPSG:NNNN, a PROJ string or WKT). Inputs in
+    /// different CRSs are warped onto the first input's CRS without it; the cells are the first
+    /// input's, resampled bilinearly (no-data aware), the resampling's error added to every tile's.
+    #[arg(long, value_parser = parse_crs)]
+    pub target_crs: Option<(Crs, Option<VerticalDatum>)>,
     /// Refuse files decoded whole (PNG, OpenEXR) with a side longer than this many samples.
     #[arg(long, default_value_t = raster::DEFAULT_MAX_SIDE)]
     pub max_side: u32,
@@ -145,6 +150,7 @@ impl InputArgs {
             crs: self.crs.as_ref().map(|c| c.0.clone()),
             vertical_datum: self.vertical_datum.or(self.crs.as_ref().and_then(|c| c.1)),
             geoid_grid: self.geoid_grid.clone(),
+            target_crs: self.target_crs.as_ref().map(|c| c.0.clone()),
             max_side: self.max_side,
             max_bytes: self.max_bytes,
         }

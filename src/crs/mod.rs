@@ -290,6 +290,27 @@ impl Crs {
         Ok((p.0, p.1))
     }
 
+    /// A point of this CRS in `to`'s coordinates (degrees for geographic CRSs; the datum shift
+    /// between them at height 0).
+    pub fn transform_to(&self, to: &Self, x: f64, y: f64) -> Result<(f64, f64), CrsError> {
+        let bad = |message: String| CrsError::Point { definition: self.definition.clone(), x, y, message };
+        if !(x.is_finite() && y.is_finite()) {
+            return Err(bad("not a finite coordinate".into()));
+        }
+        let mut p = if self.is_geographic() {
+            (wrap_lon(x).to_radians(), y.clamp(-90.0, 90.0).to_radians(), 0.0)
+        } else {
+            (x, y, 0.0)
+        };
+        proj4rs::transform::transform(&self.proj, &to.proj, &mut p).map_err(|e| bad(e.to_string()))?;
+        let out = if to.is_geographic() { (p.0.to_degrees(), p.1.to_degrees()) } else { (p.0, p.1) };
+        if out.0.is_finite() && out.1.is_finite() {
+            Ok(out)
+        } else {
+            Err(bad(format!("converts to {out:?}")))
+        }
+    }
+
     /// Ground metres per coordinate unit along x and along y at a point (the projection's point
     /// scale, times the unit): metres per degree of longitude and latitude for a geographic CRS.
     pub fn ground_scale(&self, x: f64, y: f64) -> Result<(f64, f64), CrsError> {

@@ -89,6 +89,8 @@ pub struct DatasetSummary {
     pub crc32: String,
     /// Point clouds: what the gridding read and used.
     pub points: Option<las::PointStats>,
+    /// A warped dataset: what the resampling measured.
+    pub warp: Option<super::warp::WarpStats>,
 }
 
 /// What the opening scan of a dataset found ([`Dataset::scan_record`]), so that the same files
@@ -133,6 +135,8 @@ pub struct FileStamp {
 pub enum ScanMismatch {
     #[error("point clouds are gridded on every open")]
     PointClouds,
+    #[error("a warped dataset measures its resampling error in its scan")]
+    Warped,
     #[error(
         "{} has changed since the scan (length {} bytes, modified {} ns; recorded {} bytes, {} ns)",
         .now.path.display(), .now.len, .now.modified_ns, .recorded.len, .recorded.modified_ns
@@ -170,7 +174,7 @@ fn file_stamps(paths: &[PathBuf]) -> Result<Vec<FileStamp>, RasterError> {
 }
 
 /// Reads one file's samples in blocks: values as stored, no-data as NaN.
-trait BlockSource: Send + Sync {
+pub(super) trait BlockSource: Send + Sync {
     /// (width, height) of a block; blocks at the right and bottom edges are clipped.
     fn block_size(&self) -> (u32, u32);
     /// The clipped block (bx, by), row-major, appended to `out` (empty: a buffer the cache
@@ -266,22 +270,22 @@ impl BlockSource for MemorySource {
 }
 
 /// One file placed on the dataset grid.
-struct Part {
-    path: PathBuf,
-    source: Box<dyn BlockSource>,
-    format: &'static str,
+pub(super) struct Part {
+    pub(super) path: PathBuf,
+    pub(super) source: Box<dyn BlockSource>,
+    pub(super) format: &'static str,
     /// Offset of its window's sample (0, 0) on the dataset grid, and the window's size.
-    col: u32,
-    row: u32,
-    width: u32,
-    height: u32,
+    pub(super) col: u32,
+    pub(super) row: u32,
+    pub(super) width: u32,
+    pub(super) height: u32,
     /// The window's offset within the file (a VRT source's `SrcRect`; else 0, 0), and the file's size.
-    win_col: u32,
-    win_row: u32,
-    file_width: u32,
-    file_height: u32,
+    pub(super) win_col: u32,
+    pub(super) win_row: u32,
+    pub(super) file_width: u32,
+    pub(super) file_height: u32,
     /// Further values that are no-data here (a VRT's `<NoDataValue>` and `<NODATA>`).
-    nodata: Vec<f32>,
+    pub(super) nodata: Vec<f32>,
 }
 
 /// A gridded point cloud served in blocks.
@@ -418,6 +422,8 @@ pub struct Dataset {
     filled: Cache,
     fallback: Option<Fallback>,
     summary: DatasetSummary,
+    /// A warped dataset: what warping measures as its blocks are read (complete after the scan).
+    warp: Option<Arc<Mutex<super::warp::WarpStats>>>,
 }
 
 /// An input that names no file of a supported kind, or a dataset that cannot be assembled.
@@ -426,7 +432,7 @@ fn dataset_error(path: &Path, message: impl Into<String>) -> RasterError {
 }
 
 /// A part that is a whole file.
-fn whole_part(
+pub(super) fn whole_part(
     path: &Path,
     source: Box<dyn BlockSource>,
     format: &'static str,
@@ -649,7 +655,18 @@ impl Dataset {
     ) -> Result<Self, RasterError> {
         let mut ds = Self::open_unscanned(paths, opts, progress)?;
         ds.scan(progress)?;
+        ds.take_warp_figures();
         Ok(ds)
+    }
+
+    /// After the scan has read every block once: a warped dataset's measured resampling error
+    /// goes into its frame (and so into every tile's error) and its figures into the summary.
+    fn take_warp_figures(&mut self) {
+        if let Some(w) = &self.warp {
+            let s = *w.lock().unwrap_or_else(PoisonError::into_inner);
+            self.georef.resample_error = s.max_twist;
+            self.summary.warp = Some(s);
+        }
     }
 
     /// Opens the dataset as [`Dataset::open`] does, taking what its scan finds from `record`
@@ -670,6 +687,9 @@ impl Dataset {
             return Ok(Err(ScanMismatch::PointClouds));
         }
         let mut ds = Self::open_unscanned(paths, opts, progress)?;
+        if ds.warp.is_some() {
+            return Ok(Err(ScanMismatch::Warped));
+        }
         let stamps = ds.stamps()?;
         if let Some((now, then)) = stamps.iter().zip(&record.files).find(|(a, b)| a != b) {
             return Ok(Err(ScanMismatch::FileChanged { now: now.clone(), recorded: then.clone() }));
@@ -815,25 +835,29 @@ impl Dataset {
         if parts.is_empty() {
             return Err(dataset_error(first_path, "no source of the VRT lies inside its files"));
         }
+        // Inputs in several CRSs (or --target-crs another one) are warped onto one grid.
+        let o = &opts.load.overrides;
+        if o.crs.is_some() {
+            for (_, c) in &mut crss {
+                c.horizontal.clone_from(&o.crs);
+            }
+        }
+        let first_crs = crss.first().and_then(|c| c.1.horizontal.clone());
+        let differ = crss.iter().any(|(_, c)| c.horizontal != first_crs);
+        let retarget = o.target_crs.is_some() && o.target_crs != first_crs;
+        let mut warp_stats = None;
+        if points.is_none() && (differ || retarget) {
+            let (part, georef, crs, stats) =
+                super::warp::warp(std::mem::take(&mut parts), &georefs, &crss, o.target_crs.clone())?;
+            parts = vec![part];
+            georefs = vec![georef];
+            crss = vec![(first_path.clone(), crs)];
+            frames.clear();
+            warp_stats = Some(stats);
+        }
         unwrap_longitudes(&parts, &mut georefs);
         let (width, height, file_georef) = place(&mut parts, &georefs, &frames)?;
-        // One coordinate system for all: the first input's (or --crs); another is named.
         let file_crs = crss.first().map(|c| c.1.clone()).unwrap_or_default();
-        if opts.load.overrides.crs.is_none()
-            && let Some((other, c)) = crss.iter().find(|(_, c)| c.horizontal != file_crs.horizontal)
-        {
-            let name = |c: &FileCrs| c.horizontal.as_ref().map_or("no CRS", |h| h.definition()).to_owned();
-            return Err(dataset_error(
-                other,
-                format!(
-                    "is in {} but {} is in {}; warping between coordinate systems is not supported yet: \
-                     reproject the inputs to one CRS first (gdalwarp -t_srs)",
-                    name(c),
-                    crss[0].0.display(),
-                    name(&file_crs)
-                ),
-            ));
-        }
         // Point clouds: --cell-size is the gridding cell, not an override of a georeference.
         let overrides = if points.is_some() {
             super::Overrides { cell_size: None, ..opts.load.overrides.clone() }
@@ -877,7 +901,9 @@ impl Dataset {
                 nodata_fallback: 0,
                 crc32: String::new(),
                 points,
+                warp: None,
             },
+            warp: warp_stats,
         };
         Ok(ds)
     }

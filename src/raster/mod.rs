@@ -17,6 +17,7 @@ mod openexr;
 mod png;
 pub mod synth;
 pub mod vrt;
+pub mod warp;
 
 use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
@@ -105,6 +106,15 @@ pub struct Georef {
     /// The geoid grid file of `vertical`, when it is not the embedded EGM96.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub geoid_grid: Option<PathBuf>,
+    /// A warped dataset's measured resampling error (metres, [`warp`]): added to every tile's
+    /// error. 0 when nothing was resampled.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub resample_error: f64,
+}
+
+#[allow(clippy::trivially_copy_pass_by_ref)]
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 fn ellipsoid() -> VerticalDatum {
@@ -124,6 +134,7 @@ impl Default for Georef {
             crs: None,
             vertical: VerticalDatum::Ellipsoid,
             geoid_grid: None,
+            resample_error: 0.0,
         }
     }
 }
@@ -241,6 +252,9 @@ pub struct Overrides {
     pub vertical: Option<VerticalDatum>,
     /// `--geoid-grid`: the geoid of `vertical` as a GTX file (else EGM96 is embedded).
     pub geoid_grid: Option<PathBuf>,
+    /// `--target-crs`: warp the inputs onto a grid in this CRS (default: the first input's, when
+    /// the inputs' CRSs differ).
+    pub target_crs: Option<Crs>,
 }
 
 #[derive(Debug, Clone, Default)]

@@ -664,7 +664,48 @@ def check_placement(entry, tileset, sources, geoid):
         union = (min(xs), max(xs), min(ys), max(ys))
         cell = abs(sources[0].transform.a)
     corner_rows = []
-    for s in sources:
+    if not same_crs:
+        # A mosaic warped onto one grid: the files' own corners are not samples of it (their
+        # grids turn against each other by the grid convergence). The target grid follows the
+        # documented rule (docs/frames.md, "Warping"): the first file's CRS and cells, aligned to
+        # its grid, covering the union of the files' sample-centre extents. Its four corners are
+        # checked where a file covers them, their heights bilinear from that file.
+        f0 = sources[0]
+        tx, ty = [], []
+        for s in sources:
+            to_first = Transformer.from_crs(s.crs, f0.crs, always_xy=True)
+            t = np.linspace(0.0, 1.0, 33)
+            uu = np.concatenate([t, t, np.zeros_like(t), np.ones_like(t)]) * (s.width - 1)
+            vv = np.concatenate([np.zeros_like(t), np.ones_like(t), t, t]) * (s.height - 1)
+            x, y = crs_xy(s, uu, vv)
+            x, y = to_first.transform(x, y)
+            tx.extend(np.asarray(x, float))
+            ty.extend(np.asarray(y, float))
+        (ox, oy) = crs_xy(f0, [0], [0])
+        ox, oy = float(ox[0]), float(oy[0])
+        dx, dy = f0.transform.a, f0.transform.e
+        x0 = ox + math.floor((min(tx) - ox) / dx) * dx
+        y0 = oy + math.floor((max(ty) - oy) / dy) * dy
+        cols = math.floor((max(tx) - x0) / dx) + 1
+        rows = math.floor((y0 - min(ty)) / -dy) + 1
+        xs = np.array([x0, x0 + (cols - 1) * dx, x0, x0 + (cols - 1) * dx])
+        ys = np.array([y0, y0, y0 + (rows - 1) * dy, y0 + (rows - 1) * dy])
+        clon, clat = f0.to_ll.transform(xs, ys)
+        clon, clat = np.asarray(clon, float), np.asarray(clat, float)
+        exp, inside, _ = expected_heights(sources, clon, clat, np.zeros(4), geoid, datum, to_ecef(clon, clat, np.zeros(4)))
+        for k in range(4):
+            if np.isnan(exp[k]):
+                res_note = f"target corner {k} lies outside every file (filled no-data): not checked"
+                corner_rows.append(dict(file="target grid", col=int(k % 2), row=int(k // 2), lon=float(clon[k]),
+                                        lat=float(clat[k]), height=None, distance_m=0.0, horizontal_only=True,
+                                        note=res_note))
+                continue
+            target = to_ecef(clon[k:k + 1], clat[k:k + 1], exp[k:k + 1])
+            d = nearest_distance(target, p, (np.zeros(1, bool), exp[k:k + 1], h))
+            corner_rows.append(dict(file="target grid", col=int(k % 2), row=int(k // 2), lon=float(clon[k]),
+                                    lat=float(clat[k]), height=float(exp[k]), distance_m=float(d[0]),
+                                    horizontal_only=False))
+    for s in (sources if same_crs else []):
         cc = np.array([0, s.width - 1, 0, s.width - 1])
         rr = np.array([0, 0, s.height - 1, s.height - 1])
         if len(sources) > 1 and same_crs:
@@ -687,7 +728,7 @@ def check_placement(entry, tileset, sources, geoid):
             corner_rows.append(dict(file=s.path.name, col=int(cc[k]), row=int(rr[k]), lon=float(clon[k]),
                                     lat=float(clat[k]), height=None if nodata[k] else float(ch[k]),
                                     distance_m=float(d[k]), horizontal_only=bool(nodata[k])))
-    corner_max = max(c["distance_m"] for c in corner_rows)
+    corner_max = max((c["distance_m"] for c in corner_rows), default=0.0)
 
     # Vertices.
     exp, inside, hoff = expected_heights(sources, lon, lat, h, geoid, datum, p)

@@ -193,10 +193,7 @@ def main():
         f = out / f"utm{zone}n_48n.tif"
         synthetic(f, crs, t, 150, 150, seed=7, wavelength_m=3000, amplitude=80, base=500)
         files.append(f)
-    # Until warping lands (issue 36, item 4) terrastream refuses a mosaic in several CRSs, naming
-    # two of them: that refusal is what is checked meanwhile.
     inputs.append(entry("utm_3zones", files, "EPSG:32631/32632/32633", "ellipsoid", warped=True,
-                        expect_refusal={"contains": ["warping", "EPSG:32631", "EPSG:32632"]},
                         note="three files, one per UTM zone, adjacent along 48 N: a mosaic that must be warped"))
 
     # 8. fuji.png (terrain-RGB) given a CRS by a VRT: JGD2011 / Japan Plane Rectangular CS IX
