@@ -216,7 +216,7 @@ fn mosaics_that_do_not_fit_are_refused_naming_the_file() {
                 )
                 .unwrap();
             }),
-            "CRS kind",
+            "coordinate system",
         ),
         (
             "overlap.tif",

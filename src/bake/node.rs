@@ -65,6 +65,26 @@ impl GridFrame<'_> {
     }
 }
 
+/// Mean radius of the Earth, metres: the curvature [`Curvature`] takes into the TIN.
+const EARTH_RADIUS: f64 = 6_371_000.0;
+
+/// A tileset placed on the Earth draws a node's flat triangles as chords in ECEF, which dip below
+/// the ellipsoid by up to L²/8R between their vertices (2 m for a 10 km edge). The TIN is
+/// therefore built and measured on heights lowered by the drop of the Earth's surface below the
+/// plane tangent at the node's centre, d²/2R: a planar interpolation of those heights errs as
+/// the chords do (to second order in d/R), so the greedy insertion keeps the chords within the
+/// bound and the measured error includes them. Vertices keep their true heights. A local frame
+/// (no CRS) is flat: no drop.
+struct Curvature {
+    centre: Option<(f64, f64)>,
+}
+
+impl Curvature {
+    fn drop(&self, x: f64, y: f64) -> f64 {
+        self.centre.map_or(0.0, |(xc, yc)| ((x - xc).powi(2) + (y - yc).powi(2)) / (2.0 * EARTH_RADIUS))
+    }
+}
+
 /// A node's level 0: its quantized TIN with measured errors, what its point levels are baked
 /// from.
 pub struct NodeMesh {
@@ -133,7 +153,32 @@ pub fn node_mesh(
     let mut heights = Vec::new();
     reader.read_window(&grid.cols, &grid.rows, &mut heights)?;
     let node_error = opts.max_error * f64::from(step);
-    let t = tin::build(&grid, &heights, node_error).map_err(|source| BakeError::Tin { key, source })?;
+    let span = pyramid.span(key);
+    let curvature = Curvature {
+        centre: georef.crs.is_some().then(|| {
+            let c = frame.world(
+                f64::from(span.col0 + span.col1) / 2.0,
+                f64::from(span.row0 + span.row1) / 2.0,
+                0.0,
+            );
+            (c[0], c[1])
+        }),
+    };
+    let lowered: Vec<f32> = if curvature.centre.is_some() {
+        let nc = grid.cols.len();
+        heights
+            .iter()
+            .enumerate()
+            .map(|(k, &h)| {
+                let p = frame.world(f64::from(grid.cols[k % nc]), f64::from(grid.rows[k / nc]), 0.0);
+                (f64::from(h) - curvature.drop(p[0], p[1])) as f32
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let tin_heights = if lowered.is_empty() { &heights } else { &lowered };
+    let t = tin::build(&grid, tin_heights, node_error).map_err(|source| BakeError::Tin { key, source })?;
 
     // World mesh, counter-clockwise seen from +z whatever the signs of dx and dy.
     let nc = grid.cols.len();
@@ -153,7 +198,6 @@ pub fn node_mesh(
             tri.swap(1, 2);
         }
     }
-    let span = pyramid.span(key);
     let mut bounds = Bounds::of_points(&mesh.positions);
     for (c, r) in [(span.col0, span.row0), (span.col1, span.row1)] {
         let p = frame.world(f64::from(c), f64::from(r), bounds.min[2]);
@@ -194,7 +238,13 @@ pub fn node_mesh(
     let sample_space: Vec<[f64; 3]> = mesh
         .positions
         .iter()
-        .map(|p| [(p[0] - georef.x0) / georef.dx, (p[1] - georef.y0) / georef.dy, p[2]])
+        .map(|p| {
+            [
+                (p[0] - georef.x0) / georef.dx,
+                (p[1] - georef.y0) / georef.dy,
+                p[2] - curvature.drop(p[0], p[1]),
+            ]
+        })
         .map(|p| [p[0].round(), p[1].round(), p[2]])
         .collect();
     let mesh_errors = tin::measure_vertical_strips(
@@ -204,7 +254,15 @@ pub fn node_mesh(
         tin::MEASURE_STRIP_SAMPLES,
         |r0, r1, out| {
             let rows: Vec<u32> = (r0..=r1).collect();
-            reader.read_window(&cols, &rows, out)
+            reader.read_window(&cols, &rows, out)?;
+            if curvature.centre.is_some() {
+                let nc = cols.len();
+                for (k, v) in out.iter_mut().enumerate() {
+                    let p = frame.world(f64::from(cols[k % nc]), f64::from(rows[k / nc]), 0.0);
+                    *v = (f64::from(*v) - curvature.drop(p[0], p[1])) as f32;
+                }
+            }
+            Ok(())
         },
     )
     .map_err(|e| match e {

@@ -209,12 +209,18 @@ pub(super) fn warp(
     target: Option<Crs>,
 ) -> Result<(Part, FileGeoref, FileCrs, Arc<Mutex<WarpStats>>), RasterError> {
     let first = crss.first().map(|c| c.0.clone()).unwrap_or_default();
+    let with_crs = crss.iter().find_map(|(p, c)| c.horizontal.as_ref().map(|h| (p, h.definition())));
     let mut inputs = Vec::with_capacity(parts.len());
     for ((part, g), (path, fc)) in parts.into_iter().zip(georefs).zip(crss) {
         let Some(crs) = fc.horizontal.clone() else {
+            let (other, def) = with_crs.unwrap_or((path, "another CRS"));
             return Err(bad(
                 path,
-                "names no coordinate system; every file of a warped mosaic needs one (or --crs)".into(),
+                format!(
+                    "names no coordinate system but {} is in {def}; the files of a mosaic in several coordinate \
+                     systems must each name theirs (or give --crs for all)",
+                    other.display()
+                ),
             ));
         };
         if fc.vertical != crss[0].1.vertical {

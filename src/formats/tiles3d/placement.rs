@@ -195,6 +195,20 @@ impl Placement {
         Ok(Self { anchor, from, origin, axes, earth })
     }
 
+    /// How far a GLB's positions may lie from where they belong, metres: on the Earth, the f32
+    /// rounding of positions relative to the node's centre (half an ulp per axis of the
+    /// farthest, the box's half-diagonal plus the Earth's drop there); 0 in a local frame, whose
+    /// positions are the blob's integers.
+    #[must_use]
+    pub fn position_error(&self, b: &Bounds) -> f64 {
+        if self.earth.is_none() {
+            return 0.0;
+        }
+        let half = b.size().length() / 2.0;
+        let reach = half + half * half / (2.0 * 6_371_000.0);
+        reach * f64::from(f32::EPSILON) * 3f64.sqrt() / 2.0
+    }
+
     /// A tile's `boundingVolume` for a world box: a `region` on the Earth, a `box` in the
     /// tileset frame otherwise.
     pub fn bounding_volume(&self, b: &Bounds) -> Result<Value, PlaceError> {

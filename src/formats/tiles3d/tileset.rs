@@ -264,7 +264,7 @@ fn level_tile(
     }
     let mut t = json!({
         "boundingVolume": info.place.bounding_volume(&b)?,
-        "geometricError": l.errors.geometric(),
+        "geometricError": l.errors.geometric() + info.place.position_error(&node.bounds),
         "refine": "REPLACE",
         "content": { "uri": format!("{pre}tiles/{}/{}/{}/{}.glb{}", key.z, key.x, key.y, l.level, info.query) },
         "extras": { "terrastream": extras },
