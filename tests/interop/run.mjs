@@ -1,7 +1,9 @@
 #!/usr/bin/env node
 // Interoperability checks of terrastream's 3D Tiles output: bake fuji + bunny, serve them, then
 // walk, validate (Khronos), parse (loaders.gl), render (CesiumJS, offline), compare heights, and
-// open the server's own viewer. The last line printed is `N passed, N failed`; exit 1 on a failure.
+// open the server's own viewer; bake a real DEM (SRTM, UTM 32N) and fuji below sea level, and
+// check that the viewer shows their relief. The last line printed is `N passed, N failed`; exit 1
+// on a failure.
 //
 // Environment: TERRASTREAM_BIN, TERRASTREAM_DATA, CHROMIUM, INTEROP_OUT (see README.md),
 // INTEROP_TIMEOUT_S (whole run, default 480), INTEROP_KEEP=1 (keep the temp store).
@@ -17,8 +19,9 @@ import { loadersGlCheck } from './lib/loadersgl.mjs';
 import { startStaticServer } from './lib/static-server.mjs';
 import { launchBrowser } from './lib/browser.mjs';
 import { cesiumLoadCheck, heightsCheck } from './lib/cesium.mjs';
-import { viewerCheck } from './lib/viewer.mjs';
+import { viewerCheck, reliefCheck, seaLevelCheck } from './lib/viewer.mjs';
 import { readTerrainRgb, checkPlacement, localFrame, toLocal } from './lib/heights.mjs';
+import { readGeoTiff } from './lib/geotiff.mjs';
 
 const HERE = path.dirname(fileURLToPath(import.meta.url));
 const fromHere = (p) => path.resolve(HERE, p);
@@ -37,6 +40,17 @@ const cfg = {
 const FUJI = { cellSize: 30, tileSize: 32, anchor: { lon: 138.7274, lat: 35.3606 } };
 const TILESETS = ['fuji', 'bunny'];
 const MIN_SHARE = { fuji: 0.1, bunny: 0.02 };
+// Check g, the viewer's relief on a real DEM: SRTM-derived, UTM 32N, PixelIsPoint, the Gabon coast
+// at the equator (heights 1–1005 m, a low coastal plain in the west). Its centre as GDAL puts it
+// (`gdalinfo`: 10°29'59.78"E, 0°30'0.93"N), for the server's globe position when it gives one.
+const RELIEF = {
+  name: 'gabon',
+  file: 'geo/utm32n_pixelispoint_n00e010.tif',
+  centre: { lon: 10 + 29 / 60 + 59.78 / 3600, lat: 30 / 60 + 0.93 / 3600, tolerance: 0.01, from: 'gdalinfo' },
+  exaggeration: 5,
+};
+// And sea level: fuji lowered by 1000 m, so its heights run from about −986 m to 2751 m.
+const SEA = { name: 'fuji-sea', zOffset: -1000 };
 
 const checks = new Checks();
 const runStarted = Date.now();
@@ -109,8 +123,10 @@ async function main() {
   const bakes = {
     fuji: ['bake', path.join(cfg.data, 'fuji.png'), '--encoding', 'terrain-rgb', '--cell-size', String(FUJI.cellSize), '--tile-size', String(FUJI.tileSize), '--anchor', `${FUJI.anchor.lon},${FUJI.anchor.lat}`, '--gpu', 'off', '--out', path.join(store, 'fuji')],
     bunny: ['bake-model', path.join(cfg.data, 'stanford-bunny.obj'), '--gpu', 'off', '--out', path.join(store, 'bunny')],
+    [RELIEF.name]: ['bake', path.join(cfg.data, RELIEF.file), '--gpu', 'off', '--out', path.join(store, RELIEF.name)],
+    [SEA.name]: ['bake', path.join(cfg.data, 'fuji.png'), '--encoding', 'terrain-rgb', '--cell-size', String(FUJI.cellSize), '--z-offset', String(SEA.zOffset), '--gpu', 'off', '--out', path.join(store, SEA.name)],
   };
-  for (const name of TILESETS) {
+  for (const name of Object.keys(bakes)) {
     baked[name] = await checks.run(`bake ${name}`, async (log) => {
       if (!fs.existsSync(cfg.bin)) throw new CheckFailure(`no binary at ${cfg.bin} (set TERRASTREAM_BIN)`);
       log(`$ ${path.basename(cfg.bin)} ${bakes[name].join(' ')}`);
@@ -246,6 +262,46 @@ async function main() {
       return viewerCheck({ browser, url: `${base}/viewer?tileset=${name}`, outFile: path.join(cfg.out, `viewer-${name}.png`), minShare: MIN_SHARE[name], log });
     });
   }
+
+  // g. the viewer's relief: colours from the data's own heights, exaggeration, globe position, sea level
+  const tilesetOf = async (name) => {
+    const get = async (url) => {
+      const r = await fetchWithTimeout(url);
+      if (r.status !== 200) throw new CheckFailure(`GET ${url} -> ${r.status}: ${truncate(await r.text(), 300)}`);
+      return r.json();
+    };
+    const root = await get(`${base}/tilesets/${name}/3dtiles/tileset.json`);
+    let lf;
+    try {
+      lf = localFrame(root);
+    } catch (err) {
+      throw new CheckFailure(`${name}: ${err.message}`);
+    }
+    return { lf, summary: await get(`${base}/tilesets/${name}`) };
+  };
+  await checks.run(`g. viewer relief ${RELIEF.name}`, async (log) => {
+    needs(served, 'the server is not running');
+    needs(baked[RELIEF.name], `the bake of ${RELIEF.name} failed`);
+    needs(browser, `no browser: ${browserError}`);
+    let raster;
+    try {
+      raster = readGeoTiff(path.join(cfg.data, RELIEF.file));
+    } catch (err) {
+      throw new CheckFailure(err.message);
+    }
+    const { lf, summary } = await tilesetOf(RELIEF.name);
+    return reliefCheck({ browser, base, name: RELIEF.name, raster, lf, summary, expectedCentre: RELIEF.centre, exaggeration: RELIEF.exaggeration, outDir: cfg.out, log });
+  });
+  await checks.run(`g. viewer sea level ${SEA.name}`, async (log) => {
+    needs(served, 'the server is not running');
+    needs(baked[SEA.name], `the bake of ${SEA.name} failed`);
+    needs(browser, `no browser: ${browserError}`);
+    const png = readTerrainRgb(path.join(cfg.data, 'fuji.png'));
+    // fuji has no georeference: sample (col, row) lies at (col·cell, row·cell), as in the placement check
+    const raster = { width: png.width, height: png.height, at: png.at, world: (col, row) => [col * FUJI.cellSize, row * FUJI.cellSize] };
+    const { lf } = await tilesetOf(SEA.name);
+    return seaLevelCheck({ browser, base, name: SEA.name, raster, lf, zOffset: SEA.zOffset, outDir: cfg.out, log });
+  });
 }
 
 try {
