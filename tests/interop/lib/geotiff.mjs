@@ -1,15 +1,84 @@
-// A small GeoTIFF reader for the viewer checks: one band of a stripped TIFF, stored or
-// deflate-compressed, 8/16/32-bit integers or 32/64-bit floats, and its georeference
-// (ModelTiepoint + ModelPixelScale, PixelIsArea or PixelIsPoint). Independent of terrastream's
-// own reader; anything else is refused by name.
+// A small GeoTIFF reader for the viewer and height checks: one band of a stripped TIFF, stored,
+// deflate- or LZW-compressed, 8/16/32-bit integers or 32/64-bit floats, its georeference
+// (ModelTiepoint + ModelPixelScale, PixelIsArea or PixelIsPoint) and the EPSG codes of its
+// GeoKeys. Independent of terrastream's own reader; anything else is refused by name.
 import fs from 'node:fs';
 import zlib from 'node:zlib';
 
 const TYPE_SIZE = { 1: 1, 2: 1, 3: 2, 4: 4, 5: 8, 6: 1, 7: 1, 8: 2, 9: 4, 10: 8, 11: 4, 12: 8, 16: 8 };
 
 /**
- * Reads `file`: `{ width, height, nodata, pixelIsPoint, at(col, row), world(col, row) }`, where
- * `world` is the map position (x, y) of the sample's centre in the file's CRS.
+ * TIFF's LZW (TIFF 6.0 section 13): codes of 9 to 12 bits, most significant bit first, 256
+ * clears the table, 257 ends the strip, and the code width grows one code early (when the next
+ * free code is 511, 1023, 2047). Returns the decoded bytes; a malformed stream throws.
+ */
+export function lzwDecode(input) {
+  const prefix = new Int32Array(4096), last = new Uint8Array(4096), first = new Uint8Array(4096), length = new Int32Array(4096);
+  for (let i = 0; i < 256; i++) {
+    prefix[i] = -1;
+    last[i] = i;
+    first[i] = i;
+    length[i] = 1;
+  }
+  let out = new Uint8Array(Math.max(1024, input.length * 3)), n = 0;
+  const emit = (code) => {
+    const len = length[code];
+    if (n + len > out.length) {
+      const bigger = new Uint8Array(Math.max(out.length * 2, n + len));
+      bigger.set(out.subarray(0, n));
+      out = bigger;
+    }
+    for (let c = code, k = n + len - 1; k >= n; k--, c = prefix[c]) out[k] = last[c];
+    n += len;
+  };
+  let bit = 0, width = 9, next = 258, old = -1;
+  const totalBits = input.length * 8;
+  const read = () => {
+    if (bit + width > totalBits) return 257;   // a strip may end without its end code
+    let v = 0;
+    for (let k = 0; k < width; k++, bit++) v = (v << 1) | ((input[bit >> 3] >> (7 - (bit & 7))) & 1);
+    return v;
+  };
+  for (;;) {
+    const code = read();
+    if (code === 257) break;
+    if (code === 256) {
+      next = 258;
+      width = 9;
+      old = -1;
+      continue;
+    }
+    if (old === -1) {
+      if (code > 255) throw new Error(`LZW: code ${code} right after a clear`);
+      emit(code);
+      old = code;
+      continue;
+    }
+    if (code > next) throw new Error(`LZW: code ${code} beyond the table (next ${next})`);
+    if (next >= 4096) throw new Error('LZW: the table is full and no clear code came');
+    // the new entry: old's string plus the first byte of code's string (or of old's, for the
+    // code being defined right now)
+    prefix[next] = old;
+    last[next] = code < next ? first[code] : first[old];
+    first[next] = first[old];
+    length[next] = length[old] + 1;
+    next++;
+    emit(code);
+    old = code;
+    if (next + 1 >= 1 << width && width < 12) width++;
+  }
+  return out.subarray(0, n);
+}
+
+// GeoKeys read: GTRasterTypeGeoKey (1025; 2 is PixelIsPoint), GeographicTypeGeoKey (2048),
+// ProjectedCSTypeGeoKey (3072), VerticalCSTypeGeoKey (4096).
+const RASTER_TYPE = 1025, GEOGRAPHIC = 2048, PROJECTED = 3072, VERTICAL = 4096;
+
+/**
+ * Reads `file`: `{ width, height, nodata, pixelIsPoint, epsg, verticalEpsg, at(col, row),
+ * world(col, row) }`, where `world` is the map position (x, y) of the sample's centre in the
+ * file's CRS, `epsg` the CRS's code (the projected one, else the geographic one; null when the
+ * keys give none) and `at` NaN for no-data.
  */
 export function readGeoTiff(file) {
   const buf = fs.readFileSync(file);
@@ -55,7 +124,7 @@ export function readGeoTiff(file) {
   if (one(277, 1) !== 1) fail(`${one(277)} samples per pixel; one band expected`);
   if (tags.has(322)) fail('tiled TIFF; this test reader reads strips only');
   const compression = one(259, 1);
-  if (compression !== 1 && compression !== 8 && compression !== 32946) fail(`compression ${compression}; stored or deflate expected`);
+  if (![1, 5, 8, 32946].includes(compression)) fail(`compression ${compression}; stored, LZW or deflate expected`);
   if (one(317, 1) !== 1) fail(`predictor ${one(317)}; none expected`);
   const bits = one(258, 1), format = one(339, 1);
   const kinds = {
@@ -75,7 +144,8 @@ export function readGeoTiff(file) {
   for (let s = 0; s < offsets.length && row < height; s++) {
     if (offsets[s] + counts[s] > buf.length) fail(`strip ${s} runs past the end of the file`);
     let strip = buf.subarray(offsets[s], offsets[s] + counts[s]);
-    if (compression !== 1) strip = zlib.inflateSync(strip);
+    if (compression === 5) strip = Buffer.from(lzwDecode(strip));
+    else if (compression !== 1) strip = zlib.inflateSync(strip);
     const rows = Math.min(rowsPerStrip, height - row);
     if (strip.length < rows * width * bytes) fail(`strip ${s} holds ${strip.length} bytes, ${rows * width * bytes} expected`);
     for (let i = 0; i < rows * width; i++) values[row * width + i] = strip[readSample](i * bytes);
@@ -87,17 +157,27 @@ export function readGeoTiff(file) {
   if (tags.has(34264)) fail('a ModelTransformation georeference is not read by this test reader');
   // GeoKeyDirectory: GTRasterTypeGeoKey (1025) = 2 is PixelIsPoint, where the tie point is the
   // centre of its pixel; otherwise (PixelIsArea) it is the pixel's corner.
+  // Only keys stored in the directory itself (location 0) are read: the ones above all are.
   const keys = tags.get(34735) ?? [];
-  let pixelIsPoint = false;
-  for (let k = 4; k + 3 < keys.length; k += 4) if (keys[k] === 1025 && keys[k + 1] === 0) pixelIsPoint = keys[k + 3] === 2;
+  const geoKey = (id) => {
+    for (let k = 4; k + 3 < keys.length; k += 4) if (keys[k] === id && keys[k + 1] === 0) return keys[k + 3];
+    return null;
+  };
+  const pixelIsPoint = geoKey(RASTER_TYPE) === 2;
   const half = pixelIsPoint ? 0 : 0.5;
+  const userDefined = (v) => (v === null || v === 32767 ? null : v);
+  const epsg = userDefined(geoKey(PROJECTED)) ?? userDefined(geoKey(GEOGRAPHIC));
   const nodataText = tags.get(42113);
-  const nodata = typeof nodataText === 'string' && nodataText.trim() !== '' ? Number(nodataText) : null;
+  let nodata = typeof nodataText === 'string' && nodataText.trim() !== '' ? Number(nodataText) : null;
+  // GDAL writes the no-data value in decimal ("-3.4e+38"); a float32 sample holds it rounded.
+  if (nodata !== null && format === 3 && bits === 32) nodata = Math.fround(nodata);
   return {
     width,
     height,
     nodata,
     pixelIsPoint,
+    epsg,
+    verticalEpsg: userDefined(geoKey(VERTICAL)),
     at: (col, row) => {
       const v = values[row * width + col];
       return nodata !== null && v === nodata ? NaN : v;
