@@ -7,7 +7,7 @@ import { createRequire } from 'node:module';
 import { CheckFailure } from './checks.mjs';
 import { openRecordedPage } from './browser.mjs';
 import { truncate } from './walk.mjs';
-import { toLocal } from './heights.mjs';
+import { invert, multiplyPoint } from './mat4.mjs';
 
 const require = createRequire(import.meta.url);
 const { PNG } = require('pngjs');
@@ -233,29 +233,49 @@ function changedShare(a, b) {
 }
 
 /**
- * Raster samples (an n×n grid) as points of the viewer's frame, with their heights: the world
- * position (x, y) of each sample from `raster.world`, its height `raster.at + zOffset`, and the
- * tileset's `local_frame` (origin, north) to put it in the frame the viewer draws in.
+ * Raster samples (an n×n grid) with their heights and where they lie on the Earth: `place(col,
+ * row)` gives `{ h, ecef }` (the height the colours are judged by, and the Earth-centred
+ * position, computed by the caller without the viewer) or null for no-data.
  */
-function rasterSamples(raster, lf, n, zOffset) {
+function rasterSamples(raster, n, place) {
   const out = [];
   for (let j = 0; j < n; j++) for (let i = 0; i < n; i++) {
     const col = Math.round((i * (raster.width - 1)) / (n - 1)), row = Math.round((j * (raster.height - 1)) / (n - 1));
-    const h = raster.at(col, row) + zOffset;
-    if (!Number.isFinite(h)) continue;
-    const [x, y] = raster.world(col, row);
-    out.push({ col, row, h, p: toLocal(lf, x, y, h) });
+    const p = place(col, row);
+    if (p && Number.isFinite(p.h) && p.ecef.every(Number.isFinite)) out.push({ col, row, h: p.h, ecef: p.ecef });
   }
   return out;
 }
 
-/** The hue drawn at each sample (NaN where it is hidden, off screen, under the panel or grey). */
+// A sample is judged only when the eye sees it this high above its horizon (sin of the
+// elevation): on a globe, the far side projects onto the near side's pixels.
+const MIN_ELEVATION = 0.1;
+const WGS84_K2 = 1 / (1 - 1 / 298.257223563) ** 2;
+
+/**
+ * The hue drawn at each sample (NaN where it is hidden, behind the horizon, off screen, under
+ * the panel or grey). Each sample's Earth-centred position goes into the viewer's frame by the
+ * inverse of the placement the page reports (`terrastreamViewer.frame.toEcef`), and `project`
+ * says which pixel it was drawn at.
+ */
 async function huesAt(page, shot, samples) {
-  const px = await page.evaluate((pts) => pts.map((p) => window.terrastreamViewer.project(p)), samples.map((s) => s.p));
+  const { toEcef, view } = await page.evaluate(() => ({ toEcef: window.terrastreamViewer.frame?.toEcef ?? null, view: window.terrastreamViewer.getView() }));
+  if (!Array.isArray(toEcef) || toEcef.length !== 16) throw new CheckFailure(`the viewer reports no frame placement (terrastreamViewer.frame.toEcef is ${JSON.stringify(toEcef)})`);
+  const inv = invert(toEcef);
+  if (!inv) throw new CheckFailure('the viewer\'s frame placement (terrastreamViewer.frame.toEcef) is singular');
+  // the eye, as the viewer's camera puts it (yaw 0: south of the target; pitch: below the horizon)
+  const cp = Math.cos(view.pitch);
+  const back = [Math.sin(view.yaw) * cp, -Math.cos(view.yaw) * cp, Math.sin(view.pitch)];
+  const eye = multiplyPoint(toEcef, view.target.map((t, a) => t + back[a] * view.dist));
+  const above = (q) => {
+    const n = [q[0], q[1], q[2] * WGS84_K2], d = [eye[0] - q[0], eye[1] - q[1], eye[2] - q[2]];
+    return (n[0] * d[0] + n[1] * d[1] + n[2] * d[2]) / (Math.hypot(...n) * Math.hypot(...d)) >= MIN_ELEVATION;
+  };
+  const px = await page.evaluate((pts) => pts.map((p) => window.terrastreamViewer.project(p)), samples.map((s) => multiplyPoint(inv, s.ecef)));
   const { data, width, height } = shot.png;
   return samples.map((s, k) => {
     const q = px[k];
-    if (!q) return NaN;
+    if (!q || !above(s.ecef)) return NaN;
     const x = Math.round(q[0]), y = Math.round(q[1]);
     if (x < 0 || y < 0 || x >= width || y >= height || shot.inPanel(x, y)) return NaN;
     const i = y * width + x;
@@ -288,31 +308,48 @@ function judgeHues(r, what, problems, log) {
   if (!(Math.abs(r.rho) >= MIN_RANK_CORRELATION)) problems.push(`${what}: hue follows height with |Spearman ρ| ${Math.abs(r.rho).toFixed(3)} (need ≥ ${MIN_RANK_CORRELATION})`);
 }
 
-/** The overlay's globe text, against the server's `globe` (and the position expected for it). */
+/**
+ * The overlay's globe text, against the server's `globe`. `expected`: null for a tileset without
+ * a CRS (the server must give no globe, and the page must say "local frame (no CRS)"), else
+ * `{ crs, vertical_datum, lon, lat, tolerance, from }`: the server's globe must exist, name that
+ * CRS and datum, and put its centre within `tolerance` degrees of (lon, lat); the page must show
+ * that centre.
+ */
 function judgeGlobe(text, summary, expected, problems, log) {
   log(`globe text: ${JSON.stringify(text)}`);
   const g = summary?.globe;
-  if (g === undefined || g === null) {
-    log('note: the server gives no "globe" for this tileset (no CRS known); the page must say so');
+  if (!expected) {
+    if (g !== undefined && g !== null) problems.push(`the tileset has no CRS, but the server gives a globe position: ${truncate(JSON.stringify(g), 300)}`);
     if (!text.includes('local frame (no CRS)')) problems.push(`the tileset has no globe position, and the page does not say "local frame (no CRS)": ${JSON.stringify(text)}`);
     return;
   }
+  if (g === undefined || g === null) {
+    problems.push(`the source has a CRS (${expected.crs}), but GET /tilesets/{name} gives no "globe" (${JSON.stringify(g)})`);
+    return;
+  }
+  log(`server globe: ${truncate(JSON.stringify(g), 400)}`);
+  if (g.crs !== expected.crs) problems.push(`the server's globe.crs is ${JSON.stringify(g.crs)}, the source's CRS is ${expected.crs}`);
+  if (g.vertical_datum !== expected.vertical_datum) problems.push(`the server's globe.vertical_datum is ${JSON.stringify(g.vertical_datum)}, the bake asked for ${expected.vertical_datum}`);
   const { lon, lat } = g.centre ?? {};
+  if (!Number.isFinite(lon) || !Number.isFinite(lat)) {
+    problems.push(`the server's globe.centre is not a longitude and latitude: ${JSON.stringify(g.centre)}`);
+    return;
+  }
   const fmt = (v, p, n) => `${Math.abs(v).toFixed(4)}°${v < 0 ? n : p}`;
   for (const want of [fmt(lat, 'N', 'S'), fmt(lon, 'E', 'W')]) if (!text.includes(want)) problems.push(`the page's globe text does not show ${want} (the server's globe.centre): ${JSON.stringify(text)}`);
-  if (expected && (Math.abs(lon - expected.lon) > expected.tolerance || Math.abs(lat - expected.lat) > expected.tolerance)) {
+  if (Math.abs(lon - expected.lon) > expected.tolerance || Math.abs(lat - expected.lat) > expected.tolerance) {
     problems.push(`the server's globe.centre ${lat}, ${lon} is not within ${expected.tolerance}° of ${expected.lat}, ${expected.lon} (${expected.from})`);
   }
 }
 
 /**
  * Check g on a baked DEM: the default view at 1× and the same camera at `exaggeration`×.
- * `raster`: { width, height, at(col, row), world(col, row) } of the source; `lf`: the tileset's
- * local_frame; `expectedCentre`: where GDAL puts the raster's centre (lon, lat, tolerance).
+ * `raster`: { width, height } of the source; `place(col, row)`: a sample's height and
+ * Earth-centred position (see rasterSamples); `expectedGlobe`: see judgeGlobe.
  */
-export async function reliefCheck({ browser, base, name, raster, lf, summary, expectedCentre, exaggeration, outDir, readyTimeoutMs = 90_000, log }) {
+export async function reliefCheck({ browser, base, name, raster, place, summary, expectedGlobe, exaggeration, outDir, readyTimeoutMs = 90_000, log }) {
   const url = `${base}/viewer?tileset=${encodeURIComponent(name)}`;
-  const samples = rasterSamples(raster, lf, 80, 0);
+  const samples = rasterSamples(raster, 80, place);
   const problems = [];
   let view, range, first;
   {
@@ -330,7 +367,7 @@ export async function reliefCheck({ browser, base, name, raster, lf, summary, ex
       ({ view, range } = state);
       log(`colour ramp ${range ? range.map((v) => v.toFixed(1)).join(' … ') : 'none'} m`);
       judgeHues(hueVersusHeight(samples, await huesAt(page, shot, samples)), '1×', problems, log);
-      judgeGlobe(state.globe, summary, expectedCentre, problems, log);
+      judgeGlobe(state.globe, summary, expectedGlobe, problems, log);
       problems.push(...recordedProblems(rec));
       first = shot;
     } finally {
@@ -364,14 +401,24 @@ export async function reliefCheck({ browser, base, name, raster, lf, summary, ex
 }
 
 /**
- * Sea level on a DEM whose heights cross 0 (baked with a negative `zOffset`): samples well
- * below 0 drawn blue, samples well above 0 not.
+ * Sea level on a DEM whose heights cross 0 (baked with a negative z offset): samples well below
+ * 0 drawn blue, samples well above 0 not. `place` as for reliefCheck, its `h` the height after
+ * the offset. `maxSse`: the page's max SSE slider (pixels) for the check, when not its default.
  */
-export async function seaLevelCheck({ browser, base, name, raster, lf, zOffset, outDir, readyTimeoutMs = 90_000, log }) {
+export async function seaLevelCheck({ browser, base, name, raster, place, maxSse, outDir, readyTimeoutMs = 90_000, log }) {
   const url = `${base}/viewer?tileset=${encodeURIComponent(name)}`;
-  const samples = rasterSamples(raster, lf, 60, zOffset);
-  const { page, rec, problems } = await openViewer(browser, url, readyTimeoutMs, log);
+  const samples = rasterSamples(raster, 60, place);
+  const { page, rec, problems, ready } = await openViewer(browser, url, readyTimeoutMs, log);
   try {
+    if (maxSse !== undefined) {
+      await page.evaluate((v) => {
+        const el = document.getElementById('sse');
+        el.value = String(v);
+        el.dispatchEvent(new Event('input'));
+      }, maxSse);
+      log(`max SSE set to ${maxSse} px`);
+      if (ready) await waitReady(page, readyTimeoutMs, problems, log);
+    }
     const file = `${outDir}/viewer-${name}.png`;
     const shot = await capture(page, file);
     const hues = await huesAt(page, shot, samples);
