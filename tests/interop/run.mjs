@@ -1,7 +1,10 @@
 #!/usr/bin/env node
-// Interoperability checks of terrastream's 3D Tiles output: bake fuji + bunny, serve them, then
-// walk, validate (Khronos), parse (loaders.gl), render (CesiumJS, offline), compare heights, and
-// open the server's own viewer. The last line printed is `N passed, N failed`; exit 1 on a failure.
+// Interoperability checks of terrastream's 3D Tiles output: bake fuji + bunny and the four real
+// DEMs of geo/ (placed exactly on the Earth), serve them, then walk, validate (Khronos), parse
+// (loaders.gl), render (CesiumJS, offline), compare CesiumJS's heights with heights computed from
+// the source rasters alone (proj4js, the EGM96 grid), and open the server's own viewer; check
+// that it shows the relief of a real DEM (SRTM, UTM 32N) and of fuji below sea level. The last
+// line printed is `N passed, N failed`; exit 1 on a failure.
 //
 // Environment: TERRASTREAM_BIN, TERRASTREAM_DATA, CHROMIUM, INTEROP_OUT (see README.md),
 // INTEROP_TIMEOUT_S (whole run, default 480), INTEROP_KEEP=1 (keep the temp store).
@@ -16,9 +19,13 @@ import { validateGlbs } from './lib/validate.mjs';
 import { loadersGlCheck } from './lib/loadersgl.mjs';
 import { startStaticServer } from './lib/static-server.mjs';
 import { launchBrowser } from './lib/browser.mjs';
-import { cesiumLoadCheck, heightsCheck } from './lib/cesium.mjs';
-import { viewerCheck } from './lib/viewer.mjs';
+import { cesiumLoadCheck, heightsCheck, earthHeightsCheck } from './lib/cesium.mjs';
+import { viewerCheck, reliefCheck, seaLevelCheck } from './lib/viewer.mjs';
 import { readTerrainRgb, checkPlacement, localFrame, toLocal } from './lib/heights.mjs';
+import { readGeoTiff } from './lib/geotiff.mjs';
+import { readGtx, EGM96_GTX } from './lib/geoid.mjs';
+import { toLonLat, placeSample, interiorGrid } from './lib/earth.mjs';
+import { multiplyPoint } from './lib/mat4.mjs';
 
 const HERE = path.dirname(fileURLToPath(import.meta.url));
 const fromHere = (p) => path.resolve(HERE, p);
@@ -35,8 +42,36 @@ const cfg = {
 // 32-cell tiles: a quadtree 4 deep, so the root's children are external tilesets (one per index
 // chunk below the root) and every client must follow them.
 const FUJI = { cellSize: 30, tileSize: 32, anchor: { lon: 138.7274, lat: 35.3606 } };
-const TILESETS = ['fuji', 'bunny'];
 const MIN_SHARE = { fuji: 0.1, bunny: 0.02 };
+// The real DEMs of geo/ (see its README), each with a CRS, so placed exactly on the Earth. Small
+// leaf tiles and one point level keep the bakes and CesiumJS quick on two cores. SRTM-derived
+// heights (the Gabon tile, ETOPO1) are orthometric: baked with --vertical-datum egm96, and their
+// expected heights add the EGM96 undulation. `rows`/`cols`: the sample grid's span when it is not
+// the raster's interior (see HEIGHTS_GRID).
+const GEO = [
+  { name: 'gabon', file: 'geo/utm32n_pixelispoint_n00e010.tif', egm96: true, tileSize: 128 },
+  { name: 'nad83', file: 'geo/nad83_utm18n_dem.tif', egm96: false, tileSize: 32 },
+  { name: 'vinschgau', file: 'geo/utm32n_vinschgau.tif', egm96: false, tileSize: 32 },
+  { name: 'etopo', file: 'geo/etopo1_global_1deg.tif', egm96: true, tileSize: 32 },
+];
+const TILESETS = ['fuji', 'bunny', ...GEO.map((g) => g.name)];
+// Check e on the Earth: a k×k grid of raster samples (not the outer 2 on any side), each within
+// its tile's errors.max + HEIGHTS_MARGIN m + its GLB's f32 step.
+const HEIGHTS_GRID = 6;
+const HEIGHTS_MARGIN = 0.1;
+// Check g, the viewer's relief on a real DEM: the Gabon tile of GEO (SRTM-derived, UTM 32N,
+// PixelIsPoint, the coast at the equator, heights 1–1005 m, a low coastal plain in the west). Its
+// centre as GDAL puts it (`gdalinfo`: 10°29'59.78"E, 0°30'0.93"N), for the server's globe position.
+const RELIEF = {
+  name: 'gabon',
+  globe: { crs: 'EPSG:32632', vertical_datum: 'egm96', lon: 10 + 29 / 60 + 59.78 / 3600, lat: 30 / 60 + 0.93 / 3600, tolerance: 0.01, from: 'gdalinfo' },
+  exaggeration: 5,
+};
+// And sea level: fuji lowered by 1000 m, so its heights run from about −986 m to 2751 m; and the
+// whole globe (ETOPO1 of GEO: oceans and land, EGM96 heights), seen from space.
+const SEA = { name: 'fuji-sea', zOffset: -1000 };
+const GLOBE_SEA = 'etopo';
+const GLOBE_SEA_SSE = 2;
 
 const checks = new Checks();
 const runStarted = Date.now();
@@ -109,8 +144,12 @@ async function main() {
   const bakes = {
     fuji: ['bake', path.join(cfg.data, 'fuji.png'), '--encoding', 'terrain-rgb', '--cell-size', String(FUJI.cellSize), '--tile-size', String(FUJI.tileSize), '--anchor', `${FUJI.anchor.lon},${FUJI.anchor.lat}`, '--gpu', 'off', '--out', path.join(store, 'fuji')],
     bunny: ['bake-model', path.join(cfg.data, 'stanford-bunny.obj'), '--gpu', 'off', '--out', path.join(store, 'bunny')],
+    [SEA.name]: ['bake', path.join(cfg.data, 'fuji.png'), '--encoding', 'terrain-rgb', '--cell-size', String(FUJI.cellSize), '--z-offset', String(SEA.zOffset), '--gpu', 'off', '--out', path.join(store, SEA.name)],
   };
-  for (const name of TILESETS) {
+  for (const g of GEO) {
+    bakes[g.name] = ['bake', path.join(cfg.data, g.file), '--tile-size', String(g.tileSize), '--levels', '1', ...(g.egm96 ? ['--vertical-datum', 'egm96'] : []), '--gpu', 'off', '--out', path.join(store, g.name)];
+  }
+  for (const name of Object.keys(bakes)) {
     baked[name] = await checks.run(`bake ${name}`, async (log) => {
       if (!fs.existsSync(cfg.bin)) throw new CheckFailure(`no binary at ${cfg.bin} (set TERRASTREAM_BIN)`);
       log(`$ ${path.basename(cfg.bin)} ${bakes[name].join(' ')}`);
@@ -235,16 +274,127 @@ async function main() {
         return heightsCheck({ session, walk: walks.fuji, raster, cellSize: FUJI.cellSize, grid: 6, timeoutMs: 90_000, log });
       });
     }
+    const geo = GEO.find((g) => g.name === name);
+    if (geo) {
+      await checks.run(`e. heights ${name}`, async (log) => {
+        needs(walks[name], `no walk of ${name}`);
+        const { samples, lines } = expectedSamples(geo);
+        lines.forEach(log);
+        return earthHeightsCheck({ session, walk: walks[name], samples, margin: HEIGHTS_MARGIN, timeoutMs: 90_000, log });
+      });
+    }
     if (session.rec) fs.writeFileSync(path.join(cfg.out, `cesium-${name}-requests.txt`), `${session.rec.requests.join('\n')}\n`);
     if (session.page) await session.page.close().catch(() => {});
   }
 
-  for (const name of TILESETS) {
+  for (const name of Object.keys(MIN_SHARE)) {
     await checks.run(`f. viewer ${name}`, async (log) => {
       needs(served, 'the server is not running');
       needs(browser, `no browser: ${browserError}`);
       return viewerCheck({ browser, url: `${base}/viewer?tileset=${name}`, outFile: path.join(cfg.out, `viewer-${name}.png`), minShare: MIN_SHARE[name], log });
     });
+  }
+
+  // g. the viewer's relief: colours from the data's own heights, exaggeration, globe position, sea level
+  const getJson = async (url) => {
+    const r = await fetchWithTimeout(url);
+    if (r.status !== 200) throw new CheckFailure(`GET ${url} -> ${r.status}: ${truncate(await r.text(), 300)}`);
+    return r.json();
+  };
+  await checks.run(`g. viewer relief ${RELIEF.name}`, async (log) => {
+    needs(served, 'the server is not running');
+    needs(baked[RELIEF.name], `the bake of ${RELIEF.name} failed`);
+    needs(browser, `no browser: ${browserError}`);
+    const geo = GEO.find((g) => g.name === RELIEF.name);
+    let raster, lonLatOf, geoid;
+    try {
+      raster = readGeoTiff(path.join(cfg.data, geo.file));
+      lonLatOf = toLonLat(raster.epsg);
+      geoid = geo.egm96 ? egm96() : null;
+    } catch (err) {
+      throw new CheckFailure(err.message);
+    }
+    if (`EPSG:${raster.epsg}` !== RELIEF.globe.crs) throw new CheckFailure(`${geo.file} says EPSG:${raster.epsg}, this check expects ${RELIEF.globe.crs}`);
+    // colours are judged against the GeoTIFF's own heights; positions are the ellipsoidal ones
+    const place = (col, row) => {
+      const s = placeSample(raster, lonLatOf, geoid, col, row);
+      return { h: s.value, ecef: s.ecef };
+    };
+    const summary = await getJson(`${base}/tilesets/${RELIEF.name}`);
+    return reliefCheck({ browser, base, name: RELIEF.name, raster, place, summary, expectedGlobe: RELIEF.globe, exaggeration: RELIEF.exaggeration, outDir: cfg.out, log });
+  });
+  await checks.run(`g. viewer sea level ${SEA.name}`, async (log) => {
+    needs(served, 'the server is not running');
+    needs(baked[SEA.name], `the bake of ${SEA.name} failed`);
+    needs(browser, `no browser: ${browserError}`);
+    const png = readTerrainRgb(path.join(cfg.data, 'fuji.png'));
+    // fuji has no georeference: sample (col, row) lies at (col·cell, row·cell), as in the placement check
+    const root = await getJson(`${base}/tilesets/${SEA.name}/3dtiles/tileset.json`);
+    let lf;
+    try {
+      lf = localFrame(root);
+    } catch (err) {
+      throw new CheckFailure(`${SEA.name}: ${err.message}`);
+    }
+    const T = root.root?.transform;
+    if (!Array.isArray(T) || T.length !== 16) throw new CheckFailure(`${SEA.name}: a tileset in a local frame has no root transform`);
+    // a local frame: the root transform is its placement on the globe (checked for fuji above)
+    const place = (col, row) => {
+      const h = png.at(col, row) + SEA.zOffset;
+      return { h, ecef: multiplyPoint(T, toLocal(lf, col * FUJI.cellSize, row * FUJI.cellSize, h)) };
+    };
+    return seaLevelCheck({ browser, base, name: SEA.name, raster: png, place, outDir: cfg.out, log });
+  });
+  await checks.run(`g. viewer sea level ${GLOBE_SEA}`, async (log) => {
+    needs(served, 'the server is not running');
+    needs(baked[GLOBE_SEA], `the bake of ${GLOBE_SEA} failed`);
+    needs(browser, `no browser: ${browserError}`);
+    const geo = GEO.find((g) => g.name === GLOBE_SEA);
+    let raster, lonLatOf, geoid;
+    try {
+      raster = readGeoTiff(path.join(cfg.data, geo.file));
+      lonLatOf = toLonLat(raster.epsg);
+      geoid = geo.egm96 ? egm96() : null;
+    } catch (err) {
+      throw new CheckFailure(err.message);
+    }
+    // sea level is the geoid: judged by the raster's own (EGM96) heights, placed where they are
+    const place = (col, row) => {
+      const s = placeSample(raster, lonLatOf, geoid, col, row);
+      return { h: s.value, ecef: s.ecef };
+    };
+    // finer than the default view's tiles (kilometres of error at the root), so the coasts are
+    // drawn where they are
+    return seaLevelCheck({ browser, base, name: GLOBE_SEA, raster, place, maxSse: GLOBE_SEA_SSE, outDir: cfg.out, log });
+  });
+}
+
+let geoidGrid = null;
+/** The EGM96 grid, read once. */
+function egm96() {
+  geoidGrid ??= readGtx(EGM96_GTX);
+  return geoidGrid;
+}
+
+/**
+ * Check e's expected heights on the Earth, from the source raster alone: a HEIGHTS_GRID² grid of
+ * samples, each → lon/lat by proj4js with the EPSG definition of the GeoTIFF's own key, height =
+ * raster value (+ EGM96 undulation where the heights are EGM96).
+ */
+function expectedSamples(geo) {
+  const file = path.join(cfg.data, geo.file);
+  try {
+    const raster = readGeoTiff(file);
+    if (raster.epsg === null) throw new Error(`${file}: no EPSG code in its GeoKeys`);
+    const lonLatOf = toLonLat(raster.epsg);
+    const geoid = geo.egm96 ? egm96() : null;
+    const grid = interiorGrid(raster, HEIGHTS_GRID, { cols: geo.cols, rows: geo.rows });
+    const samples = grid.map(({ col, row }) => placeSample(raster, lonLatOf, geoid, col, row));
+    const moved = grid.filter((g) => g.moved > 0).length;
+    const lines = [`${geo.file}: EPSG:${raster.epsg}, ${raster.width}×${raster.height}, ${raster.pixelIsPoint ? 'PixelIsPoint' : 'PixelIsArea'}; heights ${geo.egm96 ? `EGM96 (+ undulation from ${EGM96_GTX})` : 'as they are (ellipsoidal)'}; ${samples.length} samples${moved ? `, ${moved} moved off no-data` : ''}`];
+    return { samples, lines };
+  } catch (err) {
+    throw new CheckFailure(err.message);
   }
 }
 

@@ -1,10 +1,11 @@
-// Checks d (CesiumJS loads the tileset, offline) and e (rendered heights vs the placement rule).
+// Checks d (CesiumJS loads the tileset, offline) and e (rendered heights vs the placement rule,
+// and on the Earth vs heights computed from the source raster alone).
 import fs from 'node:fs';
 import path from 'node:path';
 import { CheckFailure } from './checks.mjs';
 import { openRecordedPage } from './browser.mjs';
 import { truncate } from './walk.mjs';
-import { makeTolerance, localFrame, toLocal, sampleGrid } from './heights.mjs';
+import { makeTolerance, makeEarthTolerance, localFrame, toLocal, sampleGrid } from './heights.mjs';
 
 const pathOf = (u) => {
   try {
@@ -136,6 +137,59 @@ export async function heightsCheck({ session, walk, raster, cellSize, grid = 6, 
       problems.push(`sample (${s.col}, ${s.row}) at lon ${r.lonDeg.toFixed(7)}, lat ${r.latDeg.toFixed(7)}: sampled ${r.sampled.toFixed(3)} m, expected ${r.expected.toFixed(3)} m, |diff| ${Math.abs(diff).toFixed(3)} > tol ${t.tol.toFixed(3)} (tile ${t.key})`);
     }
     if (Number.isFinite(ratio) && ratio > worst.ratio) worst = { ratio, diff, tol: t.tol, col: s.col, row: s.row };
+  });
+  const worstLine = worst.ratio >= 0 ? `worst |diff|/tol ${worst.ratio.toFixed(3)} (|diff| ${Math.abs(worst.diff).toFixed(3)} m, tol ${worst.tol.toFixed(3)} m at col ${worst.col}, row ${worst.row})` : 'no comparable sample';
+  log(worstLine);
+  if (problems.length) throw new CheckFailure(`${problems.length} of ${samples.length} samples fail; ${worstLine}`, problems);
+  return `${samples.length} samples within tolerance; ${worstLine}`;
+}
+
+/**
+ * Check e on a tileset placed on the Earth: at raster samples placed with no terrastream code
+ * (`samples`: lib/earth.mjs `placeSample`: lon, lat, raster value, undulation, expected
+ * ellipsoidal height h), the height CesiumJS samples on the tileset
+ * (scene.sampleHeightMostDetailed) within the deepest level-0 mesh tile's `errors.max` + `margin`
+ * + its GLB's f32 step. Prints the table and the worst ratio.
+ */
+export async function earthHeightsCheck({ session, walk, samples, margin, timeoutMs, log }) {
+  if (!session.page || !session.result) throw new CheckFailure('not run: no tileset loaded in CesiumJS (see the cesium check)');
+  if (session.result.failed.length) throw new CheckFailure(`not run: CesiumJS failed to load ${session.result.failed.length} tiles (see the cesium check)`);
+  const root = walk.rootJson;
+  if (!root) throw new CheckFailure('no root tileset.json (see the walk check)');
+  const ts = root.asset?.extras?.terrastream;
+  if (ts?.placement !== 'exact') throw new CheckFailure(`asset.extras.terrastream.placement is ${JSON.stringify(ts?.placement)}, "exact" expected for a source with a CRS`);
+  if (root.root?.transform !== undefined) throw new CheckFailure('the root tile has a transform: an exactly placed tileset has none (its GLB nodes carry their frames)');
+  log(`frame: ${ts.frame?.crs?.definition ?? '?'}, vertical datum ${ts.frame?.vertical_datum ?? '?'}${ts.frame?.geoid ? ` (${ts.frame.geoid})` : ''}`);
+  const tol = makeEarthTolerance(walk, margin);
+  log(`${tol.count} level-0 mesh tiles with a region`);
+  if (tol.count === 0) throw new CheckFailure('no content tile carries extras.terrastream {level: 0, kind: "mesh"} with a region: no tolerance can be derived');
+  let res;
+  try {
+    res = await session.page.evaluate((pts, ms) => window.interopHeightsAt(pts, ms), samples.map((s) => [s.lon, s.lat]), timeoutMs);
+  } catch (err) {
+    throw new CheckFailure(`sampling heights in CesiumJS failed: ${truncate(err.message, 600)}`);
+  }
+  log(`sampleHeightMostDetailed: ${samples.length} samples in ${(res.ms / 1000).toFixed(1)} s; CesiumJS has loaded ${res.loaded.length} tile contents so far, ${res.failed.length} failed`);
+  const pad = (v, n) => String(v).padStart(n);
+  const f = (v, d = 2) => (v === null || v === undefined || Number.isNaN(v) ? '-' : v.toFixed(d));
+  log(`${pad('col', 4)} ${pad('row', 4)} ${pad('lon', 12)} ${pad('lat', 11)} ${pad('raster', 8)} ${pad('geoid', 7)} ${pad('expected', 9)} ${pad('sampled', 9)} ${pad('diff', 8)} ${pad('tol', 7)}  tile  (err.max + margin + f32 step)`);
+  const problems = res.failed.map((x) => `tileFailed while sampling: ${x.url}: ${truncate(x.message, 300)}`);
+  let worst = { ratio: -1 };
+  samples.forEach((s, i) => {
+    const sampled = res.heights[i];
+    const t = tol.at(s.lon, s.lat);
+    const diff = sampled === null ? null : sampled - s.h;
+    const where = `sample (${s.col}, ${s.row}) at lon ${s.lon.toFixed(6)}, lat ${s.lat.toFixed(6)}`;
+    log(`${pad(s.col, 4)} ${pad(s.row, 4)} ${pad(f(s.lon, 6), 12)} ${pad(f(s.lat, 6), 11)} ${pad(f(s.value, 1), 8)} ${pad(f(s.undulation), 7)} ${pad(f(s.h), 9)} ${pad(f(sampled), 9)} ${pad(f(diff, 3), 8)} ${pad(t ? f(t.tol, 3) : '-', 7)}  ${t ? `${t.key} (${f(t.errMax, 3)} + ${t.margin} + ${t.step === undefined ? '?' : t.step.toPrecision(2)})` : '-'}`);
+    if (!t) problems.push(`${where}: no level-0 mesh tile's region holds it`);
+    else if (t.stepInfo?.error) problems.push(`${where}: the f32 step of tile ${t.key} is unknown: ${t.stepInfo.error}`);
+    else if (!Number.isFinite(t.tol)) problems.push(`${where}: tile ${t.key} has no numeric errors.max (${JSON.stringify(t.errMax)})`);
+    if (sampled === null) problems.push(`${where}: CesiumJS found no geometry there`);
+    else if (t && Number.isFinite(t.tol)) {
+      const ratio = Math.abs(diff) / t.tol;
+      if (ratio > 1) problems.push(`${where}: sampled ${sampled.toFixed(3)} m, expected ${s.h.toFixed(3)} m (raster ${s.value} + geoid ${s.undulation.toFixed(3)}), |diff| ${Math.abs(diff).toFixed(3)} > tol ${t.tol.toFixed(3)} (tile ${t.key})`);
+      if (ratio > worst.ratio) worst = { ratio, diff, tol: t.tol, col: s.col, row: s.row };
+    }
   });
   const worstLine = worst.ratio >= 0 ? `worst |diff|/tol ${worst.ratio.toFixed(3)} (|diff| ${Math.abs(worst.diff).toFixed(3)} m, tol ${worst.tol.toFixed(3)} m at col ${worst.col}, row ${worst.row})` : 'no comparable sample';
   log(worstLine);

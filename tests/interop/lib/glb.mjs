@@ -55,3 +55,22 @@ export function gltfCounts(gltf) {
   }
   return counts;
 }
+
+/**
+ * The f32 step of a GLB's `FLOAT` positions: the spacing of 32-bit floats at the largest
+ * |coordinate| of node 0's POSITION (its accessor's `min`/`max`), 2^(⌊log₂ m⌋ − 23); a
+ * position rounds to within half of it. Returns {step, largest}; throws when the positions are
+ * not FLOAT or the accessor has no bounds.
+ */
+export function f32Step(gltf) {
+  const node = gltf.nodes?.[0];
+  if (!node) throw new Error('GLB has no node 0');
+  const posIndex = gltf.meshes?.[node.mesh]?.primitives?.[0]?.attributes?.POSITION;
+  const acc = gltf.accessors?.[posIndex];
+  if (!acc) throw new Error('node 0 has no POSITION accessor');
+  if (acc.componentType !== 5126) throw new Error(`POSITION is component type ${acc.componentType}, not FLOAT (5126)`);
+  if (!Array.isArray(acc.min) || !Array.isArray(acc.max)) throw new Error('POSITION has no min/max');
+  const largest = Math.max(...acc.min.map(Math.abs), ...acc.max.map(Math.abs));
+  const step = largest > 0 ? 2 ** (Math.floor(Math.log2(largest)) - 23) : 2 ** -149;
+  return { step, largest };
+}

@@ -2,7 +2,7 @@
 import fs from 'node:fs';
 import { createRequire } from 'node:module';
 import { invert, multiplyPoint, isIdentity } from './mat4.mjs';
-import { readGlbJson, verticalStep } from './glb.mjs';
+import { readGlbJson, verticalStep, f32Step } from './glb.mjs';
 
 const require = createRequire(import.meta.url);
 const { PNG } = require('pngjs');
@@ -98,6 +98,64 @@ export function makeTolerance(walk) {
         const errMax = Number(m.ts.errors?.max);
         const step = stepOf(m.t);
         const cand = { key: m.ts.key, z: m.z, errMax, step: step.step, stepInfo: step, tol: errMax + (step.step ?? NaN) };
+        if (!best || m.z > best.z || (m.z === best.z && cand.tol > best.tol)) best = cand;
+      }
+      return best;
+    },
+  };
+}
+
+/** Whether a 3D Tiles `region` (radians; west > east across the antimeridian) holds a point. */
+export function regionContains(region, lonDeg, latDeg) {
+  const [w, s, e, n] = region;
+  const lon = (lonDeg * Math.PI) / 180, lat = (latDeg * Math.PI) / 180, eps = 1e-12;
+  if (lat < s - eps || lat > n + eps) return false;
+  return w <= e ? lon >= w - eps && lon <= e + eps : lon >= w - eps || lon <= e + eps;
+}
+
+/**
+ * The tolerance of a tileset placed on the Earth (region bounding volumes, FLOAT positions) at a
+ * longitude and latitude: of the level-0 mesh tiles whose region holds the point, the deepest
+ * (largest z; ties take the larger tolerance), its `errors.max` + `margin` + its GLB's f32 step
+ * (glb.mjs `f32Step`). Returns `{count, at(lonDeg, latDeg)}`; `at` gives null where no tile holds
+ * the point.
+ */
+export function makeEarthTolerance(walk, margin) {
+  const glbByTile = new Map(walk.glbs.map((g) => [g.tile, g]));
+  const meshTiles = [];
+  for (const t of walk.tiles) {
+    const ts = terrastreamExtras(t);
+    if (!ts || ts.level !== 0 || ts.kind !== 'mesh') continue;
+    const region = t.boundingVolume?.region;
+    if (!Array.isArray(region) || region.length !== 6) continue;
+    meshTiles.push({ t, ts, z: Number(String(ts.key ?? '').split('/')[0]), region });
+  }
+  const steps = new Map();
+  const stepOf = (t) => {
+    if (!steps.has(t)) {
+      const g = glbByTile.get(t);
+      let r;
+      if (!g) r = { error: `tile ${terrastreamExtras(t)?.key} has no fetched GLB` };
+      else {
+        try {
+          r = { ...f32Step(readGlbJson(g.buf)), url: g.url };
+        } catch (err) {
+          r = { error: `${g.url}: ${err.message}` };
+        }
+      }
+      steps.set(t, r);
+    }
+    return steps.get(t);
+  };
+  return {
+    count: meshTiles.length,
+    at(lonDeg, latDeg) {
+      let best = null;
+      for (const m of meshTiles) {
+        if (!regionContains(m.region, lonDeg, latDeg)) continue;
+        const errMax = Number(m.ts.errors?.max);
+        const step = stepOf(m.t);
+        const cand = { key: m.ts.key, z: m.z, errMax, step: step.step, stepInfo: step, margin, tol: errMax + margin + (step.step ?? NaN) };
         if (!best || m.z > best.z || (m.z === best.z && cand.tol > best.tol)) best = cand;
       }
       return best;

@@ -2,6 +2,7 @@
 // The CesiumJS side of the interop checks. run.mjs drives it through puppeteer:
 //   await interopLoad(tilesetUrl, timeoutMs)  -> what was loaded / failed
 //   await interopHeights([[e, n, u], …], timeoutMs) -> expected vs sampled heights
+//   await interopHeightsAt([[lonDeg, latDeg], …], timeoutMs) -> sampled heights there
 // No Cesium ion: no imagery, ellipsoid terrain, no geocoder; every request stays on 127.0.0.1.
 'use strict';
 
@@ -115,23 +116,47 @@ window.interopHeights = async function interopHeights(points, timeoutMs) {
     const c = Cesium.Cartographic.fromCartesian(ecef);
     return { lon: c.longitude, lat: c.latitude, h: c.height, ecef: [ecef.x, ecef.y, ecef.z] };
   });
-  viewer.scene.globe.show = false;
-  const query = expected.map((x) => new Cesium.Cartographic(x.lon, x.lat, 0));
-  const started = performance.now();
-  const result = await withTimeout(viewer.scene.sampleHeightMostDetailed(query), timeoutMs, 'scene.sampleHeightMostDetailed');
-  viewer.scene.globe.show = true;
+  const { ms, heights } = await sampleHeights(viewer, expected.map((x) => new Cesium.Cartographic(x.lon, x.lat, 0)), timeoutMs);
   return {
-    ms: Math.round(performance.now() - started),
+    ms,
     loaded: window.interop.loaded.slice(),
     failed: window.interop.failed.slice(),
     samples: expected.map((x, i) => ({
       lonDeg: Cesium.Math.toDegrees(x.lon),
       latDeg: Cesium.Math.toDegrees(x.lat),
       expected: x.h,
-      sampled: result[i] && typeof result[i].height === 'number' ? result[i].height : null,
+      sampled: heights[i],
       ecef: x.ecef,
     })),
   };
+};
+
+/** scene.sampleHeightMostDetailed at Cartographics, the globe hidden (only the tileset counts). */
+async function sampleHeights(viewer, query, timeoutMs) {
+  viewer.scene.globe.show = false;
+  const started = performance.now();
+  try {
+    const result = await withTimeout(viewer.scene.sampleHeightMostDetailed(query), timeoutMs, 'scene.sampleHeightMostDetailed');
+    return {
+      ms: Math.round(performance.now() - started),
+      heights: result.map((c) => (c && typeof c.height === 'number' ? c.height : null)),
+    };
+  } finally {
+    viewer.scene.globe.show = true;
+  }
+}
+
+/**
+ * points: [[lonDeg, latDeg], …] (WGS 84). The height CesiumJS finds on the tileset there, by
+ * scene.sampleHeightMostDetailed; the caller knows what to expect (computed without Cesium).
+ */
+window.interopHeightsAt = async function interopHeightsAt(points, timeoutMs) {
+  const viewer = window.viewer;
+  if (!viewer || !window.tileset) throw new Error('no tileset loaded');
+  if (!viewer.scene.sampleHeightSupported) throw new Error('scene.sampleHeightSupported is false (no depth textures)');
+  const query = points.map(([lon, lat]) => Cesium.Cartographic.fromDegrees(lon, lat, 0));
+  const { ms, heights } = await sampleHeights(viewer, query, timeoutMs);
+  return { ms, loaded: window.interop.loaded.slice(), failed: window.interop.failed.slice(), heights };
 };
 
 window.interop.ready = true;
