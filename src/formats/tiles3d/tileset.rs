@@ -219,7 +219,9 @@ fn node_tiles(
     }
     let mut below = children;
     let mut head = None;
-    for l in &node.levels {
+    // A point level without points (a node whose surface no slice hit) has no content a client
+    // could draw: an empty glTF is not valid glTF, so the chain skips it.
+    for l in node.levels.iter().filter(|l| l.level == 0 || l.count > 0) {
         let t = level_tile(info, node, l, std::mem::take(&mut below), pre, provisional)?;
         below = vec![t.clone()];
         head = Some(t);
