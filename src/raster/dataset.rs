@@ -32,6 +32,8 @@ use serde::{Deserialize, Serialize};
 use tiff::decoder::{ChunkType, Decoder};
 
 use super::nodata::{self, FALLBACK_BLOCK};
+pub use super::parts::MAX_DATASET_SIDE;
+use super::parts::{BlockSource, Part, whole_part};
 use super::{
     FileCrs, FileGeoref, Format, Georef, LoadOptions, MAX_HEIGHT, MAX_RELIEF_CELLS, RasterError,
     WindowReader, geotiff, hgt,
@@ -42,8 +44,6 @@ pub use super::nodata::FILL_REACH;
 
 /// Side of a dataset block in samples (the unit of the filled-block cache and of the fill).
 pub const BLOCK: u32 = FALLBACK_BLOCK as u32;
-/// Largest dataset side, in samples.
-pub const MAX_DATASET_SIDE: u32 = 1 << 20;
 /// Default block cache budget (both caches together), in bytes.
 pub const DEFAULT_CACHE_BYTES: u64 = 512 << 20;
 /// Smallest block cache budget accepted, in bytes.
@@ -173,15 +173,6 @@ fn file_stamps(paths: &[PathBuf]) -> Result<Vec<FileStamp>, RasterError> {
         .collect()
 }
 
-/// Reads one file's samples in blocks: values as stored, no-data as NaN.
-pub(super) trait BlockSource: Send + Sync {
-    /// (width, height) of a block; blocks at the right and bottom edges are clipped.
-    fn block_size(&self) -> (u32, u32);
-    /// The clipped block (bx, by), row-major, appended to `out` (empty: a buffer the cache
-    /// reuses).
-    fn read_block(&self, path: &Path, bx: u32, by: u32, out: &mut Vec<f32>) -> Result<(), RasterError>;
-}
-
 /// A TIFF read chunk by chunk (tiles or strips), with a pool of decoders so threads read in
 /// parallel.
 struct TiffSource {
@@ -267,25 +258,6 @@ impl BlockSource for MemorySource {
         }
         Ok(())
     }
-}
-
-/// One file placed on the dataset grid.
-pub(super) struct Part {
-    pub(super) path: PathBuf,
-    pub(super) source: Box<dyn BlockSource>,
-    pub(super) format: &'static str,
-    /// Offset of its window's sample (0, 0) on the dataset grid, and the window's size.
-    pub(super) col: u32,
-    pub(super) row: u32,
-    pub(super) width: u32,
-    pub(super) height: u32,
-    /// The window's offset within the file (a VRT source's `SrcRect`; else 0, 0), and the file's size.
-    pub(super) win_col: u32,
-    pub(super) win_row: u32,
-    pub(super) file_width: u32,
-    pub(super) file_height: u32,
-    /// Further values that are no-data here (a VRT's `<NoDataValue>` and `<NODATA>`).
-    pub(super) nodata: Vec<f32>,
 }
 
 /// A gridded point cloud served in blocks.
@@ -429,30 +401,6 @@ pub struct Dataset {
 /// An input that names no file of a supported kind, or a dataset that cannot be assembled.
 fn dataset_error(path: &Path, message: impl Into<String>) -> RasterError {
     RasterError::Dataset { path: path.to_owned(), message: message.into() }
-}
-
-/// A part that is a whole file.
-pub(super) fn whole_part(
-    path: &Path,
-    source: Box<dyn BlockSource>,
-    format: &'static str,
-    width: u32,
-    height: u32,
-) -> Part {
-    Part {
-        path: path.to_owned(),
-        source,
-        format,
-        col: 0,
-        row: 0,
-        width,
-        height,
-        win_col: 0,
-        win_row: 0,
-        file_width: width,
-        file_height: height,
-        nodata: Vec::new(),
-    }
 }
 
 /// The format of a file, from its first bytes (and its extension).

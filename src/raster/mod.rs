@@ -14,6 +14,7 @@ mod hgt;
 pub mod las;
 mod nodata;
 mod openexr;
+mod parts;
 mod png;
 pub mod synth;
 pub mod vrt;

@@ -16,7 +16,7 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::sync::{Arc, Mutex, PoisonError};
 
-use super::dataset::{BlockSource, MAX_DATASET_SIDE, Part, whole_part};
+use super::parts::{BlockSource, MAX_DATASET_SIDE, Part, whole_part};
 use super::{FileCrs, FileGeoref, RasterError};
 use crate::crs::Crs;
 
