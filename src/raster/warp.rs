@@ -36,6 +36,9 @@ struct Input {
     y0: f64,
     dx: f64,
     dy: f64,
+    /// Its sample-centre extent in the target CRS, widened by two target cells: target samples
+    /// outside it are not carried to this file's CRS at all.
+    reach: [f64; 4],
     blocks: Mutex<BlockMap>,
 }
 
@@ -158,6 +161,15 @@ impl BlockSource for WarpSource {
                 let (x, y) = (self.x0 + f64::from(c) * self.dx, self.y0 + f64::from(r) * self.dy);
                 let mut value = f32::NAN;
                 for input in &self.inputs {
+                    let r = &input.reach;
+                    let tx = if self.target.is_geographic() {
+                        unwrap_near(x, f64::midpoint(r[0], r[1]), 0.0, 1)
+                    } else {
+                        x
+                    };
+                    if !(r[0]..=r[1]).contains(&tx) || !(r[2]..=r[3]).contains(&y) {
+                        continue;
+                    }
                     let Ok((sx, sy)) = self.target.transform_to(&input.crs, x, y) else { continue };
                     let sx = if input.crs.is_geographic() {
                         unwrap_near(sx, input.x0, input.dx, input.part.width)
@@ -231,7 +243,7 @@ pub(super) fn warp(
             FileGeoref::Geographic { lon0, lat0, dlon, dlat } => (lon0, lat0, dlon, dlat),
             FileGeoref::None => return Err(bad(path, "has no georeference".into())),
         };
-        inputs.push(Input { part, crs, x0, y0, dx, dy, blocks: Mutex::new(HashMap::new()) });
+        inputs.push(Input { part, crs, x0, y0, dx, dy, reach: [0.0; 4], blocks: Mutex::new(HashMap::new()) });
     }
     let Some(f) = inputs.first() else { return Err(bad(&first, "no input to warp".into())) };
     let target = target.unwrap_or_else(|| f.crs.clone());
@@ -249,10 +261,12 @@ pub(super) fn warp(
         (side, -side)
     };
     // The union of the files' sample-centre extents in the target CRS.
+    let (fx0, fy0, fdx, fdy) = (f.x0, f.y0, f.dx, f.dy);
     let (mut xmin, mut xmax, mut ymin, mut ymax) =
         (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
     let mut ref_lon = None;
-    for i in &inputs {
+    for i in &mut inputs {
+        let mut reach = [f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY];
         let (w, h) = (f64::from(i.part.width - 1), f64::from(i.part.height - 1));
         for k in 0..EDGE_POINTS {
             let t = f64::from(k) / f64::from(EDGE_POINTS - 1);
@@ -264,19 +278,26 @@ pub(super) fn warp(
                     let r = *ref_lon.get_or_insert(tx);
                     tx += 360.0 * ((r - tx) / 360.0).round();
                 }
-                xmin = xmin.min(tx);
-                xmax = xmax.max(tx);
-                ymin = ymin.min(ty);
-                ymax = ymax.max(ty);
+                reach = [reach[0].min(tx), reach[1].max(tx), reach[2].min(ty), reach[3].max(ty)];
             }
         }
+        xmin = xmin.min(reach[0]);
+        xmax = xmax.max(reach[1]);
+        ymin = ymin.min(reach[2]);
+        ymax = ymax.max(reach[3]);
+        i.reach = reach;
+    }
+    // Widened by two target cells (the files' edges curve between the sampled points).
+    for i in &mut inputs {
+        let (mx, my) = (2.0 * dx.abs(), 2.0 * dy.abs());
+        i.reach = [i.reach[0] - mx, i.reach[1] + mx, i.reach[2] - my, i.reach[3] + my];
     }
     // Aligned to the first file's grid in its own CRS; north-up, west to east otherwise.
     let (ox, oy) = if same {
         let snap = |o: f64, v: f64, d: f64| o + ((v - o) / d).floor() * d;
         (
-            snap(f.x0, if f.dx > 0.0 { xmin } else { xmax }, f.dx),
-            snap(f.y0, if f.dy < 0.0 { ymax } else { ymin }, f.dy),
+            snap(fx0, if fdx > 0.0 { xmin } else { xmax }, fdx),
+            snap(fy0, if fdy < 0.0 { ymax } else { ymin }, fdy),
         )
     } else {
         (xmin, ymax)
