@@ -53,9 +53,9 @@ run() { # label, command...
   local label="$1"; shift
   local t0 t1
   t0=$(date +%s.%N)
-  "$@" > "$W/log" 2>&1 || { echo "$label: FAILED"; tail -5 "$W/log"; exit 1; }
+  /usr/bin/time -f '%M' -o "$W/rss" "$@" > "$W/log" 2>&1 || { echo "$label: FAILED"; tail -5 "$W/log"; exit 1; }
   t1=$(date +%s.%N)
-  python3 -c "import sys; s=float(sys.argv[2])-float(sys.argv[1]); print(f'{sys.argv[3]:<44} {s:8.2f} s  {int(sys.argv[4])/s/1e6:6.2f} M samples/s')" "$t0" "$t1" "$label" "$samples"
+  python3 -c "import sys; s=float(sys.argv[2])-float(sys.argv[1]); print(f'{sys.argv[3]:<44} {s:8.2f} s  {int(sys.argv[4])/s/1e6:6.2f} M samples/s  peak RSS {int(sys.argv[5])/1024:6.0f} MiB')" "$t0" "$t1" "$label" "$samples" "$(tail -1 "$W/rss")"
 }
 echo "inputs: 3 × ${SIDE}² float32 GeoTIFFs, 30 m cells ($samples samples); $(nproc) cores; $(gdalwarp --version)"
 run "terrastream bake, local frame (no CRS)" "$BIN" bake --quiet --gpu off --levels 1 --out "$W/b-local" "$W"/local_*.tif

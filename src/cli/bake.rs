@@ -51,12 +51,12 @@ pub struct BakeArgs {
     /// resumes it). Default: no limit.
     #[arg(long, value_name = "SECONDS", value_parser = parse_time_limit)]
     pub time_limit: Option<f64>,
-    /// Where the tileset sits on the globe in 3D Tiles, as LON,LAT[,HEIGHT] (WGS84 degrees,
-    /// ellipsoidal metres): the centre of the data, at height 0, is placed there. Geographic
-    /// sources know it (the centre of their data); other sources without it are placed at
-    /// 0°, 0°, 0 m and their 3D Tiles say so. Recorded in DIR/placement.json (no re-bake needed
-    /// to change it).
-    #[arg(long, value_parser = parse_anchor, allow_hyphen_values = true)]
+    /// The origin of a local frame (an input without a coordinate system) on the globe, as
+    /// LON,LAT[,HEIGHT] (WGS84 degrees, ellipsoidal metres): the centre of the data, at height
+    /// 0, is placed there, east-north-up. Inputs with a CRS are placed exactly by it and ignore
+    /// this; without either, 3D Tiles sit at 0°, 0°, 0 m and say so. Recorded in
+    /// DIR/placement.json (no re-bake needed to change it). Also `--origin-lonlat`.
+    #[arg(long, alias = "origin-lonlat", value_parser = parse_anchor, allow_hyphen_values = true)]
     pub anchor: Option<Anchor>,
 }
 
