@@ -19,7 +19,9 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum VerticalDatum {
-    /// Heights above the ellipsoid of the horizontal CRS's datum (WGS 84 for a WGS 84 CRS).
+    /// Heights above the WGS 84 ellipsoid, whatever the horizontal datum: heights that name no
+    /// datum are taken as-is (not moved by the horizontal datum shift's tens of metres, which
+    /// would apply only to heights truly above another ellipsoid).
     Ellipsoid,
     /// Orthometric heights above the EGM96 geoid (SRTM, most DEMs of the 2000s; EPSG:5773).
     Egm96,

@@ -508,13 +508,8 @@ impl Frame {
     /// WGS 84 longitude, latitude and ellipsoidal height of a world point.
     pub fn to_geodetic(&self, p: [f64; 3]) -> Result<(f64, f64, f64), PlaceError> {
         let (e, n) = self.crs_xy(p[0], p[1]);
-        match self.vertical {
-            VerticalDatum::Ellipsoid => Ok(self.grid.crs.to_wgs84_3d(e, n, p[2])?),
-            VerticalDatum::Egm96 | VerticalDatum::Egm2008 => {
-                let (lon, lat) = self.grid.crs.to_wgs84(e, n)?;
-                Ok((lon, lat, p[2] + self.undulation(lon, lat)?))
-            }
-        }
+        let (lon, lat) = self.grid.crs.to_wgs84(e, n)?;
+        Ok((lon, lat, p[2] + self.undulation(lon, lat)?))
     }
 
     /// The geoid undulation at a WGS 84 point (0 for ellipsoidal heights).
@@ -537,16 +532,7 @@ impl Frame {
     pub fn from_geodetic(&self, lon: f64, lat: f64, h: f64) -> Result<[f64; 3], PlaceError> {
         let (e, n) = self.grid.crs.from_wgs84(lon, lat)?;
         let (x, y) = self.world_xy(e, n);
-        let z = match self.vertical {
-            VerticalDatum::Ellipsoid => {
-                // The datum shift of the height: the difference at this point between the
-                // CRS's ellipsoid and WGS 84's.
-                let (_, _, h0) = self.grid.crs.to_wgs84_3d(e, n, 0.0)?;
-                h - h0
-            }
-            _ => h - self.undulation(lon, lat)?,
-        };
-        Ok([x, y, z])
+        Ok([x, y, h - self.undulation(lon, lat)?])
     }
 
     /// The world point of an ECEF position.

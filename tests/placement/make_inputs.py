@@ -238,6 +238,35 @@ def main():
     inputs.append(entry("srtm_n57e006", [hgt_dir / "N57E006.hgt"], "EPSG:4326 (.hgt)", "egm96",
                         note="synthetic 3-arc-second tile, sea (0 m) in the west; .hgt heights are EGM96"))
 
+    # 9b. A 3 x 3 degree mosaic of nine such tiles (N56..N58, E005..E007): one continuous surface,
+    #     so the rows and columns the tiles share hold the same heights.
+    files = []
+    for south in (56, 57, 58):
+        for west in (5, 6, 7):
+            lat = (south + 1.0) - np.arange(n)[:, None] / 1200.0 * np.ones((1, n))
+            lon = west + np.ones((n, 1)) * np.arange(n)[None, :] / 1200.0
+            h = relief(lon, lat, wavelength_m=9000, amplitude=150, base=200, seed=11, noise=0.0)
+            h += 80.0 * np.sin(lon * 3.0) * np.cos(lat * 2.0)
+            f = hgt_dir / f"N{south:02d}E{west:03d}.hgt"
+            if f.name == "N57E006.hgt":
+                f = out / "hgt9" / f.name
+            f.parent.mkdir(exist_ok=True)
+            np.round(h).astype(">i2").tofile(f)
+            files.append(f)
+    inputs.append(entry("srtm_3x3_mosaic", files, "EPSG:4326 (9 .hgt)", "egm96",
+                        note="nine 3-arc-second tiles, 3 x 3 degrees at 56-59 N; .hgt heights are EGM96"))
+
+    # 9c. More projected CRSs: UTM 16N and 17S (southern hemisphere), Swiss LV95 (CH1903+, a
+    #     7-parameter datum shift), New Zealand TM 2000 (NZGD2000).
+    for k, (name, crs, lon, lat) in enumerate([("utm16n", "EPSG:32616", -87.5, 41.8),
+                                             ("utm17s", "EPSG:32717", -79.0, -2.2),
+                                             ("lv95", "EPSG:2056", 7.6, 46.5),
+                                             ("nztm", "EPSG:2193", 172.6, -43.5)]):
+        t = grid_around(crs, lon, lat, 25.0, 160, 140)
+        f = out / f"{name}.tif"
+        synthetic(f, crs, t, 160, 140, seed=20 + k, wavelength_m=2500, amplitude=150, base=300)
+        inputs.append(entry(name, [f], crs, "ellipsoid", note=f"a generated 160 x 140 raster of 25 m cells in {crs}"))
+
     # 10. A vertical CRS terrastream does not support (NAVD88 height, VerticalCSTypeGeoKey 5703):
     #     must be refused, naming the key value; never taken for ellipsoidal heights.
     crs = "EPSG:26914+5703"
