@@ -4,12 +4,15 @@
 //!   in parallel, resumable, the manifest last (`terrain`);
 //! - [`bake_node`] bakes one node of a raster into an existing tileset directory, the same
 //!   bytes [`bake_terrain`] writes for it: the server's on-demand tiles (`node`);
+//! - [`qmesh`] makes Cesium quantized-mesh globe terrain from a placed dataset, baked into a
+//!   store or one tile at a time for the server (the same bytes);
 //! - [`shard`] splits a terrain bake over many processes or machines (same bytes);
 //! - [`model_tileset::bake_model`] bakes one OBJ, STL or PLY model into a single-tile model
 //!   tileset (`model_tileset`).
 
 pub mod export;
 mod node;
+pub mod qmesh;
 pub mod shard;
 mod terrain;
 

@@ -4,10 +4,12 @@
 //! server do that).
 //!
 //! - [`tiles3d`]: OGC 3D Tiles 1.1 (placement on the globe, glTF binaries, tileset JSON);
-//! - [`interchange`]: PLY and OBJ files of one (tile, level), for mesh and point tools.
+//! - [`interchange`]: PLY and OBJ files of one (tile, level), for mesh and point tools;
+//! - [`qmesh`]: Cesium quantized-mesh-1.0 globe terrain (geodetic tiles, `layer.json`).
 //!
-//! Quantized-mesh and heightmap tiles land here too. May import the stages below it (`codec`,
+//! Heightmap tiles land here too. May import the stages below it (`codec`,
 //! `geom`, `store` records, `tiling`, `raster` limits), never `bake`, `server` or `client`.
 
 pub mod interchange;
+pub mod qmesh;
 pub mod tiles3d;

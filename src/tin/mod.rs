@@ -202,7 +202,19 @@ pub const REGION_SPLIT_SAMPLES: usize = 1 << 17;
 /// Builds the TIN of `heights` (row-major over `grid.rows × grid.cols`) so that every sample is
 /// within `max_error` (vertical, in height units) of the mesh.
 pub fn build(grid: &NodeGrid, heights: &[f32], max_error: f64) -> Result<Tin, TinError> {
-    build_split(grid, heights, max_error, REGION_SPLIT_SAMPLES)
+    build_split(grid, heights, max_error, REGION_SPLIT_SAMPLES, 0)
+}
+
+/// [`build`] with a vertex at every `every`-th sample of both axes (node indices; 0 or 1 for
+/// none): what bounds the chord of a triangle on a curved surface. Border vertices at those
+/// samples split the border profiles, so neighbours with the same `every` still agree.
+pub fn build_with_spacing(
+    grid: &NodeGrid,
+    heights: &[f32],
+    max_error: f64,
+    every: usize,
+) -> Result<Tin, TinError> {
+    build_split(grid, heights, max_error, REGION_SPLIT_SAMPLES, every)
 }
 
 /// [`build`], splitting regions of more than `split_samples` samples.
@@ -211,6 +223,7 @@ fn build_split(
     heights: &[f32],
     max_error: f64,
     split_samples: usize,
+    every: usize,
 ) -> Result<Tin, TinError> {
     let (nc, nr) = (grid.cols.len(), grid.rows.len());
     if nc < 2 || nr < 2 {
@@ -225,7 +238,8 @@ fn build_split(
     if let Some(k) = heights.iter().position(|h| !h.is_finite()) {
         return Err(TinError::NonFinite { col: grid.cols[k % nc], row: grid.rows[k / nc] });
     }
-    let node = Node { grid, heights, nc, max_error, split_samples };
+    let every = if every > 1 { every } else { 0 };
+    let node = Node { grid, heights, nc, max_error, split_samples, every };
     let whole = Region { i0: 0, i1: nc - 1, j0: 0, j1: nr - 1 };
     let borders = Borders {
         bottom: node.row_border(0, 0, nc - 1),
@@ -243,6 +257,8 @@ struct Node<'a> {
     nc: usize,
     max_error: f64,
     split_samples: usize,
+    /// Forced vertices at every `every`-th sample (0: none).
+    every: usize,
 }
 
 impl Node<'_> {
@@ -254,14 +270,34 @@ impl Node<'_> {
     fn row_border(&self, j: usize, i0: usize, i1: usize) -> Vec<usize> {
         let profile: Vec<(f64, f64)> =
             (i0..=i1).map(|i| (f64::from(self.grid.cols[i]), self.h(i, j))).collect();
-        simplify_profile(&profile, self.max_error).into_iter().map(|k| i0 + k).collect()
+        self.simplify_forced(&profile, i0)
+    }
+
+    /// The kept samples of a border profile starting at node index `first`: every forced
+    /// sample, and the 1-D simplification of each stretch between them.
+    fn simplify_forced(&self, profile: &[(f64, f64)], first: usize) -> Vec<usize> {
+        if self.every == 0 {
+            return simplify_profile(profile, self.max_error).into_iter().map(|k| first + k).collect();
+        }
+        let last = first + profile.len() - 1;
+        let mut cuts: Vec<usize> = vec![first];
+        cuts.extend((first + 1..last).filter(|k| k % self.every == 0));
+        cuts.push(last);
+        let mut kept = Vec::new();
+        for w in cuts.windows(2) {
+            let part = &profile[w[0] - first..=w[1] - first];
+            let keep = simplify_profile(part, self.max_error);
+            let skip = usize::from(!kept.is_empty());
+            kept.extend(keep.into_iter().skip(skip).map(|k| w[0] + k));
+        }
+        kept
     }
 
     /// Kept rows of column `i` between rows `j0` and `j1` (inclusive, node indices).
     fn col_border(&self, i: usize, j0: usize, j1: usize) -> Vec<usize> {
         let profile: Vec<(f64, f64)> =
             (j0..=j1).map(|j| (f64::from(self.grid.rows[j]), self.h(i, j))).collect();
-        simplify_profile(&profile, self.max_error).into_iter().map(|k| j0 + k).collect()
+        self.simplify_forced(&profile, j0)
     }
 }
 
@@ -398,6 +434,14 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
     for (i, kept) in [(0, &b.left), (nc - 1, &b.right)] {
         for &j in kept {
             insert(&mut tri, i, j - r.j0)?;
+        }
+    }
+
+    if node.every > 0 {
+        for j in (1..nr - 1).filter(|j| (r.j0 + j) % node.every == 0) {
+            for i in (1..nc - 1).filter(|i| (r.i0 + i) % node.every == 0) {
+                insert(&mut tri, i, j)?;
+            }
         }
     }
 
@@ -954,8 +998,8 @@ mod tests {
         let hs = terrain(w, h, 11);
         let g = grid(w, h);
         let span = Span { col0: 0, col1: w - 1, row0: 0, row1: h - 1 };
-        let whole = build_split(&g, &hs, e, usize::MAX).unwrap();
-        let split = build_split(&g, &hs, e, 2_000).unwrap();
+        let whole = build_split(&g, &hs, e, usize::MAX, 0).unwrap();
+        let split = build_split(&g, &hs, e, 2_000, 0).unwrap();
         assert_ne!(whole, split, "the small threshold must split the node");
         for tin in [&whole, &split] {
             let pos = positions(&g, &hs, tin);

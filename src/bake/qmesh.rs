@@ -1,0 +1,418 @@
+//! Quantized-mesh globe terrain from a placed dataset: each tile's samples read from the
+//! source (any CRS, through its block cache: out of core), converted to ellipsoidal heights,
+//! built by [`crate::formats::qmesh`]; and the bake of every tile into a store (`terrain/`). The
+//! server's on-demand tiles call [`TerrainSource::tile`], which is the same function: on-demand
+//! and baked tiles are byte-identical.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use crate::crs::{Frame, Geoid};
+use crate::formats::qmesh::grid::{CELLS, MAX_ZOOM, Rect, TileId, zoom_for_cell};
+use crate::formats::qmesh::layer::{Coverage, layer_json};
+use crate::formats::qmesh::{BuiltTile, SIDE, TileSamples, build_tile};
+use crate::raster::{Georef, RasterError, WindowReader};
+
+/// Folder of a store that holds the terrain.
+pub const TERRAIN_DIR: &str = "terrain";
+
+/// Why terrain cannot be made.
+#[derive(Debug, thiserror::Error)]
+pub enum TerrainError {
+    #[error("globe terrain needs a dataset placed on the Earth; this one has no coordinate reference system (give --crs)")]
+    NotPlaced,
+    #[error("{0}")]
+    Frame(String),
+    #[error(transparent)]
+    Raster(#[from] RasterError),
+    #[error(transparent)]
+    Build(#[from] crate::formats::qmesh::BuildError),
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
+    #[error("--terrain-error-scale must be finite and > 0, got {0}")]
+    Scale(f64),
+}
+
+/// The terrain options a user sets.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TerrainOptions {
+    /// Scales every zoom's error bound (1: CesiumJS's own estimate for the zoom).
+    pub error_scale: f64,
+    /// The deepest zoom; `None`: where a tile's cells match the source's.
+    pub max_zoom: Option<u8>,
+}
+
+impl Default for TerrainOptions {
+    fn default() -> Self {
+        Self { error_scale: 1.0, max_zoom: None }
+    }
+}
+
+/// A dataset as a source of terrain tiles.
+pub struct TerrainSource<'a> {
+    reader: &'a dyn WindowReader,
+    frame: Frame,
+    width: u32,
+    height: u32,
+    sea: Arc<Geoid>,
+    pub coverage: Coverage,
+    pub options: TerrainOptions,
+}
+
+/// Samples of a tile whose CRS position is interpolated from a lattice rather than transformed
+/// one by one: every 8th sample (the edges, their neighbours and the border are always exact).
+const LATTICE: i64 = 8;
+/// The largest error (source pixels) an interpolated CRS position may have; above it the tile's
+/// positions are all transformed exactly.
+const LATTICE_TOLERANCE_PX: f64 = 0.01;
+
+impl<'a> TerrainSource<'a> {
+    /// The terrain of `reader`'s heights on `georef`'s frame.
+    pub fn new(reader: &'a dyn WindowReader, georef: &Georef, options: TerrainOptions) -> Result<Self, TerrainError> {
+        if !(options.error_scale.is_finite() && options.error_scale > 0.0) {
+            return Err(TerrainError::Scale(options.error_scale));
+        }
+        let frame = georef.frame().map_err(|e| TerrainError::Frame(e.to_string()))?.ok_or(TerrainError::NotPlaced)?;
+        let sea = Geoid::egm96().map_err(|e| TerrainError::Frame(e.to_string()))?;
+        let (width, height) = reader.size();
+        let mut s = Self {
+            reader,
+            frame,
+            width,
+            height,
+            sea,
+            coverage: Coverage { rects: Vec::new(), max_zoom: 0 },
+            options,
+        };
+        s.coverage = s.find_coverage()?;
+        Ok(s)
+    }
+
+    /// The data's geographic extent (its outline walked in WGS 84, longitudes unwrapped, so an
+    /// extent across the antimeridian is two rectangles and one around a pole reaches it) and
+    /// the zoom whose cells match the source's.
+    fn find_coverage(&self) -> Result<Coverage, TerrainError> {
+        let g = &self.frame.grid;
+        let (w, h) = (f64::from(self.width), f64::from(self.height));
+        let steps = 64;
+        let mut outline = Vec::with_capacity(4 * steps);
+        for k in 0..steps {
+            let t = k as f64 / steps as f64;
+            outline.push((-0.5 + t * w, -0.5));
+        }
+        for k in 0..steps {
+            let t = k as f64 / steps as f64;
+            outline.push((w - 0.5, -0.5 + t * h));
+        }
+        for k in 0..steps {
+            let t = k as f64 / steps as f64;
+            outline.push((w - 0.5 - t * w, h - 0.5));
+        }
+        for k in 0..steps {
+            let t = k as f64 / steps as f64;
+            outline.push((-0.5, h - 0.5 - t * h));
+        }
+        let mut pts = Vec::with_capacity(outline.len());
+        for (c, r) in outline {
+            let (lon, lat) =
+                g.crs.to_wgs84(g.e0 + c * g.de, g.n0 + r * g.dn).map_err(|e| TerrainError::Frame(e.to_string()))?;
+            pts.push((lon, lat));
+        }
+        // Unwrap longitudes along the outline.
+        let mut lons = Vec::with_capacity(pts.len());
+        let mut prev = pts[0].0;
+        let mut acc = prev;
+        for &(lon, _) in &pts {
+            let mut d = lon - prev;
+            if d > 180.0 {
+                d -= 360.0;
+            } else if d < -180.0 {
+                d += 360.0;
+            }
+            acc += d;
+            lons.push(acc);
+            prev = lon;
+        }
+        let close = {
+            let mut d = pts[0].0 - prev;
+            if d > 180.0 {
+                d -= 360.0;
+            } else if d < -180.0 {
+                d += 360.0;
+            }
+            acc + d - lons[0]
+        };
+        let (mut south, mut north) = (90.0f64, -90.0f64);
+        for &(_, lat) in &pts {
+            south = south.min(lat);
+            north = north.max(lat);
+        }
+        let (mut west, mut east) =
+            lons.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+        if close.abs() > 180.0 {
+            // The outline goes around a pole: the data holds it.
+            (west, east) = (-180.0, 180.0);
+            if south + north > 0.0 {
+                north = 90.0;
+            } else {
+                south = -90.0;
+            }
+        }
+        if east - west >= 360.0 {
+            (west, east) = (-180.0, 180.0);
+        }
+        // Shift into −180…180 by whole turns, then split at the antimeridian.
+        let shift = ((west + 180.0) / 360.0).floor() * 360.0;
+        let (west, east) = (west - shift, east - shift);
+        let rects = if east > 180.0 {
+            vec![
+                Rect { west, south, east: 180.0, north },
+                Rect { west: -180.0, south, east: east - 360.0, north },
+            ]
+        } else {
+            vec![Rect { west, south, east, north }]
+        };
+        let cell_deg = if g.crs.is_geographic() {
+            g.de.abs().min(g.dn.abs())
+        } else {
+            g.de.abs().min(g.dn.abs()) * g.crs.unit_metres() / 111_320.0
+        };
+        let max_zoom = self.options.max_zoom.unwrap_or_else(|| zoom_for_cell(cell_deg)).min(MAX_ZOOM);
+        Ok(Coverage { rects, max_zoom })
+    }
+
+    /// The CRS position of a WGS 84 point, as fractional source (column, row).
+    fn pixel(&self, lon: f64, lat: f64) -> Option<(f64, f64)> {
+        let g = &self.frame.grid;
+        let (e, n) = g.crs.from_wgs84(lon, lat).ok()?;
+        let (c, r) = ((e - g.e0) / g.de, (n - g.n0) / g.dn);
+        if g.crs.is_geographic() && !self.inside(c, r) {
+            // Longitudes on the other side of a turn (a 0…360 raster).
+            for turn in [360.0, -360.0] {
+                let c2 = (e + turn - g.e0) / g.de;
+                if self.inside(c2, r) {
+                    return Some((c2, r));
+                }
+            }
+        }
+        Some((c, r))
+    }
+
+    fn inside(&self, c: f64, r: f64) -> bool {
+        c >= -0.5 && r >= -0.5 && c <= f64::from(self.width) - 0.5 && r <= f64::from(self.height) - 0.5
+    }
+
+    /// The source pixel of every sample of tile `id` (with its border), `SIDE²` row-major.
+    fn pixels(&self, id: TileId) -> Vec<Option<(f64, f64)>> {
+        let n = i64::from(CELLS);
+        let at = |i: i64, j: i64| {
+            let (lon, lat) = id.sample(i, j);
+            self.pixel(crate::crs::wrap_lon(lon), lat)
+        };
+        let idx = |i: i64, j: i64| ((j + 1) as usize) * SIDE + (i + 1) as usize;
+        let mut out = vec![None; SIDE * SIDE];
+        let exact = |i: i64, j: i64| i <= 1 || j <= 1 || i >= n - 1 || j >= n - 1;
+        // The lattice, then the check at its cells' centres.
+        let mut lattice_ok = true;
+        let mut lattice = vec![None; ((n / LATTICE + 1) * (n / LATTICE + 1)) as usize];
+        let lk = |a: i64, b: i64| (b * (n / LATTICE + 1) + a) as usize;
+        for b in 0..=n / LATTICE {
+            for a in 0..=n / LATTICE {
+                lattice[lk(a, b)] = at(a * LATTICE, b * LATTICE);
+                lattice_ok &= lattice[lk(a, b)].is_some();
+            }
+        }
+        let interp = |i: i64, j: i64| -> Option<(f64, f64)> {
+            let (a, b) = ((i / LATTICE).min(n / LATTICE - 1), (j / LATTICE).min(n / LATTICE - 1));
+            let (fx, fy) = ((i - a * LATTICE) as f64 / LATTICE as f64, (j - b * LATTICE) as f64 / LATTICE as f64);
+            let p00 = lattice[lk(a, b)]?;
+            let p10 = lattice[lk(a + 1, b)]?;
+            let p01 = lattice[lk(a, b + 1)]?;
+            let p11 = lattice[lk(a + 1, b + 1)]?;
+            let mix = |u: f64, v: f64, w: f64, x: f64| {
+                (u * (1.0 - fx) + v * fx) * (1.0 - fy) + (w * (1.0 - fx) + x * fx) * fy
+            };
+            Some((mix(p00.0, p10.0, p01.0, p11.0), mix(p00.1, p10.1, p01.1, p11.1)))
+        };
+        if lattice_ok {
+            'check: for b in 0..n / LATTICE {
+                for a in 0..n / LATTICE {
+                    let (i, j) = (a * LATTICE + LATTICE / 2, b * LATTICE + LATTICE / 2);
+                    match (at(i, j), interp(i, j)) {
+                        (Some(p), Some(q)) if (p.0 - q.0).abs().max((p.1 - q.1).abs()) <= LATTICE_TOLERANCE_PX => {}
+                        _ => {
+                            lattice_ok = false;
+                            break 'check;
+                        }
+                    }
+                }
+            }
+        }
+        for j in -1..=n + 1 {
+            for i in -1..=n + 1 {
+                out[idx(i, j)] = if exact(i, j) || !lattice_ok { at(i, j) } else { interp(i, j) };
+            }
+        }
+        out
+    }
+
+    /// The samples of tile `id`: bilinear heights from the source where it has data, as
+    /// ellipsoidal heights; elsewhere sea level (EGM96's undulation), flagged as no data.
+    pub fn samples(&self, id: TileId) -> Result<TileSamples, TerrainError> {
+        let px = self.pixels(id);
+        let (w, h) = (self.width, self.height);
+        // The columns and rows the bilinear reads need, once each.
+        let mut cols: Vec<u32> = Vec::new();
+        let mut rows: Vec<u32> = Vec::new();
+        let corners = |c: f64, r: f64| {
+            let c = c.clamp(0.0, f64::from(w - 1));
+            let r = r.clamp(0.0, f64::from(h - 1));
+            let (c0, r0) = (c.floor() as u32, r.floor() as u32);
+            (c0, (c0 + 1).min(w - 1), r0, (r0 + 1).min(h - 1), c - f64::from(c0), r - f64::from(r0))
+        };
+        for &(c, r) in px.iter().flatten() {
+            if self.inside(c, r) {
+                let (c0, c1, r0, r1, _, _) = corners(c, r);
+                cols.extend([c0, c1]);
+                rows.extend([r0, r1]);
+            }
+        }
+        cols.sort_unstable();
+        cols.dedup();
+        rows.sort_unstable();
+        rows.dedup();
+        let mut values = Vec::new();
+        if !cols.is_empty() {
+            self.reader.read_window(&cols, &rows, &mut values)?;
+        }
+        let nc = cols.len();
+        let value = |c: u32, r: u32| {
+            let ci = cols.binary_search(&c).unwrap_or(0);
+            let ri = rows.binary_search(&r).unwrap_or(0);
+            f64::from(values[ri * nc + ci])
+        };
+        let n = i64::from(CELLS);
+        let mut heights = Vec::with_capacity(SIDE * SIDE);
+        let mut nodata = Vec::with_capacity(((n + 1) * (n + 1)) as usize);
+        for j in -1..=n + 1 {
+            for i in -1..=n + 1 {
+                let (lon, lat) = id.sample(i, j);
+                let lon = crate::crs::wrap_lon(lon);
+                let p = px[((j + 1) as usize) * SIDE + (i + 1) as usize].filter(|&(c, r)| self.inside(c, r));
+                let hgt = match p {
+                    Some((c, r)) => {
+                        let (c0, c1, r0, r1, fx, fy) = corners(c, r);
+                        let z = (value(c0, r0) * (1.0 - fx) + value(c1, r0) * fx) * (1.0 - fy)
+                            + (value(c0, r1) * (1.0 - fx) + value(c1, r1) * fx) * fy;
+                        self.frame.undulation(lon, lat).ok().map(|u| z + u)
+                    }
+                    None => None,
+                };
+                if (0..=n).contains(&i) && (0..=n).contains(&j) {
+                    nodata.push(hgt.is_none());
+                }
+                heights.push(hgt.unwrap_or_else(|| self.sea.undulation(lon, lat).unwrap_or(0.0)));
+            }
+        }
+        Ok(TileSamples { id, heights, nodata })
+    }
+
+    /// Tile `id`, built (every extension; the metadata one at its zooms).
+    pub fn tile(&self, id: TileId) -> Result<BuiltTile, TerrainError> {
+        let s = self.samples(id)?;
+        Ok(build_tile(&s, self.options.error_scale, self.coverage.metadata(id))?)
+    }
+
+    /// The `layer.json` of this terrain.
+    #[must_use]
+    pub fn layer(&self, name: &str, attribution: &str, version: &str) -> serde_json::Value {
+        layer_json(name, &self.coverage, attribution, version)
+    }
+}
+
+/// Store path of a tile.
+#[must_use]
+pub fn tile_rel(id: TileId) -> String {
+    format!("{TERRAIN_DIR}/{}/{}/{}.terrain", id.z, id.x, id.y)
+}
+
+/// What a terrain bake made, per zoom and in all (`terrain/stats.json`).
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct TerrainStats {
+    pub tiles: u64,
+    pub seconds: f64,
+    pub bytes_raw: u64,
+    pub bytes_gzip: u64,
+    pub max_zoom: u8,
+    pub per_zoom: std::collections::BTreeMap<u8, ZoomStats>,
+    /// Tiles whose relief exceeds their zoom's edge lattice (edges within a height step of the
+    /// neighbour's rather than exact): 0 on real terrain.
+    pub lattice_misses: u64,
+}
+
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct ZoomStats {
+    pub tiles: u64,
+    pub mean_vertices: f64,
+    pub max_error: f64,
+    pub bound: f64,
+    pub bytes_raw: u64,
+    pub bytes_gzip: u64,
+}
+
+fn gzip_len(b: &[u8]) -> u64 {
+    use std::io::Write;
+    let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::new(6));
+    let _ = e.write_all(b);
+    e.finish().map_or(0, |v| v.len() as u64)
+}
+
+/// Bakes every tile of `src` into `store` under [`TERRAIN_DIR`], then `layer.json` and
+/// `stats.json`. `progress(done, total)` after each tile.
+pub fn bake_terrain_tiles(
+    src: &TerrainSource,
+    store: &crate::store::Store,
+    name: &str,
+    version: &str,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<TerrainStats, TerrainError> {
+    let start = Instant::now();
+    let ids: Vec<TileId> = src.coverage.tiles().collect();
+    let total = ids.len() as u64;
+    let done = AtomicU64::new(0);
+    let results: Vec<(TileId, usize, f64, f64, u64, u64, bool)> = ids
+        .par_iter()
+        .map(|&id| {
+            let t = src.tile(id)?;
+            store.write_file(&tile_rel(id), &t.bytes)?;
+            let gz = gzip_len(&t.bytes);
+            progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
+            Ok((id, t.vertices, t.max_error, t.bound, t.bytes.len() as u64, gz, t.lattice_exact))
+        })
+        .collect::<Result<_, TerrainError>>()?;
+    let mut stats = TerrainStats { max_zoom: src.coverage.max_zoom, ..TerrainStats::default() };
+    for (id, vertices, err, bound, raw, gz, exact) in results {
+        let z = stats.per_zoom.entry(id.z).or_default();
+        z.tiles += 1;
+        z.mean_vertices += vertices as f64;
+        z.max_error = z.max_error.max(err);
+        z.bound = bound;
+        z.bytes_raw += raw;
+        z.bytes_gzip += gz;
+        stats.tiles += 1;
+        stats.bytes_raw += raw;
+        stats.bytes_gzip += gz;
+        stats.lattice_misses += u64::from(!exact);
+    }
+    for z in stats.per_zoom.values_mut() {
+        z.mean_vertices /= z.tiles.max(1) as f64;
+    }
+    let layer = src.layer(name, "", version);
+    store.write_file(&format!("{TERRAIN_DIR}/layer.json"), &serde_json::to_vec_pretty(&layer).unwrap_or_default())?;
+    stats.seconds = start.elapsed().as_secs_f64();
+    store.write_file(&format!("{TERRAIN_DIR}/stats.json"), &serde_json::to_vec_pretty(&stats).unwrap_or_default())?;
+    Ok(stats)
+}

@@ -1,0 +1,327 @@
+//! One quantized-mesh tile from its sample grid: heights quantized on a shared edge lattice, the
+//! TIN by greedy insertion (borders by 1-D simplification, so neighbours agree), vertex normals
+//! from the height field (so they agree across edges too), the header, the water mask. Pure.
+
+use super::codec::{self, Header, QMAX, QmError, QmTile, WATERMASK_SIDE, WaterMask};
+use super::grid::{CELLS, MIN_STEP, SAMPLES, TileId, cell_degrees, edge_lattice, zoom_error};
+use crate::crs::ecef;
+use crate::tiling::{NodeGrid, Span};
+
+/// Samples per side of a tile's grid with its one-sample border.
+pub const SIDE: usize = SAMPLES as usize + 2;
+
+/// A tile's heights: `SIDE × SIDE` ellipsoidal heights (metres), row-major from the sample one
+/// west and one south of the tile's south-west corner (the border feeds normals).
+#[derive(Debug, Clone)]
+pub struct TileSamples {
+    pub id: TileId,
+    pub heights: Vec<f64>,
+    /// Per inner sample (`SAMPLES²`, row-major from the south-west): true where the source has
+    /// no data and the height is the sea-level fill.
+    pub nodata: Vec<bool>,
+}
+
+impl TileSamples {
+    fn at(&self, i: i64, j: i64) -> f64 {
+        self.heights[((j + 1) as usize) * SIDE + (i + 1) as usize]
+    }
+}
+
+/// A built tile and what was measured on it.
+#[derive(Debug, Clone)]
+pub struct BuiltTile {
+    /// The encoded tile with every extension (normals, water mask, and metadata when given).
+    pub bytes: Vec<u8>,
+    pub vertices: usize,
+    pub triangles: usize,
+    /// The bound the tile was built to (metres): the zoom's error.
+    pub bound: f64,
+    /// Measured: the largest vertical distance between the decoded mesh and a sample, plus the
+    /// chord bound of its largest triangles on the curved Earth.
+    pub max_error: f64,
+    /// Whether the tile's height step divides its zoom's edge lattice (so its edges decode to
+    /// exactly its neighbours' heights): false only for a tile of more relief than 32,767 edge
+    /// lattice steps.
+    pub lattice_exact: bool,
+}
+
+/// Why a tile cannot be built.
+#[derive(Debug, thiserror::Error)]
+pub enum BuildError {
+    #[error("tile {tile}: {heights} heights for a {SIDE}×{SIDE} grid")]
+    Size { tile: TileId, heights: usize },
+    #[error("tile {tile}: non-finite height at sample ({i}, {j})")]
+    NonFinite { tile: TileId, i: i64, j: i64 },
+    #[error("tile {tile}: heights span {range:.0} m, more than a tile can quantize")]
+    Range { tile: TileId, range: f64 },
+    #[error("tile {tile}: {0}", tile = .1)]
+    Tin(crate::tin::TinError, TileId),
+    #[error(transparent)]
+    Codec(#[from] QmError),
+}
+
+const R: f64 = ecef::A;
+
+/// Samples between forced vertices at zoom `z`, and the chord bound that spacing leaves: the
+/// sag of a triangle's longest edge below the curved surface, `R·θ²/8` for an edge of `θ`
+/// radians (a cell diagonal × spacing). The largest power of two whose chord stays within half
+/// the zoom's error; 64 (the tile's corners only) from about zoom 9.
+#[must_use]
+pub fn chord_spacing(z: u8, bound: f64) -> (usize, f64) {
+    let cell = cell_degrees(z).to_radians();
+    let sag = |k: f64| R * 2.0 * (k * cell).powi(2) / 8.0;
+    let mut k = CELLS as usize;
+    while k > 1 && sag(k as f64) > bound / 2.0 {
+        k /= 2;
+    }
+    (k, sag(k as f64))
+}
+
+fn pow2_at_least(v: f64) -> f64 {
+    if v <= 0.0 { MIN_STEP } else { 2f64.powi(v.log2().ceil() as i32).max(MIN_STEP) }
+}
+
+/// Builds one tile. `error_scale` scales the zoom's error bound; `metadata` is the metadata
+/// extension's JSON (child availability), for tiles that carry it.
+pub fn build_tile(s: &TileSamples, error_scale: f64, metadata: Option<String>) -> Result<BuiltTile, BuildError> {
+    let id = s.id;
+    if s.heights.len() != SIDE * SIDE || s.nodata.len() != (SAMPLES * SAMPLES) as usize {
+        return Err(BuildError::Size { tile: id, heights: s.heights.len() });
+    }
+    if let Some(k) = s.heights.iter().position(|h| !h.is_finite()) {
+        return Err(BuildError::NonFinite { tile: id, i: (k % SIDE) as i64 - 1, j: (k / SIDE) as i64 - 1 });
+    }
+    let n = SAMPLES as usize;
+    let last = n - 1;
+    let bound = zoom_error(id.z, error_scale);
+    let lattice = edge_lattice(id.z);
+    let (every, sag) = chord_spacing(id.z, bound);
+    // Edge samples on the zoom's lattice: both tiles of an edge round the same heights alike.
+    let mut h: Vec<f64> = Vec::with_capacity(n * n);
+    for j in 0..n {
+        for i in 0..n {
+            let v = s.at(i as i64, j as i64);
+            let edge = i == 0 || j == 0 || i == last || j == last;
+            h.push(if edge { (v / lattice).round() * lattice } else { v });
+        }
+    }
+    let (lo, hi) = h.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    if hi - lo > 32_000.0 || lo.abs() > 32_000.0 || hi.abs() > 32_000.0 {
+        return Err(BuildError::Range { tile: id, range: hi - lo });
+    }
+    let step = pow2_at_least((hi - lo) / f64::from(QMAX - 1));
+    let min = (lo / step).floor() * step;
+    let max = min + f64::from(QMAX) * step;
+    let q: Vec<u16> = h.iter().map(|&v| ((v - min) / step).round().clamp(0.0, f64::from(QMAX)) as u16).collect();
+    let decoded: Vec<f64> = q.iter().map(|&k| min + f64::from(k) * step).collect();
+
+    let axis: Vec<u32> = (0..SAMPLES).collect();
+    let grid = NodeGrid { cols: axis.clone(), rows: axis };
+    let dec32: Vec<f32> = decoded.iter().map(|&v| v as f32).collect();
+    let tin_bound = (bound - lattice / 2.0 - sag).max(0.0);
+    let tin = crate::tin::build_with_spacing(&grid, &dec32, tin_bound, every).map_err(|e| BuildError::Tin(e, id))?;
+
+    // Measured against the samples as given (before any rounding).
+    let positions: Vec<[f64; 3]> =
+        tin.vertices.iter().map(|v| [f64::from(v[0]), f64::from(v[1]), decoded[v[1] as usize * n + v[0] as usize]]).collect();
+    let orig: Vec<f32> = (0..n * n).map(|k| s.at((k % n) as i64, (k / n) as i64) as f32).collect();
+    let span = Span { col0: 0, col1: CELLS, row0: 0, row1: CELLS };
+    let measured = crate::tin::measure_vertical(&positions, &tin.triangles, span, &orig).map_err(|e| BuildError::Tin(e, id))?;
+
+    // Triangles in Morton order of their centroids, vertices numbered by first use: small
+    // deltas and the high-water-mark order the format needs.
+    let mut tris = tin.triangles.clone();
+    let morton = |t: &[u32; 3]| {
+        let c = |k: usize| t.iter().map(|&v| tin.vertices[v as usize][k]).sum::<u32>();
+        interleave(c(0), c(1))
+    };
+    tris.sort_by_cached_key(morton);
+    let mut order = vec![u32::MAX; tin.vertices.len()];
+    let mut verts: Vec<usize> = Vec::with_capacity(tin.vertices.len());
+    let triangles: Vec<[u32; 3]> = tris
+        .iter()
+        .map(|t| {
+            t.map(|v| {
+                let o = &mut order[v as usize];
+                if *o == u32::MAX {
+                    *o = verts.len() as u32;
+                    verts.push(v as usize);
+                }
+                *o
+            })
+        })
+        .collect();
+
+    let mut t = QmTile { triangles, ..QmTile::default() };
+    let quant = |k: u32| ((u64::from(k) * u64::from(QMAX) * 2 + u64::from(CELLS)) / (2 * u64::from(CELLS))) as u16;
+    let mut ecef_pts = Vec::with_capacity(verts.len());
+    let mut normals = Vec::with_capacity(verts.len());
+    let mut edges: [Vec<(u32, u32)>; 4] = Default::default();
+    for (k, &v) in verts.iter().enumerate() {
+        let [i, j] = tin.vertices[v];
+        t.u.push(quant(i));
+        t.v.push(quant(j));
+        t.h.push(q[j as usize * n + i as usize]);
+        let (lon, lat) = id.sample(i64::from(i), i64::from(j));
+        ecef_pts.push(ecef::from_geodetic(lon, lat, decoded[j as usize * n + i as usize]));
+        normals.push(codec::oct_encode(normal(s, i64::from(i), i64::from(j))));
+        let k = k as u32;
+        if i == 0 {
+            edges[0].push((j, k));
+        }
+        if j == 0 {
+            edges[1].push((i, k));
+        }
+        if i == CELLS {
+            edges[2].push((j, k));
+        }
+        if j == CELLS {
+            edges[3].push((i, k));
+        }
+    }
+    for e in &mut edges {
+        e.sort_unstable();
+    }
+    let [w, so, ea, no] = edges.map(|e| e.into_iter().map(|(_, k)| k).collect::<Vec<u32>>());
+    (t.west, t.south, t.east, t.north) = (w, so, ea, no);
+    t.normals = Some(normals);
+    t.watermask = Some(watermask(&s.nodata));
+    t.metadata = metadata;
+    t.header = header(id, &ecef_pts, min, max);
+    let bytes = codec::encode(&t)?;
+    Ok(BuiltTile {
+        bytes,
+        vertices: verts.len(),
+        triangles: t.triangles.len(),
+        bound,
+        max_error: measured.max + sag,
+        lattice_exact: step <= lattice,
+    })
+}
+
+fn interleave(x: u32, y: u32) -> u64 {
+    let spread = |v: u32| {
+        let mut v = u64::from(v);
+        v = (v | (v << 16)) & 0x0000_ffff_0000_ffff;
+        v = (v | (v << 8)) & 0x00ff_00ff_00ff_00ff;
+        v = (v | (v << 4)) & 0x0f0f_0f0f_0f0f_0f0f;
+        v = (v | (v << 2)) & 0x3333_3333_3333_3333;
+        (v | (v << 1)) & 0x5555_5555_5555_5555
+    };
+    spread(x) | (spread(y) << 1)
+}
+
+/// The surface normal at sample `(i, j)` (ECEF, unit), by central differences of the sample
+/// grid's ECEF points: a function of the global sample position and its neighbours' heights
+/// only, so the two tiles of an edge give its vertices the same normal. The ellipsoid's normal
+/// where the differences vanish (at a pole).
+fn normal(s: &TileSamples, i: i64, j: i64) -> [f64; 3] {
+    let p = |i: i64, j: i64| {
+        let (lon, lat) = s.id.sample(i, j);
+        ecef::from_geodetic(lon, lat, s.at(i, j))
+    };
+    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let dx = sub(p(i + 1, j), p(i - 1, j));
+    let dy = sub(p(i, j + 1), p(i, j - 1));
+    let c = [dx[1] * dy[2] - dx[2] * dy[1], dx[2] * dy[0] - dx[0] * dy[2], dx[0] * dy[1] - dx[1] * dy[0]];
+    let l = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
+    let (lon, lat) = s.id.sample(i, j);
+    let (lo, la) = (lon.to_radians(), lat.to_radians());
+    let up = [la.cos() * lo.cos(), la.cos() * lo.sin(), la.sin()];
+    if l < 1e-9 * dx.iter().chain(&dy).map(|v| v.abs()).sum::<f64>().max(1e-9) || !l.is_finite() {
+        return up;
+    }
+    let n = [c[0] / l, c[1] / l, c[2] / l];
+    if n[0] * up[0] + n[1] * up[1] + n[2] * up[2] < 0.0 { [-n[0], -n[1], -n[2]] } else { n }
+}
+
+/// The water mask: texels over samples without data (filled at sea level) are water.
+fn watermask(nodata: &[bool]) -> WaterMask {
+    if nodata.iter().all(|&b| !b) {
+        return WaterMask::Uniform(0);
+    }
+    if nodata.iter().all(|&b| b) {
+        return WaterMask::Uniform(255);
+    }
+    let n = SAMPLES as usize;
+    let side = WATERMASK_SIDE;
+    let mut g = Vec::with_capacity(side * side);
+    for r in 0..side {
+        // Rows from the north; texel centres mapped to the nearest sample.
+        let j = (((side - r) as f64 - 0.5) / side as f64 * f64::from(CELLS)).round() as usize;
+        for c in 0..side {
+            let i = ((c as f64 + 0.5) / side as f64 * f64::from(CELLS)).round() as usize;
+            g.push(if nodata[j.min(n - 1) * n + i.min(n - 1)] { 255 } else { 0 });
+        }
+    }
+    WaterMask::Grid(g)
+}
+
+/// The header of a tile whose vertices are `pts` (ECEF) and heights span `min..=max`.
+fn header(id: TileId, pts: &[[f64; 3]], min: f64, max: f64) -> Header {
+    let r = id.rect();
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for p in pts {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let c = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, (lo[2] + hi[2]) / 2.0];
+    let radius = pts
+        .iter()
+        .map(|p| ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt())
+        .fold(0.0, f64::max);
+    let lo_h = pts.iter().map(|p| ecef::to_geodetic(*p).2).fold(f64::INFINITY, f64::min);
+    let hi_h = pts.iter().map(|p| ecef::to_geodetic(*p).2).fold(f64::NEG_INFINITY, f64::max);
+    let center = ecef::from_geodetic((r.west + r.east) / 2.0, (r.south + r.north) / 2.0, (lo_h + hi_h) / 2.0);
+    Header {
+        center,
+        min_height: min as f32,
+        max_height: max as f32,
+        sphere_center: c,
+        sphere_radius: radius,
+        horizon: horizon_point(c, pts),
+    }
+}
+
+/// The horizon-occlusion point (CesiumJS's `EllipsoidalOccluder`
+/// `computeHorizonCullingPointFromVertices`), in ellipsoid-scaled coordinates: the point on
+/// the ray towards `direction` from which, once below the horizon, every vertex is. For tiles so
+/// large that no such point exists (a hemisphere), a point far out along the ray: never culled
+/// while any of the tile can be seen.
+#[must_use]
+pub fn horizon_point(direction: [f64; 3], pts: &[[f64; 3]]) -> [f64; 3] {
+    let radii = [ecef::A, ecef::A, ecef::A * (1.0 - ecef::F)];
+    let scale = |p: [f64; 3]| [p[0] / radii[0], p[1] / radii[1], p[2] / radii[2]];
+    let d = scale(direction);
+    let dl = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    if dl == 0.0 || !dl.is_finite() {
+        return [0.0, 0.0, 0.0];
+    }
+    let d = [d[0] / dl, d[1] / dl, d[2] / dl];
+    let mut best = 0.0f64;
+    for &p in pts {
+        let s = scale(p);
+        let mag2 = s[0] * s[0] + s[1] * s[1] + s[2] * s[2];
+        let mag = mag2.sqrt();
+        let dir = [s[0] / mag, s[1] / mag, s[2] / mag];
+        let (mag2, mag) = (mag2.max(1.0), mag.max(1.0));
+        let cos_a = dir[0] * d[0] + dir[1] * d[1] + dir[2] * d[2];
+        let cr = [dir[1] * d[2] - dir[2] * d[1], dir[2] * d[0] - dir[0] * d[2], dir[0] * d[1] - dir[1] * d[0]];
+        let sin_a = (cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]).sqrt();
+        let cos_b = 1.0 / mag;
+        let sin_b = (mag2 - 1.0).sqrt() * cos_b;
+        let denom = cos_a * cos_b - sin_a * sin_b;
+        if denom <= 1e-9 {
+            best = f64::INFINITY;
+            break;
+        }
+        best = best.max(1.0 / denom);
+    }
+    let m = if best.is_finite() && best > 0.0 { best } else { 1.0e6 };
+    [d[0] * m, d[1] * m, d[2] * m]
+}
+
+#[cfg(test)]
+mod tests;
