@@ -19,7 +19,7 @@ use tower_http::cors::{AllowOrigin, CorsLayer};
 use super::auth::check_bearer;
 use super::native::{self, BLOB_ROUTE};
 use super::problem::{self, PROBLEM_JSON, Problem};
-use super::{App, admin, tiles3d};
+use super::{App, admin, terrain, tiles3d};
 
 /// Seconds a client is asked to wait when the server sheds load.
 pub const SHED_RETRY_AFTER_S: u32 = 1;
@@ -58,6 +58,8 @@ pub fn router(app: Arc<App>) -> Router {
         .route("/tilesets/{name}/3dtiles/tileset.json", get(tiles3d::root))
         .route("/tilesets/{name}/3dtiles/index/{z}/{x}/{file}", get(tiles3d::subtree))
         .route("/tilesets/{name}/3dtiles/tiles/{z}/{x}/{y}/{file}", get(tiles3d::glb))
+        .route("/tilesets/{name}/terrain/layer.json", get(terrain::layer))
+        .route("/tilesets/{name}/terrain/{z}/{x}/{file}", get(terrain::tile))
         .route("/viewer", get(tiles3d::viewer))
         .route("/jobs/{id}", get(admin::job).delete(admin::cancel))
         .fallback(fallback)

@@ -25,6 +25,7 @@ mod openapi;
 mod problem;
 mod rate_limit;
 mod registry;
+mod terrain;
 mod tiles3d;
 
 use std::collections::HashMap;
@@ -89,6 +90,8 @@ pub struct App {
     registry: registry::Registry,
     cache: cache::BlobCache,
     bakery: bakery::Bakery,
+    /// On-demand quantized-mesh builds.
+    terrain: terrain::Builds,
     jobs: admin::Jobs,
     in_flight: AtomicUsize,
     rate: rate_limit::RateLimiter,
@@ -264,6 +267,7 @@ impl Server {
             registry,
             cache: cache::BlobCache::new(config.cache_bytes),
             bakery: bakery::Bakery::start(config.bake_workers, config.bake_queue, metrics.clone(), &baker),
+            terrain: terrain::Builds::new(config.bake_workers, config.bake_queue),
             baker,
             jobs: admin::Jobs::new(),
             in_flight: AtomicUsize::new(0),

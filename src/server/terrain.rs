@@ -1,0 +1,299 @@
+//! Cesium quantized-mesh globe terrain of every tileset: `/tilesets/{name}/terrain/layer.json`
+//! and `…/terrain/{z}/{x}/{y}.terrain`. A tileset baked with `--terrain` serves its stored
+//! tiles; an on-demand tileset (`--source`) builds each tile when first asked (single flight,
+//! at most `--bake-workers` at once and `--bake-queue` waiting, then `503` + `Retry-After`),
+//! with the very function the bake uses, so both give the same bytes. A tile is stored or built
+//! once with every extension; each request gets the extensions its `Accept` header names
+//! (`application/vnd.quantized-mesh;extensions=octvertexnormals-watermask-metadata`), gzipped
+//! when `Accept-Encoding` allows, with strong ETags, `Vary`, and immutable `?v=` URLs.
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+
+use axum::extract::{Path, RawQuery, State};
+use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, header};
+use axum::response::Response;
+use bytes::Bytes;
+use tokio::sync::{OnceCell, Semaphore};
+
+use super::App;
+use super::cache::Entry;
+use super::conditional::{Conditional, etag_value, send};
+use super::loaders::{SHORT, tileset, versioned_cache};
+use super::problem::Problem;
+use super::registry::{Tileset, etag_of};
+use crate::bake::qmesh::{TERRAIN_DIR, TerrainOptions, TerrainSource, tile_rel};
+use crate::formats::qmesh::{Extensions, QM_TYPE, TileId, filter_extensions};
+use crate::tiling::TileKey;
+
+/// Cache documents: `QM + variant` (extension bits, gzip bit) of a tile; `QM_FULL` the tile with
+/// every extension as stored or built; `QM_LAYER` the layer document.
+const QM: u16 = 0x200;
+const QM_FULL: u16 = 0x210;
+const QM_LAYER: u16 = 0x211;
+/// A stored tile or layer document larger than this is refused as damaged (a tile with every
+/// extension is at most ~100 KB: 4,225 vertices, a 64 KiB water mask).
+const MAX_STORED_BYTES: u64 = 4 << 20;
+
+type Flight = Arc<OnceCell<Result<Bytes, Problem>>>;
+
+/// On-demand tile builds: single flight per tile, bounded concurrency and queue.
+pub struct Builds {
+    flights: Mutex<HashMap<(u64, TileId), Flight>>,
+    permits: Semaphore,
+    /// Builds running or waiting for a worker.
+    waiting: AtomicUsize,
+    /// At most this many running or waiting (`--bake-workers` + `--bake-queue`).
+    limit: usize,
+}
+
+impl Builds {
+    pub fn new(workers: usize, queue: usize) -> Self {
+        Self {
+            flights: Mutex::default(),
+            permits: Semaphore::new(workers.max(1)),
+            waiting: AtomicUsize::new(0),
+            limit: workers.max(1) + queue,
+        }
+    }
+}
+
+type Rejection = axum::extract::rejection::PathRejection;
+type TilePath = (String, String, String, String);
+
+fn parse_num(s: &str, what: &str) -> Result<u32, Problem> {
+    if s.is_empty() || s.len() > 10 || !s.bytes().all(|b| b.is_ascii_digit()) {
+        return Err(Problem::bad_request(format!("{what} {s:?} is not a non-negative integer")));
+    }
+    s.parse().map_err(|_| Problem::bad_request(format!("{what} {s:?} is too large")))
+}
+
+/// Whether the tileset's store holds baked terrain (its `terrain/layer.json`).
+async fn baked(ts: &Arc<Tileset>) -> Result<Option<Vec<u8>>, Problem> {
+    let store = ts.store.clone();
+    let name = ts.name.clone();
+    tokio::task::spawn_blocking(move || store.read_file_within(&format!("{TERRAIN_DIR}/layer.json"), 2..=MAX_STORED_BYTES))
+        .await
+        .map_err(|_| Problem::internal("terrain", "reading the terrain failed"))?
+        .map_err(|e| {
+            tracing::error!(tileset = %name, error = %e, "cannot read the baked terrain's layer.json");
+            Problem::internal("store-io", format!("the terrain of tileset {name:?} cannot be read"))
+        })
+}
+
+fn no_terrain(name: &str) -> Problem {
+    Problem::not_found(format!(
+        "tileset {name:?} has no globe terrain: bake it with --terrain, or serve its source on demand (--source)"
+    ))
+}
+
+fn terrain_problem(name: &str, e: &crate::bake::qmesh::TerrainError) -> Problem {
+    tracing::error!(tileset = %name, error = %e, "cannot make globe terrain");
+    match e {
+        crate::bake::qmesh::TerrainError::NotPlaced => Problem::not_found(format!("tileset {name:?}: {e}")),
+        _ => Problem::internal("terrain", format!("the terrain of tileset {name:?} cannot be made: {e}")),
+    }
+}
+
+/// `GET /tilesets/{name}/terrain/layer.json`.
+pub(super) async fn layer(
+    State(app): State<Arc<App>>,
+    path: Result<Path<String>, Rejection>,
+    method: Method,
+    headers: Conditional,
+) -> Result<Response, Problem> {
+    let Path(name) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
+    let ts = tileset(&app, &name)?;
+    let ck = (ts.generation, TileKey::new(0, 0, 0), QM_LAYER);
+    if let Some(e) = app.cache.get(&ck) {
+        return Ok(send(&method, &headers, &e, "application/json", SHORT));
+    }
+    let body = if let Some(b) = baked(&ts).await? {
+        b
+    } else if let Some(src) = ts.source.clone() {
+        let (name2, version) = (ts.name.clone(), ts.content_version.clone());
+        tokio::task::spawn_blocking(move || {
+            TerrainSource::new(&src.raster.heights, &src.raster.georef, TerrainOptions::default())
+                .map(|t| serde_json::to_vec_pretty(&t.layer(&name2, "", &version)).unwrap_or_default())
+        })
+        .await
+        .map_err(|_| Problem::internal("terrain", "making the layer failed"))?
+        .map_err(|e| terrain_problem(&ts.name, &e))?
+    } else {
+        return Err(no_terrain(&ts.name));
+    };
+    let entry = Entry { etag: etag_value(&etag_of(&body)), bytes: Bytes::from(body) };
+    app.cache.insert(ck, entry.clone());
+    Ok(send(&method, &headers, &entry, "application/json", SHORT))
+}
+
+/// Whether `Accept-Encoding` allows gzip (`gzip` or `*`, not at q=0).
+fn accepts_gzip(h: &HeaderMap) -> bool {
+    h.get_all(header::ACCEPT_ENCODING).iter().filter_map(|v| v.to_str().ok()).flat_map(|v| v.split(',')).any(|c| {
+        let mut p = c.split(';').map(str::trim);
+        let coding = p.next().unwrap_or_default();
+        let q0 = p.any(|x| x.strip_prefix("q=").is_some_and(|q| q.trim().parse::<f64>().is_ok_and(|q| q == 0.0)));
+        (coding.eq_ignore_ascii_case("gzip") || coding == "*") && !q0
+    })
+}
+
+fn gzip(b: &[u8]) -> Vec<u8> {
+    use std::io::Write;
+    let mut e = flate2::write::GzEncoder::new(Vec::with_capacity(b.len() / 2), flate2::Compression::new(6));
+    let _ = e.write_all(b);
+    e.finish().unwrap_or_default()
+}
+
+/// `GET /tilesets/{name}/terrain/{z}/{x}/{y}.terrain`.
+pub(super) async fn tile(
+    State(app): State<Arc<App>>,
+    path: Result<Path<TilePath>, Rejection>,
+    RawQuery(query): RawQuery,
+    method: Method,
+    conditional: Conditional,
+    headers: HeaderMap,
+) -> Result<Response, Problem> {
+    let Path((name, z, x, file)) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
+    let ts = tileset(&app, &name)?;
+    let y = file
+        .strip_suffix(".terrain")
+        .ok_or_else(|| Problem::bad_request(format!("terrain tile {file:?} must be named Y.terrain")))?;
+    let (z, x, y) = (parse_num(&z, "zoom")?, parse_num(&x, "x")?, parse_num(y, "y")?);
+    let id = u8::try_from(z)
+        .ok()
+        .and_then(|z| TileId::new(z, x, y).ok())
+        .ok_or_else(|| Problem::not_found(format!("{z}/{x}/{y} is not a tile of the geodetic grid")))?;
+    let accept = headers.get(header::ACCEPT).and_then(|v| v.to_str().ok());
+    let (ext, acceptable) = Extensions::from_accept(accept);
+    if !acceptable {
+        return Err(Problem::new(
+            StatusCode::NOT_ACCEPTABLE,
+            "not-acceptable",
+            format!("terrain tiles are {QM_TYPE} (with extensions=octvertexnormals-watermask-metadata); Accept names none of it"),
+        ));
+    }
+    let gz = accepts_gzip(&headers);
+    let variant = QM + u16::from(ext.normals) + 2 * u16::from(ext.watermask) + 4 * u16::from(ext.metadata) + 8 * u16::from(gz);
+    let key = TileKey::new(id.z, id.x, id.y);
+    let cache = versioned_cache(&ts, query.as_deref());
+    let ck = (ts.generation, key, variant);
+    let entry = if let Some(e) = app.cache.get(&ck) {
+        e
+    } else {
+        let full = full_tile(&app, &ts, id).await?;
+        let body = filter_extensions(&full, ext).map_err(|e| {
+            tracing::error!(tileset = %ts.name, tile = %id, error = %e, "a terrain tile does not decode");
+            app.metrics.corrupt_blobs.fetch_add(1, Ordering::Relaxed);
+            Problem::internal("corrupt-blob", format!("terrain tile {id} of {:?} does not decode", ts.name))
+        })?;
+        let body = if gz { gzip(&body) } else { body };
+        let e = Entry { etag: etag_value(&etag_of(&body)), bytes: Bytes::from(body) };
+        app.cache.insert(ck, e.clone());
+        e
+    };
+    let mut r = send(&method, &conditional, &entry, QM_TYPE, cache);
+    let h = r.headers_mut();
+    h.insert(header::VARY, HeaderValue::from_static("accept, accept-encoding"));
+    if gz {
+        h.insert(header::CONTENT_ENCODING, HeaderValue::from_static("gzip"));
+    }
+    if h.contains_key(header::CONTENT_TYPE) {
+        let names: Vec<&str> = [(ext.normals, "octvertexnormals"), (ext.watermask, "watermask"), (ext.metadata, "metadata")]
+            .into_iter()
+            .filter_map(|(on, n)| on.then_some(n))
+            .collect();
+        if !names.is_empty()
+            && let Ok(v) = HeaderValue::from_str(&format!("{QM_TYPE};extensions={}", names.join("-")))
+        {
+            h.insert(header::CONTENT_TYPE, v);
+        }
+    }
+    Ok(r)
+}
+
+/// The tile with every extension: from the cache, the store (baked terrain), or built.
+async fn full_tile(app: &Arc<App>, ts: &Arc<Tileset>, id: TileId) -> Result<Bytes, Problem> {
+    let ck = (ts.generation, TileKey::new(id.z, id.x, id.y), QM_FULL);
+    if let Some(e) = app.cache.get(&ck) {
+        return Ok(e.bytes);
+    }
+    let bytes = if baked(ts).await?.is_some() {
+        let store = ts.store.clone();
+        let rel = tile_rel(id);
+        let got = tokio::task::spawn_blocking(move || store.read_file_within(&rel, 88..=MAX_STORED_BYTES))
+            .await
+            .map_err(|_| Problem::internal("terrain", "reading the tile failed"))?;
+        match got {
+            Ok(Some(b)) => Bytes::from(b),
+            Ok(None) => return Err(Problem::not_found(format!("tileset {:?} has no terrain tile {id}", ts.name))),
+            Err(e) => {
+                tracing::error!(tileset = %ts.name, tile = %id, error = %e, "cannot read a terrain tile");
+                app.metrics.corrupt_blobs.fetch_add(1, Ordering::Relaxed);
+                return Err(Problem::internal("corrupt-blob", format!("terrain tile {id} of {:?} cannot be read", ts.name)));
+            }
+        }
+    } else if ts.source.is_some() {
+        build_once(app, ts, id).await?
+    } else {
+        return Err(no_terrain(&ts.name));
+    };
+    app.cache.insert(ck, Entry { etag: etag_value(&etag_of(&bytes)), bytes: bytes.clone() });
+    Ok(bytes)
+}
+
+/// Counts a build out of `waiting` when it ends, however it ends (a cancelled request too).
+struct Leave<'a>(&'a AtomicUsize);
+
+impl Drop for Leave<'_> {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::AcqRel);
+    }
+}
+
+/// Builds an on-demand tile once however many ask at the same time.
+async fn build_once(app: &Arc<App>, ts: &Arc<Tileset>, id: TileId) -> Result<Bytes, Problem> {
+    let key = (ts.generation, id);
+    let flight = {
+        let mut f = app.terrain.flights.lock().map_err(|_| Problem::internal("terrain", "the build pool is unavailable"))?;
+        f.entry(key).or_default().clone()
+    };
+    let result = flight
+        .get_or_init(|| async {
+            let b = &app.terrain;
+            if b.waiting.fetch_add(1, Ordering::AcqRel) >= b.limit {
+                b.waiting.fetch_sub(1, Ordering::AcqRel);
+                app.metrics.shed.fetch_add(1, Ordering::Relaxed);
+                return Err(Problem::unavailable(
+                    "bake-queue-full",
+                    format!("terrain tile {id} of {:?} is not built yet and the build queue is full; retry later", ts.name),
+                    super::bakery::QUEUE_FULL_RETRY_AFTER_S,
+                ));
+            }
+            let _left = Leave(&b.waiting);
+            let permit = b.permits.acquire().await;
+            let _permit = permit.map_err(|_| Problem::unavailable("shutting-down", "the server is shutting down", 5))?;
+            let Some(src) = ts.source.clone() else { return Err(no_terrain(&ts.name)) };
+            let name = ts.name.clone();
+            let built = tokio::task::spawn_blocking(move || {
+                let t = TerrainSource::new(&src.raster.heights, &src.raster.georef, TerrainOptions::default())?;
+                if !t.coverage.has(id) {
+                    return Ok(None);
+                }
+                t.tile(id).map(|t| Some(t.bytes))
+            })
+            .await
+            .map_err(|_| Problem::internal("terrain", format!("building terrain tile {id} failed")))?;
+            match built {
+                Ok(Some(b)) => Ok(Bytes::from(b)),
+                Ok(None) => Err(Problem::not_found(format!("tileset {name:?} has no terrain tile {id}: outside its data (see layer.json's available)"))),
+                Err(e) => Err(terrain_problem(&name, &e)),
+            }
+        })
+        .await
+        .clone();
+    if let Ok(mut f) = app.terrain.flights.lock() {
+        f.remove(&key);
+    }
+    result
+}
