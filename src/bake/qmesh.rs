@@ -11,7 +11,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use crate::crs::{Frame, Geoid};
-use crate::formats::qmesh::grid::{CELLS, MAX_ZOOM, Rect, TileId, zoom_for_cell};
+use crate::formats::qmesh::grid::{CELLS, MAX_ZOOM, Rect, TileId, canonical_lon, zoom_for_cell};
 use crate::formats::qmesh::layer::{Coverage, layer_json};
 use crate::formats::qmesh::{BuiltTile, SIDE, TileSamples, build_tile};
 use crate::raster::{Georef, RasterError, WindowReader};
@@ -22,7 +22,9 @@ pub const TERRAIN_DIR: &str = "terrain";
 /// Why terrain cannot be made.
 #[derive(Debug, thiserror::Error)]
 pub enum TerrainError {
-    #[error("globe terrain needs a dataset placed on the Earth; this one has no coordinate reference system (give --crs)")]
+    #[error(
+        "globe terrain needs a dataset placed on the Earth; this one has no coordinate reference system (give --crs)"
+    )]
     NotPlaced,
     #[error("{0}")]
     Frame(String),
@@ -62,6 +64,10 @@ pub struct TerrainSource<'a> {
     pub options: TerrainOptions,
 }
 
+/// A pixel position's four neighbours (first and second column, first and second row) and its
+/// bilinear weights.
+type Corners = (u32, u32, u32, u32, f64, f64);
+
 /// Samples of a tile whose CRS position is interpolated from a lattice rather than transformed
 /// one by one: every 8th sample (the edges, their neighbours and the border are always exact).
 const LATTICE: i64 = 8;
@@ -71,11 +77,16 @@ const LATTICE_TOLERANCE_PX: f64 = 0.01;
 
 impl<'a> TerrainSource<'a> {
     /// The terrain of `reader`'s heights on `georef`'s frame.
-    pub fn new(reader: &'a dyn WindowReader, georef: &Georef, options: TerrainOptions) -> Result<Self, TerrainError> {
+    pub fn new(
+        reader: &'a dyn WindowReader,
+        georef: &Georef,
+        options: TerrainOptions,
+    ) -> Result<Self, TerrainError> {
         if !(options.error_scale.is_finite() && options.error_scale > 0.0) {
             return Err(TerrainError::Scale(options.error_scale));
         }
-        let frame = georef.frame().map_err(|e| TerrainError::Frame(e.to_string()))?.ok_or(TerrainError::NotPlaced)?;
+        let frame =
+            georef.frame().map_err(|e| TerrainError::Frame(e.to_string()))?.ok_or(TerrainError::NotPlaced)?;
         let sea = Geoid::egm96().map_err(|e| TerrainError::Frame(e.to_string()))?;
         let (width, height) = reader.size();
         let mut s = Self {
@@ -117,8 +128,10 @@ impl<'a> TerrainSource<'a> {
         }
         let mut pts = Vec::with_capacity(outline.len());
         for (c, r) in outline {
-            let (lon, lat) =
-                g.crs.to_wgs84(g.e0 + c * g.de, g.n0 + r * g.dn).map_err(|e| TerrainError::Frame(e.to_string()))?;
+            let (lon, lat) = g
+                .crs
+                .to_wgs84(g.e0 + c * g.de, g.n0 + r * g.dn)
+                .map_err(|e| TerrainError::Frame(e.to_string()))?;
             pts.push((lon, lat));
         }
         // Unwrap longitudes along the outline.
@@ -210,7 +223,7 @@ impl<'a> TerrainSource<'a> {
         let n = i64::from(CELLS);
         let at = |i: i64, j: i64| {
             let (lon, lat) = id.sample(i, j);
-            self.pixel(crate::crs::wrap_lon(lon), lat)
+            self.pixel(canonical_lon(lon), lat)
         };
         let idx = |i: i64, j: i64| ((j + 1) as usize) * SIDE + (i + 1) as usize;
         let mut out = vec![None; SIDE * SIDE];
@@ -227,7 +240,8 @@ impl<'a> TerrainSource<'a> {
         }
         let interp = |i: i64, j: i64| -> Option<(f64, f64)> {
             let (a, b) = ((i / LATTICE).min(n / LATTICE - 1), (j / LATTICE).min(n / LATTICE - 1));
-            let (fx, fy) = ((i - a * LATTICE) as f64 / LATTICE as f64, (j - b * LATTICE) as f64 / LATTICE as f64);
+            let (fx, fy) =
+                ((i - a * LATTICE) as f64 / LATTICE as f64, (j - b * LATTICE) as f64 / LATTICE as f64);
             let p00 = lattice[lk(a, b)]?;
             let p10 = lattice[lk(a + 1, b)]?;
             let p01 = lattice[lk(a, b + 1)]?;
@@ -242,7 +256,8 @@ impl<'a> TerrainSource<'a> {
                 for a in 0..n / LATTICE {
                     let (i, j) = (a * LATTICE + LATTICE / 2, b * LATTICE + LATTICE / 2);
                     match (at(i, j), interp(i, j)) {
-                        (Some(p), Some(q)) if (p.0 - q.0).abs().max((p.1 - q.1).abs()) <= LATTICE_TOLERANCE_PX => {}
+                        (Some(p), Some(q))
+                            if (p.0 - q.0).abs().max((p.1 - q.1).abs()) <= LATTICE_TOLERANCE_PX => {}
                         _ => {
                             lattice_ok = false;
                             break 'check;
@@ -264,34 +279,50 @@ impl<'a> TerrainSource<'a> {
     pub fn samples(&self, id: TileId) -> Result<TileSamples, TerrainError> {
         let px = self.pixels(id);
         let (w, h) = (self.width, self.height);
-        // The columns and rows the bilinear reads need, once each.
-        let mut cols: Vec<u32> = Vec::new();
-        let mut rows: Vec<u32> = Vec::new();
+        // A pixel position's four neighbours (clamped at the raster's edge) and weights.
         let corners = |c: f64, r: f64| {
             let c = c.clamp(0.0, f64::from(w - 1));
             let r = r.clamp(0.0, f64::from(h - 1));
             let (c0, r0) = (c.floor() as u32, r.floor() as u32);
             (c0, (c0 + 1).min(w - 1), r0, (r0 + 1).min(h - 1), c - f64::from(c0), r - f64::from(r0))
         };
-        for &(c, r) in px.iter().flatten() {
-            if self.inside(c, r) {
-                let (c0, c1, r0, r1, _, _) = corners(c, r);
-                cols.extend([c0, c1]);
-                rows.extend([r0, r1]);
+        // The columns and rows the bilinear reads need, once each: marked in a window over their
+        // range (at most the raster's width and height).
+        let mut span = (u32::MAX, 0u32, u32::MAX, 0u32);
+        let mut pixels = Vec::with_capacity(px.len());
+        for p in &px {
+            let q = p.filter(|&(c, r)| self.inside(c, r)).map(|(c, r)| corners(c, r));
+            if let Some((c0, c1, r0, r1, _, _)) = q {
+                span = (span.0.min(c0), span.1.max(c1), span.2.min(r0), span.3.max(r1));
             }
+            pixels.push(q);
         }
-        cols.sort_unstable();
-        cols.dedup();
-        rows.sort_unstable();
-        rows.dedup();
         let mut values = Vec::new();
-        if !cols.is_empty() {
+        let (mut col_at, mut row_at) = (Vec::new(), Vec::new());
+        let mut nc = 0;
+        if span.0 <= span.1 {
+            let mark = |lo: u32, hi: u32, pick: &dyn Fn(&Corners) -> [u32; 2]| {
+                let mut used = vec![false; (hi - lo + 1) as usize];
+                for q in pixels.iter().flatten() {
+                    for v in pick(q) {
+                        used[(v - lo) as usize] = true;
+                    }
+                }
+                let list: Vec<u32> = (lo..=hi).filter(|&v| used[(v - lo) as usize]).collect();
+                let mut at = vec![0u32; used.len()];
+                for (k, &v) in list.iter().enumerate() {
+                    at[(v - lo) as usize] = k as u32;
+                }
+                (list, at)
+            };
+            let (cols, ca) = mark(span.0, span.1, &|q| [q.0, q.1]);
+            let (rows, ra) = mark(span.2, span.3, &|q| [q.2, q.3]);
             self.reader.read_window(&cols, &rows, &mut values)?;
+            (col_at, row_at, nc) = (ca, ra, cols.len());
         }
-        let nc = cols.len();
         let value = |c: u32, r: u32| {
-            let ci = cols.binary_search(&c).unwrap_or(0);
-            let ri = rows.binary_search(&r).unwrap_or(0);
+            let ci = col_at[(c - span.0) as usize] as usize;
+            let ri = row_at[(r - span.2) as usize] as usize;
             f64::from(values[ri * nc + ci])
         };
         let n = i64::from(CELLS);
@@ -300,11 +331,9 @@ impl<'a> TerrainSource<'a> {
         for j in -1..=n + 1 {
             for i in -1..=n + 1 {
                 let (lon, lat) = id.sample(i, j);
-                let lon = crate::crs::wrap_lon(lon);
-                let p = px[((j + 1) as usize) * SIDE + (i + 1) as usize].filter(|&(c, r)| self.inside(c, r));
-                let hgt = match p {
-                    Some((c, r)) => {
-                        let (c0, c1, r0, r1, fx, fy) = corners(c, r);
+                let lon = canonical_lon(lon);
+                let hgt = match pixels[((j + 1) as usize) * SIDE + (i + 1) as usize] {
+                    Some((c0, c1, r0, r1, fx, fy)) => {
                         let z = (value(c0, r0) * (1.0 - fx) + value(c1, r0) * fx) * (1.0 - fy)
                             + (value(c0, r1) * (1.0 - fx) + value(c1, r1) * fx) * fy;
                         self.frame.undulation(lon, lat).ok().map(|u| z + u)
@@ -411,8 +440,14 @@ pub fn bake_terrain_tiles(
         z.mean_vertices /= z.tiles.max(1) as f64;
     }
     let layer = src.layer(name, "", version);
-    store.write_file(&format!("{TERRAIN_DIR}/layer.json"), &serde_json::to_vec_pretty(&layer).unwrap_or_default())?;
+    store.write_file(
+        &format!("{TERRAIN_DIR}/layer.json"),
+        &serde_json::to_vec_pretty(&layer).unwrap_or_default(),
+    )?;
     stats.seconds = start.elapsed().as_secs_f64();
-    store.write_file(&format!("{TERRAIN_DIR}/stats.json"), &serde_json::to_vec_pretty(&stats).unwrap_or_default())?;
+    store.write_file(
+        &format!("{TERRAIN_DIR}/stats.json"),
+        &serde_json::to_vec_pretty(&stats).unwrap_or_default(),
+    )?;
     Ok(stats)
 }

@@ -88,11 +88,7 @@ impl TerrainArgs {
 
 fn parse_error_scale(s: &str) -> Result<f64, String> {
     let v: f64 = s.parse().map_err(|_| format!("{s:?} is not a number"))?;
-    if v.is_finite() && v > 0.0 && v <= 1e6 {
-        Ok(v)
-    } else {
-        Err(format!("{s} must be > 0 and at most 1e6"))
-    }
+    if v.is_finite() && v > 0.0 && v <= 1e6 { Ok(v) } else { Err(format!("{s} must be > 0 and at most 1e6")) }
 }
 
 /// How the inputs are read and baked: the flags `bake` and `plan` share, recorded in a plan
@@ -273,6 +269,12 @@ pub fn run(a: &BakeArgs, quiet: bool) -> Result<()> {
     store.check_out()?;
     let files = raster::dataset::expand_inputs(&a.inputs)?;
     let opened = a.input.open(files, quiet)?;
+    if a.terrain.terrain && !opened.dataset.georef().is_placed() {
+        anyhow::bail!(
+            "--terrain: globe terrain needs an input placed on the Earth; {} has no coordinate reference system (give --crs)",
+            opened.name
+        );
+    }
     let baker = a.baker.open()?;
     let progress = tiles_bar(quiet, a.time_limit);
     let input = bake::TerrainInput::of_dataset(&opened.dataset);

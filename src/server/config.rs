@@ -73,6 +73,9 @@ pub struct SourceSpec {
     pub tile_size: Option<u32>,
     pub max_error: Option<f64>,
     pub levels: Option<u8>,
+    /// Globe terrain (quantized-mesh): the error scale and deepest zoom of `bake --terrain`.
+    pub terrain_error_scale: Option<f64>,
+    pub terrain_max_zoom: Option<u8>,
 }
 
 /// Why a `--source` value cannot be read; each names the value (`spec`) as given.
@@ -89,13 +92,16 @@ pub enum SourceSpecError {
     /// `what` is "number" or "integer".
     #[error("{key}={value:?} in {spec:?} is not a valid {what}")]
     BadValue { key: String, value: String, spec: String, what: &'static str },
-    #[error("unknown source option {key:?} in {spec:?} (encoding, cell_size, tile_size, max_error, levels)")]
+    #[error(
+        "unknown source option {key:?} in {spec:?} (encoding, cell_size, tile_size, max_error, levels, terrain_error_scale, terrain_max_zoom)"
+    )]
     UnknownOption { key: String, spec: String },
 }
 
 impl std::str::FromStr for SourceSpec {
     type Err = SourceSpecError;
-    /// `NAME=RASTER[,key=value…]` with keys encoding, cell_size, tile_size, max_error, levels.
+    /// `NAME=RASTER[,key=value…]` with keys encoding, cell_size, tile_size, max_error, levels,
+    /// terrain_error_scale, terrain_max_zoom.
     fn from_str(s: &str) -> Result<Self, SourceSpecError> {
         let (name, rest) = s.split_once('=').ok_or_else(|| SourceSpecError::NoName { spec: s.to_owned() })?;
         if !super::valid_name(name) {
@@ -123,6 +129,20 @@ impl std::str::FromStr for SourceSpec {
                 "tile_size" => spec.tile_size = Some(v.parse().map_err(|_| num("integer"))?),
                 "max_error" => spec.max_error = Some(v.parse().map_err(|_| num("number"))?),
                 "levels" => spec.levels = Some(v.parse().map_err(|_| num("integer"))?),
+                "terrain_error_scale" => {
+                    let f: f64 = v.parse().map_err(|_| num("number"))?;
+                    if !(f.is_finite() && f > 0.0 && f <= 1e6) {
+                        return Err(num("number (> 0, at most 1e6)"));
+                    }
+                    spec.terrain_error_scale = Some(f);
+                }
+                "terrain_max_zoom" => {
+                    let z: u8 = v.parse().map_err(|_| num("integer"))?;
+                    if z > crate::formats::qmesh::grid::MAX_ZOOM {
+                        return Err(num("zoom (0 to 24)"));
+                    }
+                    spec.terrain_max_zoom = Some(z);
+                }
                 _ => return Err(SourceSpecError::UnknownOption { key: k.to_owned(), spec: s.to_owned() }),
             }
         }
@@ -154,7 +174,7 @@ pub struct PartialConfig {
         arg(
             long = "source",
             value_name = "NAME=RASTER[,key=value…]",
-            help = "Bake tiles of tileset NAME missing from the store from RASTER on first request; keys: encoding, cell_size, tile_size, max_error, levels (repeatable)"
+            help = "Bake tiles of tileset NAME missing from the store from RASTER on first request; keys: encoding, cell_size, tile_size, max_error, levels, terrain_error_scale, terrain_max_zoom (repeatable)"
         )
     )]
     pub sources: Vec<SourceSpec>,

@@ -162,7 +162,11 @@ fn open_source(root: &std::path::Path, spec: &SourceSpec) -> Result<registry::On
         .map_or_else(|| spec.raster.display().to_string(), |n| n.to_string_lossy().into_owned());
     let options = crate::bake::options_record(&raster, &file, &opts);
     Store::new(&root.join(&spec.name)).begin_bake(&options).map_err(|e| err(e.into()))?;
-    Ok(registry::OnDemand { source: Arc::new(registry::Source { raster, opts, pyramid }), options })
+    let terrain = crate::bake::qmesh::TerrainOptions {
+        error_scale: spec.terrain_error_scale.unwrap_or(1.0),
+        max_zoom: spec.terrain_max_zoom,
+    };
+    Ok(registry::OnDemand { source: Arc::new(registry::Source { raster, opts, pyramid, terrain }), options })
 }
 
 /// Is `name` a staging entry the admin API creates in the store (`.upload-jN`, `.job-jN`) or a

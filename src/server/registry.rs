@@ -26,6 +26,8 @@ pub struct Source {
     pub raster: LoadedRaster,
     pub opts: BakeOptions,
     pub pyramid: Pyramid,
+    /// Its globe terrain's options (`/terrain/…`).
+    pub terrain: crate::bake::qmesh::TerrainOptions,
 }
 
 /// One tileset as served. Immutable: a change on disk replaces the whole value (and so starts a

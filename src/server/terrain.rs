@@ -23,7 +23,7 @@ use super::conditional::{Conditional, etag_value, send};
 use super::loaders::{SHORT, tileset, versioned_cache};
 use super::problem::Problem;
 use super::registry::{Tileset, etag_of};
-use crate::bake::qmesh::{TERRAIN_DIR, TerrainOptions, TerrainSource, tile_rel};
+use crate::bake::qmesh::{TERRAIN_DIR, TerrainSource, tile_rel};
 use crate::formats::qmesh::{Extensions, QM_TYPE, TileId, filter_extensions};
 use crate::tiling::TileKey;
 
@@ -73,13 +73,15 @@ fn parse_num(s: &str, what: &str) -> Result<u32, Problem> {
 async fn baked(ts: &Arc<Tileset>) -> Result<Option<Vec<u8>>, Problem> {
     let store = ts.store.clone();
     let name = ts.name.clone();
-    tokio::task::spawn_blocking(move || store.read_file_within(&format!("{TERRAIN_DIR}/layer.json"), 2..=MAX_STORED_BYTES))
-        .await
-        .map_err(|_| Problem::internal("terrain", "reading the terrain failed"))?
-        .map_err(|e| {
-            tracing::error!(tileset = %name, error = %e, "cannot read the baked terrain's layer.json");
-            Problem::internal("store-io", format!("the terrain of tileset {name:?} cannot be read"))
-        })
+    tokio::task::spawn_blocking(move || {
+        store.read_file_within(&format!("{TERRAIN_DIR}/layer.json"), 2..=MAX_STORED_BYTES)
+    })
+    .await
+    .map_err(|_| Problem::internal("terrain", "reading the terrain failed"))?
+    .map_err(|e| {
+        tracing::error!(tileset = %name, error = %e, "cannot read the baked terrain's layer.json");
+        Problem::internal("store-io", format!("the terrain of tileset {name:?} cannot be read"))
+    })
 }
 
 fn no_terrain(name: &str) -> Problem {
@@ -114,7 +116,7 @@ pub(super) async fn layer(
     } else if let Some(src) = ts.source.clone() {
         let (name2, version) = (ts.name.clone(), ts.content_version.clone());
         tokio::task::spawn_blocking(move || {
-            TerrainSource::new(&src.raster.heights, &src.raster.georef, TerrainOptions::default())
+            TerrainSource::new(&src.raster.heights, &src.raster.georef, src.terrain)
                 .map(|t| serde_json::to_vec_pretty(&t.layer(&name2, "", &version)).unwrap_or_default())
         })
         .await
@@ -130,12 +132,16 @@ pub(super) async fn layer(
 
 /// Whether `Accept-Encoding` allows gzip (`gzip` or `*`, not at q=0).
 fn accepts_gzip(h: &HeaderMap) -> bool {
-    h.get_all(header::ACCEPT_ENCODING).iter().filter_map(|v| v.to_str().ok()).flat_map(|v| v.split(',')).any(|c| {
-        let mut p = c.split(';').map(str::trim);
-        let coding = p.next().unwrap_or_default();
-        let q0 = p.any(|x| x.strip_prefix("q=").is_some_and(|q| q.trim().parse::<f64>().is_ok_and(|q| q == 0.0)));
-        (coding.eq_ignore_ascii_case("gzip") || coding == "*") && !q0
-    })
+    h.get_all(header::ACCEPT_ENCODING).iter().filter_map(|v| v.to_str().ok()).flat_map(|v| v.split(',')).any(
+        |c| {
+            let mut p = c.split(';').map(str::trim);
+            let coding = p.next().unwrap_or_default();
+            let q0 = p.any(|x| {
+                x.strip_prefix("q=").is_some_and(|q| q.trim().parse::<f64>().is_ok_and(|q| q == 0.0))
+            });
+            (coding.eq_ignore_ascii_case("gzip") || coding == "*") && !q0
+        },
+    )
 }
 
 fn gzip(b: &[u8]) -> Vec<u8> {
@@ -170,11 +176,17 @@ pub(super) async fn tile(
         return Err(Problem::new(
             StatusCode::NOT_ACCEPTABLE,
             "not-acceptable",
-            format!("terrain tiles are {QM_TYPE} (with extensions=octvertexnormals-watermask-metadata); Accept names none of it"),
+            format!(
+                "terrain tiles are {QM_TYPE} (with extensions=octvertexnormals-watermask-metadata); Accept names none of it"
+            ),
         ));
     }
     let gz = accepts_gzip(&headers);
-    let variant = QM + u16::from(ext.normals) + 2 * u16::from(ext.watermask) + 4 * u16::from(ext.metadata) + 8 * u16::from(gz);
+    let variant = QM
+        + u16::from(ext.normals)
+        + 2 * u16::from(ext.watermask)
+        + 4 * u16::from(ext.metadata)
+        + 8 * u16::from(gz);
     let key = TileKey::new(id.z, id.x, id.y);
     let cache = versioned_cache(&ts, query.as_deref());
     let ck = (ts.generation, key, variant);
@@ -199,10 +211,11 @@ pub(super) async fn tile(
         h.insert(header::CONTENT_ENCODING, HeaderValue::from_static("gzip"));
     }
     if h.contains_key(header::CONTENT_TYPE) {
-        let names: Vec<&str> = [(ext.normals, "octvertexnormals"), (ext.watermask, "watermask"), (ext.metadata, "metadata")]
-            .into_iter()
-            .filter_map(|(on, n)| on.then_some(n))
-            .collect();
+        let names: Vec<&str> =
+            [(ext.normals, "octvertexnormals"), (ext.watermask, "watermask"), (ext.metadata, "metadata")]
+                .into_iter()
+                .filter_map(|(on, n)| on.then_some(n))
+                .collect();
         if !names.is_empty()
             && let Ok(v) = HeaderValue::from_str(&format!("{QM_TYPE};extensions={}", names.join("-")))
         {
@@ -226,11 +239,16 @@ async fn full_tile(app: &Arc<App>, ts: &Arc<Tileset>, id: TileId) -> Result<Byte
             .map_err(|_| Problem::internal("terrain", "reading the tile failed"))?;
         match got {
             Ok(Some(b)) => Bytes::from(b),
-            Ok(None) => return Err(Problem::not_found(format!("tileset {:?} has no terrain tile {id}", ts.name))),
+            Ok(None) => {
+                return Err(Problem::not_found(format!("tileset {:?} has no terrain tile {id}", ts.name)));
+            }
             Err(e) => {
                 tracing::error!(tileset = %ts.name, tile = %id, error = %e, "cannot read a terrain tile");
                 app.metrics.corrupt_blobs.fetch_add(1, Ordering::Relaxed);
-                return Err(Problem::internal("corrupt-blob", format!("terrain tile {id} of {:?} cannot be read", ts.name)));
+                return Err(Problem::internal(
+                    "corrupt-blob",
+                    format!("terrain tile {id} of {:?} cannot be read", ts.name),
+                ));
             }
         }
     } else if ts.source.is_some() {
@@ -255,7 +273,11 @@ impl Drop for Leave<'_> {
 async fn build_once(app: &Arc<App>, ts: &Arc<Tileset>, id: TileId) -> Result<Bytes, Problem> {
     let key = (ts.generation, id);
     let flight = {
-        let mut f = app.terrain.flights.lock().map_err(|_| Problem::internal("terrain", "the build pool is unavailable"))?;
+        let mut f = app
+            .terrain
+            .flights
+            .lock()
+            .map_err(|_| Problem::internal("terrain", "the build pool is unavailable"))?;
         f.entry(key).or_default().clone()
     };
     let result = flight
@@ -266,17 +288,21 @@ async fn build_once(app: &Arc<App>, ts: &Arc<Tileset>, id: TileId) -> Result<Byt
                 app.metrics.shed.fetch_add(1, Ordering::Relaxed);
                 return Err(Problem::unavailable(
                     "bake-queue-full",
-                    format!("terrain tile {id} of {:?} is not built yet and the build queue is full; retry later", ts.name),
+                    format!(
+                        "terrain tile {id} of {:?} is not built yet and the build queue is full; retry later",
+                        ts.name
+                    ),
                     super::bakery::QUEUE_FULL_RETRY_AFTER_S,
                 ));
             }
             let _left = Leave(&b.waiting);
             let permit = b.permits.acquire().await;
-            let _permit = permit.map_err(|_| Problem::unavailable("shutting-down", "the server is shutting down", 5))?;
+            let _permit = permit
+                .map_err(|_| Problem::unavailable("shutting-down", "the server is shutting down", 5))?;
             let Some(src) = ts.source.clone() else { return Err(no_terrain(&ts.name)) };
             let name = ts.name.clone();
             let built = tokio::task::spawn_blocking(move || {
-                let t = TerrainSource::new(&src.raster.heights, &src.raster.georef, TerrainOptions::default())?;
+                let t = TerrainSource::new(&src.raster.heights, &src.raster.georef, src.terrain)?;
                 if !t.coverage.has(id) {
                     return Ok(None);
                 }
@@ -286,7 +312,9 @@ async fn build_once(app: &Arc<App>, ts: &Arc<Tileset>, id: TileId) -> Result<Byt
             .map_err(|_| Problem::internal("terrain", format!("building terrain tile {id} failed")))?;
             match built {
                 Ok(Some(b)) => Ok(Bytes::from(b)),
-                Ok(None) => Err(Problem::not_found(format!("tileset {name:?} has no terrain tile {id}: outside its data (see layer.json's available)"))),
+                Ok(None) => Err(Problem::not_found(format!(
+                    "tileset {name:?} has no terrain tile {id}: outside its data (see layer.json's available)"
+                ))),
                 Err(e) => Err(terrain_problem(&name, &e)),
             }
         })

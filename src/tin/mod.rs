@@ -438,8 +438,8 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
     }
 
     if node.every > 0 {
-        for j in (1..nr - 1).filter(|j| (r.j0 + j) % node.every == 0) {
-            for i in (1..nc - 1).filter(|i| (r.i0 + i) % node.every == 0) {
+        for j in (1..nr - 1).filter(|j| (r.j0 + j).is_multiple_of(node.every)) {
+            for i in (1..nc - 1).filter(|i| (r.i0 + i).is_multiple_of(node.every)) {
                 insert(&mut tri, i, j)?;
             }
         }

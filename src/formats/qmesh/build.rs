@@ -83,7 +83,11 @@ fn pow2_at_least(v: f64) -> f64 {
 
 /// Builds one tile. `error_scale` scales the zoom's error bound; `metadata` is the metadata
 /// extension's JSON (child availability), for tiles that carry it.
-pub fn build_tile(s: &TileSamples, error_scale: f64, metadata: Option<String>) -> Result<BuiltTile, BuildError> {
+pub fn build_tile(
+    s: &TileSamples,
+    error_scale: f64,
+    metadata: Option<String>,
+) -> Result<BuiltTile, BuildError> {
     let id = s.id;
     if s.heights.len() != SIDE * SIDE || s.nodata.len() != (SAMPLES * SAMPLES) as usize {
         return Err(BuildError::Size { tile: id, heights: s.heights.len() });
@@ -112,21 +116,27 @@ pub fn build_tile(s: &TileSamples, error_scale: f64, metadata: Option<String>) -
     let step = pow2_at_least((hi - lo) / f64::from(QMAX - 1));
     let min = (lo / step).floor() * step;
     let max = min + f64::from(QMAX) * step;
-    let q: Vec<u16> = h.iter().map(|&v| ((v - min) / step).round().clamp(0.0, f64::from(QMAX)) as u16).collect();
+    let q: Vec<u16> =
+        h.iter().map(|&v| ((v - min) / step).round().clamp(0.0, f64::from(QMAX)) as u16).collect();
     let decoded: Vec<f64> = q.iter().map(|&k| min + f64::from(k) * step).collect();
 
     let axis: Vec<u32> = (0..SAMPLES).collect();
     let grid = NodeGrid { cols: axis.clone(), rows: axis };
     let dec32: Vec<f32> = decoded.iter().map(|&v| v as f32).collect();
     let tin_bound = (bound - lattice / 2.0 - sag).max(0.0);
-    let tin = crate::tin::build_with_spacing(&grid, &dec32, tin_bound, every).map_err(|e| BuildError::Tin(e, id))?;
+    let tin = crate::tin::build_with_spacing(&grid, &dec32, tin_bound, every)
+        .map_err(|e| BuildError::Tin(e, id))?;
 
     // Measured against the samples as given (before any rounding).
-    let positions: Vec<[f64; 3]> =
-        tin.vertices.iter().map(|v| [f64::from(v[0]), f64::from(v[1]), decoded[v[1] as usize * n + v[0] as usize]]).collect();
+    let positions: Vec<[f64; 3]> = tin
+        .vertices
+        .iter()
+        .map(|v| [f64::from(v[0]), f64::from(v[1]), decoded[v[1] as usize * n + v[0] as usize]])
+        .collect();
     let orig: Vec<f32> = (0..n * n).map(|k| s.at((k % n) as i64, (k / n) as i64) as f32).collect();
     let span = Span { col0: 0, col1: CELLS, row0: 0, row1: CELLS };
-    let measured = crate::tin::measure_vertical(&positions, &tin.triangles, span, &orig).map_err(|e| BuildError::Tin(e, id))?;
+    let measured = crate::tin::measure_vertical(&positions, &tin.triangles, span, &orig)
+        .map_err(|e| BuildError::Tin(e, id))?;
 
     // Triangles in Morton order of their centroids, vertices numbered by first use: small
     // deltas and the high-water-mark order the format needs.
@@ -153,8 +163,10 @@ pub fn build_tile(s: &TileSamples, error_scale: f64, metadata: Option<String>) -
         .collect();
 
     let mut t = QmTile { triangles, ..QmTile::default() };
-    let quant = |k: u32| ((u64::from(k) * u64::from(QMAX) * 2 + u64::from(CELLS)) / (2 * u64::from(CELLS))) as u16;
+    let quant =
+        |k: u32| ((u64::from(k) * u64::from(QMAX) * 2 + u64::from(CELLS)) / (2 * u64::from(CELLS))) as u16;
     let mut ecef_pts = Vec::with_capacity(verts.len());
+    let mut vert_h = Vec::with_capacity(verts.len());
     let mut normals = Vec::with_capacity(verts.len());
     let mut edges: [Vec<(u32, u32)>; 4] = Default::default();
     for (k, &v) in verts.iter().enumerate() {
@@ -163,7 +175,9 @@ pub fn build_tile(s: &TileSamples, error_scale: f64, metadata: Option<String>) -
         t.v.push(quant(j));
         t.h.push(q[j as usize * n + i as usize]);
         let (lon, lat) = id.sample(i64::from(i), i64::from(j));
-        ecef_pts.push(ecef::from_geodetic(lon, lat, decoded[j as usize * n + i as usize]));
+        let hv = decoded[j as usize * n + i as usize];
+        ecef_pts.push(ecef::from_geodetic(lon, lat, hv));
+        vert_h.push(hv);
         normals.push(codec::oct_encode(normal(s, i64::from(i), i64::from(j))));
         let k = k as u32;
         if i == 0 {
@@ -187,7 +201,7 @@ pub fn build_tile(s: &TileSamples, error_scale: f64, metadata: Option<String>) -
     t.normals = Some(normals);
     t.watermask = Some(watermask(&s.nodata));
     t.metadata = metadata;
-    t.header = header(id, &ecef_pts, min, max);
+    t.header = header(id, &ecef_pts, &vert_h, min, max);
     let bytes = codec::encode(&t)?;
     Ok(BuiltTile {
         bytes,
@@ -211,28 +225,29 @@ fn interleave(x: u32, y: u32) -> u64 {
     spread(x) | (spread(y) << 1)
 }
 
-/// The surface normal at sample `(i, j)` (ECEF, unit), by central differences of the sample
-/// grid's ECEF points: a function of the global sample position and its neighbours' heights
-/// only, so the two tiles of an edge give its vertices the same normal. The ellipsoid's normal
-/// where the differences vanish (at a pole).
+/// The surface normal at sample `(i, j)` (ECEF, unit): the ellipsoid's up tilted by the height
+/// field's central differences over the sample spacing in metres (meridian and prime-vertical
+/// radii at the sample). A function of the global sample position and its neighbours' heights
+/// only, so the two tiles of an edge give its vertices the same normal.
 fn normal(s: &TileSamples, i: i64, j: i64) -> [f64; 3] {
-    let p = |i: i64, j: i64| {
-        let (lon, lat) = s.id.sample(i, j);
-        ecef::from_geodetic(lon, lat, s.at(i, j))
-    };
-    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let dx = sub(p(i + 1, j), p(i - 1, j));
-    let dy = sub(p(i, j + 1), p(i, j - 1));
-    let c = [dx[1] * dy[2] - dx[2] * dy[1], dx[2] * dy[0] - dx[0] * dy[2], dx[0] * dy[1] - dx[1] * dy[0]];
-    let l = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
     let (lon, lat) = s.id.sample(i, j);
-    let (lo, la) = (lon.to_radians(), lat.to_radians());
-    let up = [la.cos() * lo.cos(), la.cos() * lo.sin(), la.sin()];
-    if l < 1e-9 * dx.iter().chain(&dy).map(|v| v.abs()).sum::<f64>().max(1e-9) || !l.is_finite() {
-        return up;
-    }
-    let n = [c[0] / l, c[1] / l, c[2] / l];
-    if n[0] * up[0] + n[1] * up[1] + n[2] * up[2] < 0.0 { [-n[0], -n[1], -n[2]] } else { n }
+    let (sl, cl) = lon.to_radians().sin_cos();
+    let (sp, cp) = lat.to_radians().sin_cos();
+    let h = s.at(i, j);
+    let w = (1.0 - ecef::E2 * sp * sp).sqrt();
+    let (n_radius, m_radius) = (ecef::A / w, ecef::A * (1.0 - ecef::E2) / (w * w * w));
+    let step = cell_degrees(s.id.z).to_radians();
+    let dx = 2.0 * step * (n_radius + h) * cp;
+    let dy = 2.0 * step * (m_radius + h);
+    let up = [cp * cl, cp * sl, sp];
+    let east = [-sl, cl, 0.0];
+    let north = [-sp * cl, -sp * sl, cp];
+    // At a pole the east spacing vanishes: the slope along it is taken as flat.
+    let gx = if dx.abs() > 1e-6 { (s.at(i + 1, j) - s.at(i - 1, j)) / dx } else { 0.0 };
+    let gy = if dy.abs() > 1e-6 { (s.at(i, j + 1) - s.at(i, j - 1)) / dy } else { 0.0 };
+    let v = [0, 1, 2].map(|k| up[k] - gx * east[k] - gy * north[k]);
+    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    if l.is_finite() && l > 0.0 { v.map(|c| c / l) } else { up }
 }
 
 /// The water mask: texels over samples without data (filled at sea level) are water.
@@ -245,20 +260,22 @@ fn watermask(nodata: &[bool]) -> WaterMask {
     }
     let n = SAMPLES as usize;
     let side = WATERMASK_SIDE;
+    // Texel centres mapped to the nearest sample: rows from the north, columns from the west.
+    let at = |k: usize, flip: bool| {
+        let t = (k as f64 + 0.5) / side as f64;
+        ((if flip { 1.0 - t } else { t }) * f64::from(CELLS)).round() as usize
+    };
+    let cols: Vec<usize> = (0..side).map(|c| at(c, false).min(n - 1)).collect();
     let mut g = Vec::with_capacity(side * side);
     for r in 0..side {
-        // Rows from the north; texel centres mapped to the nearest sample.
-        let j = (((side - r) as f64 - 0.5) / side as f64 * f64::from(CELLS)).round() as usize;
-        for c in 0..side {
-            let i = ((c as f64 + 0.5) / side as f64 * f64::from(CELLS)).round() as usize;
-            g.push(if nodata[j.min(n - 1) * n + i.min(n - 1)] { 255 } else { 0 });
-        }
+        let row = &nodata[at(r, true).min(n - 1) * n..][..n];
+        g.extend(cols.iter().map(|&i| if row[i] { 255 } else { 0 }));
     }
     WaterMask::Grid(g)
 }
 
 /// The header of a tile whose vertices are `pts` (ECEF) and heights span `min..=max`.
-fn header(id: TileId, pts: &[[f64; 3]], min: f64, max: f64) -> Header {
+fn header(id: TileId, pts: &[[f64; 3]], heights: &[f64], min: f64, max: f64) -> Header {
     let r = id.rect();
     let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
     for p in pts {
@@ -267,14 +284,18 @@ fn header(id: TileId, pts: &[[f64; 3]], min: f64, max: f64) -> Header {
             hi[k] = hi[k].max(p[k]);
         }
     }
-    let c = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, (lo[2] + hi[2]) / 2.0];
+    let c = [0, 1, 2].map(|k| f64::midpoint(lo[k], hi[k]));
     let radius = pts
         .iter()
         .map(|p| ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt())
         .fold(0.0, f64::max);
-    let lo_h = pts.iter().map(|p| ecef::to_geodetic(*p).2).fold(f64::INFINITY, f64::min);
-    let hi_h = pts.iter().map(|p| ecef::to_geodetic(*p).2).fold(f64::NEG_INFINITY, f64::max);
-    let center = ecef::from_geodetic((r.west + r.east) / 2.0, (r.south + r.north) / 2.0, (lo_h + hi_h) / 2.0);
+    let lo_h = heights.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi_h = heights.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let center = ecef::from_geodetic(
+        f64::midpoint(r.west, r.east),
+        f64::midpoint(r.south, r.north),
+        f64::midpoint(lo_h, hi_h),
+    );
     Header {
         center,
         min_height: min as f32,
@@ -308,7 +329,8 @@ pub fn horizon_point(direction: [f64; 3], pts: &[[f64; 3]]) -> [f64; 3] {
         let dir = [s[0] / mag, s[1] / mag, s[2] / mag];
         let (mag2, mag) = (mag2.max(1.0), mag.max(1.0));
         let cos_a = dir[0] * d[0] + dir[1] * d[1] + dir[2] * d[2];
-        let cr = [dir[1] * d[2] - dir[2] * d[1], dir[2] * d[0] - dir[0] * d[2], dir[0] * d[1] - dir[1] * d[0]];
+        let cr =
+            [dir[1] * d[2] - dir[2] * d[1], dir[2] * d[0] - dir[0] * d[2], dir[0] * d[1] - dir[1] * d[0]];
         let sin_a = (cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]).sqrt();
         let cos_b = 1.0 / mag;
         let sin_b = (mag2 - 1.0).sqrt() * cos_b;

@@ -115,7 +115,7 @@ pub fn encode(t: &QmTile) -> Result<Vec<u8>, QmError> {
     out.extend_from_slice(&n32.to_le_bytes());
     for arr in [&t.u, &t.v, &t.h] {
         let mut prev = 0i32;
-        for &q in arr.iter() {
+        for &q in arr.as_slice() {
             let q = i32::from(q);
             out.extend_from_slice(&zigzag(q - prev).to_le_bytes());
             prev = q;
@@ -218,8 +218,7 @@ impl<'a> Reader<'a> {
     }
     fn indices(&mut self, n: usize, wide: bool, what: &'static str) -> Result<Vec<u32>, QmError> {
         if wide {
-            let bytes =
-                self.take(n.checked_mul(4).ok_or(QmError::Truncated { at: self.at, what })?, what)?;
+            let bytes = self.take(n.checked_mul(4).ok_or(QmError::Truncated { at: self.at, what })?, what)?;
             Ok(bytes.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
         } else {
             Ok(self.u16s(n, what)?.into_iter().map(u32::from).collect())
@@ -264,7 +263,7 @@ fn decode_body(b: &[u8]) -> Result<(QmTile, usize), QmError> {
     let [u, v, hh] = arrays;
     let wide = wide_indices(n);
     if wide {
-        while r.at % 4 != 0 {
+        while !r.at.is_multiple_of(4) {
             r.take(1, "padding")?;
         }
     }
@@ -302,8 +301,11 @@ fn decode_body(b: &[u8]) -> Result<(QmTile, usize), QmError> {
     Ok((t, r.at))
 }
 
+/// An extension: its id, the byte range of its whole block, and of its body.
+type ExtensionAt = (u8, std::ops::Range<usize>, std::ops::Range<usize>);
+
 /// The extensions after `start`: (id, byte range of the whole block, body range).
-fn extensions(b: &[u8], start: usize) -> Result<Vec<(u8, std::ops::Range<usize>, std::ops::Range<usize>)>, QmError> {
+fn extensions(b: &[u8], start: usize) -> Result<Vec<ExtensionAt>, QmError> {
     let mut r = Reader { b, at: start };
     let mut out = Vec::new();
     while r.at < b.len() {
@@ -388,7 +390,8 @@ impl Extensions {
             let ty = parts.next().unwrap_or_default().to_ascii_lowercase();
             let params: Vec<&str> = parts.collect();
             let q_zero = params.iter().any(|p| {
-                p.split_once('=').is_some_and(|(k, v)| k.trim() == "q" && v.trim().parse::<f64>().is_ok_and(|q| q == 0.0))
+                p.split_once('=')
+                    .is_some_and(|(k, v)| k.trim() == "q" && v.trim().parse::<f64>().is_ok_and(|q| q == 0.0))
             });
             if q_zero {
                 continue;
@@ -546,7 +549,8 @@ mod tests {
             "application/vnd.quantized-mesh;extensions=octvertexnormals-watermask-metadata,*/*;q=0.01",
         ));
         assert!(ok && e == Extensions::ALL);
-        let (e, ok) = Extensions::from_accept(Some("application/vnd.quantized-mesh,application/octet-stream;q=0.9"));
+        let (e, ok) =
+            Extensions::from_accept(Some("application/vnd.quantized-mesh,application/octet-stream;q=0.9"));
         assert!(ok && e == Extensions::default());
         let (_, ok) = Extensions::from_accept(Some("image/png"));
         assert!(!ok);
@@ -556,8 +560,8 @@ mod tests {
 
     #[test]
     fn oct_round_trip() {
-        for n in [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [0.6, -0.8, 0.0], [0.3, 0.4, -0.866]] {
-            let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2] as f64).sqrt();
+        for n in [[0.0f64, 0.0, 1.0], [0.0, 0.0, -1.0], [0.6, -0.8, 0.0], [0.3, 0.4, -0.866]] {
+            let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
             let n = [n[0] / l, n[1] / l, n[2] / l];
             let d = oct_decode(oct_encode(n));
             let dot = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];

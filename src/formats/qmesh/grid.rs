@@ -86,6 +86,13 @@ impl std::fmt::Display for TileId {
     }
 }
 
+/// A longitude in −180…180 (180 excluded): the antimeridian is −180 seen from both sides, so
+/// the tiles on either side of it sample the very same heights there.
+#[must_use]
+pub fn canonical_lon(lon: f64) -> f64 {
+    if (-180.0..180.0).contains(&lon) { lon } else { (lon + 180.0).rem_euclid(360.0) - 180.0 }
+}
+
 /// Tiles across and up at zoom `z`.
 #[must_use]
 pub fn tiles_at(z: u8) -> (u32, u32) {
@@ -158,7 +165,12 @@ pub fn tiles_covering(z: u8, r: Rect) -> (u32, u32, u32, u32) {
     let e = r.east.clamp(-180.0, 180.0);
     let s = r.south.clamp(-90.0, 90.0);
     let n = r.north.clamp(-90.0, 90.0);
-    (idx(w, -180.0, cols, false), idx(s, -90.0, rows, false), idx(e, -180.0, cols, true).max(idx(w, -180.0, cols, false)), idx(n, -90.0, rows, true).max(idx(s, -90.0, rows, false)))
+    (
+        idx(w, -180.0, cols, false),
+        idx(s, -90.0, rows, false),
+        idx(e, -180.0, cols, true).max(idx(w, -180.0, cols, false)),
+        idx(n, -90.0, rows, true).max(idx(s, -90.0, rows, false)),
+    )
 }
 
 #[cfg(test)]
@@ -216,7 +228,7 @@ mod tests {
         assert!((LEVEL0_ERROR - 77_067.34).abs() < 0.01);
         for z in 0..=MAX_ZOOM {
             let s = edge_lattice(z);
-            assert!(s <= 1.0 && s >= MIN_STEP && s.log2().fract() == 0.0);
+            assert!((MIN_STEP..=1.0).contains(&s) && s.log2().fract() == 0.0);
             assert!(s <= zoom_error(z, 1.0) / 16.0 || s == MIN_STEP);
         }
     }

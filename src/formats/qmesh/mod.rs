@@ -23,20 +23,20 @@ pub const QM_TYPE: &str = "application/vnd.quantized-mesh";
 
 impl TileSamples {
     /// The samples of tile `id` from a height function of WGS 84 longitude (wrapped to
-    /// −180…180) and latitude: `None` where there is no data, which takes `fill`'s height and
+    /// −180…180, the antimeridian always −180) and latitude: `None` where there is no data, which takes `fill`'s height and
     /// is flagged.
     pub fn from_fn(
         id: TileId,
         mut height: impl FnMut(f64, f64) -> Option<f64>,
         mut fill: impl FnMut(f64, f64) -> f64,
     ) -> Self {
-        let n = grid::SAMPLES as i64;
+        let n = i64::from(grid::SAMPLES);
         let mut heights = Vec::with_capacity(SIDE * SIDE);
         let mut nodata = Vec::with_capacity((n * n) as usize);
         for j in -1..=n {
             for i in -1..=n {
                 let (lon, lat) = id.sample(i, j);
-                let lon = crate::crs::wrap_lon(lon);
+                let lon = grid::canonical_lon(lon);
                 let h = height(lon, lat);
                 let inner = (0..n).contains(&i) && (0..n).contains(&j);
                 if inner {

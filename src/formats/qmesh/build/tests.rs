@@ -3,6 +3,7 @@ use crate::formats::qmesh::codec::{decode, oct_decode};
 use crate::formats::qmesh::grid::TileId;
 
 /// Rough terrain as a function of position only: what any source looks like to the sampler.
+#[allow(clippy::unnecessary_wraps)] // the sampler's height function returns an Option
 fn relief(lon: f64, lat: f64) -> Option<f64> {
     let (x, y) = (lon * 40.0, lat * 40.0);
     Some(800.0 + 600.0 * (x.sin() * y.cos()) + 90.0 * (3.1 * x + 1.7 * y).sin() + 20.0 * (11.0 * x).cos())
@@ -40,18 +41,30 @@ fn neighbours_share_edge_vertices_heights_and_normals() {
         let (b, tb, db) = tile(z, x + 1, y);
         let (c, _, dc) = tile(z, x, y + 1);
         assert!(ta.lattice_exact && tb.lattice_exact);
-        let east: Vec<(u16, f64, [u8; 2])> =
-            da.east.iter().map(|&k| (da.v[k as usize], positions(a, &da)[k as usize].2, da.normals.as_ref().unwrap()[k as usize])).collect();
-        let west: Vec<(u16, f64, [u8; 2])> =
-            db.west.iter().map(|&k| (db.v[k as usize], positions(b, &db)[k as usize].2, db.normals.as_ref().unwrap()[k as usize])).collect();
+        let east: Vec<(u16, f64, [u8; 2])> = da
+            .east
+            .iter()
+            .map(|&k| {
+                (da.v[k as usize], positions(a, &da)[k as usize].2, da.normals.as_ref().unwrap()[k as usize])
+            })
+            .collect();
+        let west: Vec<(u16, f64, [u8; 2])> = db
+            .west
+            .iter()
+            .map(|&k| {
+                (db.v[k as usize], positions(b, &db)[k as usize].2, db.normals.as_ref().unwrap()[k as usize])
+            })
+            .collect();
         assert_eq!(east.len(), west.len(), "zoom {z}: the same edge vertices");
         for (e, w) in east.iter().zip(&west) {
             assert_eq!(e.0, w.0);
             assert!((e.1 - w.1).abs() < 1e-9, "zoom {z}: heights {} and {}", e.1, w.1);
             assert_eq!(e.2, w.2, "zoom {z}: normals");
         }
-        let north: Vec<(u16, f64)> = da.north.iter().map(|&k| (da.u[k as usize], positions(a, &da)[k as usize].2)).collect();
-        let south: Vec<(u16, f64)> = dc.south.iter().map(|&k| (dc.u[k as usize], positions(c, &dc)[k as usize].2)).collect();
+        let north: Vec<(u16, f64)> =
+            da.north.iter().map(|&k| (da.u[k as usize], positions(a, &da)[k as usize].2)).collect();
+        let south: Vec<(u16, f64)> =
+            dc.south.iter().map(|&k| (dc.u[k as usize], positions(c, &dc)[k as usize].2)).collect();
         assert_eq!(north.len(), south.len());
         for (n, s) in north.iter().zip(&south) {
             assert_eq!(n.0, s.0);
@@ -127,7 +140,7 @@ fn coarse_tiles_bound_their_chords() {
 fn normals_point_up_on_flat_ground_and_the_mask_marks_no_data() {
     let id = TileId::new(12, 4000, 2500).unwrap();
     let r = id.rect();
-    let mid = (r.west + r.east) / 2.0;
+    let mid = f64::midpoint(r.west, r.east);
     let s = TileSamples::from_fn(id, |lon, _| (lon < mid).then_some(100.0), |_, _| 0.0);
     let b = build_tile(&s, 1.0, Some("{\"available\":[]}".into())).unwrap();
     let d = decode(&b.bytes).unwrap();
