@@ -179,6 +179,12 @@ pub fn document() -> Value {
             "/tilesets/{name}/3dtiles/tiles/{z}/{x}/{y}/{level}.glb": cached_get("One (tile, level) as glTF 2.0 binary (made from its verified blob; baked on first request for --source tilesets)",
                 &key_params(true), "GLB", crate::formats::tiles3d::GLB_TYPE, &json!({"type": "string", "format": "binary"}),
                 &[("500", "Stored blob failed its checksum (never sent) or the bake failed")]),
+            "/tilesets/{name}/terrain/layer.json": cached_get("Cesium quantized-mesh-1.0 globe terrain: layer.json (TileJSON; available tiles per zoom, metadataAvailability, extensions). From a tileset baked with --terrain, or made from its --source",
+                &json!([name_param()]), "layer document", "application/json", &any,
+                &[("500", "The stored layer cannot be read, or the source cannot be placed on the Earth")]),
+            "/tilesets/{name}/terrain/{z}/{x}/{y}.terrain": cached_get("One quantized-mesh-1.0 tile of the global geodetic TMS grid (2 root tiles). Accept: application/vnd.quantized-mesh;extensions=octvertexnormals-watermask-metadata picks the extensions sent (Vary: accept, accept-encoding); gzip when Accept-Encoding allows. Stored, or built on first request for --source tilesets",
+                &key_params(false), "quantized-mesh tile", crate::formats::qmesh::QM_TYPE, &json!({"type": "string", "format": "binary"}),
+                &[("406", "Accept names neither quantized-mesh nor a wildcard"), ("500", "A stored tile cannot be read or decoded, or the build failed")]),
             "/viewer": cached_get("The viewer page: any tileset of the store in 3D (?tileset=NAME picks one)", &json!([]), "HTML page", "text/html; charset=utf-8",
                 &json!({"type": "string"}), &[]),
             "/jobs/{id}": {
