@@ -12,12 +12,12 @@
 #    thread (RAYON_NUM_THREADS=1, serial like Python) and reads W/ts/terrain/stats.json
 #    (`tiles`, `seconds`, `bytes_raw`, `bytes_gzip`, `per_zoom`: {z: {tiles, mean_vertices,
 #    max_error}}). A binary without `bake --terrain` gets a clear message and an empty column.
-#    Zoom limits and error scale are not passed to the Rust side (its flags are not settled):
-#    give them in TS_BAKE_ARGS; tile counts that differ are flagged in the table.
+#    Zoom limits and error scale are not passed to the Rust side: give them in TS_BAKE_ARGS
+#    (--terrain-max-zoom, --terrain-error-scale); tile counts that differ are flagged.
 # 4. Prints both side by side: per zoom and overall, tiles, ms per tile, tiles/s, bytes raw and
 #    gzipped per tile, vertices per tile, measured max error.
-# 5. On-demand latency from a cold server: TODO (ondemand_latency below), with the helper
-#    `qmesh_vs_python.py latency` ready.
+# 5. On-demand latency from a cold server: `terrastream serve --source od=DEM`, every tile the
+#    Python side built requested once (each built on request), p50/p99 per zoom.
 #
 # Env: BIN (default ./target/release/terrastream, built if missing), VENV, TS_BAKE_ARGS, KEEP=1
 # (keep the work folder).
@@ -109,7 +109,8 @@ print(f"\nPython: {py['sampler']} sampler, zooms {py['zooms'][0]}..{py['zooms'][
 print(f"Python stage means (ms/tile): " + ", ".join(f"{k} {x:.3f}" for k, x in py["stage_ms_mean"].items())
       + f"; p50 {py['ms_p50']:.3f}, p99 {py['ms_p99']:.3f}; writes {py['seconds_write']:.3f} s")
 print("ms per tile: Python = mean of its timed stages per zoom, overall = (stages + writes) / tiles; "
-      "terrastream = stats.json seconds / tiles (whole bake, one thread)\n")
+      "terrastream = stats.json build seconds / tiles (read + sample + TIN + encode, one thread, no write)\n"
+      "bytes: both without extensions (what quantized-mesh-encoder makes)\n")
 print("{:>6} {:>6} {:>6} | {:>8} {:>8} | {:>7} {:>7} {:>6} | {:>7} {:>7} | {:>7} {:>7} | {:>7} {:>7} | {:>8} {:>8}".format(
     "zoom", "tiles", "", "ms/tile", "", "tiles/s", "", "py/ts", "raw B", "", "gzip B", "", "verts", "", "max err", ""))
 print("{:>6} {:>6} {:>6} | {:>8} {:>8} | {:>7} {:>7} {:>6} | {:>7} {:>7} | {:>7} {:>7} | {:>7} {:>7} | {:>8} {:>8}".format(
@@ -118,7 +119,11 @@ tz = (ts or {}).get("per_zoom", {})
 for z, p in py["per_zoom"].items():
     t = tz.get(z) or tz.get(int(z)) if isinstance(tz, dict) else None
     row(f"z{z}", p, t, None, (t or {}).get("seconds"))
-row("all", py, ts, py["seconds"], (ts or {}).get("seconds"))
+row("all", py, ts, py["seconds"], (ts or {}).get("build_seconds", (ts or {}).get("seconds")))
+if ts:
+    print(f"\nterrastream: build {1e3 * ts['build_seconds'] / ts['tiles']:.3f} ms/tile (p50 {ts['ms_p50']:.3f}, p99 {ts['ms_p99']:.3f}); "
+          f"baked (one thread, each tile written durably: fsync) {ts['tiles'] / ts['seconds']:.0f} tiles/s; "
+          f"with every extension {ts['bytes_raw_all'] / ts['tiles']:.0f} B raw, {ts['bytes_gzip_all'] / ts['tiles']:.0f} B gzipped per tile")
 extra = set(map(str, tz)) - set(py["per_zoom"])
 if extra:
     print(f"terrastream built zooms Python did not: {sorted(extra, key=int)}")
@@ -127,14 +132,25 @@ PYEOF
 
 # On-demand latency, per zoom, from a cold server.
 ondemand_latency() {
-    # TODO(issue 37, the lead): `terrastream serve --source DEM ...` flags are not settled. Fill in:
-    #   port=$(free_port)
-    #   "$bin" serve --source "$DEM" --bind "127.0.0.1:$port" ... >"$tmp/serve.log" 2>&1 &
-    #   pids+=($!)
-    #   for _ in $(seq 100); do curl -fs -o /dev/null "http://127.0.0.1:$port/tilesets/NAME/terrain/layer.json" && break; sleep 0.1; done
-    #   "$PY" bench/qmesh_vs_python.py latency --base-url "http://127.0.0.1:$port/tilesets/NAME/terrain/" \
-    #       --urls "$tmp/py/python_tiles.jsonl" >"$tmp/latency.json"   # each tile once, cold; p50/p99 per zoom
-    #   and print "$tmp/latency.json"'s per_zoom p50/p99 (and failures) next to the Python build's ms per tile.
-    echo "== on-demand latency: TODO (terrastream serve flags for terrain not settled; see ondemand_latency in $0)"
+    [ -n "$bin" ] && [ -f "$tmp/py/python_tiles.jsonl" ] || return 0
+    local port name=od
+    port=$(free_port)
+    mkdir -p "$tmp/store"
+    "$bin" serve --store "$tmp/store" --bind "127.0.0.1:$port" --source "$name=$DEM" >"$tmp/serve.log" 2>&1 &
+    pids+=($!)
+    for _ in $(seq 300); do curl -fs -o /dev/null "http://127.0.0.1:$port/readyz" && break; sleep 0.1; done
+    echo "== on-demand latency: terrastream serve --source, each tile once, cold (built on request), one client"
+    "$PY" bench/qmesh_vs_python.py latency --base-url "http://127.0.0.1:$port/tilesets/$name/terrain/" \
+        --urls "$tmp/py/python_tiles.jsonl" >"$tmp/latency.json"
+    "$PY" - "$tmp/latency.json" "$tmp/py.json" <<'PYEOF'
+import json, sys
+lat, py = json.load(open(sys.argv[1])), json.load(open(sys.argv[2]))
+print("{:>6} {:>6} {:>9} {:>9} {:>9} | {:>12}".format("zoom", "tiles", "p50 ms", "p99 ms", "failed", "python ms"))
+for z, v in sorted(lat["per_zoom"].items(), key=lambda kv: int(kv[0])):
+    p = py["per_zoom"].get(str(z), {})
+    print("{:>6} {:>6} {:>9.2f} {:>9.2f} {:>9} | {:>12.3f}".format(
+        f"z{z}", v["requests"], v["ms_p50"] or 0, v["ms_p99"] or 0, v["failures"], p.get("ms_mean", float("nan"))))
+print(f"all: {lat['requests']} requests, p50 {lat['ms_p50'] or 0:.2f} ms, p99 {lat['ms_p99'] or 0:.2f} ms, {lat['failures']} failed")
+PYEOF
 }
 ondemand_latency

@@ -13,7 +13,7 @@ use rayon::prelude::*;
 use crate::crs::{Frame, Geoid};
 use crate::formats::qmesh::grid::{CELLS, MAX_ZOOM, Rect, TileId, canonical_lon, zoom_for_cell};
 use crate::formats::qmesh::layer::{Coverage, layer_json};
-use crate::formats::qmesh::{BuiltTile, SIDE, TileSamples, build_tile};
+use crate::formats::qmesh::{BuiltTile, Extensions, SIDE, TileSamples, build_tile, filter_extensions};
 use crate::raster::{Georef, RasterError, WindowReader};
 
 /// Folder of a store that holds the terrain.
@@ -34,6 +34,8 @@ pub enum TerrainError {
     Build(#[from] crate::formats::qmesh::BuildError),
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),
+    #[error(transparent)]
+    Codec(#[from] crate::formats::qmesh::QmError),
     #[error("--terrain-error-scale must be finite and > 0, got {0}")]
     Scale(f64),
 }
@@ -368,13 +370,24 @@ pub fn tile_rel(id: TileId) -> String {
     format!("{TERRAIN_DIR}/{}/{}/{}.terrain", id.z, id.x, id.y)
 }
 
-/// What a terrain bake made, per zoom and in all (`terrain/stats.json`).
+/// What a terrain bake made, per zoom and in all (`terrain/stats.json`). Bytes are of tiles as
+/// sent without extensions (`bytes_raw`, `bytes_gzip`: what compares with other encoders) and
+/// with every extension (`bytes_raw_all`, `bytes_gzip_all`).
 #[derive(Debug, Clone, Default, serde::Serialize)]
 pub struct TerrainStats {
     pub tiles: u64,
+    /// Wall time of the whole stage (building, gzip figures, writing each tile durably).
     pub seconds: f64,
+    /// Time spent building tiles (reading and sampling the source, the TIN, encoding), summed
+    /// over tiles: per tile, what an on-demand request costs the server.
+    pub build_seconds: f64,
+    /// Build time per tile, median and 99th percentile (milliseconds).
+    pub ms_p50: f64,
+    pub ms_p99: f64,
     pub bytes_raw: u64,
     pub bytes_gzip: u64,
+    pub bytes_raw_all: u64,
+    pub bytes_gzip_all: u64,
     pub max_zoom: u8,
     pub per_zoom: std::collections::BTreeMap<u8, ZoomStats>,
     /// Tiles whose relief exceeds their zoom's edge lattice (edges within a height step of the
@@ -385,11 +398,15 @@ pub struct TerrainStats {
 #[derive(Debug, Clone, Default, serde::Serialize)]
 pub struct ZoomStats {
     pub tiles: u64,
+    /// Build time of the zoom's tiles, summed.
+    pub seconds: f64,
     pub mean_vertices: f64,
     pub max_error: f64,
     pub bound: f64,
     pub bytes_raw: u64,
     pub bytes_gzip: u64,
+    pub bytes_raw_all: u64,
+    pub bytes_gzip_all: u64,
 }
 
 fn gzip_len(b: &[u8]) -> u64 {
@@ -397,6 +414,19 @@ fn gzip_len(b: &[u8]) -> u64 {
     let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::new(6));
     let _ = e.write_all(b);
     e.finish().map_or(0, |v| v.len() as u64)
+}
+
+/// One baked tile's figures.
+struct Made {
+    id: TileId,
+    seconds: f64,
+    vertices: usize,
+    max_error: f64,
+    bound: f64,
+    /// (raw, gzip) without extensions, then with all.
+    plain: (u64, u64),
+    all: (u64, u64),
+    exact: bool,
 }
 
 /// Bakes every tile of `src` into `store` under [`TERRAIN_DIR`], then `layer.json` and
@@ -412,29 +442,46 @@ pub fn bake_terrain_tiles(
     let ids: Vec<TileId> = src.coverage.tiles().collect();
     let total = ids.len() as u64;
     let done = AtomicU64::new(0);
-    let results: Vec<(TileId, usize, f64, f64, u64, u64, bool)> = ids
+    let made: Vec<Made> = ids
         .par_iter()
         .map(|&id| {
+            let t0 = Instant::now();
             let t = src.tile(id)?;
+            let seconds = t0.elapsed().as_secs_f64();
             store.write_file(&tile_rel(id), &t.bytes)?;
-            let gz = gzip_len(&t.bytes);
+            let plain = filter_extensions(&t.bytes, Extensions::default())?;
             progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
-            Ok((id, t.vertices, t.max_error, t.bound, t.bytes.len() as u64, gz, t.lattice_exact))
+            Ok(Made {
+                id,
+                seconds,
+                vertices: t.vertices,
+                max_error: t.max_error,
+                bound: t.bound,
+                plain: (plain.len() as u64, gzip_len(&plain)),
+                all: (t.bytes.len() as u64, gzip_len(&t.bytes)),
+                exact: t.lattice_exact,
+            })
         })
         .collect::<Result<_, TerrainError>>()?;
     let mut stats = TerrainStats { max_zoom: src.coverage.max_zoom, ..TerrainStats::default() };
-    for (id, vertices, err, bound, raw, gz, exact) in results {
-        let z = stats.per_zoom.entry(id.z).or_default();
+    let mut ms: Vec<f64> = made.iter().map(|m| m.seconds * 1e3).collect();
+    ms.sort_by(f64::total_cmp);
+    let pick = |q: f64| ms.get(((ms.len() as f64 - 1.0) * q).round() as usize).copied().unwrap_or(0.0);
+    (stats.ms_p50, stats.ms_p99) = (pick(0.5), pick(0.99));
+    for m in made {
+        let z = stats.per_zoom.entry(m.id.z).or_default();
         z.tiles += 1;
-        z.mean_vertices += vertices as f64;
-        z.max_error = z.max_error.max(err);
-        z.bound = bound;
-        z.bytes_raw += raw;
-        z.bytes_gzip += gz;
+        z.seconds += m.seconds;
+        z.mean_vertices += m.vertices as f64;
+        z.max_error = z.max_error.max(m.max_error);
+        z.bound = m.bound;
+        (z.bytes_raw, z.bytes_gzip) = (z.bytes_raw + m.plain.0, z.bytes_gzip + m.plain.1);
+        (z.bytes_raw_all, z.bytes_gzip_all) = (z.bytes_raw_all + m.all.0, z.bytes_gzip_all + m.all.1);
         stats.tiles += 1;
-        stats.bytes_raw += raw;
-        stats.bytes_gzip += gz;
-        stats.lattice_misses += u64::from(!exact);
+        stats.build_seconds += m.seconds;
+        (stats.bytes_raw, stats.bytes_gzip) = (stats.bytes_raw + m.plain.0, stats.bytes_gzip + m.plain.1);
+        (stats.bytes_raw_all, stats.bytes_gzip_all) = (stats.bytes_raw_all + m.all.0, stats.bytes_gzip_all + m.all.1);
+        stats.lattice_misses += u64::from(!m.exact);
     }
     for z in stats.per_zoom.values_mut() {
         z.mean_vertices /= z.tiles.max(1) as f64;
