@@ -67,6 +67,33 @@ fn tiles(dir: &Path) -> BTreeMap<TileId, QmTile> {
     out
 }
 
+/// Asserts that every two same-zoom neighbours (east–west, also across the antimeridian, and
+/// south–north) have the same edge vertices: position along the edge, decoded height, normal
+/// bytes. Returns the pairs checked.
+fn assert_edges_shared(all: &BTreeMap<TileId, QmTile>) -> usize {
+    let mut pairs = 0;
+    for (&id, t) in all {
+        let cols = 2u32 << id.z;
+        for (other, mine, west_of_other, along_v) in [
+            (TileId { x: (id.x + 1) % cols, ..id }, &t.east, true, true),
+            (TileId { y: id.y + 1, ..id }, &t.north, false, false),
+        ] {
+            let Some(o) = all.get(&other) else { continue };
+            let theirs = if west_of_other { &o.west } else { &o.south };
+            let key = |tile: &QmTile, k: u32| {
+                let k = k as usize;
+                let pos = if along_v { tile.v[k] } else { tile.u[k] };
+                (pos, (height(tile, k) * 1e6).round() as i64, tile.normals.as_ref().unwrap()[k])
+            };
+            let a: Vec<_> = mine.iter().map(|&k| key(t, k)).collect();
+            let b: Vec<_> = theirs.iter().map(|&k| key(o, k)).collect();
+            assert_eq!(a, b, "{id} and {other} disagree on their edge");
+            pairs += 1;
+        }
+    }
+    pairs
+}
+
 fn height(t: &QmTile, k: usize) -> f64 {
     let (lo, hi) = (f64::from(t.header.min_height), f64::from(t.header.max_height));
     lo + (hi - lo) * f64::from(t.h[k]) / 32767.0
@@ -144,26 +171,7 @@ fn baked_terrain_covers_the_data_shares_edges_and_holds_the_source_heights() {
         assert!(s["max_error"].as_f64().unwrap() <= zoom_error(z, 1.0), "zoom {z}: {s}");
     }
 
-    // Neighbours at one zoom: the same edge vertices, heights and normals.
-    let mut pairs = 0;
-    for (&id, t) in &all {
-        for (other, mine, theirs, along) in [
-            (TileId { x: id.x + 1, ..id }, &t.east, 0usize, 1usize),
-            (TileId { y: id.y + 1, ..id }, &t.north, 1, 0),
-        ] {
-            let Some(o) = all.get(&other) else { continue };
-            let edge_o = if theirs == 0 { &o.west } else { &o.south };
-            let key = |tile: &QmTile, k: u32| {
-                let k = k as usize;
-                let pos = if along == 1 { tile.v[k] } else { tile.u[k] };
-                (pos, (height(tile, k) * 1e6).round() as i64, tile.normals.as_ref().unwrap()[k])
-            };
-            let a: Vec<_> = mine.iter().map(|&k| key(t, k)).collect();
-            let b: Vec<_> = edge_o.iter().map(|&k| key(o, k)).collect();
-            assert_eq!(a, b, "{id} and {other} disagree on their edge");
-            pairs += 1;
-        }
-    }
+    let pairs = assert_edges_shared(&all);
     assert!(pairs > 100, "{pairs} neighbour pairs");
 
     // Heights at the finest zoom: the source's (bilinear) plus EGM96's undulation, within the
@@ -198,6 +206,65 @@ fn baked_terrain_covers_the_data_shares_edges_and_holds_the_source_heights() {
         }
     }
     assert!(checked > 500, "{checked} vertices checked");
+}
+
+#[test]
+fn terrain_across_the_antimeridian_is_one_surface() {
+    let tmp = tempfile::tempdir().unwrap();
+    let tif = tmp.path().join("fiji.tif");
+    let side = 121;
+    let mut f = std::fs::File::create(&tif).unwrap();
+    // 179.5° E to 180.5° E (that is, −179.5°), 16° S to 17° S; heights smooth across 180°.
+    terrastream::raster::geotiff::write_tiled_f32(
+        &mut f,
+        (side, side),
+        32,
+        terrastream::raster::geotiff::Model::Geographic,
+        (179.5, -16.0),
+        (1.0 / 120.0, -1.0 / 120.0),
+        None,
+        false,
+        |c, r| 300.0 + 200.0 * (f64::from(c) / 9.0).sin() as f32 * (f64::from(r) / 13.0).cos() as f32,
+    )
+    .unwrap();
+    drop(f);
+    let out = tmp.path().join("t");
+    ok(bin()
+        .args([
+            "bake",
+            "--levels",
+            "1",
+            "--tile-size",
+            "64",
+            "--gpu",
+            "off",
+            "--terrain",
+            "--terrain-max-zoom",
+            "7",
+            "--out",
+        ])
+        .arg(&out)
+        .arg(&tif));
+    let layer: Value =
+        serde_json::from_slice(&std::fs::read(out.join("terrain/layer.json")).unwrap()).unwrap();
+    for z in 1..=7usize {
+        let ranges = layer["available"][z].as_array().unwrap();
+        let xs: Vec<u64> = ranges
+            .iter()
+            .flat_map(|r| [r["startX"].as_u64().unwrap(), r["endX"].as_u64().unwrap()])
+            .collect();
+        assert!(
+            xs.contains(&0) && xs.contains(&((2u64 << z) - 1)),
+            "zoom {z}: tiles on both sides of 180°: {ranges:?}"
+        );
+    }
+    let all = tiles(&out);
+    let across = all
+        .keys()
+        .filter(|id| id.z > 0 && id.x == (2u32 << id.z) - 1 && all.contains_key(&TileId { x: 0, ..**id }))
+        .count();
+    assert!(across >= 7, "{across} tile pairs meet at the antimeridian");
+    assert!(assert_edges_shared(&all) >= across);
 }
 
 #[test]

@@ -480,7 +480,8 @@ pub fn bake_terrain_tiles(
         stats.tiles += 1;
         stats.build_seconds += m.seconds;
         (stats.bytes_raw, stats.bytes_gzip) = (stats.bytes_raw + m.plain.0, stats.bytes_gzip + m.plain.1);
-        (stats.bytes_raw_all, stats.bytes_gzip_all) = (stats.bytes_raw_all + m.all.0, stats.bytes_gzip_all + m.all.1);
+        (stats.bytes_raw_all, stats.bytes_gzip_all) =
+            (stats.bytes_raw_all + m.all.0, stats.bytes_gzip_all + m.all.1);
         stats.lattice_misses += u64::from(!m.exact);
     }
     for z in stats.per_zoom.values_mut() {

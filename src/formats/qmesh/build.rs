@@ -231,6 +231,7 @@ fn interleave(x: u32, y: u32) -> u64 {
 /// only, so the two tiles of an edge give its vertices the same normal.
 fn normal(s: &TileSamples, i: i64, j: i64) -> [f64; 3] {
     let (lon, lat) = s.id.sample(i, j);
+    let lon = super::grid::canonical_lon(lon);
     let (sl, cl) = lon.to_radians().sin_cos();
     let (sp, cp) = lat.to_radians().sin_cos();
     let h = s.at(i, j);

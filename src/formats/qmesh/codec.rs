@@ -438,6 +438,9 @@ pub fn filter_extensions(b: &[u8], keep: Extensions) -> Result<Vec<u8>, QmError>
 /// Oct-encodes a unit vector into two bytes (CesiumJS's `AttributeCompression.octEncode`).
 #[must_use]
 pub fn oct_encode(n: [f64; 3]) -> [u8; 2] {
+    // Rounding residue (a pole's east component, 1e-17) must not pick a sign: it would flip
+    // the encoding between the two corners that both mean straight down.
+    let n = n.map(|c| if c.abs() < 1e-12 { 0.0 } else { c });
     let l1 = n[0].abs() + n[1].abs() + n[2].abs();
     if l1 == 0.0 || !l1.is_finite() {
         return [128, 128];
