@@ -376,10 +376,12 @@ impl Extensions {
         }
     }
 
-    /// The extensions named in an `Accept` header's quantized-mesh media range
-    /// (`application/vnd.quantized-mesh;extensions=octvertexnormals-watermask-metadata`), and
-    /// whether the header accepts quantized-mesh at all (`*/*`, `application/*`,
-    /// `application/octet-stream` or the type itself; no header accepts everything).
+    /// The extensions an `Accept` header names, and whether it accepts quantized-mesh at all
+    /// (`application/vnd.quantized-mesh`, `application/octet-stream`, `application/*` or `*/*`
+    /// not at q=0; no header accepts everything). `extensions=a-b-c` is read on any accepted
+    /// range: CesiumJS puts it on the quantized-mesh type
+    /// (`application/vnd.quantized-mesh;extensions=octvertexnormals-watermask-metadata,*/*;q=0.01`),
+    /// 3DTilesRendererJS after `application/octet-stream;q=0.9`.
     #[must_use]
     pub fn from_accept(accept: Option<&str>) -> (Self, bool) {
         let Some(accept) = accept else { return (Self::default(), true) };
@@ -388,34 +390,30 @@ impl Extensions {
         for range in accept.split(',') {
             let mut parts = range.split(';').map(str::trim);
             let ty = parts.next().unwrap_or_default().to_ascii_lowercase();
-            let params: Vec<&str> = parts.collect();
-            let q_zero = params.iter().any(|p| {
-                p.split_once('=')
-                    .is_some_and(|(k, v)| k.trim() == "q" && v.trim().parse::<f64>().is_ok_and(|q| q == 0.0))
-            });
-            if q_zero {
+            let params: Vec<(&str, &str)> =
+                parts.filter_map(|p| p.split_once('=')).map(|(k, v)| (k.trim(), v.trim())).collect();
+            let q_zero = params
+                .iter()
+                .any(|(k, v)| k.eq_ignore_ascii_case("q") && v.parse::<f64>().is_ok_and(|q| q == 0.0));
+            let accepted = matches!(
+                ty.as_str(),
+                "application/vnd.quantized-mesh" | "application/octet-stream" | "application/*" | "*/*"
+            );
+            if q_zero || !accepted {
                 continue;
             }
-            match ty.as_str() {
-                "application/vnd.quantized-mesh" => {
-                    ok = true;
-                    for p in &params {
-                        if let Some((k, v)) = p.split_once('=')
-                            && k.trim().eq_ignore_ascii_case("extensions")
-                        {
-                            for name in v.trim().trim_matches('"').split('-') {
-                                match name {
-                                    "octvertexnormals" | "vertexnormals" => ext.normals = true,
-                                    "watermask" => ext.watermask = true,
-                                    "metadata" => ext.metadata = true,
-                                    _ => {}
-                                }
-                            }
+            ok = true;
+            for (k, v) in &params {
+                if k.eq_ignore_ascii_case("extensions") {
+                    for name in v.trim_matches('"').split('-') {
+                        match name {
+                            "octvertexnormals" | "vertexnormals" => ext.normals = true,
+                            "watermask" => ext.watermask = true,
+                            "metadata" => ext.metadata = true,
+                            _ => {}
                         }
                     }
                 }
-                "*/*" | "application/*" | "application/octet-stream" => ok = true,
-                _ => {}
             }
         }
         (ext, ok)
@@ -557,6 +555,14 @@ mod tests {
         assert!(ok && e == Extensions::default());
         let (_, ok) = Extensions::from_accept(Some("image/png"));
         assert!(!ok);
+        // 3DTilesRendererJS's QuantizedMeshPlugin: the parameter after the octet-stream range.
+        let (e, ok) = Extensions::from_accept(Some(
+            "application/vnd.quantized-mesh,application/octet-stream;q=0.9;extensions=octvertexnormals-watermask-metadata",
+        ));
+        assert!(ok && e == Extensions::ALL);
+        // Not on a refused range.
+        let (e, ok) = Extensions::from_accept(Some("image/png;extensions=metadata"));
+        assert!(!ok && e == Extensions::default());
         let (_, ok) = Extensions::from_accept(Some("application/vnd.quantized-mesh;q=0"));
         assert!(!ok);
     }
