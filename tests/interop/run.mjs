@@ -3,8 +3,12 @@
 // DEMs of geo/ (placed exactly on the Earth), serve them, then walk, validate (Khronos), parse
 // (loaders.gl), render (CesiumJS, offline), compare CesiumJS's heights with heights computed from
 // the source rasters alone (proj4js, the EGM96 grid), and open the server's own viewer; check
-// that it shows the relief of a real DEM (SRTM, UTM 32N) and of fuji below sea level. The last
-// line printed is `N passed, N failed`; exit 1 on a failure.
+// that it shows the relief of a real DEM (SRTM, UTM 32N) and of fuji below sea level. The DEMs'
+// Cesium globe terrain (quantized-mesh-1.0, baked with --terrain, and one served on demand): every
+// tile decoded by @here/quantized-mesh-decoder and checked, a crack test on neighbours, on-demand
+// tiles against baked ones, CesiumJS (the docs example page: a flight, sampleTerrainMostDetailed
+// against the source rasters) and 3DTilesRendererJS's QuantizedMeshPlugin. The last line printed
+// is `N passed, N failed`; exit 1 on a failure.
 //
 // Environment: TERRASTREAM_BIN, TERRASTREAM_DATA, CHROMIUM, INTEROP_OUT (see README.md),
 // INTEROP_TIMEOUT_S (whole run, default 480), INTEROP_KEEP=1 (keep the temp store).
@@ -26,6 +30,8 @@ import { readGeoTiff } from './lib/geotiff.mjs';
 import { readGtx, EGM96_GTX } from './lib/geoid.mjs';
 import { toLonLat, placeSample, interiorGrid } from './lib/earth.mjs';
 import { multiplyPoint } from './lib/mat4.mjs';
+import { terrainSamples, closeHttp } from './lib/terrain.mjs';
+import { decodeCheck, crackCheck, onDemandCheck, cesiumTerrainCheck, terrainHeightsCheck, threeTerrainCheck } from './lib/qm-checks.mjs';
 
 const HERE = path.dirname(fileURLToPath(import.meta.url));
 const fromHere = (p) => path.resolve(HERE, p);
@@ -72,6 +78,39 @@ const RELIEF = {
 const SEA = { name: 'fuji-sea', zOffset: -1000 };
 const GLOBE_SEA = 'etopo';
 const GLOBE_SEA_SSE = 2;
+// Globe terrain (checks h–j): every GEO DEM is baked with --terrain (default error scale and
+// zooms, as the server's on-demand terrain). TERRAIN_LIVE serves the vinschgau DEM again as an
+// on-demand --source tileset, whose tiles must be the baked ones byte for byte.
+const TERRAIN_LIVE = { name: 'vinschgau-live', baked: 'vinschgau' };
+// CesiumJS on the docs example page: a flight onto each of these, then sampleTerrainMostDetailed
+// on a TERRAIN_GRID² grid. Regional DEMs: from 15,000 km straight down to 15 km at 35° over the
+// data's centre. ETOPO1: the globe, the antimeridian (Fiji) and both poles. The page as users get
+// it (Natural Earth II imagery) on vinschgau; without imagery (&imagery=none) on the others, and
+// 640×480: SwiftShader draws a frame or two a second.
+const TERRAIN_CESIUM = [{ name: 'vinschgau', imagery: true }, { name: 'gabon', imagery: false }, { name: 'etopo', imagery: false }];
+const TERRAIN_GRID = 6;
+const TERRAIN_MS_PER_STOP = 30_000;
+const TERRAIN_VIEWPORT = { width: 640, height: 480 };
+const REGIONAL_STOPS = [
+  { range: 1.5e7, pitch: -90 },
+  { range: 1.5e6, pitch: -90 },
+  { range: 2e5, pitch: -60 },
+  { range: 5e4, pitch: -45 },
+  { range: 1.5e4, pitch: -35 },
+];
+const GLOBE_STOPS = [
+  { lon: 10, lat: 20, h: 0, range: 2.2e7, pitch: -90 },
+  { lon: 180, lat: 0, h: 0, range: 8e6, pitch: -90 },
+  { lon: 179, lat: -17, h: 0, range: 2e6, pitch: -60 },
+  { lon: 0, lat: 89.9, h: 0, range: 6e6, pitch: -90 },
+  { lon: 0, lat: -89.9, h: 2800, range: 6e6, pitch: -90 },
+];
+// 3DTilesRendererJS (check j): looking down on the vinschgau terrain from 30 km, it must refine
+// to zoom 9 at least (its tiles' geometric error 77,067 m / 2^z against its errorTarget of 2 px
+// asks for zoom 10 at 1024×768 from there).
+const THREE_TERRAIN = { name: 'vinschgau', range: 3e4, minZoom: 9 };
+// The example page for users; check i opens it with its CesiumJS CDN URL pointed at the local copy.
+const EXAMPLE = { file: '../../docs/examples/cesium-terrain.html', cdn: 'https://cesium.com/downloads/cesiumjs/releases/1.140/Build/Cesium/' };
 
 const checks = new Checks();
 const runStarted = Date.now();
@@ -147,7 +186,7 @@ async function main() {
     [SEA.name]: ['bake', path.join(cfg.data, 'fuji.png'), '--encoding', 'terrain-rgb', '--cell-size', String(FUJI.cellSize), '--z-offset', String(SEA.zOffset), '--gpu', 'off', '--out', path.join(store, SEA.name)],
   };
   for (const g of GEO) {
-    bakes[g.name] = ['bake', path.join(cfg.data, g.file), '--tile-size', String(g.tileSize), '--levels', '1', ...(g.egm96 ? ['--vertical-datum', 'egm96'] : []), '--gpu', 'off', '--out', path.join(store, g.name)];
+    bakes[g.name] = ['bake', path.join(cfg.data, g.file), '--tile-size', String(g.tileSize), '--levels', '1', ...(g.egm96 ? ['--vertical-datum', 'egm96'] : []), '--terrain', '--gpu', 'off', '--out', path.join(store, g.name)];
   }
   for (const name of Object.keys(bakes)) {
     baked[name] = await checks.run(`bake ${name}`, async (log) => {
@@ -168,7 +207,11 @@ async function main() {
   const base = `http://127.0.0.1:${port}`;
   const served = await checks.run('serve', async (log) => {
     needs(fs.existsSync(cfg.bin), `no binary at ${cfg.bin}`);
-    const daemon = startDaemon(cfg.bin, ['serve', '--store', store, '--bind', `127.0.0.1:${port}`, '--gpu', 'off']);
+    const live = GEO.find((g) => g.name === TERRAIN_LIVE.baked);
+    // (vinschgau's heights are ellipsoidal as they are: --source has no vertical datum key)
+    const sourceArgs = ['--source', `${TERRAIN_LIVE.name}=${path.join(cfg.data, live.file)}`];
+    const daemon = startDaemon(cfg.bin, ['serve', '--store', store, '--bind', `127.0.0.1:${port}`, '--gpu', 'off', ...sourceArgs]);
+    cleanups.push(() => closeHttp());
     cleanups.push(async () => {
       await stopDaemon(daemon);
       const output = daemon.output.trim();
@@ -229,6 +272,42 @@ async function main() {
     return 'root.transform is east-north-up, the centre of the data at height 0 sits on the anchor';
   });
 
+  // h. globe terrain: every tile decoded and checked, cracks, on demand = baked
+  const terrain = {};
+  for (const g of GEO) {
+    await checks.run(`h. terrain decode ${g.name}`, async (log) => {
+      needs(served, 'the server is not running');
+      if (!baked[g.name]) log(`note: the bake of ${g.name} failed`);
+      const out = {};
+      try {
+        return await decodeCheck({ base, name: g.name, out, log });
+      } finally {
+        if (out.tiles) terrain[g.name] = out;
+      }
+    });
+    await checks.run(`h. terrain cracks ${g.name}`, async (log) => {
+      needs(terrain[g.name]?.tiles?.size, `no decoded tiles of ${g.name}`);
+      return crackCheck({ tiles: terrain[g.name].tiles, log });
+    });
+  }
+  await checks.run(`h. terrain on demand = baked ${TERRAIN_LIVE.baked}`, async (log) => {
+    needs(served, 'the server is not running');
+    needs(baked[TERRAIN_LIVE.baked], `the bake of ${TERRAIN_LIVE.baked} failed`);
+    return onDemandCheck({ base, baked: TERRAIN_LIVE.baked, live: TERRAIN_LIVE.name, log });
+  });
+
+  // the example page with CesiumJS from here rather than its CDN (checks i run it offline)
+  const exampleDir = path.join(tmp, 'example');
+  fs.mkdirSync(exampleDir, { recursive: true });
+  let exampleError = null;
+  try {
+    const example = fs.readFileSync(fromHere(EXAMPLE.file), 'utf8');
+    if (!example.includes(EXAMPLE.cdn)) throw new Error(`${EXAMPLE.file} does not load CesiumJS from ${EXAMPLE.cdn}`);
+    fs.writeFileSync(path.join(exampleDir, path.basename(EXAMPLE.file)), example.split(EXAMPLE.cdn).join('/cesium/'));
+  } catch (err) {
+    exampleError = err.message;
+  }
+
   // 3d-f. browsers
   let browser = null;
   let pageBase = null;
@@ -236,7 +315,13 @@ async function main() {
   try {
     const cesiumDir = fromHere('node_modules/cesium/Build/Cesium');
     if (!fs.existsSync(path.join(cesiumDir, 'Cesium.js'))) throw new Error(`${cesiumDir}/Cesium.js is missing (npm ci?)`);
-    const st = await startStaticServer({ '/cesium/': cesiumDir, '/': fromHere('page') });
+    const st = await startStaticServer({
+      '/cesium/': cesiumDir,
+      '/example/': exampleDir,
+      '/three/': fromHere('node_modules/three'),
+      '/3d-tiles-renderer/': fromHere('node_modules/3d-tiles-renderer'),
+      '/': fromHere('page'),
+    });
     cleanups.push(() => new Promise((r) => {
       st.server.close(r);
       st.server.closeAllConnections();
@@ -366,6 +451,64 @@ async function main() {
     // finer than the default view's tiles (kilometres of error at the root), so the coasts are
     // drawn where they are
     return seaLevelCheck({ browser, base, name: GLOBE_SEA, raster, place, maxSse: GLOBE_SEA_SSE, outDir: cfg.out, log });
+  });
+
+  // i. CesiumJS on the globe terrain: the docs example page, a flight, heights
+  for (const { name, imagery } of TERRAIN_CESIUM) {
+    const geo = GEO.find((g) => g.name === name);
+    const session = {};
+    let expected = null;
+    let stats = null;
+    try {
+      const raster = readGeoTiff(path.join(cfg.data, geo.file));
+      stats = JSON.parse(fs.readFileSync(path.join(store, name, 'terrain', 'stats.json'), 'utf8'));
+      expected = terrainSamples({ raster, geoid: geo.egm96 ? egm96() : null, maxZoom: stats.max_zoom, k: TERRAIN_GRID });
+    } catch (err) {
+      expected = { error: err.message };
+    }
+    await checks.run(`i. cesium terrain ${name}`, async (log) => {
+      needs(served, 'the server is not running');
+      needs(browser, `no browser: ${browserError}`);
+      needs(!exampleError, `no example page: ${exampleError}`);
+      needs(!expected.error, expected.error);
+      needs(expected.length > 0, `no sample point of ${geo.file} has data around it`);
+      const lon = expected.reduce((a, s) => a + s.lon, 0) / expected.length;
+      const lat = expected.reduce((a, s) => a + s.lat, 0) / expected.length;
+      const h = [...expected].sort((a, b) => a.h - b.h)[expected.length >> 1].h;
+      const stops = name === 'etopo' ? GLOBE_STOPS : REGIONAL_STOPS.map((s) => ({ lon, lat, h, ...s }));
+      const exampleUrl = `${pageBase}/example/${path.basename(EXAMPLE.file)}?server=${encodeURIComponent(base)}&tileset=${encodeURIComponent(name)}${imagery ? '' : '&imagery=none'}`;
+      log(`page: ${exampleUrl}`);
+      return cesiumTerrainCheck({
+        browser, exampleUrl, flightScriptUrl: `${pageBase}/terrain-flight.js`, name, stops, msPerStop: TERRAIN_MS_PER_STOP, viewport: TERRAIN_VIEWPORT,
+        screenshot: path.join(cfg.out, `cesium-terrain-${name}.png`), log, session,
+      });
+    });
+    await checks.run(`i. terrain heights ${name}`, async (log) => {
+      needs(!expected.error, expected.error);
+      needs(expected.length > 0, `no sample point of ${geo.file} has data around it`);
+      const zs = stats.per_zoom?.[stats.max_zoom];
+      needs(Number.isFinite(zs?.max_error), `stats.json of ${name} has no max_error for zoom ${stats.max_zoom}`);
+      log(`${geo.file}: ${expected.length} points, heights ${geo.egm96 ? `EGM96 (+ undulation from ${EGM96_GTX})` : 'as they are (ellipsoidal)'}; stats.json zoom ${stats.max_zoom}: max_error ${zs.max_error.toFixed(3)} m (bound ${zs.bound.toFixed(3)} m)`);
+      return terrainHeightsCheck({ session, samples: expected, errMax: zs.max_error, maxZoom: stats.max_zoom, timeoutMs: 90_000, log });
+    });
+    if (session.rec) fs.writeFileSync(path.join(cfg.out, `cesium-terrain-${name}-requests.txt`), `${session.rec.requests.join('\n')}\n`);
+    if (session.page) await session.page.close().catch(() => {});
+  }
+
+  // j. 3DTilesRendererJS with its QuantizedMeshPlugin
+  await checks.run(`j. 3d-tiles-renderer terrain ${THREE_TERRAIN.name}`, async (log) => {
+    needs(served, 'the server is not running');
+    needs(browser, `no browser: ${browserError}`);
+    const geo = GEO.find((g) => g.name === THREE_TERRAIN.name);
+    const raster = readGeoTiff(path.join(cfg.data, geo.file));
+    const [x, y] = raster.world(raster.width >> 1, raster.height >> 1);
+    const [lon, lat] = toLonLat(raster.epsg)(x, y);
+    return threeTerrainCheck({
+      browser, pageUrl: `${pageBase}/qm-three.html`, terrainUrl: `${base}/tilesets/${THREE_TERRAIN.name}/terrain/`,
+      // (the valley floor is at 500–1500 m: the camera 30 km above about the data's middle)
+      view: { lon, lat, h: 1500, range: THREE_TERRAIN.range }, minZoom: THREE_TERRAIN.minZoom, timeoutMs: 90_000,
+      screenshot: path.join(cfg.out, `3d-tiles-renderer-terrain-${THREE_TERRAIN.name}.png`), log,
+    });
   });
 }
 
