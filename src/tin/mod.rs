@@ -202,19 +202,25 @@ pub const REGION_SPLIT_SAMPLES: usize = 1 << 17;
 /// Builds the TIN of `heights` (row-major over `grid.rows × grid.cols`) so that every sample is
 /// within `max_error` (vertical, in height units) of the mesh.
 pub fn build(grid: &NodeGrid, heights: &[f32], max_error: f64) -> Result<Tin, TinError> {
-    build_split(grid, heights, max_error, REGION_SPLIT_SAMPLES, 0)
+    build_split(grid, heights, max_error, REGION_SPLIT_SAMPLES, 0.0)
 }
 
-/// [`build`] with a vertex at every `every`-th sample of both axes (node indices; 0 or 1 for
-/// none): what bounds the chord of a triangle on a curved surface. Border vertices at those
-/// samples split the border profiles, so neighbours with the same `every` still agree.
-pub fn build_with_spacing(
+/// [`build`] for a surface that a client draws curved away below flat triangles: a triangle
+/// (or border segment) whose longest edge is `L` grid units long has `chord·L²` less error
+/// budget (the sag of its chord below the curve: `R·θ²/8` for an edge of `θ` radians gives
+/// `chord = R·(radians per grid unit)²/8`). So large triangles are split where the curve, not
+/// the heights, needs it, and each triangle's error plus its sag stays within `max_error`.
+/// Border segments use their own length, so neighbours with the same `chord` still agree.
+pub fn build_with_chord(
     grid: &NodeGrid,
     heights: &[f32],
     max_error: f64,
-    every: usize,
+    chord: f64,
 ) -> Result<Tin, TinError> {
-    build_split(grid, heights, max_error, REGION_SPLIT_SAMPLES, every)
+    if !chord.is_finite() || chord < 0.0 {
+        return Err(TinError::BadMaxError(chord));
+    }
+    build_split(grid, heights, max_error, REGION_SPLIT_SAMPLES, chord)
 }
 
 /// [`build`], splitting regions of more than `split_samples` samples.
@@ -223,7 +229,7 @@ fn build_split(
     heights: &[f32],
     max_error: f64,
     split_samples: usize,
-    every: usize,
+    chord: f64,
 ) -> Result<Tin, TinError> {
     let (nc, nr) = (grid.cols.len(), grid.rows.len());
     if nc < 2 || nr < 2 {
@@ -238,8 +244,7 @@ fn build_split(
     if let Some(k) = heights.iter().position(|h| !h.is_finite()) {
         return Err(TinError::NonFinite { col: grid.cols[k % nc], row: grid.rows[k / nc] });
     }
-    let every = if every > 1 { every } else { 0 };
-    let node = Node { grid, heights, nc, max_error, split_samples, every };
+    let node = Node { grid, heights, nc, max_error, split_samples, chord };
     let whole = Region { i0: 0, i1: nc - 1, j0: 0, j1: nr - 1 };
     let borders = Borders {
         bottom: node.row_border(0, 0, nc - 1),
@@ -257,8 +262,8 @@ struct Node<'a> {
     nc: usize,
     max_error: f64,
     split_samples: usize,
-    /// Forced vertices at every `every`-th sample (0: none).
-    every: usize,
+    /// Sag of a chord per squared grid unit of its length (0: a flat surface).
+    chord: f64,
 }
 
 impl Node<'_> {
@@ -270,34 +275,14 @@ impl Node<'_> {
     fn row_border(&self, j: usize, i0: usize, i1: usize) -> Vec<usize> {
         let profile: Vec<(f64, f64)> =
             (i0..=i1).map(|i| (f64::from(self.grid.cols[i]), self.h(i, j))).collect();
-        self.simplify_forced(&profile, i0)
-    }
-
-    /// The kept samples of a border profile starting at node index `first`: every forced
-    /// sample, and the 1-D simplification of each stretch between them.
-    fn simplify_forced(&self, profile: &[(f64, f64)], first: usize) -> Vec<usize> {
-        if self.every == 0 {
-            return simplify_profile(profile, self.max_error).into_iter().map(|k| first + k).collect();
-        }
-        let last = first + profile.len() - 1;
-        let mut cuts: Vec<usize> = vec![first];
-        cuts.extend((first + 1..last).filter(|k| k % self.every == 0));
-        cuts.push(last);
-        let mut kept = Vec::new();
-        for w in cuts.windows(2) {
-            let part = &profile[w[0] - first..=w[1] - first];
-            let keep = simplify_profile(part, self.max_error);
-            let skip = usize::from(!kept.is_empty());
-            kept.extend(keep.into_iter().skip(skip).map(|k| w[0] + k));
-        }
-        kept
+        simplify_profile_chord(&profile, self.max_error, self.chord).into_iter().map(|k| i0 + k).collect()
     }
 
     /// Kept rows of column `i` between rows `j0` and `j1` (inclusive, node indices).
     fn col_border(&self, i: usize, j0: usize, j1: usize) -> Vec<usize> {
         let profile: Vec<(f64, f64)> =
             (j0..=j1).map(|j| (f64::from(self.grid.rows[j]), self.h(i, j))).collect();
-        self.simplify_forced(&profile, j0)
+        simplify_profile_chord(&profile, self.max_error, self.chord).into_iter().map(|k| j0 + k).collect()
     }
 }
 
@@ -437,21 +422,24 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
         }
     }
 
-    if node.every > 0 {
-        for j in (1..nr - 1).filter(|j| (r.j0 + j).is_multiple_of(node.every)) {
-            for i in (1..nc - 1).filter(|i| (r.i0 + i).is_multiple_of(node.every)) {
-                insert(&mut tri, i, j)?;
-            }
-        }
-    }
-
     let corner = |v: &Vertex| [v.pos.x, v.pos.y, v.z];
     // The first sample (in row-major order) of the largest error over the bound wins, so one
     // comparison per sample decides.
     // Inner spans never reach the last column, so a sample's x is `start + i·step` there
     // (`Axis::at` without its branch), and each row is one slice of the node's heights.
+    let chord = node.chord;
+    // A curved surface: the face's sag comes off its budget, and its own corners (error 0, and
+    // so candidates once the budget is below 0) are never picked.
+    let sag = |p: &[[f64; 3]; 3]| {
+        let d2 = |a: [f64; 3], b: [f64; 3]| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2);
+        chord * d2(p[0], p[1]).max(d2(p[1], p[2])).max(d2(p[2], p[0]))
+    };
     let scan = |p: [[f64; 3]; 3], hint: u32| {
-        let (mut worst, mut sample) = (max_error, u32::MAX);
+        let sag_p = if chord > 0.0 { sag(&p) } else { 0.0 };
+        // Grid positions are integers, exact in f64: equality is exact here.
+        #[allow(clippy::float_cmp)]
+        let is_corner = |x: f64, y: f64| chord > 0.0 && p.iter().any(|c| c[0] == x && c[1] == y);
+        let (mut worst, mut sample) = (max_error - sag_p, u32::MAX);
         scan_spans(p, &ax, &ay, true, SMALL_BOX_SAMPLES, 0..usize::MAX, |s| {
             let base = (r.j0 + s.j) * node.nc + r.i0;
             // Sample positions are integers (u32 grid coordinates), so stepping x by `step` is
@@ -469,7 +457,7 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
                 let e: [f64; 4] = std::array::from_fn(|q| (f64::from(b[q]) - s.z(xq[q])).abs());
                 if e[0].max(e[1]).max(e[2].max(e[3])) > worst {
                     for (q, &eq) in e.iter().enumerate() {
-                        if eq > worst {
+                        if eq > worst && !is_corner(xq[q], ys[s.j]) {
                             worst = eq;
                             sample = (first + k + q) as u32;
                         }
@@ -480,7 +468,7 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
             }
             for &hv in blocks.remainder() {
                 let e = (f64::from(hv) - s.z(x)).abs();
-                if e > worst {
+                if e > worst && !is_corner(x, ys[s.j]) {
                     worst = e;
                     sample = (first + k) as u32;
                 }
@@ -488,7 +476,7 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
                 k += 1;
             }
         });
-        (sample != u32::MAX).then(|| Candidate::new(worst, sample, hint))
+        (sample != u32::MAX).then(|| Candidate::new(worst + sag_p, sample, hint))
     };
 
     let mut heap = FaceHeap::default();
@@ -533,6 +521,13 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
 /// interpolation between kept samples is within `max_error` of every sample. Endpoints are kept.
 #[must_use]
 pub fn simplify_profile(profile: &[(f64, f64)], max_error: f64) -> Vec<usize> {
+    simplify_profile_chord(profile, max_error, 0.0)
+}
+
+/// [`simplify_profile`] of a profile drawn curved away below its chords: a segment `(a, b)` has
+/// `chord·(t_b − t_a)²` less error budget (see [`build_with_chord`]).
+#[must_use]
+pub fn simplify_profile_chord(profile: &[(f64, f64)], max_error: f64, chord: f64) -> Vec<usize> {
     let n = profile.len();
     if n <= 2 {
         return (0..n).collect();
@@ -546,11 +541,12 @@ pub fn simplify_profile(profile: &[(f64, f64)], max_error: f64) -> Vec<usize> {
     while let Some((a, b)) = stack.pop() {
         let (ta, ha) = profile[a];
         let (tb, hb) = profile[b];
+        let budget = max_error - chord * (tb - ta) * (tb - ta);
         let mut worst: Option<(f64, usize)> = None;
         for (k, &(t, hk)) in profile.iter().enumerate().take(b).skip(a + 1) {
             let z = ha + (hb - ha) * (t - ta) / (tb - ta);
             let e = (hk - z).abs();
-            if e > max_error && worst.is_none_or(|(w, _)| e > w) {
+            if e > budget && worst.is_none_or(|(w, _)| e > w) {
                 worst = Some((e, k));
             }
         }
@@ -998,8 +994,8 @@ mod tests {
         let hs = terrain(w, h, 11);
         let g = grid(w, h);
         let span = Span { col0: 0, col1: w - 1, row0: 0, row1: h - 1 };
-        let whole = build_split(&g, &hs, e, usize::MAX, 0).unwrap();
-        let split = build_split(&g, &hs, e, 2_000, 0).unwrap();
+        let whole = build_split(&g, &hs, e, usize::MAX, 0.0).unwrap();
+        let split = build_split(&g, &hs, e, 2_000, 0.0).unwrap();
         assert_ne!(whole, split, "the small threshold must split the node");
         for tin in [&whole, &split] {
             let pos = positions(&g, &hs, tin);

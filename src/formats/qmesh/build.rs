@@ -5,7 +5,7 @@
 use super::codec::{self, Header, QMAX, QmError, QmTile, WATERMASK_SIDE, WaterMask};
 use super::grid::{CELLS, MIN_STEP, SAMPLES, TileId, cell_degrees, edge_lattice, zoom_error};
 use crate::crs::ecef;
-use crate::tiling::{NodeGrid, Span};
+use crate::tiling::NodeGrid;
 
 /// Samples per side of a tile's grid with its one-sample border.
 pub const SIDE: usize = SAMPLES as usize + 2;
@@ -36,8 +36,8 @@ pub struct BuiltTile {
     pub triangles: usize,
     /// The bound the tile was built to (metres): the zoom's error.
     pub bound: f64,
-    /// Measured: the largest vertical distance between the decoded mesh and a sample, plus the
-    /// chord bound of its largest triangles on the curved Earth.
+    /// Measured: over the triangles, the largest vertical distance between the decoded mesh
+    /// and a sample it covers plus the sag of its longest chord below the curved Earth.
     pub max_error: f64,
     /// Whether the tile's height step divides its zoom's edge lattice (so its edges decode to
     /// exactly its neighbours' heights): false only for a tile of more relief than 32,767 edge
@@ -62,19 +62,12 @@ pub enum BuildError {
 
 const R: f64 = ecef::A;
 
-/// Samples between forced vertices at zoom `z`, and the chord bound that spacing leaves: the
-/// sag of a triangle's longest edge below the curved surface, `R·θ²/8` for an edge of `θ`
-/// radians (a cell diagonal × spacing). The largest power of two whose chord stays within half
-/// the zoom's error; 64 (the tile's corners only) from about zoom 9.
+/// The sag of a chord below the curved Earth per squared sample step of its length at zoom `z`
+/// (metres): `R·θ²/8` for a chord of `θ` radians, a sample step being [`cell_degrees`]. Measured
+/// along the grid's axes in degrees, so it is the largest sag at any latitude.
 #[must_use]
-pub fn chord_spacing(z: u8, bound: f64) -> (usize, f64) {
-    let cell = cell_degrees(z).to_radians();
-    let sag = |k: f64| R * 2.0 * (k * cell).powi(2) / 8.0;
-    let mut k = CELLS as usize;
-    while k > 1 && sag(k as f64) > bound / 2.0 {
-        k /= 2;
-    }
-    (k, sag(k as f64))
+pub fn chord_coefficient(z: u8) -> f64 {
+    R * cell_degrees(z).to_radians().powi(2) / 8.0
 }
 
 fn pow2_at_least(v: f64) -> f64 {
@@ -99,7 +92,7 @@ pub fn build_tile(
     let last = n - 1;
     let bound = zoom_error(id.z, error_scale);
     let lattice = edge_lattice(id.z);
-    let (every, sag) = chord_spacing(id.z, bound);
+    let chord = chord_coefficient(id.z);
     // Edge samples on the zoom's lattice: both tiles of an edge round the same heights alike.
     let mut h: Vec<f64> = Vec::with_capacity(n * n);
     for j in 0..n {
@@ -123,20 +116,28 @@ pub fn build_tile(
     let axis: Vec<u32> = (0..SAMPLES).collect();
     let grid = NodeGrid { cols: axis.clone(), rows: axis };
     let dec32: Vec<f32> = decoded.iter().map(|&v| v as f32).collect();
-    let tin_bound = (bound - lattice / 2.0 - sag).max(0.0);
-    let tin = crate::tin::build_with_spacing(&grid, &dec32, tin_bound, every)
-        .map_err(|e| BuildError::Tin(e, id))?;
+    let tin_bound = (bound - lattice / 2.0).max(0.0);
+    let tin =
+        crate::tin::build_with_chord(&grid, &dec32, tin_bound, chord).map_err(|e| BuildError::Tin(e, id))?;
 
-    // Measured against the samples as given (before any rounding).
+    // Measured against the samples as given (before any rounding): per triangle, the largest
+    // vertical distance to a sample it covers plus its longest chord's sag.
     let positions: Vec<[f64; 3]> = tin
         .vertices
         .iter()
         .map(|v| [f64::from(v[0]), f64::from(v[1]), decoded[v[1] as usize * n + v[0] as usize]])
         .collect();
-    let orig: Vec<f32> = (0..n * n).map(|k| s.at((k % n) as i64, (k / n) as i64) as f32).collect();
-    let span = Span { col0: 0, col1: CELLS, row0: 0, row1: CELLS };
-    let measured = crate::tin::measure_vertical(&positions, &tin.triangles, span, &orig)
-        .map_err(|e| BuildError::Tin(e, id))?;
+    let axis = crate::tin::Axis::of(&grid.cols);
+    let mut measured = 0.0f64;
+    for t in &tin.triangles {
+        let p = t.map(|k| positions[k as usize]);
+        let mut worst = 0.0f64;
+        crate::tin::scan_triangle(p, &axis, &axis, false, |i, j, z| {
+            worst = worst.max((s.at(i as i64, j as i64) - z).abs());
+        });
+        let d2 = |a: [f64; 3], b: [f64; 3]| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2);
+        measured = measured.max(worst + chord * d2(p[0], p[1]).max(d2(p[1], p[2])).max(d2(p[2], p[0])));
+    }
 
     // Triangles in Morton order of their centroids, vertices numbered by first use: small
     // deltas and the high-water-mark order the format needs.
@@ -208,7 +209,7 @@ pub fn build_tile(
         vertices: verts.len(),
         triangles: t.triangles.len(),
         bound,
-        max_error: measured.max + sag,
+        max_error: measured,
         lattice_exact: step <= lattice,
     })
 }

@@ -120,20 +120,37 @@ fn interpolate(p: &[(f64, f64, f64)], tris: &[[u32; 3]], x: f64, y: f64) -> Opti
 
 #[test]
 fn coarse_tiles_bound_their_chords() {
-    let (id, b, d) = tile(0, 1, 0);
-    let (every, sag) = chord_spacing(0, b.bound);
-    assert!(every < CELLS as usize && sag <= b.bound / 2.0);
-    // No triangle edge longer than the spacing's diagonal, in samples.
+    // Zoom 0 over flat ground: only the curve asks for vertices, and no triangle's chord sags
+    // more than the bound.
+    let id = TileId::new(0, 1, 0).unwrap();
+    let s = TileSamples::from_fn(id, |_, _| Some(0.0), |_, _| 0.0);
+    let b = build_tile(&s, 1.0, None).unwrap();
+    let d = decode(&b.bytes).unwrap();
+    assert!(
+        b.vertices > 9 && b.max_error <= b.bound,
+        "{} vertices, {} of {}",
+        b.vertices,
+        b.max_error,
+        b.bound
+    );
     let p = positions(id, &d);
     let cell = crate::formats::qmesh::grid::cell_degrees(0);
     for t in &d.triangles {
         for (a, c) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
             let (pa, pc) = (p[a as usize], p[c as usize]);
-            let len = ((pa.0 - pc.0).powi(2) + (pa.1 - pc.1).powi(2)).sqrt() / cell;
-            assert!(len <= every as f64 * 2f64.sqrt() + 0.01, "edge of {len} samples, spacing {every}");
+            // The chord's sag on the sphere, from its length in degrees.
+            let theta = ((pa.0 - pc.0).powi(2) + (pa.1 - pc.1).powi(2)).sqrt().to_radians();
+            assert!(
+                6_378_137.0 * theta * theta / 8.0 <= b.bound * 1.0001,
+                "an edge of {} samples",
+                theta.to_degrees() / cell
+            );
         }
     }
-    assert_eq!(chord_spacing(14, zoom_error(14, 1.0)).0, CELLS as usize);
+    // From zoom 14 the curve asks for nothing: a flat tile is two triangles.
+    let id = TileId::new(14, 17_000, 12_000).unwrap();
+    let s = TileSamples::from_fn(id, |_, _| Some(120.0), |_, _| 0.0);
+    assert_eq!(build_tile(&s, 1.0, None).unwrap().vertices, 4);
 }
 
 #[test]
