@@ -84,6 +84,19 @@ async fn baked(ts: &Arc<Tileset>) -> Result<Option<Vec<u8>>, Problem> {
     })
 }
 
+/// Whether the tileset's store holds baked terrain, without reading its layer.
+async fn has_baked(ts: &Arc<Tileset>) -> Result<bool, Problem> {
+    let store = ts.store.clone();
+    let name = ts.name.clone();
+    tokio::task::spawn_blocking(move || store.has_file(&format!("{TERRAIN_DIR}/layer.json")))
+        .await
+        .map_err(|_| Problem::internal("terrain", "reading the terrain failed"))?
+        .map_err(|e| {
+            tracing::error!(tileset = %name, error = %e, "cannot look for the baked terrain");
+            Problem::unavailable("store-io", format!("the terrain of tileset {name:?} cannot be read"), 5)
+        })
+}
+
 fn no_terrain(name: &str) -> Problem {
     Problem::not_found(format!(
         "tileset {name:?} has no globe terrain: bake it with --terrain, or serve its source on demand (--source)"
@@ -231,7 +244,7 @@ async fn full_tile(app: &Arc<App>, ts: &Arc<Tileset>, id: TileId) -> Result<Byte
     if let Some(e) = app.cache.get(&ck) {
         return Ok(e.bytes);
     }
-    let bytes = if baked(ts).await?.is_some() {
+    let bytes = if has_baked(ts).await? {
         let store = ts.store.clone();
         let rel = tile_rel(id);
         let got = tokio::task::spawn_blocking(move || store.read_file_within(&rel, 88..=MAX_STORED_BYTES))
