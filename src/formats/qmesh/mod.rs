@@ -7,7 +7,8 @@
 //! how the mesh is made, not in the byte layout (heights on a shared edge lattice, vertices in
 //! first-use order, every extension made once and filtered per request without a re-encode),
 //! and the codec is 300 lines with a bounds-checked decoder the server and tests share. The
-//! crate serves as an independent decoder in the tests.
+//! independent decoders are in `tests/interop/`: `@here/quantized-mesh-decoder`, CesiumJS and
+//! 3DTilesRendererJS read every tile of the shared DEMs.
 
 pub mod build;
 pub mod codec;
