@@ -291,6 +291,13 @@ fn terrain_needs_a_placed_input() {
     );
     assert!(e.contains("--terrain") && e.contains("coordinate reference system"), "{e}");
     assert!(!out.join("tileset.json").exists(), "refused before baking");
+    // A shard of a plan does not bake terrain: said, not silently ignored.
+    let e = fails(bin().args(["bake", "--plan"]).arg(tmp.path().join("plan")).args([
+        "--shard",
+        "0",
+        "--terrain",
+    ]));
+    assert!(e.contains("--terrain") && e.contains("--plan"), "{e}");
 }
 
 /// One GET with headers, on its own connection: status, headers (lower-case), body.

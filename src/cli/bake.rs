@@ -69,7 +69,8 @@ pub struct TerrainArgs {
     /// {z}/{x}/{y}.terrain on the global geodetic grid, zoom 0 to where a tile's cells match the
     /// source's, ellipsoidal heights, every extension (normals, water mask, metadata). What
     /// CesiumJS, Cesium for Unreal/Unity and osgEarth read as terrain. Needs a placed input.
-    #[arg(long)]
+    /// Not with --plan: bake the terrain with a plain `bake` (it reads the inputs again).
+    #[arg(long, conflicts_with = "plan")]
     pub terrain: bool,
     /// Scales the terrain's error bound at every zoom (1: CesiumJS's own estimate for the
     /// zoom, 77,067 m / 2^z; 0.25 gives tiles four times as exact, and more vertices).

@@ -458,8 +458,18 @@ mod tests {
         assert_eq!(e("a=/r,cell_size=x"), r#"cell_size="x" in "a=/r,cell_size=x" is not a valid number"#);
         assert_eq!(
             e("a=/r,colour=red"),
-            r#"unknown source option "colour" in "a=/r,colour=red" (encoding, cell_size, tile_size, max_error, levels)"#
+            r#"unknown source option "colour" in "a=/r,colour=red" (encoding, cell_size, tile_size, max_error, levels, terrain_error_scale, terrain_max_zoom)"#
         );
+        assert_eq!(
+            e("a=/r,terrain_error_scale=0"),
+            r#"terrain_error_scale="0" in "a=/r,terrain_error_scale=0" is not a valid number (> 0, at most 1e6)"#
+        );
+        assert_eq!(
+            e("a=/r,terrain_max_zoom=25"),
+            r#"terrain_max_zoom="25" in "a=/r,terrain_max_zoom=25" is not a valid zoom (0 to 24)"#
+        );
+        let s: SourceSpec = "t=/t.tif,terrain_error_scale=0.5,terrain_max_zoom=12".parse().unwrap();
+        assert_eq!((s.terrain_error_scale, s.terrain_max_zoom), (Some(0.5), Some(12)));
     }
 
     #[test]
