@@ -24,6 +24,20 @@ pub struct TileKey {
     pub y: u32,
 }
 
+/// The Morton (Z-order) code of `x` and `y`: nearby positions get nearby codes.
+#[must_use]
+pub fn morton(x: u32, y: u32) -> u64 {
+    let spread = |v: u32| {
+        let mut v = u64::from(v);
+        v = (v | (v << 16)) & 0x0000_ffff_0000_ffff;
+        v = (v | (v << 8)) & 0x00ff_00ff_00ff_00ff;
+        v = (v | (v << 4)) & 0x0f0f_0f0f_0f0f_0f0f;
+        v = (v | (v << 2)) & 0x3333_3333_3333_3333;
+        (v | (v << 1)) & 0x5555_5555_5555_5555
+    };
+    spread(x) | (spread(y) << 1)
+}
+
 impl TileKey {
     #[must_use]
     pub const fn new(z: u8, x: u32, y: u32) -> Self {

@@ -410,10 +410,7 @@ pub struct ZoomStats {
 }
 
 fn gzip_len(b: &[u8]) -> u64 {
-    use std::io::Write;
-    let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::new(6));
-    let _ = e.write_all(b);
-    e.finish().map_or(0, |v| v.len() as u64)
+    crate::formats::qmesh::codec::gzip(b).len() as u64
 }
 
 /// One baked tile's figures.

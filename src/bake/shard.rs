@@ -27,7 +27,7 @@ use serde::{Deserialize, Serialize};
 use crate::raster::dataset::{DatasetOptions, ScanRecord};
 use crate::raster::{HeightEncoding, Limits, LoadOptions, Overrides};
 use crate::store::{NodeEntry, Store, StoreError};
-use crate::tiling::{Pyramid, TileKey};
+use crate::tiling::{Pyramid, TileKey, morton};
 
 use super::terrain::{NodesBaked, bake_nodes, options_record_of, publish};
 use super::{BakeError, BakeOptions, BakeSummary, Progress, TerrainInput, check_options};
@@ -239,19 +239,6 @@ fn read_step_file(store: &Store, rel: &str) -> Result<Option<Vec<u8>>, BakeError
 
 fn fragment_file(index: u32) -> String {
     format!("{PLAN_DIR}/shard-{index}.json")
-}
-
-/// The Morton (Z-order) code of a key's x and y: nearby tiles get nearby codes.
-fn morton(x: u32, y: u32) -> u64 {
-    let spread = |v: u32| {
-        let mut v = u64::from(v);
-        v = (v | (v << 16)) & 0x0000_ffff_0000_ffff;
-        v = (v | (v << 8)) & 0x00ff_00ff_00ff_00ff;
-        v = (v | (v << 4)) & 0x0f0f_0f0f_0f0f_0f0f;
-        v = (v | (v << 2)) & 0x3333_3333_3333_3333;
-        (v | (v << 1)) & 0x5555_5555_5555_5555
-    };
-    spread(x) | (spread(y) << 1)
 }
 
 /// Every node of the subtree under `root`, root first.

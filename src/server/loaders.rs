@@ -37,7 +37,7 @@ pub(super) fn tileset(app: &App, name: &str) -> Result<Arc<Tileset>, Problem> {
 }
 
 /// A decimal path component: digits only (no sign, no spaces), at most `u32`.
-fn parse_num(s: &str, what: &str) -> Result<u32, Problem> {
+pub(super) fn parse_num(s: &str, what: &str) -> Result<u32, Problem> {
     if s.is_empty() || s.len() > 10 || !s.bytes().all(|b| b.is_ascii_digit()) {
         return Err(Problem::bad_request(format!("{what} {s:?} is not a non-negative integer")));
     }

@@ -20,7 +20,7 @@ use tokio::sync::{OnceCell, Semaphore};
 use super::App;
 use super::cache::Entry;
 use super::conditional::{Conditional, etag_value, send};
-use super::loaders::{SHORT, tileset, versioned_cache};
+use super::loaders::{SHORT, parse_num, tileset, versioned_cache};
 use super::problem::Problem;
 use super::registry::{Tileset, etag_of};
 use crate::bake::qmesh::{TERRAIN_DIR, TerrainSource, tile_rel};
@@ -61,13 +61,6 @@ impl Builds {
 
 type Rejection = axum::extract::rejection::PathRejection;
 type TilePath = (String, String, String, String);
-
-fn parse_num(s: &str, what: &str) -> Result<u32, Problem> {
-    if s.is_empty() || s.len() > 10 || !s.bytes().all(|b| b.is_ascii_digit()) {
-        return Err(Problem::bad_request(format!("{what} {s:?} is not a non-negative integer")));
-    }
-    s.parse().map_err(|_| Problem::bad_request(format!("{what} {s:?} is too large")))
-}
 
 /// Whether the tileset's store holds baked terrain (its `terrain/layer.json`).
 async fn baked(ts: &Arc<Tileset>) -> Result<Option<Vec<u8>>, Problem> {
@@ -157,13 +150,6 @@ fn accepts_gzip(h: &HeaderMap) -> bool {
     )
 }
 
-fn gzip(b: &[u8]) -> Vec<u8> {
-    use std::io::Write;
-    let mut e = flate2::write::GzEncoder::new(Vec::with_capacity(b.len() / 2), flate2::Compression::new(6));
-    let _ = e.write_all(b);
-    e.finish().unwrap_or_default()
-}
-
 /// `GET /tilesets/{name}/terrain/{z}/{x}/{y}.terrain`.
 pub(super) async fn tile(
     State(app): State<Arc<App>>,
@@ -212,7 +198,7 @@ pub(super) async fn tile(
             app.metrics.corrupt_blobs.fetch_add(1, Ordering::Relaxed);
             Problem::internal("corrupt-blob", format!("terrain tile {id} of {:?} does not decode", ts.name))
         })?;
-        let body = if gz { gzip(&body) } else { body };
+        let body = if gz { crate::formats::qmesh::codec::gzip(&body) } else { body };
         let e = Entry { etag: etag_value(&etag_of(&body)), bytes: Bytes::from(body) };
         app.cache.insert(ck, e.clone());
         e

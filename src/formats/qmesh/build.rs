@@ -144,7 +144,7 @@ pub fn build_tile(
     let mut tris = tin.triangles.clone();
     let morton = |t: &[u32; 3]| {
         let c = |k: usize| t.iter().map(|&v| tin.vertices[v as usize][k]).sum::<u32>();
-        interleave(c(0), c(1))
+        crate::tiling::morton(c(0), c(1))
     };
     tris.sort_by_cached_key(morton);
     let mut order = vec![u32::MAX; tin.vertices.len()];
@@ -212,18 +212,6 @@ pub fn build_tile(
         max_error: measured,
         lattice_exact: step <= lattice,
     })
-}
-
-fn interleave(x: u32, y: u32) -> u64 {
-    let spread = |v: u32| {
-        let mut v = u64::from(v);
-        v = (v | (v << 16)) & 0x0000_ffff_0000_ffff;
-        v = (v | (v << 8)) & 0x00ff_00ff_00ff_00ff;
-        v = (v | (v << 4)) & 0x0f0f_0f0f_0f0f_0f0f;
-        v = (v | (v << 2)) & 0x3333_3333_3333_3333;
-        (v | (v << 1)) & 0x5555_5555_5555_5555
-    };
-    spread(x) | (spread(y) << 1)
 }
 
 /// The surface normal at sample `(i, j)` (ECEF, unit): the ellipsoid's up tilted by the height

@@ -433,6 +433,15 @@ pub fn filter_extensions(b: &[u8], keep: Extensions) -> Result<Vec<u8>, QmError>
     Ok(out)
 }
 
+/// A tile gzipped as served and counted (level 6).
+#[must_use]
+pub fn gzip(b: &[u8]) -> Vec<u8> {
+    use std::io::Write;
+    let mut e = flate2::write::GzEncoder::new(Vec::with_capacity(b.len() / 2), flate2::Compression::new(6));
+    let _ = e.write_all(b);
+    e.finish().unwrap_or_default()
+}
+
 /// Oct-encodes a unit vector into two bytes (CesiumJS's `AttributeCompression.octEncode`).
 #[must_use]
 pub fn oct_encode(n: [f64; 3]) -> [u8; 2] {
