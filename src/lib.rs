@@ -16,6 +16,7 @@ pub mod formats;
 pub mod geom;
 #[cfg(feature = "gpu")]
 pub mod gpu;
+pub mod heights;
 pub mod lod;
 pub mod model;
 pub mod raster;

@@ -17,7 +17,7 @@ const LAYERS: &[&[&str]] = &[
     &["crs", "raster", "tiling", "geom", "gpu"],
     &["tin", "codec", "lod"],
     &["store", "model"],
-    &["formats", "bake"],
+    &["formats", "bake", "heights"],
     &["server", "client"],
     &["eval"],
     &["cli", "main", "error", "lib"],
