@@ -7,6 +7,10 @@
 
 use std::sync::Arc;
 
+pub mod mesh;
+
+pub use mesh::{BlobSource, MeshSampler};
+
 use crate::crs::{Frame, Geoid};
 use crate::raster::{Georef, RasterError, WindowReader};
 
@@ -93,6 +97,12 @@ pub enum HeightsError {
     Raster(#[from] RasterError),
     #[error("{0}")]
     Frame(String),
+    #[error("depth {depth} is deeper than the tileset's finest nodes (depth {max})")]
+    Depth { depth: u8, max: u8 },
+    #[error("node {key}: {message}")]
+    Blob { key: crate::tiling::TileKey, message: String },
+    #[error("the height cache is unusable after a panic")]
+    Poisoned,
 }
 
 impl Coords {
@@ -149,16 +159,27 @@ impl<'a> SourceSampler<'a> {
     /// The answers for `points` (x, y in `q.coords`), in order. Bad coordinates are refused
     /// before anything is read, naming the first bad point.
     pub fn sample(&self, points: &[[f64; 2]], q: Query) -> Result<Vec<Height>, HeightsError> {
+        self.sample_from(points, q, 0)
+    }
+
+    /// [`SourceSampler::sample`] of a batch whose first point is point `base` of a larger one
+    /// (errors name points by their index in that).
+    pub fn sample_from(
+        &self,
+        points: &[[f64; 2]],
+        q: Query,
+        base: usize,
+    ) -> Result<Vec<Height>, HeightsError> {
         if self.frame.is_none() && (q.coords != Coords::Local || q.datum != Datum::Native) {
             return Err(HeightsError::NotPlaced { coords: q.coords.name(), datum: q.datum.name() });
         }
         for (index, p) in points.iter().enumerate() {
-            check_point(index, *p, q.coords)?;
+            check(base + index, *p, q.coords)?;
         }
         let mut out = Vec::with_capacity(points.len());
         let mut buf = Vec::with_capacity(16);
         for (index, &p) in points.iter().enumerate() {
-            out.push(self.one(index, p, q, &mut buf)?);
+            out.push(self.one(base + index, p, q, &mut buf)?);
         }
         Ok(out)
     }
@@ -243,25 +264,34 @@ impl<'a> SourceSampler<'a> {
                 (v, (v - lo).max(hi - v))
             }
         };
-        let h = match (q.datum, &self.frame, lonlat) {
-            (Datum::Native, _, _) | (_, None, _) | (_, _, None) => value,
-            (datum, Some(frame), Some((lon, lat))) => {
-                let place =
-                    |e: crate::crs::PlaceError| HeightsError::Transform { index, message: e.to_string() };
-                let ellipsoidal = value + frame.undulation(lon, lat).map_err(place)?;
-                if datum == Datum::Ellipsoid {
-                    ellipsoidal
-                } else {
-                    let n = self.egm96.undulation(lon, lat).ok_or_else(|| HeightsError::Transform {
-                        index,
-                        message: format!("no EGM96 undulation at {lon}°, {lat}°"),
-                    })?;
-                    ellipsoidal - n
-                }
-            }
-        };
+        let h = to_datum(value, q.datum, self.frame.as_ref(), lonlat, &self.egm96, index)?;
         Ok(Height { h, error, nodata: false })
     }
+}
+
+/// A height as stored (on `frame`'s vertical datum) on `datum`, at `lonlat` (point `index`).
+fn to_datum(
+    value: f64,
+    datum: Datum,
+    frame: Option<&Frame>,
+    lonlat: Option<(f64, f64)>,
+    egm96: &Geoid,
+    index: usize,
+) -> Result<f64, HeightsError> {
+    let (Some(frame), Some((lon, lat))) = (frame, lonlat) else { return Ok(value) };
+    if datum == Datum::Native {
+        return Ok(value);
+    }
+    let place = |e: crate::crs::PlaceError| HeightsError::Transform { index, message: e.to_string() };
+    let ellipsoidal = value + frame.undulation(lon, lat).map_err(place)?;
+    if datum == Datum::Ellipsoid {
+        return Ok(ellipsoidal);
+    }
+    let n = egm96.undulation(lon, lat).ok_or_else(|| HeightsError::Transform {
+        index,
+        message: format!("no EGM96 undulation at {lon}°, {lat}°"),
+    })?;
+    Ok(ellipsoidal - n)
 }
 
 /// A point's fractional (column, row) in the source and, for a placed dataset, its WGS 84
@@ -285,7 +315,7 @@ fn keys(t: f64) -> [f64; 4] {
 }
 
 /// Refuses a point whose coordinates cannot be a place.
-fn check_point(index: usize, p: [f64; 2], coords: Coords) -> Result<(), HeightsError> {
+pub fn check(index: usize, p: [f64; 2], coords: Coords) -> Result<(), HeightsError> {
     for value in p {
         if !value.is_finite() {
             return Err(HeightsError::NonFinite { index, value });

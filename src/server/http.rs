@@ -19,7 +19,7 @@ use tower_http::cors::{AllowOrigin, CorsLayer};
 use super::auth::check_bearer;
 use super::native::{self, BLOB_ROUTE};
 use super::problem::{self, PROBLEM_JSON, Problem};
-use super::{App, admin, terrain, tiles3d};
+use super::{App, admin, heights, terrain, tiles3d};
 
 /// Seconds a client is asked to wait when the server sheds load.
 pub const SHED_RETRY_AFTER_S: u32 = 1;
@@ -30,8 +30,14 @@ pub const EXPOSE_HEADERS: &str = "etag,content-range,content-length,accept-range
 pub fn router(app: Arc<App>) -> Router {
     let cors = CorsLayer::new()
         .allow_origin(AllowOrigin::any())
-        .allow_methods([Method::GET, Method::HEAD, Method::OPTIONS])
-        .allow_headers([header::RANGE, header::IF_NONE_MATCH, header::IF_RANGE, header::AUTHORIZATION])
+        .allow_methods([Method::GET, Method::HEAD, Method::POST, Method::OPTIONS])
+        .allow_headers([
+            header::RANGE,
+            header::IF_NONE_MATCH,
+            header::IF_RANGE,
+            header::AUTHORIZATION,
+            header::CONTENT_TYPE,
+        ])
         .expose_headers([
             header::ETAG,
             header::CONTENT_RANGE,
@@ -58,6 +64,7 @@ pub fn router(app: Arc<App>) -> Router {
         .route("/tilesets/{name}/3dtiles/tileset.json", get(tiles3d::root))
         .route("/tilesets/{name}/3dtiles/index/{z}/{x}/{file}", get(tiles3d::subtree))
         .route("/tilesets/{name}/3dtiles/tiles/{z}/{x}/{y}/{file}", get(tiles3d::glb))
+        .route("/tilesets/{name}/heights", get(heights::get).post(heights::post))
         .route("/tilesets/{name}/terrain/layer.json", get(terrain::layer))
         .route("/tilesets/{name}/terrain/{z}/{x}/{file}", get(terrain::tile))
         .route("/viewer", get(tiles3d::viewer))
@@ -89,7 +96,10 @@ async fn front(State(app): State<Arc<App>>, req: Request, next: Next) -> Respons
     let uri = req.uri().clone();
     let probe = matches!(route, "/healthz" | "/readyz");
     let ip = req.extensions().get::<ConnectInfo<super::listener::Peer>>().map(|c| c.0.0.ip());
-    let admin_route = matches!(method, Method::POST | Method::DELETE) || route == "/jobs/{id}";
+    // Height queries are reads that happen to carry a body.
+    let admin_route = (matches!(method, Method::POST | Method::DELETE)
+        && route != "/tilesets/{name}/heights")
+        || route == "/jobs/{id}";
 
     let n = app.in_flight.fetch_add(1, Ordering::Relaxed);
     let guard = InFlight(&app);

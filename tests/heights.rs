@@ -1,0 +1,266 @@
+//! Heights for simulators (issue 38): `POST/GET /tilesets/{name}/heights`. `surface=source`
+//! answers the source raster's bilinear height (computed here from the raster's own samples),
+//! on the EGM96 geoid or the ellipsoid (EGM96 from PROJ's `egm96_15.gtx`); `surface=mesh`
+//! answers the finest TIN, within its stated error of the source at the raster's samples, with
+//! the same numbers from a folder and from a `.tsa` archive. Bad points, bodies and options are
+//! problem+json errors naming what is wrong.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::float_cmp)]
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::io::{Read, Write};
+use std::path::Path;
+
+use common::{bin, ok, serve};
+use serde_json::Value;
+
+const SIDE: usize = 1201;
+
+/// A synthetic 3″ SRTM tile N46E010 (WGS 84, EGM96 heights) and its samples.
+fn hgt(dir: &Path) -> (std::path::PathBuf, Vec<f32>) {
+    let p = dir.join("N46E010.hgt");
+    let heights = terrastream::raster::synth::terrain(SIDE as u32, SIDE as u32, 5);
+    let bytes: Vec<u8> = heights.iter().flat_map(|h| (*h as i16).to_be_bytes()).collect();
+    std::fs::write(&p, bytes).unwrap();
+    (p, heights.iter().map(|h| f32::from(*h as i16)).collect())
+}
+
+/// The raster's bilinear height at (lon, lat): rows from the north, 1/1200° cells.
+fn bilinear(h: &[f32], lon: f64, lat: f64) -> f64 {
+    let (c, r) = ((lon - 10.0) * 1200.0, (47.0 - lat) * 1200.0);
+    let (c0, r0) = ((c.floor() as usize).min(SIDE - 2), (r.floor() as usize).min(SIDE - 2));
+    let (fx, fy) = (c - c0 as f64, r - r0 as f64);
+    let v = |c: usize, r: usize| f64::from(h[r * SIDE + c]);
+    (v(c0, r0) * (1.0 - fx) + v(c0 + 1, r0) * fx) * (1.0 - fy)
+        + (v(c0, r0 + 1) * (1.0 - fx) + v(c0 + 1, r0 + 1) * fx) * fy
+}
+
+/// One request on its own connection: status, headers, body (chunked bodies decoded).
+fn request(
+    addr: std::net::SocketAddr,
+    method: &str,
+    path: &str,
+    headers: &[(&str, &str)],
+    body: &[u8],
+) -> (u16, BTreeMap<String, String>, Vec<u8>) {
+    let mut s = std::net::TcpStream::connect(addr).unwrap();
+    let mut req = format!("{method} {path} HTTP/1.1\r\nHost: t\r\nConnection: close\r\n");
+    for (k, v) in headers {
+        req.extend([*k, ": ", *v, "\r\n"]);
+    }
+    if method == "POST" {
+        req.extend(["Content-Length: ", &body.len().to_string(), "\r\n"]);
+    }
+    req.push_str("\r\n");
+    s.write_all(req.as_bytes()).unwrap();
+    s.write_all(body).unwrap();
+    let mut buf = Vec::new();
+    s.read_to_end(&mut buf).unwrap();
+    let end = buf.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
+    let head = String::from_utf8_lossy(&buf[..end]).into_owned();
+    let mut lines = head.lines();
+    let status = lines.next().unwrap().split(' ').nth(1).unwrap().parse().unwrap();
+    let h: BTreeMap<String, String> = lines
+        .filter_map(|l| l.split_once(':'))
+        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_owned()))
+        .collect();
+    let mut body = buf[end + 4..].to_vec();
+    if h.get("transfer-encoding").is_some_and(|v| v.contains("chunked")) {
+        let mut out = Vec::new();
+        let mut rest = &body[..];
+        loop {
+            let eol = rest.windows(2).position(|w| w == b"\r\n").unwrap();
+            let n = usize::from_str_radix(std::str::from_utf8(&rest[..eol]).unwrap().trim(), 16).unwrap();
+            if n == 0 {
+                break;
+            }
+            out.extend_from_slice(&rest[eol + 2..eol + 2 + n]);
+            rest = &rest[eol + 2 + n + 2..];
+        }
+        body = out;
+    }
+    (status, h, body)
+}
+
+fn post_json(addr: std::net::SocketAddr, path: &str, points: &[[f64; 2]]) -> Value {
+    let body = serde_json::to_vec(points).unwrap();
+    let (s, _, b) = request(addr, "POST", path, &[("Content-Type", "application/json")], &body);
+    assert_eq!(s, 200, "{path}: {}", String::from_utf8_lossy(&b));
+    let v = serde_json::from_slice(&b);
+    assert!(v.is_ok(), "{path}: {:?}: {}", v.as_ref().err(), String::from_utf8_lossy(&b));
+    v.unwrap()
+}
+
+/// (height, error, nodata) of every answer.
+fn answers(v: &Value) -> Vec<(Option<f64>, Option<f64>, bool)> {
+    v["heights"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| (a["h"].as_f64(), a["error"].as_f64(), a["nodata"].as_bool().unwrap()))
+        .collect()
+}
+
+fn problem(addr: std::net::SocketAddr, method: &str, path: &str, ctype: &str, body: &[u8]) -> (u16, String) {
+    let (s, h, b) = request(addr, method, path, &[("Content-Type", ctype)], body);
+    assert_eq!(h.get("content-type").map(String::as_str), Some("application/problem+json"), "{path}");
+    let v: Value = serde_json::from_slice(&b).unwrap();
+    (s, v["detail"].as_str().unwrap().to_owned())
+}
+
+#[test]
+fn heights_from_the_source_and_the_mesh_agree_with_the_raster() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (src, h) = hgt(tmp.path());
+    let store = tmp.path().join("store");
+    ok(bin()
+        .args(["bake", "--levels", "1", "--tile-size", "256", "--gpu", "off", "-q", "--out"])
+        .arg(store.join("baked"))
+        .arg(&src));
+    ok(bin().arg("pack").arg(store.join("baked")).arg("--out").arg(store.join("packed.tsa")));
+    let server = serve({
+        let mut c = bin();
+        c.args(["serve", "--store"])
+            .arg(&store)
+            .arg("--source")
+            .arg(format!("od={},tile_size=256,levels=1", src.display()));
+        c
+    });
+    let a = server.addr;
+    // Points: pseudo-random inside the tile, every 7th on a raster sample, one outside.
+    let mut pts: Vec<[f64; 2]> = (0..200u32)
+        .map(|k| {
+            let t = f64::from(k);
+            let (u, v) = ((t * 0.618_033_988_75).fract(), (t * 0.754_877_666_2).fract());
+            if k % 7 == 0 {
+                let (c, r) = ((u * 1200.0).round(), (v * 1200.0).round());
+                [10.0 + c / 1200.0, 47.0 - r / 1200.0]
+            } else {
+                [10.0 + u, 46.0 + v]
+            }
+        })
+        .collect();
+    pts.push([20.0, 46.5]);
+    pts.push([10.5, 46.5]);
+
+    // surface=source: the raster's bilinear height, on the geoid as stored.
+    let native = answers(&post_json(a, "/tilesets/od/heights?surface=source&datum=native", &pts));
+    let geoid = answers(&post_json(a, "/tilesets/od/heights?surface=source&datum=geoid", &pts));
+    let ell = answers(&post_json(a, "/tilesets/od/heights?surface=source", &pts));
+    for (k, p) in pts.iter().enumerate() {
+        if p[0] > 11.0 {
+            assert_eq!(native[k], (None, None, true), "outside the data: {p:?}");
+            continue;
+        }
+        let want = bilinear(&h, p[0], p[1]);
+        let (got, err, nodata) = native[k];
+        assert!(!nodata);
+        assert!((got.unwrap() - want).abs() < 1e-6, "{p:?}: {got:?} vs {want}");
+        assert!(err.unwrap() >= 0.0);
+        assert!((geoid[k].0.unwrap() - want).abs() < 1e-6, "an EGM96 source on the geoid is as stored");
+    }
+    // EGM96 at 10.5° E, 46.5° N: 50.392 m (bilinear in PROJ's egm96_15.gtx).
+    let last = pts.len() - 1;
+    assert!((ell[last].0.unwrap() - native[last].0.unwrap() - 50.392).abs() < 0.01, "{:?}", ell[last]);
+
+    // surface=mesh: within the stated error of the raster at its samples; the same from the
+    // archive; the binary form carries the same numbers.
+    let mesh = answers(&post_json(a, "/tilesets/baked/heights?datum=native", &pts));
+    let packed = answers(&post_json(a, "/tilesets/packed/heights?datum=native", &pts));
+    assert_eq!(mesh, packed, "folder and archive answer alike");
+    let mut on_samples = 0;
+    for (k, p) in pts.iter().enumerate() {
+        let (got, err, nodata) = mesh[k];
+        if p[0] > 11.0 {
+            assert!(nodata);
+            continue;
+        }
+        let (got, err) = (got.unwrap(), err.unwrap());
+        assert!(err > 0.0 && err < 100.0, "{p:?}: error {err}");
+        if k % 7 == 0 && k < 200 {
+            let want = bilinear(&h, p[0], p[1]);
+            assert!((got - want).abs() <= err + 1e-3, "{p:?}: mesh {got} vs raster {want}, error {err}");
+            on_samples += 1;
+        }
+    }
+    assert!(on_samples > 20);
+    let bin_body: Vec<u8> = pts.iter().flat_map(|p| p.iter().flat_map(|v| v.to_le_bytes())).collect();
+    let (s, hd, b) = request(
+        a,
+        "POST",
+        "/tilesets/baked/heights?datum=native",
+        &[("Content-Type", "application/octet-stream"), ("Accept", "application/octet-stream")],
+        &bin_body,
+    );
+    assert_eq!(s, 200);
+    assert_eq!(hd["content-type"], "application/octet-stream");
+    assert_eq!(b.len(), pts.len() * 16);
+    for (k, c) in b.chunks_exact(16).enumerate() {
+        let hv = f64::from_le_bytes(c[..8].try_into().unwrap());
+        let flags = u32::from_le_bytes(c[12..16].try_into().unwrap());
+        match mesh[k].0 {
+            Some(v) => assert!(hv == v && flags == 0, "point {k}: {hv} vs {v}"),
+            None => assert!(hv.is_nan() && flags == 1, "point {k}"),
+        }
+    }
+    // GET for a few points; the same as POST.
+    let (s, _, b) =
+        request(a, "GET", "/tilesets/baked/heights?datum=native&points=10.5,46.5;20,46.5", &[], &[]);
+    assert_eq!(s, 200);
+    let v: Value = serde_json::from_slice(&b).unwrap();
+    assert_eq!(answers(&v), vec![mesh[last], mesh[last - 1]]);
+}
+
+#[test]
+fn bad_points_bodies_and_options_are_refused_clearly() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (src, _) = hgt(tmp.path());
+    let store = tmp.path().join("store");
+    ok(bin()
+        .args(["bake", "--levels", "1", "--tile-size", "256", "--gpu", "off", "-q", "--out"])
+        .arg(store.join("t"))
+        .arg(&src));
+    let server = serve({
+        let mut c = bin();
+        c.args(["serve", "--store"]).arg(&store);
+        c
+    });
+    let a = server.addr;
+    let url = "/tilesets/t/heights";
+    let json = "application/json";
+    for (path, ctype, body, status, says) in [
+        (url, json, b"[[10.5, 46.5], [10.5, 91]]".to_vec(), 400, "point 1: latitude 91"),
+        (url, json, b"[[10.5, 46.5], [361, 0]]".to_vec(), 400, "point 1: longitude 361"),
+        (url, json, b"[[10.5, null]]".to_vec(), 400, "JSON body"),
+        (url, json, b"{\"points\": [[1, 2]], \"datum\": \"x\"}".to_vec(), 400, "unknown field"),
+        (url, "text/plain", b"10.5 46.5".to_vec(), 415, "Content-Type"),
+        (url, "application/octet-stream", vec![0u8; 17], 400, "16 bytes each"),
+        (
+            url,
+            "application/octet-stream",
+            [f64::NAN.to_le_bytes(), 1f64.to_le_bytes()].concat(),
+            400,
+            "point 0: coordinate NaN",
+        ),
+        ("/tilesets/t/heights?datum=sea", json, b"[]".to_vec(), 400, "datum=\"sea\""),
+        ("/tilesets/t/heights?frame=x", json, b"[]".to_vec(), 400, "unknown query parameter"),
+        ("/tilesets/t/heights?surface=source", json, b"[[10.5, 46.5]]".to_vec(), 409, "--source"),
+        ("/tilesets/t/heights?interpolation=cubic", json, b"[]".to_vec(), 400, "surface=source only"),
+        ("/tilesets/t/heights?depth=30", json, b"[[10.5, 46.5]]".to_vec(), 400, "depth"),
+        ("/tilesets/nope/heights", json, b"[]".to_vec(), 404, "no tileset"),
+    ] {
+        let (s, detail) = problem(a, "POST", path, ctype, &body);
+        assert_eq!(s, status, "{path} {:?}: {detail}", String::from_utf8_lossy(&body));
+        assert!(detail.contains(says), "{path}: {detail:?} should say {says:?}");
+    }
+    let many: Vec<String> = (0..1001).map(|_| "10.5,46.5".to_owned()).collect();
+    let (s, detail) = problem(a, "GET", &format!("{url}?points={}", many.join(";")), json, &[]);
+    assert_eq!(s, 413, "{detail}");
+    let (s, detail) = problem(a, "GET", &format!("{url}?points=10.5"), json, &[]);
+    assert!(s == 400 && detail.contains("point 0"), "{detail}");
+    // An empty batch is an empty answer.
+    let v = post_json(a, url, &[]);
+    assert_eq!(v["count"], 0);
+    assert!(v["heights"].as_array().unwrap().is_empty());
+}
