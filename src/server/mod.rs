@@ -16,7 +16,7 @@ mod conditional;
 mod config;
 pub mod demo;
 mod fast;
-mod heights;
+pub(crate) mod heights;
 mod http;
 mod listener;
 mod loaders;

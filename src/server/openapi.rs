@@ -185,6 +185,7 @@ pub fn document() -> Value {
             "/tilesets/{name}/terrain/{z}/{x}/{y}.terrain": cached_get("One quantized-mesh-1.0 tile of the global geodetic TMS grid (2 root tiles). Accept: application/vnd.quantized-mesh;extensions=octvertexnormals-watermask-metadata picks the extensions sent (Vary: accept, accept-encoding); gzip when Accept-Encoding allows. Stored, or built on first request for --source tilesets",
                 &key_params(false), "quantized-mesh tile", crate::formats::qmesh::QM_TYPE, &json!({"type": "string", "format": "binary"}),
                 &[("406", "Accept names neither quantized-mesh nor a wildcard"), ("500", "A stored tile cannot be read or decoded, or the build failed")]),
+            "/tilesets/{name}/heights": heights_ops(),
             "/viewer": cached_get("The viewer page: any tileset of the store in 3D (?tileset=NAME picks one)", &json!([]), "HTML page", "text/html; charset=utf-8",
                 &json!({"type": "string"}), &[]),
             "/jobs/{id}": {
@@ -217,5 +218,66 @@ pub fn document() -> Value {
                     "frame": {"type": "object", "description": "the world frame: x = x0 + col·dx, y = y0 + row·dy; crs (the grid in its CRS: definition, proj4, e0, n0, de, dn) or null for a local frame; vertical datum (docs/frames.md)"},
                     "globe": {"type": ["object", "null"], "description": "where the data lies on the Earth: centre {lon, lat, height} (WGS 84, ellipsoidal), crs, vertical_datum, geoid, region [west, south, east, north (degrees), min height, max height]; null for a local frame"}}}}
         }
+    })
+}
+
+/// `GET` and `POST /tilesets/{name}/heights`.
+fn heights_ops() -> Value {
+    use crate::server::heights::{MAX_BODY_BYTES, MAX_GET_POINTS, MAX_POINTS};
+    let options = json!([
+        name_param(),
+        {"name": "coords", "in": "query", "schema": {"enum": ["wgs84", "crs", "local"], "default": "wgs84"},
+            "description": "what the points are in: WGS 84 lon, lat (degrees; 0…360 longitudes wrap), the dataset's CRS, or the tileset's world frame"},
+        {"name": "surface", "in": "query", "schema": {"enum": ["mesh", "source"], "default": "mesh"},
+            "description": "mesh: the TIN of the nodes at `depth` (what a client draws); source: the source raster (--source tilesets only)"},
+        {"name": "interpolation", "in": "query", "schema": {"enum": ["nearest", "bilinear", "cubic"], "default": "bilinear"},
+            "description": "surface=source only"},
+        {"name": "depth", "in": "query", "schema": {"type": "integer", "minimum": 0, "maximum": 24},
+            "description": "surface=mesh only: the depth of the nodes whose TIN answers (default: the finest)"},
+        {"name": "datum", "in": "query", "schema": {"enum": ["ellipsoid", "geoid", "native"], "default": "ellipsoid"},
+            "description": "heights above the WGS 84 ellipsoid, the EGM96 geoid, or as stored; a tileset without a CRS answers coords=local, datum=native only"}
+    ]);
+    let answer = json!({"type": "object", "required": ["tileset", "surface", "coords", "datum", "count", "heights"], "properties": {
+        "tileset": {"type": "string"}, "surface": {"enum": ["mesh", "source"]}, "coords": {"type": "string"},
+        "datum": {"type": "string"}, "interpolation": {"type": "string"}, "depth": {"type": "integer"},
+        "count": {"type": "integer", "minimum": 0},
+        "heights": {"type": "array", "items": {"type": "object", "required": ["h", "error", "nodata"], "properties": {
+            "h": {"type": ["number", "null"], "description": "metres on `datum`; null without data"},
+            "error": {"type": ["number", "null"], "description": "the bound that applies: the TIN's measured maximum error, or the interpolation's (docs/heights.md)"},
+            "nodata": {"type": "boolean"}}}}}});
+    let ok = json!({"description": "One answer per point, in order; streamed",
+        "content": {"application/json": {"schema": answer},
+            "application/octet-stream": {"schema": {"type": "string", "format": "binary"},
+                "description": "with Accept: application/octet-stream: 16 bytes a point, little-endian f64 height, f32 error, u32 flags (bit 0: no data)"}}});
+    let responses = |extra: &[(&str, &str)]| {
+        let mut m = errors(extra);
+        m.insert("400".into(), problem("A bad point (named by index: not finite, latitude beyond ±90, longitude beyond −180…360), a malformed body or query, or options that do not apply"));
+        m.insert(
+            "409".into(),
+            problem(
+                "surface=source on a tileset served without its source, or a tileset that is not terrain",
+            ),
+        );
+        m.insert("200".into(), ok.clone());
+        Value::Object(m)
+    };
+    let mut get_params = options.as_array().cloned().unwrap_or_default();
+    get_params.push(json!({"name": "points", "in": "query", "required": true, "schema": {"type": "string", "pattern": "^[-+0-9.eE,;]*$"},
+        "description": format!("x,y;x,y;… (at most {MAX_GET_POINTS} points)")}));
+    let pair = json!({"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": 2});
+    json!({
+        "get": {"summary": "Heights at a few points (docs/heights.md)", "security": [{}, {"read": []}],
+            "parameters": get_params,
+            "responses": responses(&[("413", "More points than a GET takes")])},
+        "post": {"summary": "Heights at a batch of points (docs/heights.md)", "security": [{}, {"read": []}],
+            "parameters": options,
+            "requestBody": {"required": true, "content": {
+                "application/json": {"schema": {"oneOf": [
+                    {"type": "array", "items": pair, "maxItems": MAX_POINTS},
+                    {"type": "object", "required": ["points"], "additionalProperties": false,
+                        "properties": {"points": {"type": "array", "items": pair, "maxItems": MAX_POINTS}}}]}},
+                "application/octet-stream": {"schema": {"type": "string", "format": "binary"},
+                    "description": format!("little-endian f64 x, y pairs; at most {MAX_POINTS} points, {MAX_BODY_BYTES} bytes")}}},
+            "responses": responses(&[("413", "More points or body bytes than a request takes"), ("415", "A body neither JSON nor application/octet-stream")])}
     })
 }
