@@ -264,3 +264,100 @@ fn bad_points_bodies_and_options_are_refused_clearly() {
     assert_eq!(v["count"], 0);
     assert!(v["heights"].as_array().unwrap().is_empty());
 }
+
+/// A PNG tile's heights in `enc`, row-major from the north-west.
+fn png_heights(bytes: &[u8], enc: terrastream::formats::heightmap::Encoding) -> Vec<f64> {
+    let img = image::load_from_memory(bytes).unwrap().to_rgb8();
+    assert_eq!(img.dimensions(), (256, 256));
+    img.pixels().map(|p| enc.height(p.0)).collect()
+}
+
+#[test]
+fn heightmap_tiles_carry_the_source_heights_in_web_mercator() {
+    use terrastream::formats::heightmap::{Encoding, Xyz, tile_range};
+    let tmp = tempfile::tempdir().unwrap();
+    let (src, h) = hgt(tmp.path());
+    let store = tmp.path().join("store");
+    ok(bin()
+        .args(["bake", "--levels", "1", "--tile-size", "256", "--gpu", "off", "-q", "--out"])
+        .arg(store.join("baked"))
+        .arg(&src));
+    let server = serve({
+        let mut c = bin();
+        c.args(["serve", "--store"])
+            .arg(&store)
+            .arg("--source")
+            .arg(format!("od={},tile_size=256,levels=1", src.display()));
+        c
+    });
+    let a = server.addr;
+    let (s, _, b) = request(a, "GET", "/tilesets/od/heightmap/tiles.json", &[], &[]);
+    assert_eq!(s, 200, "{}", String::from_utf8_lossy(&b));
+    let tj: Value = serde_json::from_slice(&b).unwrap();
+    // 3″ cells are ≈ 64 m east–west at 46.5° N: zoom 11's pixels (≈ 53 m) are the first finer.
+    assert_eq!(tj["maxzoom"], 11, "{tj}");
+    assert_eq!(tj["encoding"], "terrarium");
+    let bounds: Vec<f64> = tj["bounds"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert!((bounds[0] - 10.0).abs() < 0.02 && (bounds[3] - 47.0).abs() < 0.02, "{bounds:?}");
+    assert!(
+        tj["tiles"][0]
+            .as_str()
+            .unwrap()
+            .contains("/tilesets/od/heightmap/{z}/{x}/{y}.png?encoding=terrarium")
+    );
+
+    // A zoom-10 tile inside the data: each pixel is the raster's bilinear height at its centre
+    // (an EGM96 source: on the geoid as stored) within the encoding's rounding.
+    let (x, _, y, _) = tile_range(10, 10.5, 46.5, 10.5, 46.5).unwrap();
+    let t = Xyz::new(10, x, y).unwrap();
+    for (enc, name) in [(Encoding::Terrarium, "terrarium"), (Encoding::TerrainRgb, "terrain-rgb")] {
+        let url = format!("/tilesets/od/heightmap/10/{x}/{y}.png?encoding={name}&surface=source");
+        let (s, hd, b) = request(a, "GET", &url, &[], &[]);
+        assert_eq!(s, 200, "{url}: {}", String::from_utf8_lossy(&b));
+        assert_eq!(hd["content-type"], "image/png");
+        let got = png_heights(&b, enc);
+        let mut checked = 0;
+        for j in (0..256).step_by(5) {
+            for i in (0..256).step_by(5) {
+                let (lon, lat) = t.pixel_lonlat(i, j);
+                if !(10.0..=11.0).contains(&lon) || !(46.0..=47.0).contains(&lat) {
+                    continue;
+                }
+                let want = bilinear(&h, lon, lat);
+                let g = got[(j * 256 + i) as usize];
+                assert!((g - want).abs() <= enc.step() / 2.0 + 1e-3, "{url} pixel ({i}, {j}): {g} vs {want}");
+                checked += 1;
+            }
+        }
+        assert!(checked > 1000, "{checked}");
+    }
+    // The float32 form of the default (mesh) surface, and its PNG, agree; both are within the
+    // TIN's error of the source.
+    let (s, _, f) = request(a, "GET", &format!("/tilesets/baked/heightmap/10/{x}/{y}.f32"), &[], &[]);
+    assert_eq!((s, f.len()), (200, 256 * 256 * 4));
+    let (_, _, p) = request(a, "GET", &format!("/tilesets/baked/heightmap/10/{x}/{y}.png"), &[], &[]);
+    let png = png_heights(&p, Encoding::Terrarium);
+    let (lon, lat) = t.pixel_lonlat(128, 128);
+    let probe = post_json(a, "/tilesets/baked/heights?datum=geoid", &[[lon, lat]]);
+    let err = probe["heights"][0]["error"].as_f64().unwrap();
+    for (k, c) in f.chunks_exact(4).enumerate() {
+        let v = f64::from(f32::from_le_bytes(c.try_into().unwrap()));
+        if v.is_nan() {
+            continue;
+        }
+        assert!((v - png[k]).abs() <= 1.0 / 512.0 + 1e-3, "pixel {k}: f32 {v} vs png {}", png[k]);
+    }
+    let mid = f32::from_le_bytes(f[(128 * 256 + 128) * 4..][..4].try_into().unwrap());
+    assert!(
+        (f64::from(mid) - bilinear(&h, lon, lat)).abs() <= err.max(1.0) * 4.0,
+        "{mid} (coarser TIN than the finest)"
+    );
+
+    // Outside the data, off the grid, bad options.
+    assert_eq!(request(a, "GET", "/tilesets/od/heightmap/10/0/0.png", &[], &[]).0, 404);
+    assert_eq!(request(a, "GET", "/tilesets/od/heightmap/23/0/0.png", &[], &[]).0, 404);
+    assert_eq!(request(a, "GET", "/tilesets/od/heightmap/1/2/0.png", &[], &[]).0, 404);
+    assert_eq!(request(a, "GET", &format!("/tilesets/od/heightmap/10/{x}/{y}.jpg"), &[], &[]).0, 404);
+    let (s, _, b) = request(a, "GET", &format!("/tilesets/od/heightmap/10/{x}/{y}.png?encoding=x"), &[], &[]);
+    assert!(s == 400 && String::from_utf8_lossy(&b).contains("terrarium"));
+}

@@ -18,5 +18,5 @@ mod terrain;
 
 pub mod model_tileset;
 
-pub use node::{NodeMesh, bake_node, node_from_blobs, node_mesh};
+pub use node::{EARTH_RADIUS, NodeMesh, bake_node, node_from_blobs, node_mesh};
 pub use terrain::*;

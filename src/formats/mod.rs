@@ -10,6 +10,7 @@
 //! Heightmap tiles land here too. May import the stages below it (`codec`,
 //! `geom`, `store` records, `tiling`, `raster` limits), never `bake`, `server` or `client`.
 
+pub mod heightmap;
 pub mod interchange;
 pub mod qmesh;
 pub mod tiles3d;

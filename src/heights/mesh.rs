@@ -20,9 +20,16 @@ pub trait BlobSource: Sync {
 }
 
 /// A node's TIN ready for point queries: triangles bucketed in a `cells × cells` grid over the
-/// node's bounding box.
+/// node's bounding box. On a placed tileset the client draws each triangle as a chord of the
+/// curved Earth, and the bake measured the TIN on heights lowered by the Earth's drop below the
+/// plane tangent at the node's centre (`d²/2R`, [`crate::bake::EARTH_RADIUS`]): so here too a
+/// point's height is the planar interpolation of the lowered corner heights plus its own drop,
+/// which is the drawn surface's height to second order and what the stored error bounds.
 struct NodeMesh {
+    /// World x, y and the (lowered) height of each vertex.
     positions: Vec<[f64; 3]>,
+    /// The node's centre (world) for the drop; `None` in a local (flat) frame.
+    centre: Option<[f64; 2]>,
     triangles: Vec<[u32; 3]>,
     lo: [f64; 2],
     size: [f64; 2],
@@ -38,7 +45,17 @@ struct NodeMesh {
 const TOL: f64 = -1e-9;
 
 impl NodeMesh {
-    fn new(positions: Vec<[f64; 3]>, triangles: Vec<[u32; 3]>, error: f64) -> Self {
+    fn new(
+        mut positions: Vec<[f64; 3]>,
+        triangles: Vec<[u32; 3]>,
+        error: f64,
+        centre: Option<[f64; 2]>,
+    ) -> Self {
+        if let Some(c) = centre {
+            for p in &mut positions {
+                p[2] -= drop(c, p[0], p[1]);
+            }
+        }
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
         for p in &positions {
             for k in 0..2 {
@@ -80,17 +97,22 @@ impl NodeMesh {
             }
         }
         let bytes = positions.len() * 24 + triangles.len() * 12 + items.len() * 4 + count.len() * 4;
-        Self { positions, triangles, lo, size, cells, start: count, items, error, bytes }
+        Self { positions, centre, triangles, lo, size, cells, start: count, items, error, bytes }
     }
 
     /// The height of the surface at (x, y): the first triangle (in stored order) that holds the
-    /// point, within a relative tolerance for points on edges; `None` outside the mesh.
+    /// point; else, for a point just outside the mesh (rounding of its position or of the
+    /// stored vertices), the triangle it is least outside of, if within [`EDGE_SLACK`] of it;
+    /// else `None`.
     fn height(&self, x: f64, y: f64) -> Option<f64> {
         let cell = |v: f64, k: usize| {
             let t = (v - self.lo[k]) / self.size[k];
-            (0.0..=1.0).contains(&t).then(|| ((t * self.cells as f64) as usize).min(self.cells - 1))
+            (-EDGE_SLACK..=1.0 + EDGE_SLACK)
+                .contains(&t)
+                .then(|| ((t.max(0.0) * self.cells as f64) as usize).min(self.cells - 1))
         };
         let c = cell(y, 1)? * self.cells + cell(x, 0)?;
+        let mut best: Option<(f64, f64)> = None;
         for &k in &self.items[self.start[c] as usize..self.start[c + 1] as usize] {
             let [a, b, d] = self.triangles[k as usize].map(|v| self.positions[v as usize]);
             let det = (b[0] - a[0]) * (d[1] - a[1]) - (d[0] - a[0]) * (b[1] - a[1]);
@@ -100,31 +122,91 @@ impl NodeMesh {
             let l1 = ((x - a[0]) * (d[1] - a[1]) - (d[0] - a[0]) * (y - a[1])) / det;
             let l2 = ((b[0] - a[0]) * (y - a[1]) - (x - a[0]) * (b[1] - a[1])) / det;
             let l0 = 1.0 - l1 - l2;
-            if l0 >= TOL && l1 >= TOL && l2 >= TOL {
-                return Some(l0 * a[2] + l1 * b[2] + l2 * d[2]);
+            let inside = l0.min(l1).min(l2);
+            let h = l0 * a[2] + l1 * b[2] + l2 * d[2];
+            if inside >= TOL {
+                return Some(h + self.centre.map_or(0.0, |c| drop(c, x, y)));
+            }
+            if inside >= -EDGE_SLACK && best.is_none_or(|(w, _)| inside > w) {
+                best = Some((inside, h));
             }
         }
-        None
+        best.map(|(_, h)| h + self.centre.map_or(0.0, |c| drop(c, x, y)))
     }
 }
 
-/// Decoded nodes kept, by total size.
-struct Cache {
-    nodes: HashMap<TileKey, Arc<NodeMesh>>,
-    order: VecDeque<TileKey>,
+/// How far (as a fraction of a triangle, or of the node's box) a point may lie outside and still
+/// be answered by the nearest triangle: far above the rounding of positions, far below a cell.
+const EDGE_SLACK: f64 = 1e-6;
+
+/// The drop of the Earth's surface at world (x, y) below the plane tangent at `c`.
+fn drop(c: [f64; 2], x: f64, y: f64) -> f64 {
+    ((x - c[0]).powi(2) + (y - c[1]).powi(2)) / (2.0 * crate::bake::EARTH_RADIUS)
+}
+
+/// Decoded nodes kept up to a byte budget, oldest out first; shared by samplers (and so by
+/// requests) through an `Arc`. Keys carry a tag (e.g. a tileset's load generation), so one
+/// cache serves several tilesets.
+pub struct MeshCache {
+    inner: Mutex<CacheInner>,
+    budget: usize,
+}
+
+struct CacheInner {
+    nodes: HashMap<(u64, TileKey), Arc<NodeMesh>>,
+    order: VecDeque<(u64, TileKey)>,
     bytes: usize,
 }
 
+impl MeshCache {
+    /// A cache of up to `budget` bytes of decoded nodes.
+    #[must_use]
+    pub fn new(budget: usize) -> Self {
+        Self {
+            inner: Mutex::new(CacheInner { nodes: HashMap::new(), order: VecDeque::new(), bytes: 0 }),
+            budget,
+        }
+    }
+
+    /// Whether node `key` of tag `tag` is held.
+    #[must_use]
+    pub fn contains(&self, tag: u64, key: TileKey) -> bool {
+        self.inner.lock().is_ok_and(|c| c.nodes.contains_key(&(tag, key)))
+    }
+
+    fn get(&self, tag: u64, key: TileKey) -> Result<Option<Arc<NodeMesh>>, HeightsError> {
+        Ok(self.inner.lock().map_err(|_| HeightsError::Poisoned)?.nodes.get(&(tag, key)).cloned())
+    }
+
+    fn put(&self, tag: u64, key: TileKey, mesh: Arc<NodeMesh>) -> Result<(), HeightsError> {
+        let mut c = self.inner.lock().map_err(|_| HeightsError::Poisoned)?;
+        let bytes = mesh.bytes;
+        if let Some(old) = c.nodes.insert((tag, key), mesh) {
+            c.bytes -= old.bytes;
+        } else {
+            c.order.push_back((tag, key));
+        }
+        c.bytes += bytes;
+        while c.bytes > self.budget && c.order.len() > 1 {
+            let Some(old) = c.order.pop_front() else { break };
+            if let Some(n) = c.nodes.remove(&old) {
+                c.bytes -= n.bytes;
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Heights on a tileset's TINs. Batched (each node of a batch is read and decoded once) and
-/// cached (decoded nodes up to a byte budget, oldest out first).
+/// cached (decoded nodes in a [`MeshCache`], which may outlive the sampler).
 pub struct MeshSampler<S: BlobSource> {
     source: S,
     pyramid: Pyramid,
     georef: Georef,
     frame: Option<Frame>,
     egm96: Arc<Geoid>,
-    cache: Mutex<Cache>,
-    budget: usize,
+    cache: Arc<MeshCache>,
+    tag: u64,
 }
 
 impl<S: BlobSource> MeshSampler<S> {
@@ -136,17 +218,20 @@ impl<S: BlobSource> MeshSampler<S> {
         georef: &Georef,
         cache_bytes: usize,
     ) -> Result<Self, HeightsError> {
+        Self::with_cache(source, pyramid, georef, Arc::new(MeshCache::new(cache_bytes)), 0)
+    }
+
+    /// [`MeshSampler::new`] keeping decoded nodes in `cache` under `tag`.
+    pub fn with_cache(
+        source: S,
+        pyramid: Pyramid,
+        georef: &Georef,
+        cache: Arc<MeshCache>,
+        tag: u64,
+    ) -> Result<Self, HeightsError> {
         let frame = georef.frame().map_err(|e| HeightsError::Frame(e.to_string()))?;
         let egm96 = Geoid::egm96().map_err(|e| HeightsError::Frame(e.to_string()))?;
-        Ok(Self {
-            source,
-            pyramid,
-            georef: georef.clone(),
-            frame,
-            egm96,
-            cache: Mutex::new(Cache { nodes: HashMap::new(), order: VecDeque::new(), bytes: 0 }),
-            budget: cache_bytes,
-        })
+        Ok(Self { source, pyramid, georef: georef.clone(), frame, egm96, cache, tag })
     }
 
     /// The depth of the finest nodes (the default `depth` of [`MeshSampler::sample`]).
@@ -191,8 +276,8 @@ impl<S: BlobSource> MeshSampler<S> {
 
     /// Node `key`'s TIN, from the cache or read, decoded and kept.
     fn node(&self, key: TileKey) -> Result<Option<Arc<NodeMesh>>, HeightsError> {
-        if let Some(n) = self.cache.lock().map_err(|_| HeightsError::Poisoned)?.nodes.get(&key) {
-            return Ok(Some(n.clone()));
+        if let Some(n) = self.cache.get(self.tag, key)? {
+            return Ok(Some(n));
         }
         let Some(bytes) = self.source.blob(key).map_err(|message| HeightsError::Blob { key, message })?
         else {
@@ -202,18 +287,14 @@ impl<S: BlobSource> MeshSampler<S> {
         let Geometry::Mesh(m) = blob.geometry else {
             return Err(HeightsError::Blob { key, message: "level 0 is not a mesh".into() });
         };
-        let mesh = Arc::new(NodeMesh::new(m.positions, m.triangles, blob.header.errors.max));
-        let mut c = self.cache.lock().map_err(|_| HeightsError::Poisoned)?;
-        if c.nodes.insert(key, mesh.clone()).is_none() {
-            c.bytes += mesh.bytes;
-            c.order.push_back(key);
-        }
-        while c.bytes > self.budget && c.order.len() > 1 {
-            let Some(old) = c.order.pop_front() else { break };
-            if let Some(n) = c.nodes.remove(&old) {
-                c.bytes -= n.bytes;
-            }
-        }
+        let centre = self.frame.as_ref().map(|_| {
+            let s = self.pyramid.span(key);
+            let g = &self.georef;
+            let (c, r) = (f64::from(s.col0 + s.col1) / 2.0, f64::from(s.row0 + s.row1) / 2.0);
+            [g.x0 + c * g.dx, g.y0 + r * g.dy]
+        });
+        let mesh = Arc::new(NodeMesh::new(m.positions, m.triangles, blob.header.errors.max, centre));
+        self.cache.put(self.tag, key, mesh.clone())?;
         Ok(Some(mesh))
     }
 }
@@ -243,32 +324,38 @@ impl Placement<'_> {
         for (index, p) in points.iter().enumerate() {
             check(base + index, *p, q.coords)?;
         }
-        points.iter().enumerate().map(|(k, &p)| self.locate(base + k, p, q.coords, depth)).collect()
+        Ok(points.iter().map(|&p| self.locate(p, q.coords, depth)).collect())
     }
 
     /// A point's world (x, y), its WGS 84 position (placed tilesets) and the node at `depth`
-    /// that holds it (`None` outside the raster).
-    fn locate(&self, index: usize, p: [f64; 2], coords: Coords, depth: u8) -> Result<Located, HeightsError> {
-        let transform = |e: crate::crs::CrsError| HeightsError::Transform { index, message: e.to_string() };
-        let g = &self.georef;
+    /// that holds it (`None` outside the raster, or where the point has no place in the
+    /// tileset's CRS: a projection's domain ends short of the globe).
+    fn locate(&self, p: [f64; 2], coords: Coords, depth: u8) -> Located {
+        const NOWHERE: Located = ([f64::NAN; 2], None, None);
+        let g = self.georef;
         let (world, lonlat) = match (self.frame, coords) {
             (None, _) => (p, None),
             (Some(f), Coords::Local) => {
                 let (e, n) = f.crs_xy(p[0], p[1]);
-                (p, Some(f.grid.crs.to_wgs84(e, n).map_err(transform)?))
+                let Ok(ll) = f.grid.crs.to_wgs84(e, n) else { return NOWHERE };
+                (p, Some(ll))
             }
             (Some(f), Coords::Crs) => {
                 let (x, y) = f.world_xy(p[0], p[1]);
-                ([x, y], Some(f.grid.crs.to_wgs84(p[0], p[1]).map_err(transform)?))
+                let Ok(ll) = f.grid.crs.to_wgs84(p[0], p[1]) else { return NOWHERE };
+                ([x, y], Some(ll))
             }
             (Some(f), Coords::Wgs84) => {
                 let lon = crate::crs::wrap_lon(p[0]);
-                let (mut e, n) = f.grid.crs.from_wgs84(lon, p[1]).map_err(transform)?;
+                let Ok((mut e, n)) = f.grid.crs.from_wgs84(lon, p[1]) else { return NOWHERE };
+                if !(e.is_finite() && n.is_finite()) {
+                    return NOWHERE;
+                }
                 if f.grid.crs.is_geographic() {
                     // A grid in 0…360 asked in −180…180, or the other way round.
                     let inside = |e: f64| {
                         let c = (e - f.grid.e0) / f.grid.de;
-                        c >= 0.0 && c <= f64::from(self.pyramid.width - 1)
+                        c >= -EDGE_SLACK && c <= f64::from(self.pyramid.width - 1) + EDGE_SLACK
                     };
                     if !inside(e) {
                         e = [e + 360.0, e - 360.0].into_iter().find(|&v| inside(v)).unwrap_or(e);
@@ -280,16 +367,16 @@ impl Placement<'_> {
         };
         let (c, r) = ((world[0] - g.x0) / g.dx, (world[1] - g.y0) / g.dy);
         let (w, h) = (f64::from(self.pyramid.width - 1), f64::from(self.pyramid.height - 1));
-        let key = if (0.0..=w).contains(&c) && (0.0..=h).contains(&r) {
+        // Points a rounding outside the outermost samples are on them.
+        let near = |v: f64, hi: f64| (-EDGE_SLACK..=hi + EDGE_SLACK).contains(&v);
+        let key = (near(c, w) && near(r, h)).then(|| {
             let cells = f64::from(self.pyramid.tile_size) * f64::from(self.pyramid.step(depth));
             let (nx, ny) = self.pyramid.nodes_at(depth);
-            let x = ((c / cells) as u32).min(nx - 1);
-            let y = ((r / cells) as u32).min(ny - 1);
-            Some(TileKey::new(depth, x, y))
-        } else {
-            None
-        };
-        Ok((world, lonlat, key))
+            let x = ((c.max(0.0) / cells) as u32).min(nx - 1);
+            let y = ((r.max(0.0) / cells) as u32).min(ny - 1);
+            TileKey::new(depth, x, y)
+        });
+        (world, lonlat, key)
     }
 }
 
@@ -327,12 +414,14 @@ mod tests {
     fn a_point_gets_the_height_of_the_triangle_under_it() {
         // Two triangles over the unit square, z = x + 2y on both.
         let p = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 1.0], [1.0, 1.0, 3.0], [0.0, 1.0, 2.0]];
-        let m = NodeMesh::new(p, vec![[0, 1, 2], [0, 2, 3]], 0.5);
+        let m = NodeMesh::new(p, vec![[0, 1, 2], [0, 2, 3]], 0.5, None);
         for (x, y) in [(0.25, 0.1), (0.1, 0.9), (0.5, 0.5), (1.0, 1.0), (0.0, 0.0), (1.0, 0.3)] {
             let h = m.height(x, y).unwrap();
             assert!((h - (x + 2.0 * y)).abs() < 1e-12, "({x}, {y}): {h}");
         }
         assert_eq!(m.height(1.01, 0.5), None);
+        // A rounding outside the edge is on it.
+        assert!((m.height(1.0 + 1e-9, 0.5).unwrap() - 2.0).abs() < 1e-6);
         assert_eq!(m.height(-0.01, 0.5), None);
     }
 }

@@ -9,7 +9,7 @@ use std::sync::Arc;
 
 pub mod mesh;
 
-pub use mesh::{BlobSource, MeshSampler};
+pub use mesh::{BlobSource, MeshCache, MeshSampler};
 
 use crate::crs::{Frame, Geoid};
 use crate::raster::{Georef, RasterError, WindowReader};
@@ -227,7 +227,12 @@ impl<'a> SourceSampler<'a> {
     }
 
     fn one(&self, index: usize, p: [f64; 2], q: Query, buf: &mut Vec<f32>) -> Result<Height, HeightsError> {
-        let ((c, r), lonlat) = self.locate(index, p, q.coords)?;
+        // A point with no place in the dataset's CRS (beyond a projection's domain) has no data.
+        let ((c, r), lonlat) = match self.locate(index, p, q.coords) {
+            Ok(l) => l,
+            Err(HeightsError::Transform { .. }) => return Ok(Height::NODATA),
+            Err(e) => return Err(e),
+        };
         if !self.inside(c, r) {
             return Ok(Height::NODATA);
         }

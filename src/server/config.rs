@@ -76,6 +76,11 @@ pub struct SourceSpec {
     /// Globe terrain (quantized-mesh): the error scale and deepest zoom of `bake --terrain`.
     pub terrain_error_scale: Option<f64>,
     pub terrain_max_zoom: Option<u8>,
+    /// The raster's CRS instead of what it states (`bake --crs`): `EPSG:NNNN` or
+    /// `EPSG:NNNN+VVVV` (5773 EGM96, 3855 EGM2008 heights).
+    pub crs: Option<String>,
+    /// What its heights are measured from (`bake --vertical-datum`): ellipsoid, egm96, egm2008.
+    pub vertical_datum: Option<String>,
 }
 
 /// Why a `--source` value cannot be read; each names the value (`spec`) as given.
@@ -93,7 +98,7 @@ pub enum SourceSpecError {
     #[error("{key}={value:?} in {spec:?} is not a valid {what}")]
     BadValue { key: String, value: String, spec: String, what: &'static str },
     #[error(
-        "unknown source option {key:?} in {spec:?} (encoding, cell_size, tile_size, max_error, levels, terrain_error_scale, terrain_max_zoom)"
+        "unknown source option {key:?} in {spec:?} (encoding, cell_size, tile_size, max_error, levels, terrain_error_scale, terrain_max_zoom, crs, vertical_datum)"
     )]
     UnknownOption { key: String, spec: String },
 }
@@ -135,6 +140,16 @@ impl std::str::FromStr for SourceSpec {
                         return Err(num("number (> 0, at most 1e6)"));
                     }
                     spec.terrain_error_scale = Some(f);
+                }
+                "crs" => {
+                    crate::crs::Crs::parse(v).map_err(|_| num("CRS (EPSG:NNNN or EPSG:NNNN+VVVV)"))?;
+                    spec.crs = Some(v.to_owned());
+                }
+                "vertical_datum" => {
+                    if !matches!(v, "ellipsoid" | "egm96" | "egm2008") {
+                        return Err(num("vertical datum (ellipsoid, egm96 or egm2008)"));
+                    }
+                    spec.vertical_datum = Some(v.to_owned());
                 }
                 "terrain_max_zoom" => {
                     let z: u8 = v.parse().map_err(|_| num("integer"))?;
@@ -458,7 +473,17 @@ mod tests {
         assert_eq!(e("a=/r,cell_size=x"), r#"cell_size="x" in "a=/r,cell_size=x" is not a valid number"#);
         assert_eq!(
             e("a=/r,colour=red"),
-            r#"unknown source option "colour" in "a=/r,colour=red" (encoding, cell_size, tile_size, max_error, levels, terrain_error_scale, terrain_max_zoom)"#
+            r#"unknown source option "colour" in "a=/r,colour=red" (encoding, cell_size, tile_size, max_error, levels, terrain_error_scale, terrain_max_zoom, crs, vertical_datum)"#
+        );
+        assert_eq!(
+            e("a=/r,vertical_datum=msl"),
+            r#"vertical_datum="msl" in "a=/r,vertical_datum=msl" is not a valid vertical datum (ellipsoid, egm96 or egm2008)"#
+        );
+        assert!(e("a=/r,crs=EPSG:99999999").contains("is not a valid CRS"));
+        let ok: SourceSpec = "a=/r,crs=EPSG:4326+5773,vertical_datum=egm96".parse().unwrap();
+        assert_eq!(
+            (ok.crs.as_deref(), ok.vertical_datum.as_deref()),
+            (Some("EPSG:4326+5773"), Some("egm96"))
         );
         assert_eq!(
             e("a=/r,terrain_error_scale=0"),

@@ -36,12 +36,12 @@ pub const MAX_GET_POINTS: usize = 1_000;
 pub const MAX_BODY_BYTES: usize = 64 << 20;
 /// Points answered per chunk of the response.
 pub const CHUNK: usize = 65_536;
-/// Decoded TINs a request keeps while it answers (bytes).
-const MESH_CACHE_BYTES: usize = 256 << 20;
+/// Decoded TINs the server keeps for height queries (bytes), shared by requests.
+pub const MESH_CACHE_BYTES: usize = 256 << 20;
 
 /// Which surface answers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Surface {
+pub(super) enum Surface {
     Mesh { depth: Option<u8> },
     Source,
 }
@@ -294,12 +294,12 @@ fn heights_problem(e: &HeightsError) -> Problem {
 }
 
 /// What answers: the dataset (`surface=source`) or the tileset's TINs.
-enum Sampler {
+pub(super) enum Sampler {
     Source(Arc<super::registry::Source>),
     Mesh { pyramid: Pyramid, georef: Box<Georef>, depth: u8 },
 }
 
-fn sampler(ts: &Tileset, surface: Surface) -> Result<Sampler, Problem> {
+pub(super) fn sampler(ts: &Tileset, surface: Surface) -> Result<Sampler, Problem> {
     match surface {
         Surface::Source => ts.source.clone().map(Sampler::Source).ok_or_else(|| {
             Problem::new(
@@ -420,7 +420,7 @@ fn check_all(points: &[[f64; 2]], q: Query) -> Result<(), HeightsError> {
 }
 
 /// The answers for `points[start..start + CHUNK]`.
-async fn chunk(
+pub(super) async fn chunk(
     app: &Arc<App>,
     ts: &Arc<Tileset>,
     which: &Arc<Sampler>,
@@ -443,7 +443,7 @@ async fn chunk(
                 .map_err(|e| heights_problem(&e))?
             };
             let mut fetched = HashMap::with_capacity(keys.len());
-            for key in keys {
+            for key in keys.into_iter().filter(|&k| !app.meshes.contains(ts.generation, k)) {
                 match load_blob(app, ts, key, 0).await {
                     Ok(e) => {
                         fetched.insert(key, e.bytes);
@@ -456,6 +456,7 @@ async fn chunk(
         }
     };
     let (which, points) = (which.clone(), points.clone());
+    let (cache, tag) = (app.meshes.clone(), ts.generation);
     tokio::task::spawn_blocking(move || -> Result<Vec<Height>, HeightsError> {
         let pts = &points[start..end];
         match which.as_ref() {
@@ -463,7 +464,7 @@ async fn chunk(
                 SourceSampler::new(&src.raster.heights, &src.raster.georef)?.sample_from(pts, q, start)
             }
             Sampler::Mesh { pyramid, georef, depth } => {
-                MeshSampler::new(Fetched(fetched), *pyramid, georef, MESH_CACHE_BYTES)?
+                MeshSampler::with_cache(Fetched(fetched), *pyramid, georef, cache, tag)?
                     .sample_from(pts, q, *depth, start)
             }
         }

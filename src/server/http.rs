@@ -19,7 +19,7 @@ use tower_http::cors::{AllowOrigin, CorsLayer};
 use super::auth::check_bearer;
 use super::native::{self, BLOB_ROUTE};
 use super::problem::{self, PROBLEM_JSON, Problem};
-use super::{App, admin, heights, terrain, tiles3d};
+use super::{App, admin, heightmap, heights, terrain, tiles3d};
 
 /// Seconds a client is asked to wait when the server sheds load.
 pub const SHED_RETRY_AFTER_S: u32 = 1;
@@ -65,6 +65,8 @@ pub fn router(app: Arc<App>) -> Router {
         .route("/tilesets/{name}/3dtiles/index/{z}/{x}/{file}", get(tiles3d::subtree))
         .route("/tilesets/{name}/3dtiles/tiles/{z}/{x}/{y}/{file}", get(tiles3d::glb))
         .route("/tilesets/{name}/heights", get(heights::get).post(heights::post))
+        .route("/tilesets/{name}/heightmap/tiles.json", get(heightmap::tilejson))
+        .route("/tilesets/{name}/heightmap/{z}/{x}/{file}", get(heightmap::tile))
         .route("/tilesets/{name}/terrain/layer.json", get(terrain::layer))
         .route("/tilesets/{name}/terrain/{z}/{x}/{file}", get(terrain::tile))
         .route("/viewer", get(tiles3d::viewer))

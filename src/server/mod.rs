@@ -16,6 +16,7 @@ mod conditional;
 mod config;
 pub mod demo;
 mod fast;
+mod heightmap;
 pub(crate) mod heights;
 mod http;
 mod listener;
@@ -93,6 +94,8 @@ pub struct App {
     bakery: bakery::Bakery,
     /// On-demand quantized-mesh builds.
     terrain: terrain::Builds,
+    /// Decoded TINs of height queries (`surface=mesh`), shared by requests.
+    meshes: Arc<crate::heights::MeshCache>,
     jobs: admin::Jobs,
     in_flight: AtomicUsize,
     rate: rate_limit::RateLimiter,
@@ -142,9 +145,27 @@ fn open_source(root: &std::path::Path, spec: &SourceSpec) -> Result<registry::On
             )));
         }
     };
+    let crs = match &spec.crs {
+        Some(c) => Some(
+            crate::crs::Crs::parse(c)
+                .map_err(|e| ServerError::Config(format!("--source {}: crs {c:?}: {e}", spec.name)))?,
+        ),
+        None => None,
+    };
+    let vertical = match spec.vertical_datum.as_deref() {
+        Some("egm96") => Some(crate::crs::VerticalDatum::Egm96),
+        Some("egm2008") => Some(crate::crs::VerticalDatum::Egm2008),
+        Some(_) => Some(crate::crs::VerticalDatum::Ellipsoid),
+        None => crs.as_ref().and_then(|c| c.1),
+    };
     let load = LoadOptions {
         encoding,
-        overrides: Overrides { cell_size: spec.cell_size, ..Overrides::default() },
+        overrides: Overrides {
+            cell_size: spec.cell_size,
+            crs: crs.map(|c| c.0),
+            vertical,
+            ..Overrides::default()
+        },
         ..LoadOptions::default()
     };
     let raster = crate::raster::load(&spec.raster, &load).map_err(|e| err(e.into()))?;
@@ -273,6 +294,7 @@ impl Server {
             cache: cache::BlobCache::new(config.cache_bytes),
             bakery: bakery::Bakery::start(config.bake_workers, config.bake_queue, metrics.clone(), &baker),
             terrain: terrain::Builds::new(config.bake_workers, config.bake_queue),
+            meshes: Arc::new(crate::heights::MeshCache::new(heights::MESH_CACHE_BYTES)),
             baker,
             jobs: admin::Jobs::new(),
             in_flight: AtomicUsize::new(0),

@@ -186,6 +186,15 @@ pub fn document() -> Value {
                 &key_params(false), "quantized-mesh tile", crate::formats::qmesh::QM_TYPE, &json!({"type": "string", "format": "binary"}),
                 &[("406", "Accept names neither quantized-mesh nor a wildcard"), ("500", "A stored tile cannot be read or decoded, or the build failed")]),
             "/tilesets/{name}/heights": heights_ops(),
+            "/tilesets/{name}/heightmap/tiles.json": cached_get("TileJSON 3.0 of the heightmap tiles (bounds, zooms, encoding, tile URL template): a MapLibre GL raster-dem source `url`",
+                &heightmap_params(false), "TileJSON", "application/json", &any,
+                &[("409", "The tileset is not placed on the Earth (no CRS)")]),
+            "/tilesets/{name}/heightmap/{z}/{x}/{y}.png": cached_get("One heightmap tile of the Web-Mercator XYZ grid, 256×256 PNG in the Terrarium or Mapbox Terrain-RGB encoding (no data: 0 m); made on request from the TIN at the tile's scale or the source, and cached (docs/heights.md)",
+                &heightmap_params(true), "PNG", "image/png", &json!({"type": "string", "format": "binary"}),
+                &[("409", "The tileset is not placed on the Earth, or surface=source without a source"), ("500", "A blob the tile needs failed verification, or its bake failed")]),
+            "/tilesets/{name}/heightmap/{z}/{x}/{y}.f32": cached_get("One heightmap tile as float32: 256×256 little-endian f32 metres, rows from the north, NaN where there is no data",
+                &heightmap_params(true), "float32 heights", "application/octet-stream", &json!({"type": "string", "format": "binary"}),
+                &[("409", "The tileset is not placed on the Earth, or surface=source without a source"), ("500", "A blob the tile needs failed verification, or its bake failed")]),
             "/viewer": cached_get("The viewer page: any tileset of the store in 3D (?tileset=NAME picks one)", &json!([]), "HTML page", "text/html; charset=utf-8",
                 &json!({"type": "string"}), &[]),
             "/jobs/{id}": {
@@ -280,4 +289,21 @@ fn heights_ops() -> Value {
                     "description": format!("little-endian f64 x, y pairs; at most {MAX_POINTS} points, {MAX_BODY_BYTES} bytes")}}},
             "responses": responses(&[("413", "More points or body bytes than a request takes"), ("415", "A body neither JSON nor application/octet-stream")])}
     })
+}
+
+/// The parameters of the heightmap routes (`tile`: with z/x/y and the content version).
+fn heightmap_params(tile: bool) -> Value {
+    let mut p = vec![name_param()];
+    if tile {
+        p.extend([int_param("z"), int_param("x"), int_param("y")]);
+    }
+    p.extend([
+        json!({"name": "encoding", "in": "query", "schema": {"enum": ["terrarium", "terrain-rgb", "mapbox"], "default": "terrarium"}, "description": "PNG tiles only"}),
+        json!({"name": "surface", "in": "query", "schema": {"enum": ["mesh", "source"], "default": "mesh"}}),
+        json!({"name": "datum", "in": "query", "schema": {"enum": ["geoid", "ellipsoid", "native"], "default": "geoid"}}),
+    ]);
+    if tile {
+        p.push(v_param());
+    }
+    Value::Array(p)
 }
