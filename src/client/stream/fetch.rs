@@ -5,8 +5,8 @@
 //!
 //! Rules:
 //! - each frame the selection's wants replace the wanted set ([`Scheduler::update`]); requests
-//!   start in priority order (visible first, then largest screen-space error) while fewer than
-//!   `max_in_flight` are running;
+//!   start in priority order (the collision region's first, then visible, then largest
+//!   screen-space error) while fewer than `max_in_flight` are running;
 //! - a request no longer wanted for `cancel_grace_s` is cancelled (the grace keeps a camera that
 //!   jitters across a threshold from cancelling and restarting the same tile);
 //! - timeouts, connection failures, `408`, `429` and `5xx` are retried with exponential backoff
@@ -60,17 +60,20 @@ impl Resource {
     }
 }
 
-/// Fetch order: visible before invisible, then larger screen-space error first.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Fetch order: the collision region's wants before the view's, visible before invisible, then
+/// larger screen-space error first.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Priority {
+    /// Wanted by the collision region ([`crate::client::collision`]): ahead of any view tile.
+    pub collision: bool,
     pub visible: bool,
     /// Screen-space error in pixels of what stands in for the resource now (infinite: a hole).
     pub error_px: f64,
 }
 
 impl Priority {
-    fn rank(&self) -> (bool, f64) {
-        (self.visible, if self.error_px.is_nan() { 0.0 } else { self.error_px })
+    fn rank(&self) -> (bool, bool, f64) {
+        (self.collision, self.visible, if self.error_px.is_nan() { 0.0 } else { self.error_px })
     }
 }
 
@@ -80,11 +83,16 @@ impl Priority {
 pub fn wants_of(wants: &[Want], missing_chunks: &[TileKey]) -> Vec<(Resource, Priority)> {
     missing_chunks
         .iter()
-        .map(|&root| (Resource::Chunk { root }, Priority { visible: true, error_px: f64::INFINITY }))
+        .map(|&root| {
+            (
+                Resource::Chunk { root },
+                Priority { visible: true, error_px: f64::INFINITY, ..Priority::default() },
+            )
+        })
         .chain(wants.iter().map(|w| {
             (
                 Resource::Tile { key: w.key, level: w.level },
-                Priority { visible: true, error_px: w.priority_px },
+                Priority { visible: true, error_px: w.priority_px, ..Priority::default() },
             )
         }))
         .collect()
@@ -291,9 +299,9 @@ impl Scheduler {
             .map(|(r, e)| (*r, e.priority))
             .collect();
         ready.sort_by(|a, b| {
-            let (va, ea) = a.1.rank();
-            let (vb, eb) = b.1.rank();
-            vb.cmp(&va).then(eb.total_cmp(&ea)).then(a.0.cmp(&b.0))
+            let (ca, va, ea) = a.1.rank();
+            let (cb, vb, eb) = b.1.rank();
+            cb.cmp(&ca).then(vb.cmp(&va)).then(eb.total_cmp(&ea)).then(a.0.cmp(&b.0))
         });
         for (r, _) in ready.into_iter().take(free) {
             let id = self.next_id;

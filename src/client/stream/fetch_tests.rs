@@ -24,7 +24,7 @@ fn tile(x: u32) -> Resource {
 }
 
 fn pri(visible: bool, error_px: f64) -> Priority {
-    Priority { visible, error_px }
+    Priority { visible, error_px, collision: false }
 }
 
 fn params(max_in_flight: usize) -> FetchParams {
@@ -60,6 +60,29 @@ fn priority_order_and_concurrency_limit() {
     assert!((s.stats().latencies_s[0] - 0.2).abs() < 1e-12);
     // A late duplicate result is ignored.
     assert_eq!(s.complete(t.started[0].0, &Outcome::Ok { bytes: 10 }, 0.3), None);
+}
+
+#[test]
+fn collision_region_wants_go_first() {
+    let mut s = Scheduler::new(params(2));
+    let mut t = Recorder::default();
+    let region = |error_px| Priority { collision: true, visible: false, error_px };
+    s.update(
+        &[
+            (tile(0), pri(true, f64::INFINITY)),
+            (tile(1), region(1.0)),
+            (tile(2), pri(true, 50.0)),
+            (tile(3), region(5.0)),
+        ],
+        0.0,
+    );
+    s.pump(0.0, &mut t);
+    assert_eq!(t.started.iter().map(|x| x.1).collect::<Vec<_>>(), vec![tile(3), tile(1)]);
+    // The view's hole goes next, before its 50 px tile.
+    s.complete(t.started[0].0, &Outcome::Ok { bytes: 1 }, 0.1);
+    s.update(&[(tile(0), pri(true, f64::INFINITY)), (tile(1), region(1.0)), (tile(2), pri(true, 50.0))], 0.1);
+    s.pump(0.1, &mut t);
+    assert_eq!(t.started[2].1, tile(0));
 }
 
 #[test]
