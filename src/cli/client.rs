@@ -71,8 +71,7 @@ pub fn run(a: &ClientArgs, quiet: bool) -> Result<()> {
     let collision = a
         .collision_radius
         .map(|r| client::collision::CollisionParams::new(r, a.collision_lookahead))
-        .transpose()
-        .map_err(|e| anyhow::anyhow!("--collision-radius/--collision-lookahead: {e}"))?;
+        .transpose()?;
     let run = ClientRun {
         url: a.url.clone(),
         tileset: a.tileset.clone(),

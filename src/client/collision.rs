@@ -37,13 +37,13 @@ impl CollisionParams {
     /// Checks the radius (finite, > 0) and the look-ahead (finite, ≥ 0).
     pub fn new(radius_m: f64, lookahead_s: f64) -> Result<Self, ClientError> {
         if !(radius_m.is_finite() && radius_m > 0.0) {
-            return Err(ClientError::Camera(format!(
-                "collision radius {radius_m} m must be a finite number above 0"
+            return Err(ClientError::Collision(format!(
+                "radius {radius_m} m must be a finite number above 0"
             )));
         }
         if !(lookahead_s.is_finite() && lookahead_s >= 0.0) {
-            return Err(ClientError::Camera(format!(
-                "collision look-ahead {lookahead_s} s must be a finite number, 0 or more"
+            return Err(ClientError::Collision(format!(
+                "look-ahead {lookahead_s} s must be a finite number, 0 or more"
             )));
         }
         Ok(Self { radius_m, lookahead_s })
@@ -232,9 +232,9 @@ mod tests {
         assert!(CollisionParams::new(50.0, 0.0).is_ok());
         for r in [0.0, -1.0, f64::NAN, f64::INFINITY] {
             let e = CollisionParams::new(r, 2.0).unwrap_err().to_string();
-            assert!(e.contains("collision radius"), "{e}");
+            assert!(e.starts_with(&format!("collision region: radius {r} m")), "{e}");
         }
         let e = CollisionParams::new(1.0, -1.0).unwrap_err().to_string();
-        assert!(e.contains("collision look-ahead -1 s"), "{e}");
+        assert!(e.starts_with("collision region: look-ahead -1 s"), "{e}");
     }
 }

@@ -36,6 +36,9 @@ pub enum ClientError {
     Url(#[from] stream::http::UrlError),
     #[error("camera: {0}")]
     Camera(String),
+    /// Collision region settings out of range.
+    #[error("collision region: {0}")]
+    Collision(String),
     #[error("tile tree: {0}")]
     Tree(String),
     #[error("client: {0}")]

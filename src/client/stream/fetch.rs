@@ -16,7 +16,8 @@
 //!   other `4xx` fail the request for good;
 //! - [`TileCache`] holds decoded tiles under a byte budget, evicting the least recently used
 //!   tile that is not being drawn; tiles being drawn are pinned and never evicted (the cache may
-//!   exceed its budget rather than open a hole).
+//!   exceed its budget rather than open a hole), and so are held tiles (the collision region's),
+//!   which are pinned before they arrive so a later arrival cannot evict them.
 
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::time::{Duration, SystemTime};
@@ -429,6 +430,8 @@ pub struct TileCache<V> {
     order: BTreeMap<u64, (TileKey, u8)>,
     levels: HashMap<TileKey, u32>,
     pinned: HashSet<(TileKey, u8)>,
+    /// Pinned whether resident or not ([`TileCache::set_held`]).
+    held: HashSet<(TileKey, u8)>,
     evictions: u64,
 }
 
@@ -443,6 +446,7 @@ impl<V> TileCache<V> {
             order: BTreeMap::new(),
             levels: HashMap::new(),
             pinned: HashSet::new(),
+            held: HashSet::new(),
             evictions: 0,
         }
     }
@@ -519,6 +523,15 @@ impl<V> TileCache<V> {
         self.evict(None)
     }
 
+    /// Replaces the held set: these (tile, level) pairs are never evicted, including ones that
+    /// arrive later (unlike [`TileCache::set_drawn`], which pins only what is resident). Evicts
+    /// down to the budget what is no longer held; returns the evicted pairs.
+    pub fn set_held(&mut self, held: impl IntoIterator<Item = (TileKey, u8)>) -> Vec<(TileKey, u8)> {
+        self.held.clear();
+        self.held.extend(held);
+        self.evict(None)
+    }
+
     fn remove(&mut self, key: TileKey, level: u8) -> Option<V> {
         let (v, bytes, t) = self.map.remove(&(key, level))?;
         self.order.remove(&t);
@@ -544,7 +557,7 @@ impl<V> TileCache<V> {
                 if need == 0 {
                     break;
                 }
-                if self.pinned.contains(&k) || Some(k) == keep {
+                if self.pinned.contains(&k) || self.held.contains(&k) || Some(k) == keep {
                     continue;
                 }
                 let bytes = self.map.get(&k).map_or(0, |e| e.1);

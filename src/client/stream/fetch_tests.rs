@@ -271,6 +271,23 @@ fn cache_never_evicts_drawn_tiles() {
     assert_eq!(c.set_drawn([(k(0), 0), (k(1), 0)]), vec![(k(2), 0)]);
 }
 
+#[test]
+fn held_tiles_stay_even_when_they_arrive_later() {
+    let mut c: TileCache<()> = TileCache::new(10);
+    let k = |x| TileKey::new(2, x, 0);
+    // Held before either arrives; both arrive in one batch of replies.
+    c.set_held([(k(0), 0), (k(1), 0)]);
+    c.insert(k(0), 0, (), 30);
+    assert!(c.insert(k(1), 0, (), 30).is_empty());
+    // An unheld newcomer is kept only until the next insert.
+    c.insert(k(2), 0, (), 30);
+    assert_eq!(c.insert(k(3), 0, (), 30), vec![(k(2), 0)]);
+    assert!(c.contains(k(0), 0) && c.contains(k(1), 0) && c.contains(k(3), 0));
+    // No longer held: evicted down to the budget.
+    assert_eq!(c.set_held([(k(1), 0)]).len(), 2);
+    assert!(c.contains(k(1), 0) && !c.contains(k(0), 0));
+}
+
 proptest! {
     #[test]
     fn cache_pins_hold_under_random_traffic(ops in prop::collection::vec((0u32..40, 0u8..3, 1usize..60, prop::collection::vec((0u32..40, 0u8..3), 0..8)), 1..200)) {

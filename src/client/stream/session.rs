@@ -407,12 +407,12 @@ impl Session {
         let ego = self.collision.next.take().unwrap_or((pose.eye, 0.0));
         let collision = self.opts.collision.map(|c| self.collision_wants(&c, ego, &mut wants));
         self.camera = Some(camera);
-        // The region's leaves are pinned beside what is drawn: never evicted while held.
-        let tree = &self.tree;
-        let held = self.opts.collision.map_or(&[][..], |_| &self.collision.held.leaves[..]);
-        self.cache.set_drawn(
-            self.draws.iter().map(|d| (d.key, d.level)).chain(held.iter().map(|&n| (tree.node(n).key, 0))),
-        );
+        // The region's leaves are held (pinned, arrived or not): never evicted while in it.
+        if self.opts.collision.is_some() {
+            let tree = &self.tree;
+            self.cache.set_held(self.collision.held.leaves.iter().map(|&n| (tree.node(n).key, 0)));
+        }
+        self.cache.set_drawn(self.draws.iter().map(|d| (d.key, d.level)));
         self.scheduler.update(&wants, now);
         self.scheduler.pump(now, &mut self.transport);
         self.frame += 1;
