@@ -172,7 +172,7 @@ pub fn replay(
         let pose = world.pose_at(t);
         if let Some(ahead_s) = lookahead {
             let (ego, ahead_m) = ego_and_reach(&world, t, ahead_s);
-            session.set_ego(ego, ahead_m);
+            session.set_ego(ego, ahead_m)?;
         }
         let mut f = session.frame(&pose, t.min(world.end()), phase)?;
         on_frame(session, &mut f)?;

@@ -295,8 +295,18 @@ impl Session {
     /// Sets the ego position (world units) and how far (horizontally) it will move within the
     /// look-ahead, for the next frame only. A frame without one uses the camera's eye and no
     /// look-ahead.
-    pub fn set_ego(&mut self, ego: DVec3, ahead_m: f64) {
-        self.collision.next = Some((ego, if ahead_m.is_finite() { ahead_m.max(0.0) } else { 0.0 }));
+    ///
+    /// # Errors
+    /// A position that is not finite or a distance that is not a finite number ≥ 0.
+    pub fn set_ego(&mut self, ego: DVec3, ahead_m: f64) -> Result<(), ClientError> {
+        if !(ego.is_finite() && ahead_m.is_finite() && ahead_m >= 0.0) {
+            return Err(ClientError::Collision(format!(
+                "ego {:?} with look-ahead distance {ahead_m} is not a finite position and distance ≥ 0",
+                ego.to_array()
+            )));
+        }
+        self.collision.next = Some((ego, ahead_m));
+        Ok(())
     }
 
     /// Every resource the collision region has asked for.
