@@ -8,8 +8,8 @@
 //! With a collision radius ([`SessionOptions::collision`]) each frame also names the leaves
 //! within `R` of the ego ([`crate::client::collision`]) and asks for their level 0 ahead of
 //! every view tile, together with the leaves the ego will reach within the look-ahead
-//! ([`Session::set_ego`]); those tiles are pinned in the cache (never evicted while in the
-//! region), and each frame counts the required leaves not resident at level 0 when the frame is
+//! ([`Session::set_ego`]); those tiles are held in the cache from the moment they are asked for
+//! (never evicted while in the region), and each frame counts the required leaves not resident at level 0 when the frame is
 //! drawn (misses).
 //!
 //! The wall clock is the session's time (timeouts, backoff, `Retry-After` and fades are real).
@@ -21,9 +21,8 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime};
 
-use serde::Serialize;
-
 use glam::DVec3;
+use serde::Serialize;
 
 use crate::client::ClientError;
 use crate::client::collision::{self, CollisionParams, Region};
