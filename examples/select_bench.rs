@@ -54,6 +54,7 @@ fn pass(spec: &Synthetic, speed: f64, seconds: f64) -> anyhow::Result<Flight> {
             eye: [s, s, z],
             target: [s + ahead * d, s + ahead * d, 0.5 * spec.relief],
             up: [0.0, 0.0, 1.0],
+            ego: None,
         }
     };
     let f = Flight {

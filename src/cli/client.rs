@@ -51,6 +51,14 @@ pub struct ClientArgs {
     /// OUT/frames/final.png; 0 = write none (frames are still rendered and timed).
     #[arg(long, default_value_t = client::stream::replay::DEFAULT_FRAMES_EVERY)]
     pub frames_every: u32,
+    /// Collision region: keep every leaf within this horizontal distance (world units, metres)
+    /// of the ego at full detail (level 0), fetched ahead of the view and never evicted while
+    /// inside. The ego is the flight's ego track, or the camera's eye for a flight without one.
+    #[arg(long, value_name = "R")]
+    pub collision_radius: Option<f64>,
+    /// Seconds of ego motion whose leaves are fetched before they enter the collision region.
+    #[arg(long, default_value_t = client::collision::DEFAULT_LOOKAHEAD_S, requires = "collision_radius")]
+    pub collision_lookahead: f64,
     /// Output directory (stats.json, frames/).
     #[arg(long, default_value = "out/client")]
     pub out: PathBuf,
@@ -60,6 +68,10 @@ pub fn run(a: &ClientArgs, quiet: bool) -> Result<()> {
     use client::stream::replay::{ClientRun, ReplayOptions};
     use client::stream::session::SessionOptions;
     let defaults = SessionOptions::default();
+    let collision = a
+        .collision_radius
+        .map(|r| client::collision::CollisionParams::new(r, a.collision_lookahead))
+        .transpose()?;
     let run = ClientRun {
         url: a.url.clone(),
         tileset: a.tileset.clone(),
@@ -76,6 +88,7 @@ pub fn run(a: &ClientArgs, quiet: bool) -> Result<()> {
             },
             fetch: client::stream::fetch::FetchParams { max_in_flight: a.max_in_flight, ..defaults.fetch },
             cache_bytes: a.cache_mb.saturating_mul(1 << 20),
+            collision,
         },
         replay: ReplayOptions { fps: a.fps, settle_s: a.settle, speed: 1.0 },
         render: a.render,
@@ -125,6 +138,23 @@ pub fn run(a: &ClientArgs, quiet: bool) -> Result<()> {
             String::new()
         }
     );
+    if let Some(c) = &t.collision {
+        outln!(
+            "collision region {} m (ego from the {}): {:.1} nodes required per frame (max {}), {} misses, {} after warm-up ({}), {} leaves fetched, {} bytes",
+            c.radius_m,
+            c.ego,
+            c.required_mean,
+            c.required_max,
+            c.misses,
+            c.misses_after_warmup.map_or_else(|| "n/a".to_owned(), |m| m.to_string()),
+            match (c.warm_frame, c.warm_s) {
+                (Some(f), Some(s)) => format!("complete from frame {f} at {s:.2} s"),
+                _ => "never complete".to_owned(),
+            },
+            c.leaves_fetched,
+            c.bytes
+        );
+    }
     let frames = a.out.join(client::stream::replay::FRAMES_DIR);
     if frames.is_dir() {
         outln!("wrote frames to {}", frames.display());

@@ -3,8 +3,10 @@
 //! (view-dependent tile and level selection with fades and crack-hiding skirts), [`stream`]
 //! (the request scheduler with its decoded-tile cache, HTTP, camera flights and the streaming
 //! session with flight replay) and, with the `gpu` feature, [`render`] (headless wgpu
-//! rendering of what is drawn, PNG frames). The first paper's evaluation builds on the client
-//! from outside it, in [`crate::eval`]; nothing here imports it.
+//! rendering of what is drawn, PNG frames); beside the view, [`collision`] names the tiles
+//! within a radius of an ego position that are kept at full detail whatever the camera does.
+//! The first paper's evaluation builds on the client from outside it, in [`crate::eval`];
+//! nothing here imports it.
 //!
 //! Nothing in the pure parts opens a socket, spawns a task or touches a GPU: time is passed in
 //! as seconds, the network sits behind [`stream::fetch::Transport`] and residency behind
@@ -13,6 +15,7 @@
 //! on these types.
 
 pub mod camera;
+pub mod collision;
 #[cfg(feature = "gpu")]
 pub mod render;
 pub mod select;
@@ -33,6 +36,9 @@ pub enum ClientError {
     Url(#[from] stream::http::UrlError),
     #[error("camera: {0}")]
     Camera(String),
+    /// Collision region settings out of range.
+    #[error("collision region: {0}")]
+    Collision(String),
     #[error("tile tree: {0}")]
     Tree(String),
     #[error("client: {0}")]

@@ -5,8 +5,8 @@
 //!
 //! Rules:
 //! - each frame the selection's wants replace the wanted set ([`Scheduler::update`]); requests
-//!   start in priority order (visible first, then largest screen-space error) while fewer than
-//!   `max_in_flight` are running;
+//!   start in priority order (the collision region's first, then visible, then largest
+//!   screen-space error) while fewer than `max_in_flight` are running;
 //! - a request no longer wanted for `cancel_grace_s` is cancelled (the grace keeps a camera that
 //!   jitters across a threshold from cancelling and restarting the same tile);
 //! - timeouts, connection failures, `408`, `429` and `5xx` are retried with exponential backoff
@@ -16,7 +16,8 @@
 //!   other `4xx` fail the request for good;
 //! - [`TileCache`] holds decoded tiles under a byte budget, evicting the least recently used
 //!   tile that is not being drawn; tiles being drawn are pinned and never evicted (the cache may
-//!   exceed its budget rather than open a hole).
+//!   exceed its budget rather than open a hole), and so are held tiles (the collision region's),
+//!   which are pinned before they arrive so a later arrival cannot evict them.
 
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::time::{Duration, SystemTime};
@@ -60,17 +61,20 @@ impl Resource {
     }
 }
 
-/// Fetch order: visible before invisible, then larger screen-space error first.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Fetch order: the collision region's wants before the view's, visible before invisible, then
+/// larger screen-space error first.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Priority {
+    /// Wanted by the collision region ([`crate::client::collision`]): ahead of any view tile.
+    pub collision: bool,
     pub visible: bool,
     /// Screen-space error in pixels of what stands in for the resource now (infinite: a hole).
     pub error_px: f64,
 }
 
 impl Priority {
-    fn rank(&self) -> (bool, f64) {
-        (self.visible, if self.error_px.is_nan() { 0.0 } else { self.error_px })
+    fn rank(&self) -> (bool, bool, f64) {
+        (self.collision, self.visible, if self.error_px.is_nan() { 0.0 } else { self.error_px })
     }
 }
 
@@ -80,11 +84,16 @@ impl Priority {
 pub fn wants_of(wants: &[Want], missing_chunks: &[TileKey]) -> Vec<(Resource, Priority)> {
     missing_chunks
         .iter()
-        .map(|&root| (Resource::Chunk { root }, Priority { visible: true, error_px: f64::INFINITY }))
+        .map(|&root| {
+            (
+                Resource::Chunk { root },
+                Priority { visible: true, error_px: f64::INFINITY, ..Priority::default() },
+            )
+        })
         .chain(wants.iter().map(|w| {
             (
                 Resource::Tile { key: w.key, level: w.level },
-                Priority { visible: true, error_px: w.priority_px },
+                Priority { visible: true, error_px: w.priority_px, ..Priority::default() },
             )
         }))
         .collect()
@@ -291,9 +300,9 @@ impl Scheduler {
             .map(|(r, e)| (*r, e.priority))
             .collect();
         ready.sort_by(|a, b| {
-            let (va, ea) = a.1.rank();
-            let (vb, eb) = b.1.rank();
-            vb.cmp(&va).then(eb.total_cmp(&ea)).then(a.0.cmp(&b.0))
+            let (ca, va, ea) = a.1.rank();
+            let (cb, vb, eb) = b.1.rank();
+            cb.cmp(&ca).then(vb.cmp(&va)).then(eb.total_cmp(&ea)).then(a.0.cmp(&b.0))
         });
         for (r, _) in ready.into_iter().take(free) {
             let id = self.next_id;
@@ -421,6 +430,8 @@ pub struct TileCache<V> {
     order: BTreeMap<u64, (TileKey, u8)>,
     levels: HashMap<TileKey, u32>,
     pinned: HashSet<(TileKey, u8)>,
+    /// Pinned whether resident or not ([`TileCache::set_held`]).
+    held: HashSet<(TileKey, u8)>,
     evictions: u64,
 }
 
@@ -435,6 +446,7 @@ impl<V> TileCache<V> {
             order: BTreeMap::new(),
             levels: HashMap::new(),
             pinned: HashSet::new(),
+            held: HashSet::new(),
             evictions: 0,
         }
     }
@@ -511,6 +523,15 @@ impl<V> TileCache<V> {
         self.evict(None)
     }
 
+    /// Replaces the held set: these (tile, level) pairs are never evicted, including ones that
+    /// arrive later (unlike [`TileCache::set_drawn`], which pins only what is resident). Evicts
+    /// down to the budget what is no longer held; returns the evicted pairs.
+    pub fn set_held(&mut self, held: impl IntoIterator<Item = (TileKey, u8)>) -> Vec<(TileKey, u8)> {
+        self.held.clear();
+        self.held.extend(held);
+        self.evict(None)
+    }
+
     fn remove(&mut self, key: TileKey, level: u8) -> Option<V> {
         let (v, bytes, t) = self.map.remove(&(key, level))?;
         self.order.remove(&t);
@@ -536,7 +557,7 @@ impl<V> TileCache<V> {
                 if need == 0 {
                     break;
                 }
-                if self.pinned.contains(&k) || Some(k) == keep {
+                if self.pinned.contains(&k) || self.held.contains(&k) || Some(k) == keep {
                     continue;
                 }
                 let bytes = self.map.get(&k).map_or(0, |e| e.1);

@@ -24,7 +24,7 @@ fn tile(x: u32) -> Resource {
 }
 
 fn pri(visible: bool, error_px: f64) -> Priority {
-    Priority { visible, error_px }
+    Priority { visible, error_px, collision: false }
 }
 
 fn params(max_in_flight: usize) -> FetchParams {
@@ -60,6 +60,29 @@ fn priority_order_and_concurrency_limit() {
     assert!((s.stats().latencies_s[0] - 0.2).abs() < 1e-12);
     // A late duplicate result is ignored.
     assert_eq!(s.complete(t.started[0].0, &Outcome::Ok { bytes: 10 }, 0.3), None);
+}
+
+#[test]
+fn collision_region_wants_go_first() {
+    let mut s = Scheduler::new(params(2));
+    let mut t = Recorder::default();
+    let region = |error_px| Priority { collision: true, visible: false, error_px };
+    s.update(
+        &[
+            (tile(0), pri(true, f64::INFINITY)),
+            (tile(1), region(1.0)),
+            (tile(2), pri(true, 50.0)),
+            (tile(3), region(5.0)),
+        ],
+        0.0,
+    );
+    s.pump(0.0, &mut t);
+    assert_eq!(t.started.iter().map(|x| x.1).collect::<Vec<_>>(), vec![tile(3), tile(1)]);
+    // The view's hole goes next, before its 50 px tile.
+    s.complete(t.started[0].0, &Outcome::Ok { bytes: 1 }, 0.1);
+    s.update(&[(tile(0), pri(true, f64::INFINITY)), (tile(1), region(1.0)), (tile(2), pri(true, 50.0))], 0.1);
+    s.pump(0.1, &mut t);
+    assert_eq!(t.started[2].1, tile(0));
 }
 
 #[test]
@@ -246,6 +269,23 @@ fn cache_never_evicts_drawn_tiles() {
     assert!(c.insert(k(2), 0, (), 50).is_empty());
     assert_eq!(c.used_bytes(), 150);
     assert_eq!(c.set_drawn([(k(0), 0), (k(1), 0)]), vec![(k(2), 0)]);
+}
+
+#[test]
+fn held_tiles_stay_even_when_they_arrive_later() {
+    let mut c: TileCache<()> = TileCache::new(10);
+    let k = |x| TileKey::new(2, x, 0);
+    // Held before either arrives; both arrive in one batch of replies.
+    c.set_held([(k(0), 0), (k(1), 0)]);
+    c.insert(k(0), 0, (), 30);
+    assert!(c.insert(k(1), 0, (), 30).is_empty());
+    // An unheld newcomer is kept only until the next insert.
+    c.insert(k(2), 0, (), 30);
+    assert_eq!(c.insert(k(3), 0, (), 30), vec![(k(2), 0)]);
+    assert!(c.contains(k(0), 0) && c.contains(k(1), 0) && c.contains(k(3), 0));
+    // No longer held: evicted down to the budget.
+    assert_eq!(c.set_held([(k(1), 0)]).len(), 2);
+    assert!(c.contains(k(1), 0) && !c.contains(k(0), 0));
 }
 
 proptest! {

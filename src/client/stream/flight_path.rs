@@ -12,6 +12,10 @@
 //! }
 //! ```
 //!
+//! A key may carry an `ego` position (`[x, y, z]`, the vehicle whose collision region the client
+//! keeps at full detail): in the flight's frame like `eye`, given on every key or on none, and
+//! interpolated linearly between keys like the eye ([`Flight::ego_at`]).
+//!
 //! `frame` is `"world"` (the tileset's world units, the default) or `"normalized"`: x and y run
 //! 0..1 across the tileset's extent in x and y, and z is measured from the tileset's lowest point
 //! in multiples of its larger horizontal extent. `up` is a direction (default `[0, 0, 1]`) and is
@@ -44,7 +48,7 @@ pub enum FlightError {
     TimeNotFinite { i: usize, t: f64 },
     #[error("keys[{i}].t: {t} is not after keys[{before}].t = {before_t}")]
     TimeNotAfter { i: usize, t: f64, before: usize, before_t: f64 },
-    /// `field` is "eye", "target" or "up".
+    /// `field` is "eye", "target", "up" or "ego".
     #[error("keys[{i}].{field}: {value:?} is not finite")]
     NotFinite { i: usize, field: &'static str, value: [f64; 3] },
     #[error("keys[{i}]: eye and target are the same point {eye:?}")]
@@ -53,6 +57,13 @@ pub enum FlightError {
     UpNotDirection { i: usize, up: [f64; 3] },
     #[error("keys[{i}].up: {up:?} is parallel to the view direction")]
     UpAlongView { i: usize, up: [f64; 3] },
+    /// Some keys carry an ego position and this one does not, or the other way round.
+    #[error(
+        "keys[{i}].ego: {} while keys[0] {}; give every key an ego position or none",
+        if *has { "given" } else { "missing" },
+        if *has { "has none" } else { "has one" }
+    )]
+    EgoTrack { i: usize, has: bool },
     #[error("tileset bounds {min:?} .. {max:?} are not valid")]
     InvalidBounds { min: [f64; 3], max: [f64; 3] },
     #[error("tileset has no horizontal extent; a normalized flight needs one")]
@@ -83,6 +94,9 @@ pub struct Key {
     pub target: [f64; 3],
     #[serde(default = "default_up")]
     pub up: [f64; 3],
+    /// The ego (vehicle) position at this key, in the flight's frame; on every key or on none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ego: Option<[f64; 3]>,
 }
 
 fn default_up() -> [f64; 3] {
@@ -126,7 +140,8 @@ impl Flight {
     }
 
     /// Checks keys: at least one, finite and strictly increasing times, finite positions, eye
-    /// distinct from target, up non-zero and not along the view direction.
+    /// distinct from target, up non-zero and not along the view direction, an ego position on
+    /// every key or on none.
     pub fn validate(&self) -> Result<(), FlightError> {
         if self.keys.is_empty() {
             return Err(FlightError::NoKeys);
@@ -143,7 +158,12 @@ impl Flight {
                     before_t: self.keys[i - 1].t,
                 });
             }
-            for (field, value) in [("eye", k.eye), ("target", k.target), ("up", k.up)] {
+            if k.ego.is_some() != self.keys[0].ego.is_some() {
+                return Err(FlightError::EgoTrack { i, has: k.ego.is_some() });
+            }
+            let ego = k.ego.map(|e| ("ego", e));
+            for (field, value) in [("eye", k.eye), ("target", k.target), ("up", k.up)].into_iter().chain(ego)
+            {
                 if !DVec3::from_array(value).is_finite() {
                     return Err(FlightError::NotFinite { i, field, value });
                 }
@@ -202,7 +222,7 @@ impl Flight {
         let keys = self
             .keys
             .iter()
-            .map(|k| Key { t: k.t, eye: map(k.eye), target: map(k.target), up: k.up })
+            .map(|k| Key { t: k.t, eye: map(k.eye), target: map(k.target), up: k.up, ego: k.ego.map(map) })
             .collect();
         let f = Self {
             name: self.name.clone(),
@@ -243,6 +263,31 @@ impl Flight {
             .filter(|u| u.cross(dir).length() > 1e-9 * dir.length())
             .unwrap_or(v(if s < 0.5 { a.up } else { b.up }));
         Pose { eye, target, up }
+    }
+
+    /// True when the keys carry an ego track.
+    #[must_use]
+    pub fn has_ego(&self) -> bool {
+        self.keys.first().is_some_and(|k| k.ego.is_some())
+    }
+
+    /// The ego position at time `t`, interpolated like the eye (held before the first key and
+    /// after the last); `None` for a flight without an ego track. In the flight's own frame.
+    #[must_use]
+    pub fn ego_at(&self, t: f64) -> Option<DVec3> {
+        let keys = &self.keys;
+        let v = |k: &Key| k.ego.map(DVec3::from_array);
+        let first = keys.first()?;
+        let i = keys.partition_point(|k| k.t <= t);
+        if i == 0 || !t.is_finite() {
+            return v(first);
+        }
+        if i >= keys.len() {
+            return v(&keys[keys.len() - 1]);
+        }
+        let (a, b) = (&keys[i - 1], &keys[i]);
+        let s = ((t - a.t) / (b.t - a.t)).clamp(0.0, 1.0);
+        Some(v(a)?.lerp(v(b)?, s))
     }
 
     /// Pretty JSON of the flight.
@@ -303,6 +348,48 @@ mod tests {
         assert!(e("not json").contains("line 1"));
         let err = Flight::load(Path::new("/nonexistent/flight.json")).unwrap_err().to_string();
         assert!(err.starts_with("/nonexistent/flight.json:"), "{err}");
+    }
+
+    #[test]
+    fn ego_track_loads_interpolates_and_is_validated() {
+        let f = Flight::from_json(
+            r#"{"keys":[
+                {"t":0,"eye":[0,0,10],"target":[10,0,0],"ego":[100,200,5]},
+                {"t":4,"eye":[20,0,10],"target":[10,10,0],"ego":[140,180,9]}]}"#,
+        )
+        .unwrap();
+        assert!(f.has_ego());
+        assert_eq!(f.ego_at(1.0), Some(DVec3::new(110.0, 195.0, 6.0)));
+        assert_eq!(f.ego_at(-1.0), Some(DVec3::new(100.0, 200.0, 5.0)));
+        assert_eq!(f.ego_at(9.0), Some(DVec3::new(140.0, 180.0, 9.0)));
+        assert_eq!(Flight::from_json(&f.to_json().unwrap()).unwrap(), f);
+        // Old flights (no ego) still load and have none.
+        let old = Flight::from_json(r#"{"keys":[{"t":0,"eye":[0,0,10],"target":[10,0,0]}]}"#).unwrap();
+        assert!(!old.has_ego() && old.ego_at(0.0).is_none());
+        assert!(!old.to_json().unwrap().contains("ego"));
+        let e = |s: &str| Flight::from_json(s).unwrap_err().to_string();
+        let missing = e(r#"{"keys":[{"t":0,"eye":[0,0,1],"target":[1,0,0],"ego":[0,0,0]},
+            {"t":1,"eye":[0,0,1],"target":[1,0,0]}]}"#);
+        assert!(missing.starts_with("keys[1].ego: missing while keys[0] has one"), "{missing}");
+        let given = e(r#"{"keys":[{"t":0,"eye":[0,0,1],"target":[1,0,0]},
+            {"t":1,"eye":[0,0,1],"target":[1,0,0],"ego":[0,0,0]}]}"#);
+        assert!(given.starts_with("keys[1].ego: given while keys[0] has none"), "{given}");
+        // JSON has no NaN: a flight built in code can carry one.
+        let mut bad = f.clone();
+        bad.keys[1].ego = Some([f64::NAN, 0.0, 0.0]);
+        let nan = bad.validate().unwrap_err().to_string();
+        assert!(nan.starts_with("keys[1].ego: [NaN, 0.0, 0.0] is not finite"), "{nan}");
+        assert!(
+            e(r#"{"keys":[{"t":0,"eye":[0,0,1],"target":[1,0,0],"ego":[1,2]}]}"#)
+                .contains("invalid flight JSON")
+        );
+        // A normalised flight's ego is mapped like its eye.
+        let n = Flight::from_json(
+            r#"{"frame":"normalized","keys":[{"t":0,"eye":[0,0,1],"target":[1,1,0],"ego":[0.5,0.25,0]}]}"#,
+        )
+        .unwrap();
+        let w = n.to_world(&Bounds::new([100.0, 200.0, 10.0], [500.0, 400.0, 60.0])).unwrap();
+        assert_eq!(w.keys[0].ego, Some([300.0, 250.0, 10.0]));
     }
 
     #[test]

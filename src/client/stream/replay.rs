@@ -5,6 +5,13 @@
 //!
 //! Frames are paced at `fps` and the flight advances `1/fps` per frame, so a slow frame delays
 //! the flight instead of skipping poses.
+//!
+//! With a collision radius the ego is the flight's ego track at the frame's time, or, for a
+//! flight without one, the camera's eye (its x, y: the point under the camera). Its look-ahead
+//! distance is the farthest (horizontally) the ego gets from there within the next
+//! `lookahead_s · speed` flight seconds (sampled at eight steps). Warm-up ends with the first
+//! frame whose region is complete (no miss); `misses_after_warmup` counts the misses from that
+//! frame on, and is `null` when no frame was complete.
 
 use std::time::Duration;
 #[cfg(feature = "gpu")]
@@ -17,6 +24,7 @@ use crate::client::stream::flight_path::Flight;
 use crate::client::stream::session::{FrameStats, ReplayPhase, Session, SessionOptions};
 #[cfg(feature = "gpu")]
 use crate::client::stream::view::SessionView;
+use glam::DVec3;
 
 /// Frames per second of a replay (`--fps`).
 pub const DEFAULT_FPS: f64 = 30.0;
@@ -69,6 +77,34 @@ pub struct Totals {
     pub frame_ms_max: f64,
     pub render_ms_mean: f64,
     pub render_ms_max: f64,
+    /// The collision region's totals (only with a collision radius).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub collision: Option<CollisionTotals>,
+}
+
+/// The collision region over a replay (`stats.json`'s `totals.collision`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct CollisionTotals {
+    pub radius_m: f64,
+    pub lookahead_s: f64,
+    /// Where the ego came from: `"flight"` (the flight's ego track) or `"camera"` (the eye).
+    pub ego: String,
+    /// Required nodes per frame: mean and most.
+    pub required_mean: f64,
+    pub required_max: u32,
+    /// (frame, node) pairs where a required node was not resident at level 0 when drawn.
+    pub misses: u64,
+    /// The first frame whose region was complete (the end of warm-up); `null` if none was.
+    pub warm_frame: Option<u32>,
+    /// Its session time (s).
+    pub warm_s: Option<f64>,
+    /// Misses from the warm frame on; `null` when no frame was complete.
+    pub misses_after_warmup: Option<u64>,
+    /// Response body bytes received for resources the region asked for (level-0 leaf blobs
+    /// and index chunks, whether or not the view wanted them too).
+    pub bytes: u64,
+    /// Distinct leaves the region asked for and that arrived at level 0.
+    pub leaves_fetched: u64,
 }
 
 /// `stats.json`.
@@ -117,6 +153,7 @@ pub fn replay(
         return Err(ClientError::Camera(format!("speed {} must be positive", opts.speed)));
     }
     let world = flight.to_world(&session.manifest().bounds).map_err(ClientError::FlightFrame)?;
+    let lookahead = session.options().collision.map(|c| c.lookahead_s * opts.speed);
     let t0 = session.now();
     let mut frames = Vec::new();
     let mut settle_start = None;
@@ -133,6 +170,10 @@ pub fn replay(
             }
         }
         let pose = world.pose_at(t);
+        if let Some(ahead_s) = lookahead {
+            let (ego, ahead_m) = ego_and_reach(&world, t, ahead_s);
+            session.set_ego(ego, ahead_m)?;
+        }
         let mut f = session.frame(&pose, t.min(world.end()), phase)?;
         on_frame(session, &mut f)?;
         frames.push(f);
@@ -143,7 +184,52 @@ pub fn replay(
             std::thread::sleep(Duration::from_secs_f64(wait));
         }
     }
-    Ok((frames.clone(), totals(session, &frames)))
+    let mut totals = totals(session, &frames);
+    totals.collision = session.options().collision.map(|c| CollisionTotals {
+        radius_m: c.radius_m,
+        lookahead_s: c.lookahead_s,
+        ego: if world.has_ego() { "flight" } else { "camera" }.to_owned(),
+        ..collision_totals(session, &frames)
+    });
+    Ok((frames, totals))
+}
+
+/// The ego at flight time `t` (its track, else the camera's eye) and the farthest it gets
+/// horizontally within the next `ahead_s` flight seconds.
+fn ego_and_reach(world: &Flight, t: f64, ahead_s: f64) -> (DVec3, f64) {
+    let at = |t: f64| world.ego_at(t).unwrap_or_else(|| world.pose_at(t).eye);
+    let ego = at(t);
+    let reach =
+        (1..=8).map(|i| (at(t + ahead_s * f64::from(i) / 8.0) - ego).truncate().length()).fold(0.0, f64::max);
+    (ego, reach)
+}
+
+/// The collision figures of `frames` (radius, look-ahead and ego source left for the caller).
+#[must_use]
+pub fn collision_totals(session: &Session, frames: &[FrameStats]) -> CollisionTotals {
+    let c: Vec<(&FrameStats, &crate::client::stream::session::CollisionFrame)> =
+        frames.iter().filter_map(|f| f.collision.as_ref().map(|c| (f, c))).collect();
+    let warm = c.iter().position(|(_, c)| c.misses == 0);
+    let n = c.len().max(1) as f64;
+    let asked = session.collision_asked();
+    CollisionTotals {
+        required_mean: c.iter().map(|(_, c)| f64::from(c.required)).sum::<f64>() / n,
+        required_max: c.iter().map(|(_, c)| c.required).max().unwrap_or(0),
+        misses: c.iter().map(|(_, c)| u64::from(c.misses)).sum(),
+        warm_frame: warm.map(|i| c[i].0.frame),
+        warm_s: warm.map(|i| c[i].0.wall_s),
+        misses_after_warmup: warm.map(|i| c[i..].iter().map(|(_, c)| u64::from(c.misses)).sum()),
+        bytes: session.collision_bytes(),
+        leaves_fetched: session
+            .fetch_counts()
+            .keys()
+            .filter(|r| {
+                matches!(r, crate::client::stream::fetch::Resource::Tile { level: 0, .. })
+                    && asked.contains(r)
+            })
+            .count() as u64,
+        ..CollisionTotals::default()
+    }
 }
 
 fn totals(session: &Session, frames: &[FrameStats]) -> Totals {
@@ -171,6 +257,7 @@ fn totals(session: &Session, frames: &[FrameStats]) -> Totals {
         frame_ms_max: frames.iter().map(|f| f.frame_ms).fold(0.0, f64::max),
         render_ms_mean: frames.iter().map(|f| f.render_ms).sum::<f64>() / n,
         render_ms_max: frames.iter().map(|f| f.render_ms).fold(0.0, f64::max),
+        collision: None,
     }
 }
 

@@ -5,6 +5,13 @@
 //! application that drives a session along a camera flight lives in
 //! [`crate::client::stream::replay`].
 //!
+//! With a collision radius ([`SessionOptions::collision`]) each frame also names the leaves
+//! within `R` of the ego ([`crate::client::collision`]) and asks for their level 0 ahead of
+//! every view tile, together with the leaves the ego will reach within the look-ahead
+//! ([`Session::set_ego`]); those tiles are held in the cache from the moment they are asked for
+//! (never evicted while in the region), and each frame counts the required leaves not resident at level 0 when the frame is
+//! drawn (misses).
+//!
 //! The wall clock is the session's time (timeouts, backoff, `Retry-After` and fades are real).
 
 use std::collections::{HashMap, HashSet};
@@ -14,16 +21,18 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime};
 
+use glam::DVec3;
 use serde::Serialize;
 
 use crate::client::ClientError;
+use crate::client::collision::{self, CollisionParams, Region};
 use crate::client::select::{Camera, DrawItem, SelectParams, SelectStats, Selector};
 use crate::client::stream::fetch::{
     self, FetchParams, Outcome, RequestId, Resource, Scheduler, TileCache, Transport, parse_retry_after,
 };
 use crate::client::stream::flight_path::Pose;
 use crate::client::stream::http::{self, BaseUrl};
-use crate::client::tree::TileTree;
+use crate::client::tree::{NodeId, TileTree};
 use crate::codec::{self, Blob};
 use crate::store::{IndexChunk, Manifest};
 use crate::tiling::TileKey;
@@ -42,6 +51,8 @@ pub struct SessionOptions {
     pub select: SelectParams,
     pub fetch: FetchParams,
     pub cache_bytes: usize,
+    /// The collision region (`--collision-radius`); `None`: none.
+    pub collision: Option<CollisionParams>,
 }
 
 impl Default for SessionOptions {
@@ -53,6 +64,7 @@ impl Default for SessionOptions {
             select: SelectParams::default(),
             fetch: FetchParams::default(),
             cache_bytes: fetch::DEFAULT_CACHE_BYTES,
+            collision: None,
         }
     }
 }
@@ -172,6 +184,40 @@ pub struct FrameStats {
     /// PNG encoding and writing of this frame (not in `frame_ms`; 0 when not written).
     pub write_ms: f64,
     pub cache_bytes: u64,
+    /// The collision region's figures (only with a collision radius).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub collision: Option<CollisionFrame>,
+}
+
+/// The collision region in one frame (`stats.json`'s `frames[i].collision`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct CollisionFrame {
+    /// The ego position used (world units).
+    pub ego: [f64; 3],
+    /// Nodes required: leaves within the radius, plus one per node within it whose children's
+    /// index chunk has not arrived (its leaves cannot be named yet), plus one for a missing root.
+    pub required: u32,
+    /// Required nodes not resident at level 0 when the frame was drawn (unnamed ones included).
+    pub misses: u32,
+    /// Leaves asked for or held: within the radius grown by the ego's look-ahead distance.
+    pub held: u32,
+    /// The look-ahead distance added to the radius for fetching (world units).
+    pub ahead_m: f64,
+    /// Response body bytes received since the previous frame for resources the region asked
+    /// for.
+    pub bytes: u64,
+}
+
+/// The collision region's working state in a session.
+#[derive(Debug, Default)]
+struct CollisionState {
+    /// Ego and look-ahead distance for the next frame ([`Session::set_ego`]).
+    next: Option<(DVec3, f64)>,
+    required: Region,
+    held: Region,
+    /// Every resource the region asked for.
+    asked: HashSet<Resource>,
+    bytes: u64,
 }
 
 /// A streaming client of one tileset.
@@ -190,6 +236,7 @@ pub struct Session {
     bytes_total: u64,
     decode_errors: u64,
     fetched: HashMap<Resource, u32>,
+    collision: CollisionState,
 }
 
 fn net(msg: String) -> ClientError {
@@ -200,6 +247,9 @@ impl Session {
     /// Fetches the tileset's manifest from `url` (`http://host:port[/prefix]`) and starts the
     /// workers; index chunks and blobs follow frame by frame.
     pub fn connect(url: &str, tileset: &str, opts: SessionOptions) -> Result<Self, ClientError> {
+        if let Some(c) = opts.collision {
+            CollisionParams::new(c.radius_m, c.lookahead_s)?;
+        }
         let base = BaseUrl::parse(url)?;
         let addr = base.resolve()?;
         let timeout = Duration::from_secs_f64(opts.fetch.timeout_s.clamp(0.001, 3600.0));
@@ -231,8 +281,43 @@ impl Session {
             bytes_total: resp.body.len() as u64,
             decode_errors: 0,
             fetched: HashMap::new(),
+            collision: CollisionState::default(),
             manifest,
         })
+    }
+
+    #[must_use]
+    pub fn options(&self) -> &SessionOptions {
+        &self.opts
+    }
+
+    /// Sets the ego position (world units) and how far (horizontally) it will move within the
+    /// look-ahead, for the next frame only. A frame without one uses the camera's eye and no
+    /// look-ahead.
+    ///
+    /// # Errors
+    /// A position that is not finite or a distance that is not a finite number ≥ 0.
+    pub fn set_ego(&mut self, ego: DVec3, ahead_m: f64) -> Result<(), ClientError> {
+        if !(ego.is_finite() && ahead_m.is_finite() && ahead_m >= 0.0) {
+            return Err(ClientError::Collision(format!(
+                "ego {:?} with look-ahead distance {ahead_m} is not a finite position and distance ≥ 0",
+                ego.to_array()
+            )));
+        }
+        self.collision.next = Some((ego, ahead_m));
+        Ok(())
+    }
+
+    /// Every resource the collision region has asked for.
+    #[must_use]
+    pub fn collision_asked(&self) -> &HashSet<Resource> {
+        &self.collision.asked
+    }
+
+    /// Response body bytes received for resources the collision region asked for.
+    #[must_use]
+    pub fn collision_bytes(&self) -> u64 {
+        self.collision.bytes
     }
 
     #[must_use]
@@ -297,6 +382,7 @@ impl Session {
         let start = Instant::now();
         let now = self.now();
         let before = self.bytes_total;
+        let region_before = self.collision.bytes;
         self.take_replies(now)?;
         let camera = Camera::new(pose, self.opts.width, self.opts.height, self.opts.fov_deg);
         let sel_start = Instant::now();
@@ -305,9 +391,12 @@ impl Session {
         let mut wants = fetch::wants_of(&sel.wants, &sel.missing_chunks);
         let root = TileKey::new(0, 0, 0);
         if self.tree.root().is_none() && self.scheduler.failure(&Resource::Chunk { root }).is_none() {
-            wants
-                .push((Resource::Chunk { root }, fetch::Priority { visible: true, error_px: f64::INFINITY }));
+            wants.push((
+                Resource::Chunk { root },
+                fetch::Priority { visible: true, error_px: f64::INFINITY, ..fetch::Priority::default() },
+            ));
         }
+        let view_complete = wants.is_empty() && self.tree.root().is_some();
         let s = &sel.stats;
         let mut stats = FrameStats {
             frame: self.frame,
@@ -318,13 +407,20 @@ impl Session {
                 under_threshold: s.under_threshold && !sel.draws.is_empty(),
                 ..s.clone()
             },
-            complete: wants.is_empty() && self.tree.root().is_some(),
+            complete: view_complete,
             select_ms,
             ..FrameStats::default()
         };
         self.draws.clear();
         self.draws.extend_from_slice(&sel.draws);
+        let ego = self.collision.next.take().unwrap_or((pose.eye, 0.0));
+        let collision = self.opts.collision.map(|c| self.collision_wants(&c, ego, &mut wants));
         self.camera = Some(camera);
+        // The region's leaves are held (pinned, arrived or not): never evicted while in it.
+        if self.opts.collision.is_some() {
+            let tree = &self.tree;
+            self.cache.set_held(self.collision.held.leaves.iter().map(|&n| (tree.node(n).key, 0)));
+        }
         self.cache.set_drawn(self.draws.iter().map(|d| (d.key, d.level)));
         self.scheduler.update(&wants, now);
         self.scheduler.pump(now, &mut self.transport);
@@ -333,8 +429,52 @@ impl Session {
         stats.requests_in_flight = u32::try_from(self.scheduler.in_flight()).unwrap_or(u32::MAX);
         stats.pending = u32::try_from(self.scheduler.pending()).unwrap_or(u32::MAX);
         stats.cache_bytes = self.cache.used_bytes() as u64;
+        stats.collision =
+            collision.map(|c| CollisionFrame { bytes: self.collision.bytes - region_before, ..c });
         stats.frame_ms = start.elapsed().as_secs_f64() * 1e3;
         Ok(stats)
+    }
+
+    /// The collision region at `ego` (with look-ahead distance): counts misses against what is
+    /// resident now and appends its wants, ahead of the view's, to `wants`.
+    fn collision_wants(
+        &mut self,
+        c: &CollisionParams,
+        (ego, ahead_m): (DVec3, f64),
+        wants: &mut Vec<(Resource, fetch::Priority)>,
+    ) -> CollisionFrame {
+        let st = &mut self.collision;
+        collision::region_into(&self.tree, ego, c.radius_m, &mut st.required);
+        let reach = c.radius_m + ahead_m;
+        collision::region_into(&self.tree, ego, reach, &mut st.held);
+        let resident = |n: NodeId| self.cache.contains(self.tree.node(n).key, 0);
+        let missing_leaves = st.required.leaves.iter().filter(|&&n| !resident(n)).count();
+        let misses = missing_leaves + st.required.unresolved.len() + usize::from(st.required.root_missing);
+        for &root in &st.held.missing_chunks {
+            let r = Resource::Chunk { root };
+            st.asked.insert(r);
+            wants.push((r, fetch::Priority { collision: true, visible: true, error_px: f64::INFINITY }));
+        }
+        let p = ego.truncate();
+        for &n in &st.held.leaves {
+            let node = self.tree.node(n);
+            if self.cache.contains(node.key, 0) {
+                continue;
+            }
+            let r = Resource::Tile { key: node.key, level: 0 };
+            st.asked.insert(r);
+            // Nearer the ego first: every leaf within the radius goes before the look-ahead's.
+            let error_px = reach - collision::horizontal_distance(&node.cull, p);
+            wants.push((r, fetch::Priority { collision: true, visible: true, error_px }));
+        }
+        CollisionFrame {
+            ego: ego.to_array(),
+            required: u32::try_from(st.required.required()).unwrap_or(u32::MAX),
+            misses: u32::try_from(misses).unwrap_or(u32::MAX),
+            held: u32::try_from(st.held.leaves.len()).unwrap_or(u32::MAX),
+            ahead_m,
+            bytes: 0,
+        }
     }
 
     fn take_replies(&mut self, now: f64) -> Result<(), ClientError> {
@@ -344,6 +484,9 @@ impl Session {
             let (outcome, body) = match res {
                 Ok(resp) => {
                     self.bytes_total += resp.body.len() as u64;
+                    if self.collision.asked.contains(&r) {
+                        self.collision.bytes += resp.body.len() as u64;
+                    }
                     if resp.status == 200 {
                         (Outcome::Ok { bytes: resp.body.len() as u64 }, Some(resp.body))
                     } else {
