@@ -41,7 +41,10 @@ fn run(name: &str, points: &[[f64; 2]], batch: usize, secs: f64, mut f: impl FnM
         done = end;
     }
     let s = t.elapsed().as_secs_f64();
-    println!("inproc {name} batch={batch} points={done} secs={s:.4} pts_per_s={:.0} answered={answered}", done as f64 / s);
+    println!(
+        "inproc {name} batch={batch} points={done} secs={s:.4} pts_per_s={:.0} answered={answered}",
+        done as f64 / s
+    );
 }
 
 fn main() {
