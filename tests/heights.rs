@@ -353,6 +353,18 @@ fn heightmap_tiles_carry_the_source_heights_in_web_mercator() {
         "{mid} (coarser TIN than the finest)"
     );
 
+    // Baked through export: the same bytes as served, and a TileJSON over them.
+    let out = tmp.path().join("hm");
+    ok(bin()
+        .arg("export")
+        .arg(store.join("baked"))
+        .args(["--format", "heightmap", "--zooms", "9:10", "-q", "--out"])
+        .arg(&out));
+    assert_eq!(std::fs::read(out.join(format!("10/{x}/{y}.png"))).unwrap(), p, "exported = served");
+    let tj: Value = serde_json::from_slice(&std::fs::read(out.join("tiles.json")).unwrap()).unwrap();
+    assert_eq!((tj["minzoom"].as_u64(), tj["maxzoom"].as_u64()), (Some(9), Some(10)));
+    assert!(out.join(format!("9/{}/{}.png", x / 2, y / 2)).is_file());
+
     // Outside the data, off the grid, bad options.
     assert_eq!(request(a, "GET", "/tilesets/od/heightmap/10/0/0.png", &[], &[]).0, 404);
     assert_eq!(request(a, "GET", "/tilesets/od/heightmap/23/0/0.png", &[], &[]).0, 404);

@@ -275,3 +275,155 @@ fn write_file(path: &std::path::Path, bytes: &[u8]) -> io::Result<()> {
     }
     std::fs::write(path, bytes)
 }
+
+/// What [`export_heightmap`] wrote.
+#[derive(Debug, Clone, Copy)]
+pub struct HeightmapExport {
+    pub tiles: u64,
+    pub bytes: u64,
+    pub zooms: (u8, u8),
+}
+
+/// A store's blobs as the heights samplers read them (level 0 of a node).
+struct StoreBlobs<'a>(&'a crate::store::Store);
+
+impl crate::heights::BlobSource for StoreBlobs<'_> {
+    fn blob(&self, key: crate::tiling::TileKey) -> Result<Option<Vec<u8>>, String> {
+        self.0.read_blob(key, 0).map_err(|e| e.to_string())
+    }
+}
+
+/// Writes a placed tileset's heightmap tiles (the server's `/heightmap/` tiles: the TIN at each
+/// tile's scale, heights above the EGM96 geoid) for zooms `zooms` into `out`:
+/// `{z}/{x}/{y}.png` in `encoding` (or `.f32` float32 when `encoding` is `None`) and
+/// `tiles.json` (TileJSON with a relative tile template). Staged beside `out` and renamed into
+/// place when complete; `out` must not exist or be empty. `progress(done, total)` counts tiles.
+pub fn export_heightmap(
+    store: &crate::store::Store,
+    out: &std::path::Path,
+    zooms: Option<(u8, u8)>,
+    encoding: Option<crate::formats::heightmap::Encoding>,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<HeightmapExport, ExportError> {
+    use rayon::prelude::*;
+    use std::sync::atomic::{AtomicU64, Ordering};
+
+    use crate::formats::heightmap::{self as hm, Xyz};
+    use crate::heights::{Coords, Datum, MeshCache, MeshSampler, Query};
+
+    let io_err = |path: &std::path::Path| {
+        let path = path.to_owned();
+        move |source| ExportError::Io { path, source }
+    };
+    let invalid =
+        |message: String| crate::store::StoreError::Invalid { path: store.dir().to_owned(), message };
+    let m = store.manifest()?;
+    let frame = m.frame.frame().map_err(|e| invalid(format!("its frame: {e}")))?.ok_or_else(|| {
+        invalid(
+            "the tileset is not placed on the Earth (no CRS): heightmap tiles need a georeferenced dataset"
+                .into(),
+        )
+    })?;
+    let r = crate::formats::tiles3d::earth::region(&frame, &m.bounds).map_err(|e| invalid(e.to_string()))?;
+    let (west, south, east, north) =
+        (r[0].to_degrees(), r[1].to_degrees(), r[2].to_degrees(), r[3].to_degrees());
+    let cell_m = m.frame.dx.abs().min(m.frame.dy.abs());
+    let max_zoom = hm::zoom_for_cell(cell_m, f64::midpoint(south, north));
+    let (z0, z1) = zooms.unwrap_or((0, max_zoom));
+    if z0 > z1 || z1 > hm::MAX_ZOOM {
+        return Err(invalid(format!("zooms {z0}:{z1}: give A:B with A ≤ B ≤ {}", hm::MAX_ZOOM)).into());
+    }
+    let pyramid = crate::tiling::Pyramid::new(m.source.width, m.source.height, m.tile_size)
+        .map_err(|e| invalid(e.to_string()))?;
+    // Every tile of the zooms that meets the data (two ranges across the antimeridian).
+    let mut tiles = Vec::new();
+    let lon_ranges = if west <= east { vec![(west, east)] } else { vec![(west, 180.0), (-180.0, east)] };
+    for z in z0..=z1 {
+        for &(w, e) in &lon_ranges {
+            if let Some((x0, x1, y0, y1)) = hm::tile_range(z, w, south, e, north) {
+                let n = u64::from(x1 - x0 + 1) * u64::from(y1 - y0 + 1);
+                if tiles.len() as u64 + n > 10_000_000 {
+                    return Err(invalid(format!(
+                        "zooms {z0}:{z1} make more than 10,000,000 tiles; export fewer zooms (--zooms A:B)"
+                    ))
+                    .into());
+                }
+                for y in y0..=y1 {
+                    for x in x0..=x1 {
+                        tiles.extend(Xyz::new(z, x, y));
+                    }
+                }
+            }
+        }
+    }
+    if out.exists() {
+        let empty = out.is_dir() && std::fs::read_dir(out).map_err(io_err(out))?.next().is_none();
+        if !empty {
+            return Err(ExportError::Io {
+                path: out.to_owned(),
+                source: io::Error::new(
+                    io::ErrorKind::AlreadyExists,
+                    "exists and is not an empty directory; choose another --out",
+                ),
+            });
+        }
+    }
+    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+    std::fs::create_dir_all(parent).map_err(io_err(parent))?;
+    let stage = parent.join(format!(
+        ".{}.partial-{}",
+        out.file_name().map_or_else(|| "export".into(), |n| n.to_string_lossy().into_owned()),
+        std::process::id()
+    ));
+    let cache = std::sync::Arc::new(MeshCache::new(512 << 20));
+    let sampler = MeshSampler::with_cache(StoreBlobs(store), pyramid, &m.frame, cache, 0)
+        .map_err(|e| invalid(e.to_string()))?;
+    let q = Query { coords: Coords::Wgs84, datum: Datum::Geoid, ..Query::default() };
+    let ext = if encoding.is_some() { "png" } else { "f32" };
+    let result = (|| {
+        if stage.exists() {
+            std::fs::remove_dir_all(&stage).map_err(io_err(&stage))?;
+        }
+        let total = tiles.len() as u64;
+        let (done, bytes) = (AtomicU64::new(0), AtomicU64::new(0));
+        tiles.par_iter().try_for_each(|&t| -> Result<(), ExportError> {
+            let depth = hm::mesh_depth(t, cell_m, m.depth);
+            let hs = sampler
+                .sample(&t.pixel_centres(), q, depth)
+                .map_err(|e| invalid(format!("heightmap tile {}/{}/{}: {e}", t.z, t.x, t.y)))?;
+            let hs: Vec<Option<f64>> =
+                hs.iter().map(|h| (!h.nodata && h.h.is_finite()).then_some(h.h)).collect();
+            let body = match encoding {
+                Some(enc) => hm::png(&hs, enc),
+                None => hm::f32_tile(&hs),
+            };
+            let dest = stage.join(format!("{}/{}/{}.{ext}", t.z, t.x, t.y));
+            write_file(&dest, &body).map_err(io_err(&dest))?;
+            bytes.fetch_add(body.len() as u64, Ordering::Relaxed);
+            progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
+            Ok(())
+        })?;
+        let tj = serde_json::json!({
+            "tilejson": "3.0.0",
+            "name": store.name().unwrap_or_else(|| "tileset".to_owned()),
+            "scheme": "xyz",
+            "tiles": [format!("{{z}}/{{x}}/{{y}}.{ext}")],
+            "minzoom": z0,
+            "maxzoom": z1,
+            "bounds": [west, south.max(-hm::MAX_LAT), east, north.min(hm::MAX_LAT)],
+            "tileSize": hm::TILE_PX,
+            "encoding": encoding.map_or("float32", hm::Encoding::maplibre_name),
+        });
+        let path = stage.join("tiles.json");
+        write_file(&path, &serde_json::to_vec_pretty(&tj).unwrap_or_default()).map_err(io_err(&path))?;
+        if out.exists() {
+            std::fs::remove_dir(out).map_err(io_err(out))?;
+        }
+        std::fs::rename(&stage, out).map_err(io_err(out))?;
+        Ok(HeightmapExport { tiles: total, bytes: bytes.into_inner(), zooms: (z0, z1) })
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(&stage);
+    }
+    result
+}

@@ -26,6 +26,10 @@ pub enum ExportFormat {
     /// tilesets per index chunk, one GLB per stored tile and level) into the folder --out.
     #[value(name = "3dtiles")]
     Tiles3d,
+    /// A placed tileset's heightmap tiles on the Web-Mercator XYZ grid into the folder --out:
+    /// {z}/{x}/{y}.png (Terrarium or Terrain-RGB, --encoding) or .f32 (--encoding float32) and
+    /// tiles.json, the tiles the server gives at /tilesets/{name}/heightmap/.
+    Heightmap,
 }
 
 #[derive(clap::Args)]
@@ -52,9 +56,22 @@ pub struct ExportArgs {
     /// 3dtiles: place the tileset at LON,LAT[,HEIGHT] (overrides the tileset's own anchor).
     #[arg(long, value_parser = super::bake::parse_anchor, allow_hyphen_values = true)]
     pub anchor: Option<Anchor>,
+    /// heightmap: the zooms to write, A:B (default: 0 to where the tiles' pixels match the
+    /// source's cells).
+    #[arg(long, value_parser = parse_zooms)]
+    pub zooms: Option<(u8, u8)>,
+    /// heightmap: terrarium (default), terrain-rgb, or float32 (.f32 tiles).
+    #[arg(long, default_value = "terrarium")]
+    pub encoding: String,
     /// No progress bar.
     #[arg(long, short)]
     pub quiet: bool,
+}
+
+fn parse_zooms(s: &str) -> Result<(u8, u8), String> {
+    let (a, b) = s.split_once(':').ok_or_else(|| format!("{s:?}: give the zooms as A:B, e.g. 0:12"))?;
+    let z = |v: &str| v.parse::<u8>().map_err(|_| format!("{v:?} is not a zoom (0 to 22)"));
+    Ok((z(a)?, z(b)?))
 }
 
 impl ExportFormat {
@@ -63,6 +80,7 @@ impl ExportFormat {
             Self::Ply => "ply",
             Self::Obj => "obj",
             Self::Tiles3d => "3dtiles",
+            Self::Heightmap => "heightmap",
         }
     }
 }
@@ -95,6 +113,7 @@ pub fn run(a: &ExportArgs) -> Result<()> {
         ExportFormat::Ply => Format::Ply,
         ExportFormat::Obj => Format::Obj,
         ExportFormat::Tiles3d => return run_3dtiles(a, &store),
+        ExportFormat::Heightmap => return run_heightmap(a, &store),
     };
     let (Some(tile), Some(level)) = (a.tile, a.level) else {
         bail!("export --format {}: --tile Z/X/Y and --level N name the tile to export", chosen.name());
@@ -104,6 +123,43 @@ pub fn run(a: &ExportArgs) -> Result<()> {
     }
     let n = export::export_tile(&store, tile, level, format, &a.out, a.force)?;
     outln!("wrote {} ({n} {})", a.out.display(), if level == 0 { "vertices" } else { "points" });
+    Ok(())
+}
+
+fn run_heightmap(a: &ExportArgs, store: &Store) -> Result<()> {
+    if a.tile.is_some() || a.level.is_some() || a.anchor.is_some() || a.force {
+        bail!(
+            "export --format heightmap writes every tile of its zooms into a new folder: drop --tile, --level, --anchor and --force"
+        );
+    }
+    let encoding = match a.encoding.as_str() {
+        "float32" => None,
+        e => Some(terrastream::formats::heightmap::Encoding::parse(e).ok_or_else(|| {
+            anyhow::anyhow!("export --encoding {e:?}: use terrarium, terrain-rgb or float32")
+        })?),
+    };
+    let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(0) };
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} heightmap tiles  {per_sec}  ETA {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.enable_steady_tick(Duration::from_millis(200));
+    let t0 = Instant::now();
+    let r = export::export_heightmap(store, &a.out, a.zooms, encoding, &|done, total| {
+        bar.set_length(total);
+        bar.set_position(done);
+    });
+    bar.finish_and_clear();
+    let r = r?;
+    outln!(
+        "wrote {} in {:.2} s: {} heightmap tiles, zooms {}–{}, {} bytes; tiles.json is a MapLibre raster-dem source",
+        a.out.display(),
+        t0.elapsed().as_secs_f64(),
+        r.tiles,
+        r.zooms.0,
+        r.zooms.1,
+        r.bytes
+    );
     Ok(())
 }
 

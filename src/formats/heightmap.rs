@@ -134,6 +134,20 @@ impl Xyz {
     }
 }
 
+/// The depth of the quadtree nodes whose TIN a heightmap tile at `t` samples: the coarsest whose
+/// cells (`cell_metres` at the finest depth `finest`, doubling per level up) are no larger than
+/// the tile's pixels at its centre: what a client draws at that scale, and not every leaf under a
+/// continent-sized tile.
+#[must_use]
+pub fn mesh_depth(t: Xyz, cell_metres: f64, finest: u8) -> u8 {
+    let (_, s, _, n) = t.bounds();
+    let lat = f64::midpoint(s, n).clamp(-MAX_LAT, MAX_LAT);
+    let px = 2.0 * std::f64::consts::PI * crate::crs::ecef::A * lat.to_radians().cos()
+        / (f64::from(TILE_PX) * (1u64 << t.z) as f64);
+    let coarser = (px / cell_metres.max(f64::MIN_POSITIVE)).log2().floor().clamp(0.0, 255.0);
+    finest.saturating_sub(coarser as u8)
+}
+
 /// The zoom whose pixels are no larger than `cell_metres` at latitude `lat` (at most
 /// [`MAX_ZOOM`]): where a heightmap stops gaining detail from a source of that resolution.
 #[must_use]

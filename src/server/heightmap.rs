@@ -244,16 +244,9 @@ async fn tile_heights(
     let surface = match ask.surface {
         Surface::Source => Surface::Source,
         Surface::Mesh { .. } => {
-            // The nodes whose cells are no larger than the tile's pixels: what a client draws
-            // at this scale (and not every leaf under a continent-sized tile).
-            let (_, s, _, n) = t.bounds();
-            let lat = f64::midpoint(s, n).clamp(-hm::MAX_LAT, hm::MAX_LAT);
-            let px_m = 2.0 * std::f64::consts::PI * crate::crs::ecef::A * lat.to_radians().cos()
-                / (f64::from(TILE_PX) * (1u64 << t.z) as f64);
             let m: crate::store::Manifest = serde_json::from_slice(&ts.manifest_json)
                 .map_err(|_| Problem::internal("heightmap", "the manifest cannot be read"))?;
-            let coarser = (px_m / ext.cell_m.max(f64::MIN_POSITIVE)).log2().floor().max(0.0);
-            Surface::Mesh { depth: Some(m.depth.saturating_sub(coarser.min(255.0) as u8)) }
+            Surface::Mesh { depth: Some(hm::mesh_depth(t, ext.cell_m, m.depth)) }
         }
     };
     let which: Arc<Sampler> = Arc::new(sampler(ts, surface)?);
