@@ -392,6 +392,27 @@ pub fn tileset_json(avail: &Availability, level0_error: f64, version: &str) -> V
     })
 }
 
+/// The content version in a `layer.json`'s tile template (`…?v=VERSION`; empty without one):
+/// the 3D Tiles URIs carry the same, so both forms of the terrain change version together.
+#[must_use]
+pub fn layer_version(layer: &Value) -> &str {
+    layer["tiles"][0].as_str().and_then(|t| t.split_once("?v=")).map_or("", |(_, v)| v)
+}
+
+/// Zoom 0's error bound from a terrain bake's `stats.json` (`per_zoom["0"].bound`).
+#[must_use]
+pub fn level0_error_of_stats(stats: &Value) -> Option<f64> {
+    stats["per_zoom"]["0"]["bound"].as_f64().filter(|e| e.is_finite() && *e > 0.0)
+}
+
+/// The tileset JSON's bytes for a terrain described by `layer` (its availability and version)
+/// whose zoom 0 was built to `level0_error`: what the server sends and the bake writes.
+pub fn tileset_from_layer(layer: &Value, level0_error: f64) -> Result<Vec<u8>, Terrain3dError> {
+    let avail = Availability::from_layer(layer)?;
+    serde_json::to_vec_pretty(&tileset_json(&avail, level0_error, layer_version(layer)))
+        .map_err(|e| Terrain3dError::Layer(e.to_string()))
+}
+
 /// The geodetic (longitude, latitude in degrees, height) of each vertex of tile `id`, decoded
 /// as quantized-mesh clients decode it.
 #[must_use]

@@ -360,3 +360,18 @@ fn tileset_has_two_implicit_hemispheres() {
         "tiles/0/{level}/{x}/{y}.glb"
     );
 }
+
+#[test]
+fn tileset_from_a_layer_document() {
+    let layer = layer_json("t", &alps(), "", "v7");
+    assert_eq!(layer_version(&layer), "v7");
+    assert_eq!(layer_version(&json!({"tiles": ["{z}/{x}/{y}.terrain"]})), "");
+    let t: Value = serde_json::from_slice(&tileset_from_layer(&layer, 5.0).unwrap()).unwrap();
+    assert_eq!(t["root"]["children"][1]["content"]["uri"], "tiles/1/{level}/{x}/{y}.glb?v=v7");
+    assert_eq!(t["root"]["children"][1]["implicitTiling"]["availableLevels"], 10);
+    assert_eq!(t["root"]["geometricError"], 10.0);
+    assert!(tileset_from_layer(&json!({"tiles": []}), 5.0).is_err());
+    let stats = json!({"per_zoom": {"0": {"bound": 38_533.5}, "1": {"bound": 1.0}}});
+    assert_eq!(level0_error_of_stats(&stats), Some(38_533.5));
+    assert_eq!(level0_error_of_stats(&json!({"per_zoom": {"0": {"bound": -1.0}}})), None);
+}
