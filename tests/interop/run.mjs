@@ -7,11 +7,13 @@
 // Cesium globe terrain (quantized-mesh-1.0, baked with --terrain, and one served on demand): every
 // tile decoded by @here/quantized-mesh-decoder and checked, a crack test on neighbours, on-demand
 // tiles against baked ones, CesiumJS (the docs example page: a flight, sampleTerrainMostDetailed
-// against the source rasters) and 3DTilesRendererJS's QuantizedMeshPlugin. The last line printed
+// against the source rasters) and 3DTilesRendererJS's QuantizedMeshPlugin; the same terrain as 3D
+// Tiles (every GLB and subtree against the quantized-mesh tiles, the glTF validator, CesiumJS's
+// Cesium3DTilesTerrainProvider against its quantized-mesh provider). The last line printed
 // is `N passed, N failed`; exit 1 on a failure.
 //
 // Environment: TERRASTREAM_BIN, TERRASTREAM_DATA, CHROMIUM, INTEROP_OUT (see README.md),
-// INTEROP_TIMEOUT_S (whole run, default 480), INTEROP_KEEP=1 (keep the temp store).
+// INTEROP_TIMEOUT_S (whole run, default 660), INTEROP_KEEP=1 (keep the temp store).
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
@@ -32,6 +34,7 @@ import { toLonLat, placeSample, interiorGrid } from './lib/earth.mjs';
 import { multiplyPoint } from './lib/mat4.mjs';
 import { terrainSamples, closeHttp } from './lib/terrain.mjs';
 import { decodeCheck, crackCheck, onDemandCheck, cesiumTerrainCheck, terrainHeightsCheck, threeTerrainCheck } from './lib/qm-checks.mjs';
+import { tiles3dTerrainCheck, cesium3dTerrainCheck } from './lib/t3d-checks.mjs';
 
 const HERE = path.dirname(fileURLToPath(import.meta.url));
 const fromHere = (p) => path.resolve(HERE, p);
@@ -40,7 +43,7 @@ const cfg = {
   data: process.env.TERRASTREAM_DATA ? path.resolve(process.env.TERRASTREAM_DATA) : fromHere('../../../shared/data'),
   chromium: process.env.CHROMIUM || '/usr/bin/chromium',
   out: process.env.INTEROP_OUT ? path.resolve(process.env.INTEROP_OUT) : fromHere('out'),
-  timeoutS: Number(process.env.INTEROP_TIMEOUT_S || 480),
+  timeoutS: Number(process.env.INTEROP_TIMEOUT_S || 660),
   keep: process.env.INTEROP_KEEP === '1',
 };
 
@@ -109,6 +112,13 @@ const GLOBE_STOPS = [
 // to zoom 9 at least (its tiles' geometric error 77,067 m / 2^z against its errorTarget of 2 px
 // asks for zoom 10 at 1024×768 from there).
 const THREE_TERRAIN = { name: 'vinschgau', range: 3e4, minZoom: 9 };
+// The terrain as 3D Tiles (check k): every tile of vinschgau's (and the on-demand copy's), then
+// CesiumJS's Cesium3DTilesTerrainProvider flying onto it (no imagery, 640×480, three stops) and
+// sampleTerrainMostDetailed from both providers at T3D_GRID² points on the sample lattice and as
+// many a third of a cell off it (inside triangles). Tolerance: the GLB stores each vertex as an
+// f32 offset from the tile's centre (≤ 2⁻²⁴ of a zoom-11 tile, 0.6 mm, per axis; CesiumJS keeps
+// heights and u/v in f32 too): 5 mm.
+const T3D = { name: 'vinschgau', grid: 5, tolM: 0.005, msPerStop: 30_000, stops: [{ range: 1.5e6, pitch: -90 }, { range: 5e4, pitch: -45 }, { range: 1.5e4, pitch: -35 }] };
 // The example page for users; check i opens it with its CesiumJS CDN URL pointed at the local copy.
 const EXAMPLE = { file: '../../docs/examples/cesium-terrain.html', cdn: 'https://cesium.com/downloads/cesiumjs/releases/1.140/Build/Cesium/' };
 
@@ -508,6 +518,30 @@ async function main() {
       // (the valley floor is at 500–1500 m: the camera 30 km above about the data's middle)
       view: { lon, lat, h: 1500, range: THREE_TERRAIN.range }, minZoom: THREE_TERRAIN.minZoom, timeoutMs: 90_000,
       screenshot: path.join(cfg.out, `3d-tiles-renderer-terrain-${THREE_TERRAIN.name}.png`), log,
+    });
+  });
+  // k. the same terrain as 3D Tiles
+  await checks.run(`k. 3d tiles terrain ${T3D.name}`, async (log) => {
+    needs(served, 'the server is not running');
+    return tiles3dTerrainCheck({ base, name: T3D.name, live: TERRAIN_LIVE.name, log });
+  });
+  await checks.run(`k. cesium 3d tiles terrain ${T3D.name}`, async (log) => {
+    needs(served, 'the server is not running');
+    needs(browser, `no browser: ${browserError}`);
+    const geo = GEO.find((g) => g.name === T3D.name);
+    const raster = readGeoTiff(path.join(cfg.data, geo.file));
+    const maxZoom = JSON.parse(fs.readFileSync(path.join(store, T3D.name, 'terrain', 'stats.json'), 'utf8')).max_zoom;
+    const grid = terrainSamples({ raster, geoid: null, maxZoom, k: T3D.grid });
+    needs(grid.length > 0, `no sample point of ${geo.file} has data around it`);
+    const cell = 180 / 64 / 2 ** maxZoom;
+    const points = grid.flatMap((s) => [[s.lon, s.lat], [s.lon + cell / 3, s.lat + cell / 3]]);
+    const lon = grid.reduce((a, s) => a + s.lon, 0) / grid.length;
+    const lat = grid.reduce((a, s) => a + s.lat, 0) / grid.length;
+    const h = [...grid].sort((a, b) => a.h - b.h)[grid.length >> 1].h;
+    return cesium3dTerrainCheck({
+      browser, pageUrl: `${pageBase}/terrain3d.html?server=${encodeURIComponent(base)}&tileset=${T3D.name}`, flightScriptUrl: `${pageBase}/terrain-flight.js`,
+      name: T3D.name, stops: T3D.stops.map((s) => ({ lon, lat, h, ...s })), msPerStop: T3D.msPerStop, viewport: TERRAIN_VIEWPORT, points, tolM: T3D.tolM,
+      screenshot: path.join(cfg.out, `cesium-3dtiles-terrain-${T3D.name}.png`), log,
     });
   });
 }
