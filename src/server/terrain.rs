@@ -357,7 +357,10 @@ async fn layer_value(app: &Arc<App>, ts: &Arc<Tileset>) -> Result<serde_json::Va
     let e = layer_entry(app, ts).await?;
     serde_json::from_slice(&e.bytes).map_err(|e| {
         tracing::error!(tileset = %ts.name, error = %e, "the terrain's layer.json is not JSON");
-        Problem::internal("corrupt-blob", format!("the terrain layer of tileset {:?} cannot be read", ts.name))
+        Problem::internal(
+            "corrupt-blob",
+            format!("the terrain layer of tileset {:?} cannot be read", ts.name),
+        )
     })
 }
 
@@ -390,7 +393,8 @@ fn implicit_tile(root: &str, level: &str, x: &str, file: &str, ext: &str) -> Res
     let y = file
         .strip_suffix(ext)
         .ok_or_else(|| Problem::bad_request(format!("{file:?} must be named Y{ext}")))?;
-    let (root, level, x, y) = (parse_num(root, "root")?, parse_num(level, "level")?, parse_num(x, "x")?, parse_num(y, "y")?);
+    let (root, level, x, y) =
+        (parse_num(root, "root")?, parse_num(level, "level")?, parse_num(x, "x")?, parse_num(y, "y")?);
     let implicit = u8::try_from(level).ok().map(|level| Implicit { root, level, x, y });
     implicit.and_then(|i| i.tile().ok()).ok_or_else(|| {
         Problem::not_found(format!(
@@ -400,7 +404,14 @@ fn implicit_tile(root: &str, level: &str, x: &str, file: &str, ext: &str) -> Res
 }
 
 /// Sends a 3D Tiles terrain document made once per variant (`gzip` or not).
-fn send_t3(method: &Method, conditional: &Conditional, e: &Entry, ty: &'static str, cache: &'static str, gz: bool) -> Response {
+fn send_t3(
+    method: &Method,
+    conditional: &Conditional,
+    e: &Entry,
+    ty: &'static str,
+    cache: &'static str,
+    gz: bool,
+) -> Response {
     let mut r = send(method, conditional, e, ty, cache);
     let h = r.headers_mut();
     h.insert(header::VARY, HeaderValue::from_static("accept-encoding"));
@@ -495,8 +506,9 @@ pub(super) async fn subtree3d(
         e
     } else {
         let layer = layer_value(&app, &ts).await?;
-        let avail = Availability::from_layer(&layer)
-            .map_err(|e| Problem::internal("corrupt-blob", format!("the terrain of tileset {:?}: {e}", ts.name)))?;
+        let avail = Availability::from_layer(&layer).map_err(|e| {
+            Problem::internal("corrupt-blob", format!("the terrain of tileset {:?}: {e}", ts.name))
+        })?;
         let tiles = tiles3d::subtree_tiles(&avail, sub).map_err(|e| Problem::not_found(e.to_string()))?;
         if tiles.is_empty() {
             return Err(Problem::not_found(format!(
@@ -511,7 +523,8 @@ pub(super) async fn subtree3d(
         }
         let mut got: Vec<Option<Bytes>> = vec![None; tiles.len()];
         while let Some(done) = set.join_next().await {
-            let (k, bytes) = done.map_err(|_| Problem::internal("terrain", "reading a subtree's tiles failed"))?;
+            let (k, bytes) =
+                done.map_err(|_| Problem::internal("terrain", "reading a subtree's tiles failed"))?;
             got[k] = Some(bytes?);
         }
         let mut heads = Vec::with_capacity(tiles.len());
@@ -519,10 +532,18 @@ pub(super) async fn subtree3d(
             let b = b.ok_or_else(|| Problem::internal("terrain", "reading a subtree's tiles failed"))?;
             heads.push(decode(&b).map_err(|e| corrupt_tile(&app, &ts, *t, &e))?.header);
         }
-        let body = tiles3d::subtree(&avail, sub, &heads).map_err(|e| Problem::internal("terrain", e.to_string()))?;
+        let body =
+            tiles3d::subtree(&avail, sub, &heads).map_err(|e| Problem::internal("terrain", e.to_string()))?;
         let e = entry_of(body, gz);
         app.cache.insert(ck, e.clone());
         e
     };
-    Ok(send_t3(&method, &conditional, &entry, tiles3d::SUBTREE_TYPE, versioned_cache(&ts, query.as_deref()), gz))
+    Ok(send_t3(
+        &method,
+        &conditional,
+        &entry,
+        tiles3d::SUBTREE_TYPE,
+        versioned_cache(&ts, query.as_deref()),
+        gz,
+    ))
 }

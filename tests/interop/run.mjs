@@ -118,7 +118,7 @@ const THREE_TERRAIN = { name: 'vinschgau', range: 3e4, minZoom: 9 };
 // many a third of a cell off it (inside triangles). Tolerance: the GLB stores each vertex as an
 // f32 offset from the tile's centre (≤ 2⁻²⁴ of a zoom-11 tile, 0.6 mm, per axis; CesiumJS keeps
 // heights and u/v in f32 too): 5 mm.
-const T3D = { name: 'vinschgau', grid: 5, tolM: 0.005, msPerStop: 30_000, stops: [{ range: 1.5e6, pitch: -90 }, { range: 5e4, pitch: -45 }, { range: 1.5e4, pitch: -35 }] };
+const T3D = { name: 'vinschgau', grid: 5, tolM: 0.005, maxDiffShare: 0.001, msPerStop: 30_000, stops: [{ range: 1.5e6, pitch: -90 }, { range: 5e4, pitch: -45 }, { range: 1.5e4, pitch: -35 }] };
 // The example page for users; check i opens it with its CesiumJS CDN URL pointed at the local copy.
 const EXAMPLE = { file: '../../docs/examples/cesium-terrain.html', cdn: 'https://cesium.com/downloads/cesiumjs/releases/1.140/Build/Cesium/' };
 
@@ -540,7 +540,7 @@ async function main() {
     const h = [...grid].sort((a, b) => a.h - b.h)[grid.length >> 1].h;
     return cesium3dTerrainCheck({
       browser, pageUrl: `${pageBase}/terrain3d.html?server=${encodeURIComponent(base)}&tileset=${T3D.name}`, flightScriptUrl: `${pageBase}/terrain-flight.js`,
-      name: T3D.name, stops: T3D.stops.map((s) => ({ lon, lat, h, ...s })), msPerStop: T3D.msPerStop, viewport: TERRAIN_VIEWPORT, points, tolM: T3D.tolM,
+      name: T3D.name, stops: T3D.stops.map((s) => ({ lon, lat, h, ...s })), msPerStop: T3D.msPerStop, viewport: TERRAIN_VIEWPORT, points, tolM: T3D.tolM, maxDiffShare: T3D.maxDiffShare,
       screenshot: path.join(cfg.out, `cesium-3dtiles-terrain-${T3D.name}.png`), log,
     });
   });

@@ -14,7 +14,9 @@
 //!   millimetre at zoom 10), and neighbours stay crack-free as their quantized-mesh tiles do.
 //!   Same triangles (counter-clockwise seen from above), `FLOAT` normals from the tile's
 //!   oct-encoded ones (CesiumJS reads `NORMAL` as `f32` only), and the four edge lists in
-//!   `CESIUM_tile_edges` (`left`, `bottom`, `right`, `top`: west, south, east, north) for skirts.
+//!   `CESIUM_tile_edges` (`left`, `bottom`, `right`, `top`: west, south, east, north) for skirts,
+//!   in the order CesiumJS joins skirt vertices in ([`tile_edges`]: a list out of order draws
+//!   skirt walls across the tile).
 //! - **Subtrees** ([`subtree`]): tile and content availability from the layer's availability,
 //!   child-subtree availability, and per tile the metadata CesiumJS culls and places the tile by:
 //!   `TILE_MINIMUM_HEIGHT`/`TILE_MAXIMUM_HEIGHT` (its bounding box with the tile's rectangle),
@@ -434,6 +436,26 @@ pub fn vertex_geodetic(t: &QmTile, id: TileId) -> Vec<(f64, f64, f64)> {
         .collect()
 }
 
+/// The tile's edge lists as `CESIUM_tile_edges` names and orders them: CesiumJS hangs its skirts
+/// from them as they come, taking `left` south to north, `bottom` east to west, `right` north to
+/// south and `top` west to east (`TerrainMesh`'s `westIndicesSouthToNorth`, …), where
+/// quantized-mesh lists have no order (clients sort them).
+#[must_use]
+pub fn tile_edges(t: &QmTile) -> [(&'static str, Vec<u32>); 4] {
+    let sorted = |list: &[u32], key: &dyn Fn(u32) -> i32| {
+        let mut l = list.to_vec();
+        l.sort_by_key(|&i| (key(i), i));
+        l
+    };
+    let (u, v) = (|i: u32| i32::from(t.u[i as usize]), |i: u32| i32::from(t.v[i as usize]));
+    [
+        ("left", sorted(&t.west, &v)),
+        ("bottom", sorted(&t.south, &|i| -u(i))),
+        ("right", sorted(&t.east, &|i| -v(i))),
+        ("top", sorted(&t.north, &u)),
+    ]
+}
+
 /// ECEF `(x, y, z)` in glTF's y-up axes.
 fn y_up(p: [f64; 3]) -> [f64; 3] {
     [p[0], p[2], -p[1]]
@@ -524,8 +546,8 @@ pub fn glb(t: &QmTile, id: TileId) -> Result<Vec<u8>, Terrain3dError> {
         json!({ "bufferView": view, "componentType": component, "count": flat.len(), "type": "SCALAR" }),
     );
     let mut edges = serde_json::Map::new();
-    for (name, list) in [("left", &t.west), ("bottom", &t.south), ("right", &t.east), ("top", &t.north)] {
-        let view = g.view(&ints(list), None, 0);
+    for (name, list) in tile_edges(t) {
+        let view = g.view(&ints(&list), None, 0);
         // Edge lists are read by the extension, not drawn: their views have no target.
         if let Some(v) = g.json["bufferViews"][view].as_object_mut() {
             v.remove("target");

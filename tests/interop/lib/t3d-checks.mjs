@@ -3,12 +3,17 @@
 // decoded by @here/quantized-mesh-decoder (an independent reader), the 3D Tiles 1.1 implicit
 // tiling and subtree layout as the specification writes it, the Khronos glTF validator, and
 // CesiumJS itself.
+import { createRequire } from 'node:module';
+import fs from 'node:fs';
 import { CheckFailure } from './checks.mjs';
 import { openRecordedPage } from './browser.mjs';
 import { truncate } from './walk.mjs';
 import { validateGlbs } from './validate.mjs';
 import { ecefOf } from './earth.mjs';
 import { httpGet, layerTiles, rangesHold, tileRect, decodeTile, vertexHeight, vertexLonLat } from './terrain.mjs';
+
+const require = createRequire(import.meta.url);
+const { PNG } = require('pngjs');
 
 /** Levels per subtree file (the tileset.json must say so). */
 export const SUBTREE_LEVELS = 2;
@@ -148,9 +153,18 @@ export async function tiles3dTerrainCheck({ base, name, live, log }) {
     const same = (a, b) => a.length === b.length && a.every((v, k) => v === b[k]);
     if (!same(accessorValues(g, prim.indices), Array.from(q.triangles))) problems.push(`${key}: triangles differ from the quantized-mesh tile's`);
     const edges = prim.extensions?.CESIUM_tile_edges ?? {};
-    for (const [side, list] of [['left', q.west], ['bottom', q.south], ['right', q.east], ['top', q.north]]) {
-      if (edges[side] === undefined) problems.push(`${key}: CESIUM_tile_edges has no ${side}`);
-      else if (!same(accessorValues(g, edges[side]), Array.from(list))) problems.push(`${key}: CESIUM_tile_edges.${side} differs from the quantized-mesh edge list`);
+    // the quantized-mesh edge's vertices, in the order CesiumJS hangs skirts from them
+    // (TerrainMesh's westIndicesSouthToNorth, southIndicesEastToWest, eastIndicesNorthToSouth,
+    // northIndicesWestToEast): out of order, its skirt walls cut across the tile
+    for (const [side, list, coord, sign] of [['left', q.west, q.v, 1], ['bottom', q.south, q.u, -1], ['right', q.east, q.v, -1], ['top', q.north, q.u, 1]]) {
+      if (edges[side] === undefined) {
+        problems.push(`${key}: CESIUM_tile_edges has no ${side}`);
+        continue;
+      }
+      const got = accessorValues(g, edges[side]);
+      const asc = (a) => [...a].sort((p, r) => p - r);
+      if (!same(asc(got), asc(Array.from(list)))) problems.push(`${key}: CESIUM_tile_edges.${side} holds other vertices than the quantized-mesh edge list`);
+      else if (got.some((v, k) => k > 0 && sign * (coord[v] - coord[got[k - 1]]) <= 0)) problems.push(`${key}: CESIUM_tile_edges.${side} is not in CesiumJS's skirt order`);
     }
     const nrm = accessorValues(g, prim.attributes.NORMAL);
     for (let k = 0; k < q.n; k++) {
@@ -240,36 +254,75 @@ export async function tiles3dTerrainCheck({ base, name, live, log }) {
   return `${tiles.length} GLBs = their quantized-mesh tiles (≤ ${worst.toExponential(2)} m), ${subtrees} subtrees = layer.json + headers; ${validation}${live ? '; on demand = baked' : ''}`;
 }
 
-/**
- * CesiumJS's Cesium3DTilesTerrainProvider on the terrain: a flight (terrain-flight.js) with 0
- * failed requests, provider errors, tiles it could not load or mesh, then
- * sampleTerrainMostDetailed at `points` from both the 3D Tiles and the quantized-mesh provider:
- * equal within `tolM` (the f32 offsets of the GLB) and from the same levels.
- */
-export async function cesium3dTerrainCheck({ browser, pageUrl, flightScriptUrl, name, stops, msPerStop, viewport, points, tolM, screenshot, log }) {
+/** Opens `url` (terrain3d.html), flies `stops` with terrain-flight.js; the page stays open. */
+async function flyPage(browser, url, flightScriptUrl, viewport, stops, msPerStop) {
   const { page, rec } = await openRecordedPage(browser);
   const gaveUp = [];
   page.on('console', (msg) => {
     if (/Could not load (tile|subtree)/.test(msg.text())) gaveUp.push(msg.text());
   });
+  if (viewport) await page.setViewport(viewport);
+  const resp = await page.goto(url, { waitUntil: 'load', timeout: 60_000 });
+  if (!resp || resp.status() !== 200) throw new CheckFailure(`${url} answered ${resp?.status()}`);
+  await page.waitForFunction(() => window.terrastream && (window.terrastream.ready || window.terrastream.fatal), { timeout: 90_000 });
+  const fatal = await page.evaluate(() => window.terrastream.fatal);
+  if (fatal) throw new CheckFailure(`the page failed: ${truncate(fatal, 600)}`, rec.pageErrors.concat(rec.badStatus));
+  await page.addScriptTag({ url: flightScriptUrl });
+  await page.waitForFunction(() => window.terrainFlightReady === true, { timeout: 30_000 });
+  let flight;
   try {
-    if (viewport) await page.setViewport(viewport);
-    const resp = await page.goto(pageUrl, { waitUntil: 'load', timeout: 60_000 });
-    if (!resp || resp.status() !== 200) throw new CheckFailure(`${pageUrl} answered ${resp?.status()}`);
-    await page.waitForFunction(() => window.terrastream && (window.terrastream.ready || window.terrastream.fatal), { timeout: 90_000 });
-    const fatal = await page.evaluate(() => window.terrastream.fatal);
-    if (fatal) throw new CheckFailure(`the page failed: ${truncate(fatal, 600)}`, rec.pageErrors.concat(rec.badStatus));
-    await page.addScriptTag({ url: flightScriptUrl });
-    await page.waitForFunction(() => window.terrainFlightReady === true, { timeout: 30_000 });
+    flight = await page.evaluate((s, ms) => window.terrainFlight(s, ms), stops, msPerStop);
+  } catch (err) {
+    throw new CheckFailure(`the flight failed in the page: ${truncate(err.message, 600)}`, rec.pageErrors);
+  }
+  return { page, rec, gaveUp, flight };
+}
+
+/** Pixels of two same-sized PNGs whose colours differ by more than `t` in a channel. */
+function differingPixels(a, b, t) {
+  const pa = PNG.sync.read(a), pb = PNG.sync.read(b);
+  if (pa.width !== pb.width || pa.height !== pb.height) return { n: Infinity, total: 0 };
+  let n = 0;
+  for (let i = 0; i < pa.data.length; i += 4) {
+    if (Math.abs(pa.data[i] - pb.data[i]) > t || Math.abs(pa.data[i + 1] - pb.data[i + 1]) > t || Math.abs(pa.data[i + 2] - pb.data[i + 2]) > t) n++;
+  }
+  return { n, total: pa.width * pa.height };
+}
+
+/**
+ * CesiumJS's Cesium3DTilesTerrainProvider on the terrain: a flight (terrain-flight.js) with 0
+ * failed requests, provider errors, tiles it could not load or mesh; sampleTerrainMostDetailed
+ * at `points` from both the 3D Tiles and the quantized-mesh provider, equal within `tolM` (the
+ * f32 offsets of the GLB) and from the same levels; and the same flight drawn with the
+ * quantized-mesh provider must give the same picture (at most `maxDiffShare` of the pixels
+ * differing by more than 16 of 255 in a channel: skirts or triangles out of place show as
+ * streaks).
+ */
+export async function cesium3dTerrainCheck({ browser, pageUrl, flightScriptUrl, name, stops, msPerStop, viewport, points, tolM, maxDiffShare, screenshot, log }) {
+  const opened = [];
+  try {
+    const t3 = await flyPage(browser, pageUrl, flightScriptUrl, viewport, stops, msPerStop);
+    opened.push(t3.page);
+    const { page, rec, gaveUp, flight } = t3;
     const version = await page.evaluate(() => window.Cesium.VERSION);
-    let flight, cmp;
+    let cmp;
     try {
-      flight = await page.evaluate((s, ms) => window.terrainFlight(s, ms), stops, msPerStop);
       cmp = await page.evaluate((p, ms) => window.terrain3dCompare(p, ms), points, 90_000);
     } catch (err) {
-      throw new CheckFailure(`the page failed: ${truncate(err.message, 600)}`, rec.pageErrors);
+      throw new CheckFailure(`sampleTerrainMostDetailed failed: ${truncate(err.message, 600)}`, rec.pageErrors);
     }
-    if (screenshot) await page.screenshot({ path: screenshot, type: 'png' }).catch((err) => log(`screenshot failed: ${err.message}`));
+    const shotA = await page.screenshot({ type: 'png' });
+    const qm = await flyPage(browser, `${pageUrl}&draw=quantized-mesh`, flightScriptUrl, viewport, stops, msPerStop);
+    opened.push(qm.page);
+    const shotB = await qm.page.screenshot({ type: 'png' });
+    if (screenshot) {
+      try {
+        fs.writeFileSync(screenshot, shotA);
+        fs.writeFileSync(screenshot.replace(/\.png$/, '-quantized-mesh.png'), shotB);
+      } catch (err) {
+        log(`screenshot failed: ${err.message}`);
+      }
+    }
     const mine = (u) => u.includes(`/tilesets/${name}/terrain/3dtiles/`);
     const glbReqs = rec.requests.filter((u) => mine(u) && /\.glb(\?|$)/.test(u));
     const subReqs = rec.requests.filter((u) => mine(u) && /\.subtree(\?|$)/.test(u));
@@ -286,16 +339,16 @@ export async function cesium3dTerrainCheck({ browser, pageUrl, flightScriptUrl, 
     const meshFailures = await page.evaluate(() => window.terrastream.meshFailures.slice());
     const problems = [];
     for (const u of rec.offHost) problems.push(`request to a host other than 127.0.0.1: ${u}`);
-    for (const s of rec.badStatus) problems.push(`HTTP ${s}`);
-    for (const f of rec.failed) problems.push(`request failed: ${f}`);
+    for (const s of rec.badStatus.concat(qm.rec.badStatus)) problems.push(`HTTP ${s}`);
+    for (const f of rec.failed.concat(qm.rec.failed)) problems.push(`request failed: ${f}`);
     for (const e of cmp.errors) problems.push(`provider errorEvent: ${truncate(e, 300)}`);
     for (const e of gaveUp) problems.push(`CesiumJS: ${truncate(e, 300)}`);
     for (const e of meshFailures) problems.push(`CesiumJS could not make the mesh of tile ${truncate(e, 300)}`);
     for (const t of [...new Set(flight.stops.flatMap((s) => s.failedTiles))]) problems.push(`quadtree tile ${t} FAILED`);
-    for (const e of rec.pageErrors) problems.push(`page error: ${truncate(e, 300)}`);
+    for (const e of rec.pageErrors.concat(qm.rec.pageErrors)) problems.push(`page error: ${truncate(e, 300)}`);
     if (glbReqs.length === 0) problems.push('no GLB was requested');
-    const unsettled = flight.stops.filter((s) => !s.settled).length;
-    if (unsettled) problems.push(`${unsettled} of ${flight.stops.length} stops never settled within ${msPerStop / 1000} s`);
+    const unsettled = flight.stops.filter((s) => !s.settled).length + qm.flight.stops.filter((s) => !s.settled).length;
+    if (unsettled) problems.push(`${unsettled} stops (of both flights) never settled within ${msPerStop / 1000} s`);
     let worst = 0;
     points.forEach(([lon, lat], k) => {
       const a = cmp.t3.heights[k], b = cmp.qm.heights[k];
@@ -308,9 +361,13 @@ export async function cesium3dTerrainCheck({ browser, pageUrl, flightScriptUrl, 
       if (cmp.t3.levels[k] !== cmp.qm.levels[k]) problems.push(`${where}: most detailed level ${cmp.t3.levels[k]} (3D Tiles) vs ${cmp.qm.levels[k]} (quantized-mesh)`);
     });
     log(`sampleTerrainMostDetailed at ${points.length} points, both providers, in ${(cmp.ms / 1000).toFixed(1)} s: largest |3D Tiles − quantized-mesh| ${worst.toFixed(5)} m (tolerance ${tolM} m), levels ${Math.min(...cmp.t3.levels)}–${Math.max(...cmp.t3.levels)}`);
+    const diff = differingPixels(shotA, shotB, 16);
+    const share = diff.n / Math.max(diff.total, 1);
+    log(`the last stop drawn by both providers: ${diff.n} of ${diff.total} pixels differ by more than 16 (${(100 * share).toFixed(3)} %, at most ${(100 * maxDiffShare).toFixed(3)} %)`);
+    if (!(share <= maxDiffShare)) problems.push(`the 3D Tiles terrain and the quantized-mesh terrain draw different pictures: ${(100 * share).toFixed(3)} % of the pixels differ`);
     if (problems.length) throw new CheckFailure(`${problems.length} problem(s), first: ${problems[0]}`, problems.slice(0, 40));
-    return `${glbReqs.length} GLB + ${subReqs.length} subtree requests over ${flight.stops.length} stops, 0 failed; heights = quantized-mesh provider's within ${worst.toFixed(5)} m at ${points.length} points`;
+    return `${glbReqs.length} GLB + ${subReqs.length} subtree requests over ${flight.stops.length} stops, 0 failed; heights = quantized-mesh provider's within ${worst.toFixed(5)} m at ${points.length} points; same picture (${(100 * share).toFixed(3)} % pixels differ)`;
   } finally {
-    await page.close().catch(() => {});
+    for (const p of opened) await p.close().catch(() => {});
   }
 }
