@@ -368,13 +368,9 @@ async fn layer_value(app: &Arc<App>, ts: &Arc<Tileset>) -> Result<serde_json::Va
 async fn level0_error(ts: &Arc<Tileset>) -> Result<f64, Problem> {
     if has_baked(ts).await? {
         let store = ts.store.clone();
-        let got = tokio::task::spawn_blocking(move || {
-            store.read_file_within(&format!("{TERRAIN_DIR}/stats.json"), 2..=MAX_STORED_BYTES)
-        })
-        .await
-        .map_err(|_| Problem::internal("terrain", "reading the terrain failed"))?;
-        let stats = got.ok().flatten().and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok());
-        Ok(stats.as_ref().and_then(tiles3d::level0_error_of_stats).unwrap_or_else(|| zoom_error(0, 1.0)))
+        tokio::task::spawn_blocking(move || crate::bake::terrain3d::level0_error(&store))
+            .await
+            .map_err(|_| Problem::internal("terrain", "reading the terrain failed"))
     } else if let Some(src) = &ts.source {
         Ok(zoom_error(0, src.terrain.error_scale))
     } else {
