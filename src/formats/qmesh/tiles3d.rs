@@ -456,6 +456,9 @@ pub fn tile_edges(t: &QmTile) -> [(&'static str, Vec<u32>); 4] {
     ]
 }
 
+/// Index lists as the bytes of one glTF component type.
+type IndexBytes = fn(&[u32]) -> Vec<u8>;
+
 /// ECEF `(x, y, z)` in glTF's y-up axes.
 fn y_up(p: [f64; 3]) -> [f64; 3] {
     [p[0], p[2], -p[1]]
@@ -535,7 +538,7 @@ pub fn glb(t: &QmTile, id: TileId) -> Result<Vec<u8>, Terrain3dError> {
         })));
     }
     let wide = n > MAX_U16_VERTICES;
-    let (component, ints): (u32, fn(&[u32]) -> Vec<u8>) = if wide {
+    let (component, ints): (u32, IndexBytes) = if wide {
         (GLTF_U32, |l| l.iter().flat_map(|i| i.to_le_bytes()).collect())
     } else {
         (GLTF_U16, |l| l.iter().flat_map(|&i| (i as u16).to_le_bytes()).collect())
