@@ -40,7 +40,7 @@ const QM: u16 = 0x200;
 const QM_FULL: u16 = 0x210;
 const QM_LAYER: u16 = 0x211;
 /// 3D Tiles terrain documents: `T3_GLB + gzip bit` a tile's GLB, `T3_SUBTREE + gzip bit` a
-/// subtree (keyed by its root tile), `T3_TILESET` the tileset JSON.
+/// subtree (keyed by its root tile), `T3_TILESET` the tileset JSON (keyed by tile 0/0/0).
 const T3_GLB: u16 = 0x230;
 const T3_SUBTREE: u16 = 0x232;
 const T3_TILESET: u16 = 0x234;
@@ -417,9 +417,25 @@ fn send_t3(
     r
 }
 
-fn entry_of(body: Vec<u8>, gz: bool) -> Entry {
+/// A 3D Tiles terrain document of tile `id`: from the cache (document `doc`, its gzip variant
+/// `doc + 1`), or made by `make`, gzipped when `gz`, and kept.
+async fn cached_t3(
+    app: &App,
+    ts: &Tileset,
+    id: TileId,
+    doc: u16,
+    gz: bool,
+    make: impl Future<Output = Result<Vec<u8>, Problem>>,
+) -> Result<Entry, Problem> {
+    let ck = (ts.generation, TileKey::new(id.z, id.x, id.y), doc + u16::from(gz));
+    if let Some(e) = app.cache.get(&ck) {
+        return Ok(e);
+    }
+    let body = make.await?;
     let body = if gz { crate::formats::qmesh::codec::gzip(&body) } else { body };
-    Entry { etag: etag_value(&etag_of(&body)), bytes: Bytes::from(body) }
+    let e = Entry { etag: etag_value(&etag_of(&body)), bytes: Bytes::from(body) };
+    app.cache.insert(ck, e.clone());
+    Ok(e)
 }
 
 /// `GET /tilesets/{name}/terrain/3dtiles/tileset.json`.
@@ -431,20 +447,16 @@ pub(super) async fn tileset3d(
 ) -> Result<Response, Problem> {
     let Path(name) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
     let ts = tileset(&app, &name)?;
-    let ck = (ts.generation, TileKey::new(0, 0, 0), T3_TILESET);
-    let entry = if let Some(e) = app.cache.get(&ck) {
-        e
-    } else {
+    let root = TileId { z: 0, x: 0, y: 0 };
+    let entry = cached_t3(&app, &ts, root, T3_TILESET, false, async {
         let layer = layer_value(&app, &ts).await?;
         let e0 = level0_error(&ts).await?;
-        let body = tiles3d::tileset_from_layer(&layer, e0).map_err(|e| {
+        tiles3d::tileset_from_layer(&layer, e0).map_err(|e| {
             tracing::error!(tileset = %ts.name, error = %e, "the terrain's layer.json cannot be made a tileset");
             Problem::internal("corrupt-blob", format!("the terrain of tileset {:?}: {e}", ts.name))
-        })?;
-        let e = entry_of(body, false);
-        app.cache.insert(ck, e.clone());
-        e
-    };
+        })
+    })
+    .await?;
     Ok(send(&method, &headers, &entry, "application/json", SHORT))
 }
 
@@ -461,17 +473,12 @@ pub(super) async fn glb3d(
     let ts = tileset(&app, &name)?;
     let id = implicit_tile(&root, &level, &x, &file, ".glb")?;
     let gz = accepts_gzip(&headers);
-    let ck = (ts.generation, TileKey::new(id.z, id.x, id.y), T3_GLB + u16::from(gz));
-    let entry = if let Some(e) = app.cache.get(&ck) {
-        e
-    } else {
+    let entry = cached_t3(&app, &ts, id, T3_GLB, gz, async {
         let full = full_tile(&app, &ts, id).await?;
         let t = decode(&full).map_err(|e| corrupt_tile(&app, &ts, id, &e))?;
-        let body = tiles3d::glb(&t, id).map_err(|e| corrupt_tile(&app, &ts, id, &e))?;
-        let e = entry_of(body, gz);
-        app.cache.insert(ck, e.clone());
-        e
-    };
+        tiles3d::glb(&t, id).map_err(|e| corrupt_tile(&app, &ts, id, &e))
+    })
+    .await?;
     Ok(send_t3(&method, &conditional, &entry, GLB_TYPE, versioned_cache(&ts, query.as_deref()), gz))
 }
 
@@ -497,43 +504,7 @@ pub(super) async fn subtree3d(
         )));
     }
     let gz = accepts_gzip(&headers);
-    let ck = (ts.generation, TileKey::new(id.z, id.x, id.y), T3_SUBTREE + u16::from(gz));
-    let entry = if let Some(e) = app.cache.get(&ck) {
-        e
-    } else {
-        let layer = layer_value(&app, &ts).await?;
-        let avail = Availability::from_layer(&layer).map_err(|e| {
-            Problem::internal("corrupt-blob", format!("the terrain of tileset {:?}: {e}", ts.name))
-        })?;
-        let tiles = tiles3d::subtree_tiles(&avail, sub).map_err(|e| Problem::not_found(e.to_string()))?;
-        if tiles.is_empty() {
-            return Err(Problem::not_found(format!(
-                "tileset {:?} has no terrain tile {id}, so no subtree there (see layer.json's available)",
-                ts.name
-            )));
-        }
-        let mut set = tokio::task::JoinSet::new();
-        for (k, &t) in tiles.iter().enumerate() {
-            let (app, ts) = (app.clone(), ts.clone());
-            set.spawn(async move { (k, full_tile(&app, &ts, t).await) });
-        }
-        let mut got: Vec<Option<Bytes>> = vec![None; tiles.len()];
-        while let Some(done) = set.join_next().await {
-            let (k, bytes) =
-                done.map_err(|_| Problem::internal("terrain", "reading a subtree's tiles failed"))?;
-            got[k] = Some(bytes?);
-        }
-        let mut heads = Vec::with_capacity(tiles.len());
-        for (t, b) in tiles.iter().zip(got) {
-            let b = b.ok_or_else(|| Problem::internal("terrain", "reading a subtree's tiles failed"))?;
-            heads.push(decode(&b).map_err(|e| corrupt_tile(&app, &ts, *t, &e))?.header);
-        }
-        let body =
-            tiles3d::subtree(&avail, sub, &heads).map_err(|e| Problem::internal("terrain", e.to_string()))?;
-        let e = entry_of(body, gz);
-        app.cache.insert(ck, e.clone());
-        e
-    };
+    let entry = cached_t3(&app, &ts, id, T3_SUBTREE, gz, subtree_bytes(&app, &ts, sub)).await?;
     Ok(send_t3(
         &method,
         &conditional,
@@ -542,4 +513,37 @@ pub(super) async fn subtree3d(
         versioned_cache(&ts, query.as_deref()),
         gz,
     ))
+}
+
+/// The subtree file rooted at `sub`, from its tiles' headers (their tiles fetched at once).
+async fn subtree_bytes(app: &Arc<App>, ts: &Arc<Tileset>, sub: Implicit) -> Result<Vec<u8>, Problem> {
+    let layer = layer_value(app, ts).await?;
+    let avail = Availability::from_layer(&layer).map_err(|e| {
+        Problem::internal("corrupt-blob", format!("the terrain of tileset {:?}: {e}", ts.name))
+    })?;
+    let tiles = tiles3d::subtree_tiles(&avail, sub).map_err(|e| Problem::not_found(e.to_string()))?;
+    if tiles.is_empty() {
+        return Err(Problem::not_found(format!(
+            "tileset {:?} has no terrain tile {}, so no subtree there (see layer.json's available)",
+            ts.name,
+            TileId { z: sub.level, x: (sub.root << sub.level) + sub.x, y: sub.y }
+        )));
+    }
+    let mut set = tokio::task::JoinSet::new();
+    for (k, &t) in tiles.iter().enumerate() {
+        let (app, ts) = (app.clone(), ts.clone());
+        set.spawn(async move { (k, full_tile(&app, &ts, t).await) });
+    }
+    let mut got: Vec<Option<Bytes>> = vec![None; tiles.len()];
+    while let Some(done) = set.join_next().await {
+        let (k, bytes) =
+            done.map_err(|_| Problem::internal("terrain", "reading a subtree's tiles failed"))?;
+        got[k] = Some(bytes?);
+    }
+    let mut heads = Vec::with_capacity(tiles.len());
+    for (t, b) in tiles.iter().zip(got) {
+        let b = b.ok_or_else(|| Problem::internal("terrain", "reading a subtree's tiles failed"))?;
+        heads.push(decode(&b).map_err(|e| corrupt_tile(app, ts, *t, &e))?.header);
+    }
+    tiles3d::subtree(&avail, sub, &heads).map_err(|e| Problem::internal("terrain", e.to_string()))
 }
