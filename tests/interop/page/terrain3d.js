@@ -39,8 +39,12 @@
       terrainProvider: drawn, baseLayer: false, baseLayerPicker: false, geocoder: false, animation: false, timeline: false,
       sceneModePicker: false, navigationHelpButton: false, fullscreenButton: false, infoBox: false, selectionIndicator: false,
     });
-    // lit from the camera, as the docs example page does
+    // lit from the camera, as the docs example page does; no stars, sun or moon (they move with
+    // the clock, so two page loads would differ where the sky shows)
     const scene = viewer.scene;
+    scene.skyBox.show = false;
+    scene.sun.show = false;
+    scene.moon.show = false;
     scene.globe.enableLighting = true;
     scene.light = new Cesium.DirectionalLight({ direction: Cesium.Cartesian3.clone(scene.camera.directionWC) });
     scene.preRender.addEventListener(() => {
