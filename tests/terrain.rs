@@ -9,10 +9,10 @@
 mod common;
 
 use std::collections::BTreeMap;
-use std::io::{Read, Write};
+use std::io::Read;
 use std::path::Path;
 
-use common::{bin, fails, ok, serve};
+use common::{bin, fails, get_with as get, ok, serve};
 use serde_json::Value;
 use terrastream::formats::qmesh::codec::{QmTile, decode};
 use terrastream::formats::qmesh::grid::{TileId, cell_degrees, zoom_error};
@@ -298,32 +298,6 @@ fn terrain_needs_a_placed_input() {
         "--terrain",
     ]));
     assert!(e.contains("--terrain") && e.contains("--plan"), "{e}");
-}
-
-/// One GET with headers, on its own connection: status, headers (lower-case), body.
-fn get(
-    addr: std::net::SocketAddr,
-    path: &str,
-    headers: &[(&str, &str)],
-) -> (u16, BTreeMap<String, String>, Vec<u8>) {
-    let mut s = std::net::TcpStream::connect(addr).unwrap();
-    let mut req = format!("GET {path} HTTP/1.1\r\nHost: t\r\nConnection: close\r\n");
-    for (k, v) in headers {
-        req.extend([*k, ": ", *v, "\r\n"]);
-    }
-    req.push_str("\r\n");
-    s.write_all(req.as_bytes()).unwrap();
-    let mut buf = Vec::new();
-    s.read_to_end(&mut buf).unwrap();
-    let end = buf.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
-    let head = String::from_utf8_lossy(&buf[..end]).into_owned();
-    let mut lines = head.lines();
-    let status = lines.next().unwrap().split(' ').nth(1).unwrap().parse().unwrap();
-    let h = lines
-        .filter_map(|l| l.split_once(':'))
-        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_owned()))
-        .collect();
-    (status, h, buf[end + 4..].to_vec())
 }
 
 const ALL: &str = "application/vnd.quantized-mesh;extensions=octvertexnormals-watermask-metadata,*/*;q=0.01";

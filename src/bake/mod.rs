@@ -6,6 +6,8 @@
 //!   bytes [`bake_terrain`] writes for it: the server's on-demand tiles (`node`);
 //! - [`qmesh`] makes Cesium quantized-mesh globe terrain from a placed dataset, baked into a
 //!   store or one tile at a time for the server (the same bytes);
+//! - [`terrain3d`] writes that globe terrain's 3D Tiles form (GLBs, subtrees, tileset.json)
+//!   from the baked tiles, the bytes the server sends;
 //! - [`shard`] splits a terrain bake over many processes or machines (same bytes);
 //! - [`model_tileset::bake_model`] bakes one OBJ, STL or PLY model into a single-tile model
 //!   tileset (`model_tileset`).
@@ -15,6 +17,7 @@ mod node;
 pub mod qmesh;
 pub mod shard;
 mod terrain;
+pub mod terrain3d;
 
 pub mod model_tileset;
 

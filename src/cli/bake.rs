@@ -321,6 +321,15 @@ fn bake_globe_terrain(opened: &Opened, t: &TerrainArgs, store: &Store, quiet: bo
         stats.bytes_gzip_all as f64 / 1e6,
         store.describe("terrain/layer.json"),
     );
+    // The same terrain as static 3D Tiles (the bytes `serve` sends under terrain/3dtiles/).
+    let w = bake::terrain3d::write_terrain_3dtiles(store)?;
+    outln!(
+        "terrain as 3D Tiles: {} GLBs, {} subtrees, {:.1} MB, {}",
+        w.glbs,
+        w.subtrees,
+        w.bytes as f64 / 1e6,
+        store.describe(&format!("{}/tileset.json", bake::terrain3d::TILES3D_DIR)),
+    );
     Ok(())
 }
 

@@ -6,6 +6,10 @@
 //! once with every extension; each request gets the extensions its `Accept` header names
 //! (`application/vnd.quantized-mesh;extensions=octvertexnormals-watermask-metadata`), gzipped
 //! when `Accept-Encoding` allows, with strong ETags, `Vary`, and immutable `?v=` URLs.
+//!
+//! The same terrain as 3D Tiles for CesiumJS's `Cesium3DTilesTerrainProvider`, under
+//! `…/terrain/3dtiles/` (tileset JSON, subtrees, one GLB per tile), made from those tiles with
+//! the same caching, gzip and errors (`formats::qmesh::tiles3d` says how).
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -24,7 +28,10 @@ use super::loaders::{SHORT, parse_num, tileset, versioned_cache};
 use super::problem::Problem;
 use super::registry::{Tileset, etag_of};
 use crate::bake::qmesh::{TERRAIN_DIR, TerrainSource, tile_rel};
-use crate::formats::qmesh::{Extensions, QM_TYPE, TileId, filter_extensions};
+use crate::formats::qmesh::grid::zoom_error;
+use crate::formats::qmesh::tiles3d::{self, Availability, Implicit};
+use crate::formats::qmesh::{Extensions, QM_TYPE, TileId, decode, filter_extensions};
+use crate::formats::tiles3d::GLB_TYPE;
 use crate::tiling::TileKey;
 
 /// Cache documents: `QM + variant` (extension bits, gzip bit) of a tile; `QM_FULL` the tile with
@@ -32,6 +39,11 @@ use crate::tiling::TileKey;
 const QM: u16 = 0x200;
 const QM_FULL: u16 = 0x210;
 const QM_LAYER: u16 = 0x211;
+/// 3D Tiles terrain documents: `T3_GLB + gzip bit` a tile's GLB, `T3_SUBTREE + gzip bit` a
+/// subtree (keyed by its root tile), `T3_TILESET` the tileset JSON (keyed by tile 0/0/0).
+const T3_GLB: u16 = 0x230;
+const T3_SUBTREE: u16 = 0x232;
+const T3_TILESET: u16 = 0x234;
 /// A stored tile or layer document larger than this is refused as damaged (a tile with every
 /// extension is at most ~100 KB: 4,225 vertices, a 64 KiB water mask).
 const MAX_STORED_BYTES: u64 = 4 << 20;
@@ -113,11 +125,17 @@ pub(super) async fn layer(
 ) -> Result<Response, Problem> {
     let Path(name) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
     let ts = tileset(&app, &name)?;
+    let entry = layer_entry(&app, &ts).await?;
+    Ok(send(&method, &headers, &entry, "application/json", SHORT))
+}
+
+/// The layer document: from the cache, the store (baked terrain), or made from the source.
+async fn layer_entry(app: &Arc<App>, ts: &Arc<Tileset>) -> Result<Entry, Problem> {
     let ck = (ts.generation, TileKey::new(0, 0, 0), QM_LAYER);
     if let Some(e) = app.cache.get(&ck) {
-        return Ok(send(&method, &headers, &e, "application/json", SHORT));
+        return Ok(e);
     }
-    let body = if let Some(b) = baked(&ts).await? {
+    let body = if let Some(b) = baked(ts).await? {
         b
     } else if let Some(src) = ts.source.clone() {
         let (name2, version) = (ts.name.clone(), ts.content_version.clone());
@@ -133,7 +151,7 @@ pub(super) async fn layer(
     };
     let entry = Entry { etag: etag_value(&etag_of(&body)), bytes: Bytes::from(body) };
     app.cache.insert(ck, entry.clone());
-    Ok(send(&method, &headers, &entry, "application/json", SHORT))
+    Ok(entry)
 }
 
 /// Whether `Accept-Encoding` allows gzip (`gzip` or `*`, not at q=0).
@@ -323,4 +341,209 @@ async fn build_once(app: &Arc<App>, ts: &Arc<Tileset>, id: TileId) -> Result<Byt
         f.remove(&key);
     }
     result
+}
+
+// ---- The same terrain as 3D Tiles (`Cesium3DTilesTerrainProvider`) -------------------------
+//
+// `…/terrain/3dtiles/tileset.json`, `…/3dtiles/subtrees/{root}/{level}/{x}/{y}.subtree` and
+// `…/3dtiles/tiles/{root}/{level}/{x}/{y}.glb` (implicit coordinates of the two hemispheres'
+// quadtrees, see `formats::qmesh::tiles3d`): each made from the quantized-mesh tiles above —
+// stored, or built on demand through the same single flight — so both forms are one surface.
+
+type ImplicitPath = (String, String, String, String, String);
+
+/// The layer document as JSON.
+async fn layer_value(app: &Arc<App>, ts: &Arc<Tileset>) -> Result<serde_json::Value, Problem> {
+    let e = layer_entry(app, ts).await?;
+    serde_json::from_slice(&e.bytes).map_err(|e| {
+        tracing::error!(tileset = %ts.name, error = %e, "the terrain's layer.json is not JSON");
+        Problem::internal(
+            "corrupt-blob",
+            format!("the terrain layer of tileset {:?} cannot be read", ts.name),
+        )
+    })
+}
+
+/// Zoom 0's error bound: the bake's (`terrain/stats.json`), or the on-demand source's.
+async fn level0_error(ts: &Arc<Tileset>) -> Result<f64, Problem> {
+    if has_baked(ts).await? {
+        let store = ts.store.clone();
+        tokio::task::spawn_blocking(move || crate::bake::terrain3d::level0_error(&store))
+            .await
+            .map_err(|_| Problem::internal("terrain", "reading the terrain failed"))
+    } else if let Some(src) = &ts.source {
+        Ok(zoom_error(0, src.terrain.error_scale))
+    } else {
+        Err(no_terrain(&ts.name))
+    }
+}
+
+fn corrupt_tile(app: &App, ts: &Tileset, id: TileId, e: &dyn std::fmt::Display) -> Problem {
+    tracing::error!(tileset = %ts.name, tile = %id, error = %e, "a terrain tile cannot be made into 3D Tiles");
+    app.metrics.corrupt_blobs.fetch_add(1, Ordering::Relaxed);
+    Problem::internal("corrupt-blob", format!("terrain tile {id} of {:?} cannot be read: {e}", ts.name))
+}
+
+/// The grid tile of an implicit path `{root}/{level}/{x}/{file}` (`file` = `{y}{ext}`).
+fn implicit_tile(root: &str, level: &str, x: &str, file: &str, ext: &str) -> Result<TileId, Problem> {
+    let y = file
+        .strip_suffix(ext)
+        .ok_or_else(|| Problem::bad_request(format!("{file:?} must be named Y{ext}")))?;
+    let (root, level, x, y) =
+        (parse_num(root, "root")?, parse_num(level, "level")?, parse_num(x, "x")?, parse_num(y, "y")?);
+    let implicit = u8::try_from(level).ok().map(|level| Implicit { root, level, x, y });
+    implicit.and_then(|i| i.tile().ok()).ok_or_else(|| {
+        Problem::not_found(format!(
+            "{root}/{level}/{x}/{y} is not a tile of the two hemispheres' quadtrees (root 0 or 1, x and y below 2^level)"
+        ))
+    })
+}
+
+/// Sends a 3D Tiles terrain document made once per variant (`gzip` or not).
+fn send_t3(
+    method: &Method,
+    conditional: &Conditional,
+    e: &Entry,
+    ty: &'static str,
+    cache: &'static str,
+    gz: bool,
+) -> Response {
+    let mut r = send(method, conditional, e, ty, cache);
+    let h = r.headers_mut();
+    h.insert(header::VARY, HeaderValue::from_static("accept-encoding"));
+    if gz {
+        h.insert(header::CONTENT_ENCODING, HeaderValue::from_static("gzip"));
+    }
+    r
+}
+
+/// A 3D Tiles terrain document of tile `id`: from the cache (document `doc`, its gzip variant
+/// `doc + 1`), or made by `make`, gzipped when `gz`, and kept.
+async fn cached_t3(
+    app: &App,
+    ts: &Tileset,
+    id: TileId,
+    doc: u16,
+    gz: bool,
+    make: impl Future<Output = Result<Vec<u8>, Problem>>,
+) -> Result<Entry, Problem> {
+    let ck = (ts.generation, TileKey::new(id.z, id.x, id.y), doc + u16::from(gz));
+    if let Some(e) = app.cache.get(&ck) {
+        return Ok(e);
+    }
+    let body = make.await?;
+    let body = if gz { crate::formats::qmesh::codec::gzip(&body) } else { body };
+    let e = Entry { etag: etag_value(&etag_of(&body)), bytes: Bytes::from(body) };
+    app.cache.insert(ck, e.clone());
+    Ok(e)
+}
+
+/// `GET /tilesets/{name}/terrain/3dtiles/tileset.json`.
+pub(super) async fn tileset3d(
+    State(app): State<Arc<App>>,
+    path: Result<Path<String>, Rejection>,
+    method: Method,
+    headers: Conditional,
+) -> Result<Response, Problem> {
+    let Path(name) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
+    let ts = tileset(&app, &name)?;
+    let root = TileId { z: 0, x: 0, y: 0 };
+    let entry = cached_t3(&app, &ts, root, T3_TILESET, false, async {
+        let layer = layer_value(&app, &ts).await?;
+        let e0 = level0_error(&ts).await?;
+        tiles3d::tileset_from_layer(&layer, e0).map_err(|e| {
+            tracing::error!(tileset = %ts.name, error = %e, "the terrain's layer.json cannot be made a tileset");
+            Problem::internal("corrupt-blob", format!("the terrain of tileset {:?}: {e}", ts.name))
+        })
+    })
+    .await?;
+    Ok(send(&method, &headers, &entry, "application/json", SHORT))
+}
+
+/// `GET /tilesets/{name}/terrain/3dtiles/tiles/{root}/{level}/{x}/{y}.glb`.
+pub(super) async fn glb3d(
+    State(app): State<Arc<App>>,
+    path: Result<Path<ImplicitPath>, Rejection>,
+    RawQuery(query): RawQuery,
+    method: Method,
+    conditional: Conditional,
+    headers: HeaderMap,
+) -> Result<Response, Problem> {
+    let Path((name, root, level, x, file)) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
+    let ts = tileset(&app, &name)?;
+    let id = implicit_tile(&root, &level, &x, &file, ".glb")?;
+    let gz = accepts_gzip(&headers);
+    let entry = cached_t3(&app, &ts, id, T3_GLB, gz, async {
+        let full = full_tile(&app, &ts, id).await?;
+        let t = decode(&full).map_err(|e| corrupt_tile(&app, &ts, id, &e))?;
+        tiles3d::glb(&t, id).map_err(|e| corrupt_tile(&app, &ts, id, &e))
+    })
+    .await?;
+    Ok(send_t3(&method, &conditional, &entry, GLB_TYPE, versioned_cache(&ts, query.as_deref()), gz))
+}
+
+/// `GET /tilesets/{name}/terrain/3dtiles/subtrees/{root}/{level}/{x}/{y}.subtree`: made from the
+/// headers of the subtree's tiles (each read, or built on demand, first).
+pub(super) async fn subtree3d(
+    State(app): State<Arc<App>>,
+    path: Result<Path<ImplicitPath>, Rejection>,
+    RawQuery(query): RawQuery,
+    method: Method,
+    conditional: Conditional,
+    headers: HeaderMap,
+) -> Result<Response, Problem> {
+    let Path((name, root, level, x, file)) = path.map_err(|e| Problem::bad_request(e.body_text()))?;
+    let ts = tileset(&app, &name)?;
+    let id = implicit_tile(&root, &level, &x, &file, ".subtree")?;
+    let sub = Implicit::of(id);
+    if !sub.is_subtree_root() {
+        return Err(Problem::not_found(format!(
+            "no subtree at level {}: subtrees start at levels that are multiples of {}",
+            id.z,
+            tiles3d::SUBTREE_LEVELS
+        )));
+    }
+    let gz = accepts_gzip(&headers);
+    let entry = cached_t3(&app, &ts, id, T3_SUBTREE, gz, subtree_bytes(&app, &ts, sub)).await?;
+    Ok(send_t3(
+        &method,
+        &conditional,
+        &entry,
+        tiles3d::SUBTREE_TYPE,
+        versioned_cache(&ts, query.as_deref()),
+        gz,
+    ))
+}
+
+/// The subtree file rooted at `sub`, from its tiles' headers (their tiles fetched at once).
+async fn subtree_bytes(app: &Arc<App>, ts: &Arc<Tileset>, sub: Implicit) -> Result<Vec<u8>, Problem> {
+    let layer = layer_value(app, ts).await?;
+    let avail = Availability::from_layer(&layer).map_err(|e| {
+        Problem::internal("corrupt-blob", format!("the terrain of tileset {:?}: {e}", ts.name))
+    })?;
+    let tiles = tiles3d::subtree_tiles(&avail, sub).map_err(|e| Problem::not_found(e.to_string()))?;
+    if tiles.is_empty() {
+        return Err(Problem::not_found(format!(
+            "tileset {:?} has no terrain tile {}, so no subtree there (see layer.json's available)",
+            ts.name,
+            TileId { z: sub.level, x: (sub.root << sub.level) + sub.x, y: sub.y }
+        )));
+    }
+    let mut set = tokio::task::JoinSet::new();
+    for (k, &t) in tiles.iter().enumerate() {
+        let (app, ts) = (app.clone(), ts.clone());
+        set.spawn(async move { (k, full_tile(&app, &ts, t).await) });
+    }
+    let mut got: Vec<Option<Bytes>> = vec![None; tiles.len()];
+    while let Some(done) = set.join_next().await {
+        let (k, bytes) =
+            done.map_err(|_| Problem::internal("terrain", "reading a subtree's tiles failed"))?;
+        got[k] = Some(bytes?);
+    }
+    let mut heads = Vec::with_capacity(tiles.len());
+    for (t, b) in tiles.iter().zip(got) {
+        let b = b.ok_or_else(|| Problem::internal("terrain", "reading a subtree's tiles failed"))?;
+        heads.push(decode(&b).map_err(|e| corrupt_tile(app, ts, *t, &e))?.header);
+    }
+    tiles3d::subtree(&avail, sub, &heads).map_err(|e| Problem::internal("terrain", e.to_string()))
 }

@@ -7,11 +7,13 @@
 // Cesium globe terrain (quantized-mesh-1.0, baked with --terrain, and one served on demand): every
 // tile decoded by @here/quantized-mesh-decoder and checked, a crack test on neighbours, on-demand
 // tiles against baked ones, CesiumJS (the docs example page: a flight, sampleTerrainMostDetailed
-// against the source rasters) and 3DTilesRendererJS's QuantizedMeshPlugin. The last line printed
+// against the source rasters) and 3DTilesRendererJS's QuantizedMeshPlugin; the same terrain as 3D
+// Tiles (every GLB and subtree against the quantized-mesh tiles, the glTF validator, CesiumJS's
+// Cesium3DTilesTerrainProvider against its quantized-mesh provider). The last line printed
 // is `N passed, N failed`; exit 1 on a failure.
 //
 // Environment: TERRASTREAM_BIN, TERRASTREAM_DATA, CHROMIUM, INTEROP_OUT (see README.md),
-// INTEROP_TIMEOUT_S (whole run, default 480), INTEROP_KEEP=1 (keep the temp store).
+// INTEROP_TIMEOUT_S (whole run, default 660), INTEROP_KEEP=1 (keep the temp store).
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
@@ -32,6 +34,7 @@ import { toLonLat, placeSample, interiorGrid } from './lib/earth.mjs';
 import { multiplyPoint } from './lib/mat4.mjs';
 import { terrainSamples, closeHttp } from './lib/terrain.mjs';
 import { decodeCheck, crackCheck, onDemandCheck, cesiumTerrainCheck, terrainHeightsCheck, threeTerrainCheck } from './lib/qm-checks.mjs';
+import { tiles3dTerrainCheck, cesium3dTerrainCheck } from './lib/t3d-checks.mjs';
 
 const HERE = path.dirname(fileURLToPath(import.meta.url));
 const fromHere = (p) => path.resolve(HERE, p);
@@ -40,7 +43,7 @@ const cfg = {
   data: process.env.TERRASTREAM_DATA ? path.resolve(process.env.TERRASTREAM_DATA) : fromHere('../../../shared/data'),
   chromium: process.env.CHROMIUM || '/usr/bin/chromium',
   out: process.env.INTEROP_OUT ? path.resolve(process.env.INTEROP_OUT) : fromHere('out'),
-  timeoutS: Number(process.env.INTEROP_TIMEOUT_S || 480),
+  timeoutS: Number(process.env.INTEROP_TIMEOUT_S || 660),
   keep: process.env.INTEROP_KEEP === '1',
 };
 
@@ -109,6 +112,25 @@ const GLOBE_STOPS = [
 // to zoom 9 at least (its tiles' geometric error 77,067 m / 2^z against its errorTarget of 2 px
 // asks for zoom 10 at 1024×768 from there).
 const THREE_TERRAIN = { name: 'vinschgau', range: 3e4, minZoom: 9 };
+// The terrain as 3D Tiles (check k): every tile of vinschgau's (and the on-demand copy's) and of
+// etopo's (the antimeridian, the poles, hemisphere-sized tiles), then CesiumJS's
+// Cesium3DTilesTerrainProvider flying over each (no imagery, 640×480; vinschgau three stops of
+// check i's, etopo check i's globe stops) and sampleTerrainMostDetailed from both providers at a
+// grid² of points on the deepest zoom's sample lattice and as many a third of a cell off it
+// (inside triangles). Height tolerance: the GLB stores each vertex as an f32 offset from the
+// tile's centre, so two f32 steps of a deepest-zoom tile's size (2⁻²² × π·6,378,137 m / 2^z:
+// 2 mm at vinschgau's zoom 11, 1.2 m at etopo's zoom 2; CesiumJS keeps heights and u/v in f32
+// too), at least 5 mm. Pictures: the last stop drawn with the quantized-mesh provider must match
+// (≤ 0.1 % of the pixels off by more than 16 of 255).
+const T3D = [
+  { name: 'vinschgau', live: TERRAIN_LIVE.name, grid: 5, stops: REGIONAL_STOPS.slice(1, 2).concat(REGIONAL_STOPS.slice(3)) },
+  // (heights compared up to 85° of latitude: nearer a pole CesiumJS's 3D Tiles terrain scrambles
+  // the u of the triangles fanning from the pole vertex, whose longitude it cannot recover;
+  // reported in the details)
+  { name: 'etopo', live: null, grid: 3, stops: GLOBE_STOPS, poleZoneDeg: 85 },
+];
+const T3D_MS_PER_STOP = 30_000;
+const T3D_MAX_DIFF_SHARE = 0.001;
 // The example page for users; check i opens it with its CesiumJS CDN URL pointed at the local copy.
 const EXAMPLE = { file: '../../docs/examples/cesium-terrain.html', cdn: 'https://cesium.com/downloads/cesiumjs/releases/1.140/Build/Cesium/' };
 
@@ -510,6 +532,33 @@ async function main() {
       screenshot: path.join(cfg.out, `3d-tiles-renderer-terrain-${THREE_TERRAIN.name}.png`), log,
     });
   });
+  // k. the same terrain as 3D Tiles
+  for (const t of T3D) {
+    await checks.run(`k. 3d tiles terrain ${t.name}`, async (log) => {
+      needs(served, 'the server is not running');
+      return tiles3dTerrainCheck({ base, name: t.name, live: t.live, log });
+    });
+    await checks.run(`k. cesium 3d tiles terrain ${t.name}`, async (log) => {
+      needs(served, 'the server is not running');
+      needs(browser, `no browser: ${browserError}`);
+      const geo = GEO.find((g) => g.name === t.name);
+      const raster = readGeoTiff(path.join(cfg.data, geo.file));
+      const maxZoom = JSON.parse(fs.readFileSync(path.join(store, t.name, 'terrain', 'stats.json'), 'utf8')).max_zoom;
+      const grid = terrainSamples({ raster, geoid: null, maxZoom, k: t.grid });
+      needs(grid.length > 0, `no sample point of ${geo.file} has data around it`);
+      const cell = 180 / 64 / 2 ** maxZoom;
+      const points = grid.flatMap((s) => [[s.lon, s.lat], [s.lon + cell / 3, s.lat + cell / 3]]);
+      const lon = grid.reduce((a, s) => a + s.lon, 0) / grid.length;
+      const lat = grid.reduce((a, s) => a + s.lat, 0) / grid.length;
+      const h = [...grid].sort((a, b) => a.h - b.h)[grid.length >> 1].h;
+      const tolM = Math.max(0.005, 2 ** -22 * ((Math.PI * 6378137) / 2 ** maxZoom));
+      return cesium3dTerrainCheck({
+        browser, pageUrl: `${pageBase}/terrain3d.html?server=${encodeURIComponent(base)}&tileset=${t.name}`, flightScriptUrl: `${pageBase}/terrain-flight.js`,
+        name: t.name, stops: t.stops.map((s) => ({ lon, lat, h, ...s })), msPerStop: T3D_MS_PER_STOP, viewport: TERRAIN_VIEWPORT, points, tolM, maxDiffShare: T3D_MAX_DIFF_SHARE, poleZoneDeg: t.poleZoneDeg,
+        screenshot: path.join(cfg.out, `cesium-3dtiles-terrain-${t.name}.png`), log,
+      });
+    });
+  }
 }
 
 let geoidGrid = null;

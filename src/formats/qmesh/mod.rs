@@ -14,6 +14,7 @@ pub mod build;
 pub mod codec;
 pub mod grid;
 pub mod layer;
+pub mod tiles3d;
 
 pub use build::{BuildError, BuiltTile, SIDE, TileSamples, build_tile};
 pub use codec::{Extensions, QmError, QmTile, decode, encode, filter_extensions};

@@ -17,14 +17,14 @@ pub const GLB_TYPE: &str = "model/gltf-binary";
 /// Written into `asset.generator` of every tileset and glTF.
 pub const GENERATOR: &str = concat!("terrastream ", env!("CARGO_PKG_VERSION"));
 
-const GLTF_FLOAT: u32 = 5126;
-const GLTF_U16: u32 = 5123;
-const GLTF_U32: u32 = 5125;
+pub(crate) const GLTF_FLOAT: u32 = 5126;
+pub(crate) const GLTF_U16: u32 = 5123;
+pub(crate) const GLTF_U32: u32 = 5125;
 const GLTF_I8: u32 = 5120;
-const ARRAY_BUFFER: u32 = 34962;
-const ELEMENT_ARRAY_BUFFER: u32 = 34963;
+pub(crate) const ARRAY_BUFFER: u32 = 34962;
+pub(crate) const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 /// Largest vertex count drawn with 16-bit indices: 65535 is WebGL 2's primitive-restart index.
-const MAX_U16_VERTICES: usize = 65_535;
+pub(crate) const MAX_U16_VERTICES: usize = 65_535;
 
 /// Skirt depth of a tile mesh with error `own`: deep enough for a neighbour drawn one level
 /// coarser (about twice the error), see [`skirt_depth`].
@@ -270,10 +270,11 @@ fn oct_free_i8(n: [f64; 3]) -> [i8; 3] {
     best.1
 }
 
-/// A glTF document being put together: its JSON and its one binary buffer.
-struct Gltf {
-    json: Value,
-    bin: Vec<u8>,
+/// A glTF document being put together: its JSON and its one binary buffer (also the 3D Tiles
+/// terrain's, `formats::qmesh::tiles3d`).
+pub(crate) struct Gltf {
+    pub(crate) json: Value,
+    pub(crate) bin: Vec<u8>,
 }
 
 impl Gltf {
@@ -292,7 +293,7 @@ impl Gltf {
     }
 
     /// Appends a buffer view (4-byte aligned) and returns its index.
-    fn view(&mut self, bytes: &[u8], stride: Option<usize>, target: u32) -> usize {
+    pub(crate) fn view(&mut self, bytes: &[u8], stride: Option<usize>, target: u32) -> usize {
         while !self.bin.len().is_multiple_of(4) {
             self.bin.push(0);
         }
@@ -305,7 +306,7 @@ impl Gltf {
         push(&mut self.json, "bufferViews", v)
     }
 
-    fn accessor(&mut self, a: Value) -> usize {
+    pub(crate) fn accessor(&mut self, a: Value) -> usize {
         push(&mut self.json, "accessors", a)
     }
 
@@ -423,7 +424,7 @@ impl Gltf {
     }
 
     /// The GLB container: header, JSON chunk (space-padded), BIN chunk (zero-padded).
-    fn finish(mut self) -> Vec<u8> {
+    pub(crate) fn finish(mut self) -> Vec<u8> {
         while !self.bin.len().is_multiple_of(4) {
             self.bin.push(0);
         }
