@@ -35,6 +35,7 @@ import { multiplyPoint } from './lib/mat4.mjs';
 import { terrainSamples, closeHttp } from './lib/terrain.mjs';
 import { decodeCheck, crackCheck, onDemandCheck, cesiumTerrainCheck, terrainHeightsCheck, threeTerrainCheck } from './lib/qm-checks.mjs';
 import { tiles3dTerrainCheck, cesium3dTerrainCheck } from './lib/t3d-checks.mjs';
+import { maplibreCheck } from './lib/maplibre.mjs';
 
 const HERE = path.dirname(fileURLToPath(import.meta.url));
 const fromHere = (p) => path.resolve(HERE, p);
@@ -85,6 +86,8 @@ const GLOBE_SEA_SSE = 2;
 // zooms, as the server's on-demand terrain). TERRAIN_LIVE serves the vinschgau DEM again as an
 // on-demand --source tileset, whose tiles must be the baked ones byte for byte.
 const TERRAIN_LIVE = { name: 'vinschgau-live', baked: 'vinschgau' };
+// MapLibre GL JS on the heightmap tiles of this tileset: a tilted view over the data's centre.
+const MAPLIBRE = { name: 'vinschgau', zoom: 11, pitch: 50 };
 // CesiumJS on the docs example page: a flight onto each of these, then sampleTerrainMostDetailed
 // on a TERRAIN_GRID² grid. Regional DEMs: from 15,000 km straight down to 15 km at 35° over the
 // data's centre. ETOPO1: the globe, the antimeridian (Fiji) and both poles. The page as users get
@@ -342,6 +345,7 @@ async function main() {
       '/example/': exampleDir,
       '/three/': fromHere('node_modules/three'),
       '/3d-tiles-renderer/': fromHere('node_modules/3d-tiles-renderer'),
+      '/maplibre-gl/': fromHere('node_modules/maplibre-gl/dist'),
       '/': fromHere('page'),
     });
     cleanups.push(() => new Promise((r) => {
@@ -532,6 +536,32 @@ async function main() {
       screenshot: path.join(cfg.out, `3d-tiles-renderer-terrain-${THREE_TERRAIN.name}.png`), log,
     });
   });
+  // l. MapLibre GL JS draws the heightmap tiles (raster-dem terrain + hillshade)
+  await checks.run(`l. maplibre heightmap ${MAPLIBRE.name}`, async (log) => {
+    needs(served, 'the server is not running');
+    needs(browser, `no browser: ${browserError}`);
+    const geo = GEO.find((g) => g.name === MAPLIBRE.name);
+    const raster = readGeoTiff(path.join(cfg.data, geo.file));
+    const [x, y] = raster.world(raster.width >> 1, raster.height >> 1);
+    const [lon, lat] = toLonLat(raster.epsg)(x, y);
+    let lo = Infinity;
+    let hi = -Infinity;
+    for (let r = 0; r < raster.height; r += 4) {
+      for (let c = 0; c < raster.width; c += 4) {
+        const v = raster.at(c, r);
+        if (Number.isFinite(v)) [lo, hi] = [Math.min(lo, v), Math.max(hi, v)];
+      }
+    }
+    const h = await fetchWithTimeout(`${base}/tilesets/${MAPLIBRE.name}/heights?datum=geoid&points=${lon},${lat}`);
+    needs(h.ok, `the heights API answered ${h.status}`);
+    const expected = (await h.json()).heights[0].h;
+    needs(typeof expected === 'number', `no height at ${lon}, ${lat}`);
+    return maplibreCheck({
+      browser, pageBase, base, name: MAPLIBRE.name, view: { lon, lat, zoom: MAPLIBRE.zoom, pitch: MAPLIBRE.pitch },
+      expected, relief: hi - lo, screenshot: path.join(cfg.out, `maplibre-heightmap-${MAPLIBRE.name}.png`), log,
+    });
+  });
+
   // k. the same terrain as 3D Tiles
   for (const t of T3D) {
     await checks.run(`k. 3d tiles terrain ${t.name}`, async (log) => {
