@@ -19,14 +19,15 @@ pub trait BlobSource: Sync {
     fn blob(&self, key: TileKey) -> Result<Option<Vec<u8>>, String>;
 }
 
-/// A node's TIN ready for point queries: triangles bucketed in a `cells × cells` grid over the
-/// node's bounding box. On a placed tileset the client draws each triangle as a chord of the
-/// curved Earth, and the bake measured the TIN on heights lowered by the Earth's drop below the
-/// plane tangent at the node's centre (`d²/2R`, [`crate::bake::EARTH_RADIUS`]): so here too a
-/// point's height is the planar interpolation of the lowered corner heights plus its own drop,
-/// which is the drawn surface's height to second order and what the stored error bounds.
+/// A node's TIN ready for point queries, as the bake measured it: vertices on the raster's
+/// sample grid (column, row), triangles bucketed in a `cells × cells` grid over the node's box.
+/// On a placed tileset the client draws each triangle as a chord of the curved Earth, and the
+/// bake measured the TIN on heights lowered by the Earth's drop below the plane tangent at the
+/// node's centre (`d²/2R`, [`crate::bake::EARTH_RADIUS`]): so here too a point's height is the
+/// planar interpolation (in sample space) of the lowered corner heights plus its own drop, the
+/// drawn surface's height to second order and what the stored error bounds.
 struct NodeMesh {
-    /// World x, y and the (lowered) height of each vertex.
+    /// Column, row and the (lowered) height of each vertex.
     positions: Vec<[f64; 3]>,
     /// The node's centre (world) for the drop; `None` in a local (flat) frame.
     centre: Option<[f64; 2]>,
@@ -45,17 +46,7 @@ struct NodeMesh {
 const TOL: f64 = -1e-9;
 
 impl NodeMesh {
-    fn new(
-        mut positions: Vec<[f64; 3]>,
-        triangles: Vec<[u32; 3]>,
-        error: f64,
-        centre: Option<[f64; 2]>,
-    ) -> Self {
-        if let Some(c) = centre {
-            for p in &mut positions {
-                p[2] -= drop(c, p[0], p[1]);
-            }
-        }
+    fn new(positions: Vec<[f64; 3]>, triangles: Vec<[u32; 3]>, error: f64, centre: Option<[f64; 2]>) -> Self {
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
         for p in &positions {
             for k in 0..2 {
@@ -125,13 +116,13 @@ impl NodeMesh {
             let inside = l0.min(l1).min(l2);
             let h = l0 * a[2] + l1 * b[2] + l2 * d[2];
             if inside >= TOL {
-                return Some(h + self.centre.map_or(0.0, |c| drop(c, x, y)));
+                return Some(h);
             }
             if inside >= -EDGE_SLACK && best.is_none_or(|(w, _)| inside > w) {
                 best = Some((inside, h));
             }
         }
-        best.map(|(_, h)| h + self.centre.map_or(0.0, |c| drop(c, x, y)))
+        best.map(|(_, h)| h)
     }
 }
 
@@ -267,7 +258,9 @@ impl<S: BlobSource> MeshSampler<S> {
                 current = Some((key, self.node(key)?));
             }
             let Some(Some(mesh)) = current.as_ref().map(|c| c.1.as_ref()) else { continue };
-            let Some(h) = mesh.height(x, y) else { continue };
+            let g = &self.georef;
+            let Some(h) = mesh.height((x - g.x0) / g.dx, (y - g.y0) / g.dy) else { continue };
+            let h = h + mesh.centre.map_or(0.0, |c| drop(c, x, y));
             let h = super::to_datum(h, q.datum, self.frame.as_ref(), lonlat, &self.egm96, base + k)?;
             out[k] = Height { h, error: mesh.error, nodata: false };
         }
@@ -293,7 +286,18 @@ impl<S: BlobSource> MeshSampler<S> {
             let (c, r) = (f64::from(s.col0 + s.col1) / 2.0, f64::from(s.row0 + s.row1) / 2.0);
             [g.x0 + c * g.dx, g.y0 + r * g.dy]
         });
-        let mesh = Arc::new(NodeMesh::new(m.positions, m.triangles, blob.header.errors.max, centre));
+        // On the sample grid (the bake's vertices are samples; the blob's positions are rounded
+        // to its quantization), the heights lowered by the drop of their stored position.
+        let g = &self.georef;
+        let positions = m
+            .positions
+            .iter()
+            .map(|p| {
+                let lowered = p[2] - centre.map_or(0.0, |c| drop(c, p[0], p[1]));
+                [((p[0] - g.x0) / g.dx).round(), ((p[1] - g.y0) / g.dy).round(), lowered]
+            })
+            .collect();
+        let mesh = Arc::new(NodeMesh::new(positions, m.triangles, blob.header.errors.max, centre));
         self.cache.put(self.tag, key, mesh.clone())?;
         Ok(Some(mesh))
     }
