@@ -342,7 +342,26 @@ fn serving_from_a_bucket_equals_a_directory_and_picks_up_new_tilesets() {
     let folder = serve_at(&folder_root, &endpoint);
     let archive = serve_at(&archive_root, &endpoint);
     let files = common::tree(&local_root.join("ts"));
-    let urls = common::tileset_urls("ts", files.keys());
+    let mut urls = common::tileset_urls("ts", files.keys());
+    // Heights on the stored TINs (issue 38): the same numbers from a folder, a bucket and an
+    // archive. Points across the raster in its world frame (the synthetic raster has no CRS).
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(local_root.join("ts/tileset.json")).unwrap()).unwrap();
+    let f = &m["frame"];
+    let (x0, y0, dx, dy) = (
+        f["x0"].as_f64().unwrap(),
+        f["y0"].as_f64().unwrap(),
+        f["dx"].as_f64().unwrap(),
+        f["dy"].as_f64().unwrap(),
+    );
+    let pts: Vec<String> = (0..60)
+        .map(|k| {
+            let (c, r) = (f64::from(k) * 6.37 % 384.0, f64::from(k) * 5.11 % 320.0);
+            format!("{},{}", x0 + c * dx, y0 + r * dy)
+        })
+        .collect();
+    urls.push(format!("/tilesets/ts/heights?coords=local&datum=native&points={}", pts.join(";")));
+    urls.push(format!("/tilesets/ts/heights?coords=local&datum=native&depth=1&points={}", pts.join(";")));
     common::assert_same_responses(
         &[("directory", local.addr), ("bucket folder", folder.addr), ("bucket archive", archive.addr)],
         &urls,
