@@ -373,3 +373,51 @@ fn heightmap_tiles_carry_the_source_heights_in_web_mercator() {
     let (s, _, b) = request(a, "GET", &format!("/tilesets/od/heightmap/10/{x}/{y}.png?encoding=x"), &[], &[]);
     assert!(s == 400 && String::from_utf8_lossy(&b).contains("terrarium"));
 }
+
+#[test]
+fn the_mesh_surface_is_the_decoded_level_0_tin() {
+    // A raster without a CRS (flat world frame): the mesh surface is exactly the TIN's planar
+    // triangles, checked against the finest nodes' blobs decoded here.
+    let tmp = tempfile::tempdir().unwrap();
+    let tif = tmp.path().join("t.tif");
+    ok(bin().args(["synth", "--width", "129", "--height", "97", "--seed", "3", "--out"]).arg(&tif));
+    let store = tmp.path().join("store");
+    ok(bin()
+        .args(["bake", "--tile-size", "32", "--levels", "1", "--gpu", "off", "-q", "--out"])
+        .arg(store.join("t"))
+        .arg(&tif));
+    let server = serve({
+        let mut c = bin();
+        c.args(["serve", "--store"]).arg(&store);
+        c
+    });
+    let m: Value = serde_json::from_slice(&std::fs::read(store.join("t/tileset.json")).unwrap()).unwrap();
+    let depth = m["depth"].as_u64().unwrap();
+    let mut pts = Vec::new();
+    let mut want = Vec::new();
+    let leaves = store.join(format!("t/tiles/{depth}"));
+    for x in std::fs::read_dir(&leaves).unwrap() {
+        for y in std::fs::read_dir(x.unwrap().path()).unwrap() {
+            let blob = std::fs::read(y.unwrap().path().join("0.tsb")).unwrap();
+            let b = terrastream::codec::decode(&blob).unwrap();
+            let terrastream::codec::Geometry::Mesh(mesh) = b.geometry else { unreachable!() };
+            for t in mesh.triangles.iter().step_by(7) {
+                let p = t.map(|v| mesh.positions[v as usize]);
+                // A vertex, and the centroid: the mean of the corners' heights.
+                pts.push([p[0][0], p[0][1]]);
+                want.push((p[0][2], b.header.errors.max));
+                let c = [0, 1, 2].map(|k| (p[0][k] + p[1][k] + p[2][k]) / 3.0);
+                pts.push([c[0], c[1]]);
+                want.push((c[2], b.header.errors.max));
+            }
+        }
+    }
+    assert!(pts.len() > 100, "{} points", pts.len());
+    let got = answers(&post_json(server.addr, "/tilesets/t/heights?coords=local&datum=native", &pts));
+    for (k, ((h, err, nodata), (w, e))) in got.iter().zip(&want).enumerate() {
+        assert!(!nodata, "point {k} {:?}", pts[k]);
+        assert!((h.unwrap() - w).abs() < 1e-6, "point {k} {:?}: {h:?} vs the blob's {w}", pts[k]);
+        // A vertex on a node border may be answered by the neighbour: its error, not this one's.
+        assert!(err.unwrap() > 0.0 && (k % 2 == 0 || (err.unwrap() - e).abs() < 1e-12));
+    }
+}

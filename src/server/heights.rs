@@ -4,7 +4,8 @@
 //! (`points=x,y;x,y`, at most [`MAX_GET_POINTS`]). Options in the query: `coords=wgs84|crs|local`,
 //! `surface=mesh|source`, `interpolation=nearest|bilinear|cubic` (source), `depth=Z` (mesh:
 //! the depth of the nodes whose TIN answers; the finest by default), `datum=ellipsoid|geoid|
-//! native`. Answers stream in chunks of [`CHUNK`] points, as JSON columns or, for `Accept:
+//! native`. Answers of more than [`CHUNK`] points stream in chunks of that many (smaller ones come
+//! whole), as JSON (one object a point) or, for `Accept:
 //! application/octet-stream`, 16 bytes a point (f64 height, f32 error bound, u32 flags: bit 0
 //! no data). Every point is checked before the first byte is sent (a bad one is a `400` naming
 //! it); limits: [`MAX_POINTS`] points, [`MAX_BODY_BYTES`] of body, the request timeout until the
@@ -36,6 +37,8 @@ pub const MAX_GET_POINTS: usize = 1_000;
 pub const MAX_BODY_BYTES: usize = 64 << 20;
 /// Points answered per chunk of the response.
 pub const CHUNK: usize = 65_536;
+/// Batches up to this many points are checked and answered on the request's own task.
+const INLINE_POINTS: usize = 1_024;
 /// Decoded TINs the server keeps for height queries (bytes), shared by requests.
 pub const MESH_CACHE_BYTES: usize = 256 << 20;
 
@@ -349,17 +352,38 @@ async fn answer(
     let points = Arc::new(points);
     // Every point is checked (and the first chunk answered) before the response starts, so a
     // bad point is a 400, not a torn body.
-    let check = {
+    if points.len() <= INLINE_POINTS {
+        check_all(&points, opts.query).map_err(|e| heights_problem(&e))?;
+    } else {
         let points = points.clone();
-        tokio::task::spawn_blocking(move || check_all(&points, opts.query)).await
-    };
-    check
-        .map_err(|_| Problem::internal("heights", "checking the points failed"))?
-        .map_err(|e| heights_problem(&e))?;
+        tokio::task::spawn_blocking(move || check_all(&points, opts.query))
+            .await
+            .map_err(|_| Problem::internal("heights", "checking the points failed"))?
+            .map_err(|e| heights_problem(&e))?;
+    }
     let first = chunk(&app, &ts, &which, &points, 0, opts.query).await?;
     let n = points.len();
-    let (tx, rx) = tokio::sync::mpsc::channel::<Result<Bytes, std::io::Error>>(2);
     let head = if binary { Bytes::new() } else { Bytes::from(json_head(&ts.name, opts, n)) };
+    if first.len() == n {
+        // One chunk: the whole answer at once, with its length.
+        let mut body = head.to_vec();
+        if binary {
+            body.extend_from_slice(&binary_chunk(&first));
+        } else {
+            body.extend_from_slice(&json_chunk(&first, true));
+            body.extend_from_slice(b"]}");
+        }
+        let mut r = Response::new(Body::from(body));
+        let h = r.headers_mut();
+        h.insert(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static(if binary { "application/octet-stream" } else { "application/json" }),
+        );
+        h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+        h.insert("x-points", HeaderValue::from(n));
+        return Ok(r);
+    }
+    let (tx, rx) = tokio::sync::mpsc::channel::<Result<Bytes, std::io::Error>>(2);
     let encode = move |hs: &[Height], first_chunk: bool| -> Bytes {
         if binary { Bytes::from(binary_chunk(hs)) } else { Bytes::from(json_chunk(hs, first_chunk)) }
     };
@@ -457,7 +481,10 @@ pub(super) async fn chunk(
     };
     let (which, points) = (which.clone(), points.clone());
     let (cache, tag) = (app.meshes.clone(), ts.generation);
-    tokio::task::spawn_blocking(move || -> Result<Vec<Height>, HeightsError> {
+    // A small batch with nothing to decode is answered here (microseconds); larger ones and
+    // ones that decode TINs on a blocking thread.
+    let inline = end - start <= INLINE_POINTS && fetched.is_empty();
+    let work = move || -> Result<Vec<Height>, HeightsError> {
         let pts = &points[start..end];
         match which.as_ref() {
             Sampler::Source(src) => {
@@ -468,10 +495,15 @@ pub(super) async fn chunk(
                     .sample_from(pts, q, *depth, start)
             }
         }
-    })
-    .await
-    .map_err(|_| Problem::internal("heights", "answering the points failed"))?
-    .map_err(|e| heights_problem(&e))
+    };
+    let answered = if inline {
+        work()
+    } else {
+        tokio::task::spawn_blocking(work)
+            .await
+            .map_err(|_| Problem::internal("heights", "answering the points failed"))?
+    };
+    answered.map_err(|e| heights_problem(&e))
 }
 
 fn json_head(name: &str, opts: Options, n: usize) -> String {
