@@ -66,7 +66,7 @@ impl GridFrame<'_> {
 }
 
 /// Mean radius of the Earth, metres: the curvature [`Curvature`] takes into the TIN.
-pub const EARTH_RADIUS: f64 = 6_371_000.0;
+const EARTH_RADIUS: f64 = crate::crs::ecef::MEAN_RADIUS;
 
 /// A tileset placed on the Earth draws a node's flat triangles as chords in ECEF, which dip below
 /// the ellipsoid by up to L²/8R between their vertices (2 m for a 10 km edge). The TIN is

@@ -4,6 +4,9 @@
 
 /// WGS 84 semi-major axis, metres.
 pub const A: f64 = 6_378_137.0;
+/// The Earth's mean radius (metres): the sphere a bake lowers a node's heights by to keep chord
+/// sag inside a TIN's measured error, and that the heights samplers undo.
+pub const MEAN_RADIUS: f64 = 6_371_000.0;
 /// WGS 84 flattening.
 pub const F: f64 = 1.0 / 298.257_223_563;
 /// First eccentricity squared.

@@ -23,7 +23,7 @@ pub trait BlobSource: Sync {
 /// sample grid (column, row), triangles bucketed in a `cells × cells` grid over the node's box.
 /// On a placed tileset the client draws each triangle as a chord of the curved Earth, and the
 /// bake measured the TIN on heights lowered by the Earth's drop below the plane tangent at the
-/// node's centre (`d²/2R`, [`crate::bake::EARTH_RADIUS`]): so here too a point's height is the
+/// node's centre (`d²/2R`, [`crate::crs::ecef::MEAN_RADIUS`], the bake's): so here too a point's height is the
 /// planar interpolation (in sample space) of the lowered corner heights plus its own drop, the
 /// drawn surface's height to second order and what the stored error bounds.
 struct NodeMesh {
@@ -132,7 +132,7 @@ const EDGE_SLACK: f64 = 1e-6;
 
 /// The drop of the Earth's surface at world (x, y) below the plane tangent at `c`.
 fn drop(c: [f64; 2], x: f64, y: f64) -> f64 {
-    ((x - c[0]).powi(2) + (y - c[1]).powi(2)) / (2.0 * crate::bake::EARTH_RADIUS)
+    ((x - c[0]).powi(2) + (y - c[1]).powi(2)) / (2.0 * crate::crs::ecef::MEAN_RADIUS)
 }
 
 /// Decoded nodes kept up to a byte budget, oldest out first; shared by samplers (and so by

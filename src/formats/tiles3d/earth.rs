@@ -15,7 +15,7 @@ use crate::crs::{Frame, PlaceError, ecef};
 use crate::geom::Bounds;
 
 /// Mean Earth radius used for the chord sag of a region's lower bound, metres.
-const EARTH_RADIUS: f64 = 6_371_000.0;
+const EARTH_RADIUS: f64 = crate::crs::ecef::MEAN_RADIUS;
 /// Samples per side of a box's footprint when its region is bounded.
 const REGION_SAMPLES: usize = 9;
 
