@@ -156,18 +156,7 @@ pub fn export_3dtiles(
         }
         .into());
     }
-    if out.exists() {
-        let empty = out.is_dir() && std::fs::read_dir(out).map_err(io_err(out))?.next().is_none();
-        if !empty {
-            return Err(ExportError::Io {
-                path: out.to_owned(),
-                source: io::Error::new(
-                    io::ErrorKind::AlreadyExists,
-                    "exists and is not an empty directory; choose another --out",
-                ),
-            });
-        }
-    }
+    check_out_free(out)?;
     let name = store.name().unwrap_or_else(|| "tileset".to_owned());
     let info = tiles3d_info(store, &name, anchor, String::new())?;
     // The chunks, from the root down (each read once; bounded by the pyramid).
@@ -187,13 +176,7 @@ pub fn export_3dtiles(
         }
         chunks.push(chunk);
     }
-    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
-    std::fs::create_dir_all(parent).map_err(io_err(parent))?;
-    let stage = parent.join(format!(
-        ".{}.partial-{}",
-        out.file_name().map_or_else(|| "export".into(), |n| n.to_string_lossy().into_owned()),
-        std::process::id()
-    ));
+    let stage = stage_dir(out)?;
     let result = (|| {
         if stage.exists() {
             std::fs::remove_dir_all(&stage).map_err(io_err(&stage))?;
@@ -356,25 +339,8 @@ pub fn export_heightmap(
             }
         }
     }
-    if out.exists() {
-        let empty = out.is_dir() && std::fs::read_dir(out).map_err(io_err(out))?.next().is_none();
-        if !empty {
-            return Err(ExportError::Io {
-                path: out.to_owned(),
-                source: io::Error::new(
-                    io::ErrorKind::AlreadyExists,
-                    "exists and is not an empty directory; choose another --out",
-                ),
-            });
-        }
-    }
-    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
-    std::fs::create_dir_all(parent).map_err(io_err(parent))?;
-    let stage = parent.join(format!(
-        ".{}.partial-{}",
-        out.file_name().map_or_else(|| "export".into(), |n| n.to_string_lossy().into_owned()),
-        std::process::id()
-    ));
+    check_out_free(out)?;
+    let stage = stage_dir(out)?;
     let cache = std::sync::Arc::new(MeshCache::new(512 << 20));
     let sampler = MeshSampler::with_cache(StoreBlobs(store), pyramid, &m.frame, cache, 0)
         .map_err(|e| invalid(e.to_string()))?;
@@ -426,4 +392,31 @@ pub fn export_heightmap(
         let _ = std::fs::remove_dir_all(&stage);
     }
     result
+}
+
+/// Refuses an export folder that exists and is not an empty directory.
+fn check_out_free(out: &std::path::Path) -> Result<(), ExportError> {
+    if out.exists() {
+        let io_err = |source| ExportError::Io { path: out.to_owned(), source };
+        let empty = out.is_dir() && std::fs::read_dir(out).map_err(io_err)?.next().is_none();
+        if !empty {
+            return Err(io_err(io::Error::new(
+                io::ErrorKind::AlreadyExists,
+                "exists and is not an empty directory; choose another --out",
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// The staging folder beside `out` (its parent created) that an export fills and renames into
+/// place when complete.
+fn stage_dir(out: &std::path::Path) -> Result<std::path::PathBuf, ExportError> {
+    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+    std::fs::create_dir_all(parent).map_err(|source| ExportError::Io { path: parent.to_owned(), source })?;
+    Ok(parent.join(format!(
+        ".{}.partial-{}",
+        out.file_name().map_or_else(|| "export".into(), |n| n.to_string_lossy().into_owned()),
+        std::process::id()
+    )))
 }
