@@ -221,6 +221,10 @@ fn bad_points_bodies_and_options_are_refused_clearly() {
         .args(["bake", "--levels", "1", "--tile-size", "256", "--gpu", "off", "-q", "--out"])
         .arg(store.join("t"))
         .arg(&src));
+    // A model tileset: heights do not apply.
+    let obj = tmp.path().join("quad.obj");
+    std::fs::write(&obj, "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0.5\nf 1 2 3\nf 1 3 4\n").unwrap();
+    ok(bin().args(["bake-model", "--gpu", "off", "-q", "--out"]).arg(store.join("mdl")).arg(&obj));
     let server = serve({
         let mut c = bin();
         c.args(["serve", "--store"]).arg(&store);
@@ -249,6 +253,13 @@ fn bad_points_bodies_and_options_are_refused_clearly() {
         ("/tilesets/t/heights?interpolation=cubic", json, b"[]".to_vec(), 400, "surface=source only"),
         ("/tilesets/t/heights?depth=30", json, b"[[10.5, 46.5]]".to_vec(), 400, "depth"),
         ("/tilesets/nope/heights", json, b"[]".to_vec(), 404, "no tileset"),
+        (
+            "/tilesets/mdl/heights?coords=local&datum=native",
+            json,
+            b"[[0.5, 0.5]]".to_vec(),
+            409,
+            "not a terrain",
+        ),
     ] {
         let (s, detail) = problem(a, "POST", path, ctype, &body);
         assert_eq!(s, status, "{path} {:?}: {detail}", String::from_utf8_lossy(&body));

@@ -316,13 +316,21 @@ pub(super) fn sampler(ts: &Tileset, surface: Surface) -> Result<Sampler, Problem
             )
         }),
         Surface::Mesh { depth } => {
-            let m: crate::store::Manifest = serde_json::from_slice(&ts.manifest_json).map_err(|_| {
+            let not_terrain = || {
                 Problem::new(
                     StatusCode::CONFLICT,
                     "not-terrain",
                     format!("tileset {:?} is not a terrain tileset: heights apply to terrain", ts.name),
                 )
-            })?;
+            };
+            // A model's manifest carries every terrain field too: its `kind` tells them apart.
+            let kind: serde_json::Value =
+                serde_json::from_slice(&ts.manifest_json).map_err(|_| not_terrain())?;
+            if kind.get("kind").and_then(serde_json::Value::as_str).is_some_and(|k| k != "terrain") {
+                return Err(not_terrain());
+            }
+            let m: crate::store::Manifest =
+                serde_json::from_slice(&ts.manifest_json).map_err(|_| not_terrain())?;
             let pyramid = Pyramid::new(m.source.width, m.source.height, m.tile_size)
                 .map_err(|e| Problem::internal("heights", format!("tileset {:?}: {e}", ts.name)))?;
             let depth = depth.unwrap_or(pyramid.depth);
