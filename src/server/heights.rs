@@ -107,18 +107,12 @@ fn parse_options(raw: Option<&str>) -> Result<(Options, Option<String>), Problem
             }
         }
     }
+    // `interpolation` applies to the source, `depth` to the mesh; each is ignored by the other
+    // surface (documented), so any combination the API document allows is answered.
     let surface = if surface == Some(true) {
-        if depth.is_some() {
-            return Err(Problem::bad_request("depth applies to surface=mesh only"));
-        }
         query.interp = interp.unwrap_or_default();
         Surface::Source
     } else {
-        if interp.is_some() {
-            return Err(Problem::bad_request(
-                "interpolation applies to surface=source only (surface=mesh answers on the TIN)",
-            ));
-        }
         Surface::Mesh { depth }
     };
     Ok((Options { query, surface }, points))

@@ -187,13 +187,13 @@ pub fn document() -> Value {
                 &[("406", "Accept names neither quantized-mesh nor a wildcard"), ("500", "A stored tile cannot be read or decoded, or the build failed")]),
             "/tilesets/{name}/heights": heights_ops(),
             "/tilesets/{name}/heightmap/tiles.json": cached_get("TileJSON 3.0 of the heightmap tiles (bounds, zooms, encoding, tile URL template): a MapLibre GL raster-dem source `url`",
-                &heightmap_params(false), "TileJSON", "application/json", &any,
+                &heightmap_params(false, true), "TileJSON", "application/json", &any,
                 &[("409", "The tileset is not placed on the Earth (no CRS)")]),
             "/tilesets/{name}/heightmap/{z}/{x}/{y}.png": cached_get("One heightmap tile of the Web-Mercator XYZ grid, 256×256 PNG in the Terrarium or Mapbox Terrain-RGB encoding (no data: 0 m); made on request from the TIN at the tile's scale or the source, and cached (docs/heights.md)",
-                &heightmap_params(true), "PNG", "image/png", &json!({"type": "string", "format": "binary"}),
+                &heightmap_params(true, true), "PNG", "image/png", &json!({"type": "string", "format": "binary"}),
                 &[("409", "The tileset is not placed on the Earth, or surface=source without a source"), ("500", "A blob the tile needs failed verification, or its bake failed")]),
             "/tilesets/{name}/heightmap/{z}/{x}/{y}.f32": cached_get("One heightmap tile as float32: 256×256 little-endian f32 metres, rows from the north, NaN where there is no data",
-                &heightmap_params(true), "float32 heights", "application/octet-stream", &json!({"type": "string", "format": "binary"}),
+                &heightmap_params(true, false), "float32 heights", "application/octet-stream", &json!({"type": "string", "format": "binary"}),
                 &[("409", "The tileset is not placed on the Earth, or surface=source without a source"), ("500", "A blob the tile needs failed verification, or its bake failed")]),
             "/tilesets/{name}/terrain/3dtiles/tileset.json": cached_get("The globe terrain as 3D Tiles 1.1 for CesiumJS's Cesium3DTilesTerrainProvider: a root over the globe whose two children are the hemispheres' implicit quadtrees (QUADTREE, region volumes, subtrees of 2 levels; tile metadata TILE_MINIMUM_HEIGHT, TILE_MAXIMUM_HEIGHT, TILE_BOUNDING_SPHERE, TILE_HORIZON_OCCLUSION_POINT). Same availability and content version as layer.json",
                 &json!([name_param()]), "3D Tiles tileset", "application/json", &any,
@@ -249,9 +249,9 @@ fn heights_ops() -> Value {
         {"name": "surface", "in": "query", "schema": {"enum": ["mesh", "source"], "default": "mesh"},
             "description": "mesh: the TIN of the nodes at `depth` (what a client draws); source: the source raster (--source tilesets only)"},
         {"name": "interpolation", "in": "query", "schema": {"enum": ["nearest", "bilinear", "cubic"], "default": "bilinear"},
-            "description": "surface=source only"},
+            "description": "surface=source only (ignored by surface=mesh)"},
         {"name": "depth", "in": "query", "schema": {"type": "integer", "minimum": 0, "maximum": 24},
-            "description": "surface=mesh only: the depth of the nodes whose TIN answers (default: the finest)"},
+            "description": "surface=mesh only (ignored by surface=source): the depth of the nodes whose TIN answers (default: the finest)"},
         {"name": "datum", "in": "query", "schema": {"enum": ["ellipsoid", "geoid", "native"], "default": "ellipsoid"},
             "description": "heights above the WGS 84 ellipsoid, the EGM96 geoid, or as stored; a tileset without a CRS answers coords=local, datum=native only"}
     ]);
@@ -301,13 +301,16 @@ fn heights_ops() -> Value {
 }
 
 /// The parameters of the heightmap routes (`tile`: with z/x/y and the content version).
-fn heightmap_params(tile: bool) -> Value {
+fn heightmap_params(tile: bool, png: bool) -> Value {
     let mut p = vec![name_param()];
     if tile {
         p.extend([int_param("z"), int_param("x"), int_param("y")]);
     }
+    if png {
+        p.push(json!({"name": "encoding", "in": "query", "schema": {"enum": ["terrarium", "terrain-rgb", "mapbox"], "default": "terrarium"}}));
+    }
     p.extend([
-        json!({"name": "encoding", "in": "query", "schema": {"enum": ["terrarium", "terrain-rgb", "mapbox"], "default": "terrarium"}, "description": "PNG tiles only"}),
+
         json!({"name": "surface", "in": "query", "schema": {"enum": ["mesh", "source"], "default": "mesh"}}),
         json!({"name": "datum", "in": "query", "schema": {"enum": ["geoid", "ellipsoid", "native"], "default": "geoid"}}),
     ]);
