@@ -284,8 +284,9 @@ fn heights_problem(e: &HeightsError) -> Problem {
         | HeightsError::Latitude { .. }
         | HeightsError::Longitude { .. }
         | HeightsError::Transform { .. }
-        | HeightsError::Depth { .. }
-        | HeightsError::NotPlaced { .. } => Problem::bad_request(e.to_string()),
+        | HeightsError::Depth { .. } => Problem::bad_request(e.to_string()),
+        // The tileset, not the request, lacks what the options need.
+        HeightsError::NotPlaced { .. } => Problem::new(StatusCode::CONFLICT, "not-placed", e.to_string()),
         _ => Problem::internal("heights", e.to_string()),
     }
 }

@@ -273,7 +273,7 @@ fn heights_ops() -> Value {
         m.insert(
             "409".into(),
             problem(
-                "surface=source on a tileset served without its source, or a tileset that is not terrain",
+                "surface=source on a tileset served without its source, a tileset that is not terrain, or coords/datum that need a CRS on a tileset without one",
             ),
         );
         m.insert("200".into(), ok.clone());
