@@ -250,7 +250,7 @@ fn bad_points_bodies_and_options_are_refused_clearly() {
         ("/tilesets/t/heights?datum=sea", json, b"[]".to_vec(), 400, "datum=\"sea\""),
         ("/tilesets/t/heights?frame=x", json, b"[]".to_vec(), 400, "unknown query parameter"),
         ("/tilesets/t/heights?surface=source", json, b"[[10.5, 46.5]]".to_vec(), 409, "--source"),
-        ("/tilesets/t/heights?depth=30", json, b"[[10.5, 46.5]]".to_vec(), 400, "depth"),
+        ("/tilesets/t/heights?depth=30", json, b"[[10.5, 46.5]]".to_vec(), 404, "depth"),
         ("/tilesets/nope/heights", json, b"[]".to_vec(), 404, "no tileset"),
         (
             "/tilesets/mdl/heights?coords=local&datum=native",

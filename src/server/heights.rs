@@ -283,8 +283,8 @@ fn heights_problem(e: &HeightsError) -> Problem {
         HeightsError::NonFinite { .. }
         | HeightsError::Latitude { .. }
         | HeightsError::Longitude { .. }
-        | HeightsError::Transform { .. }
-        | HeightsError::Depth { .. } => Problem::bad_request(e.to_string()),
+        | HeightsError::Transform { .. } => Problem::bad_request(e.to_string()),
+        HeightsError::Depth { .. } => Problem::not_found(e.to_string()),
         // The tileset, not the request, lacks what the options need.
         HeightsError::NotPlaced { .. } => Problem::new(StatusCode::CONFLICT, "not-placed", e.to_string()),
         _ => Problem::internal("heights", e.to_string()),
@@ -330,7 +330,8 @@ pub(super) fn sampler(ts: &Tileset, surface: Surface) -> Result<Sampler, Problem
                 .map_err(|e| Problem::internal("heights", format!("tileset {:?}: {e}", ts.name)))?;
             let depth = depth.unwrap_or(pyramid.depth);
             if depth > pyramid.depth {
-                return Err(Problem::bad_request(format!(
+                // Like a tile the tileset does not have.
+                return Err(Problem::not_found(format!(
                     "depth {depth}: the finest nodes of {:?} are at depth {}",
                     ts.name, pyramid.depth
                 )));
