@@ -295,7 +295,7 @@ fn heights_ops() -> Value {
                     {"type": "object", "required": ["points"], "additionalProperties": false,
                         "properties": {"points": {"type": "array", "items": pair, "maxItems": MAX_POINTS}}}]}},
                 "application/octet-stream": {"schema": {"type": "string", "format": "binary"},
-                    "description": format!("little-endian f64 x, y pairs; at most {MAX_POINTS} points, {MAX_BODY_BYTES} bytes")}}},
+                    "description": format!("finite little-endian f64 x, y pairs (16 bytes a point); at most {MAX_POINTS} points, {MAX_BODY_BYTES} bytes")}}},
             "responses": responses(&[("413", "More points or body bytes than a request takes"), ("415", "A body neither JSON nor application/octet-stream")])}
     })
 }

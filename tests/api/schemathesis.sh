@@ -6,7 +6,8 @@
 # answered 202 and baked by a job (which may fail on the bytes schemathesis sends), so its
 # tileset appears only when the job is done. And use_after_free expects a DELETEd resource to
 # be gone, but DELETE /jobs/{id} cancels a job, which stays readable (state "cancelled") until
-# --job-ttl so its owner can see how it ended — as the document says.
+# --job-ttl so its owner can see how it ended — as the document says. schemathesis_hooks.py
+# tells it the shape of the binary heights body (pairs of f64), which OpenAPI cannot.
 # Usage: tests/api/schemathesis.sh TERRASTREAM_BINARY SCHEMATHESIS_BINARY [MAX_EXAMPLES]
 set -euo pipefail
 bin=$1
@@ -34,7 +35,7 @@ done
 curl -fs "http://127.0.0.1:$port/readyz" >/dev/null
 
 set +e
-"$st" run "http://127.0.0.1:$port/openapi.json" \
+SCHEMATHESIS_HOOKS="$(cd "$(dirname "$0")" && pwd)/schemathesis_hooks.py" "$st" run "http://127.0.0.1:$port/openapi.json" \
   --checks all --exclude-checks ensure_resource_availability,use_after_free \
   --max-examples "$examples" --generation-deterministic \
   --header "Authorization: Bearer schemathesis-token" \
