@@ -22,6 +22,7 @@ use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use glam::DVec3;
+use terrastream::bake::PointLevels;
 use terrastream::bake::{self, BakeOptions, NodeMesh};
 use terrastream::client::camera::Camera;
 use terrastream::client::select::{AllResident, DEFAULT_FOV_DEG, DistanceRule, SelectParams, Selector};
@@ -41,7 +42,12 @@ fn tile() -> (Pyramid, Vec<f32>, Georef, BakeOptions) {
     let heights = synth::terrain(SIDE, SIDE, 7);
     let pyramid = Pyramid::new(SIDE, SIDE, SIDE - 1).expect("one-tile pyramid");
     let georef = Georef { dx: 10.0, dy: -10.0, ..Georef::default() };
-    (pyramid, heights, georef, BakeOptions { tile_size: SIDE - 1, max_error: 1.0, levels: 3 })
+    (
+        pyramid,
+        heights,
+        georef,
+        BakeOptions { tile_size: SIDE - 1, max_error: 1.0, levels: 3, point_levels: PointLevels::All },
+    )
 }
 
 fn node_mesh() -> NodeMesh {

@@ -10,6 +10,7 @@ use common::{bin, blobs_and_index, fails, ok, tree};
 
 use std::path::{Path, PathBuf};
 
+use terrastream::bake::PointLevels;
 use terrastream::bake::{self, BakeOptions, NoProgress, TerrainInput};
 use terrastream::lod::PointBaker;
 use terrastream::raster::dataset::{Dataset, DatasetOptions, MIN_CACHE_BYTES};
@@ -17,7 +18,8 @@ use terrastream::raster::geotiff::{Model, write_tiled_f32};
 use terrastream::raster::{self, HeightEncoding, LoadOptions, Overrides, WindowReader};
 use terrastream::store::Store;
 
-const OPTS: BakeOptions = BakeOptions { tile_size: 64, max_error: 1.0, levels: 2 };
+const OPTS: BakeOptions =
+    BakeOptions { tile_size: 64, max_error: 1.0, levels: 2, point_levels: PointLevels::Auto };
 
 /// Writes a tiled float32 GeoTIFF of `w × h` samples of `f(col, row)` (global coordinates
 /// offset by `(c0, r0)`), origin of its sample (0, 0) at the matching world position.
@@ -147,7 +149,7 @@ fn hgt_mosaic_bakes_as_one_geographic_file() {
     )
     .unwrap();
     drop(file);
-    let opts = BakeOptions { tile_size: 256, max_error: 4.0, levels: 1 };
+    let opts = BakeOptions { tile_size: 256, max_error: 4.0, levels: 1, point_levels: PointLevels::Auto };
     let (a, b) = (d.join("a"), d.join("b"));
     for (inputs, out) in [(tiles.clone(), &a), (vec![whole], &b)] {
         let ds = open(&inputs, 64 << 20).unwrap();

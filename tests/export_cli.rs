@@ -9,6 +9,7 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use common::{bin, fails, ok};
+use terrastream::bake::PointLevels;
 use terrastream::bake::{BakeOptions, NoProgress};
 use terrastream::raster::{self, LoadOptions};
 use terrastream::store::Store;
@@ -22,7 +23,7 @@ fn baked(dir: &Path) -> PathBuf {
     std::fs::write(&tif, bytes).unwrap();
     let r = raster::load(&tif, &LoadOptions::default()).unwrap();
     let out = dir.join("store/t");
-    let opts = BakeOptions { tile_size: 16, max_error: 0.5, levels: 2 };
+    let opts = BakeOptions { tile_size: 16, max_error: 0.5, levels: 2, point_levels: PointLevels::Auto };
     terrastream::bake::bake_terrain(
         &r,
         "t.tif",

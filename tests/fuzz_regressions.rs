@@ -9,6 +9,7 @@
 
 use std::path::Path;
 
+use terrastream::bake::PointLevels;
 use terrastream::raster::{self, Limits, LoadOptions, RasterError};
 
 /// The limits the raster fuzz targets run with.
@@ -134,7 +135,7 @@ fn tile_key_at_z_64_is_a_client_error() {
         nodata_fallback: 0,
         format: "synthetic".into(),
     };
-    let opts = BakeOptions { tile_size: 16, max_error: 1.0, levels: 1 };
+    let opts = BakeOptions { tile_size: 16, max_error: 1.0, levels: 1, point_levels: PointLevels::Auto };
     let store = dir.path().join("deep");
     terrastream::bake::bake_terrain(
         &raster,

@@ -147,7 +147,7 @@ fn check_jobs(name: &str, gpu: &GpuBaker, jobs: &[LevelJob<'_>]) -> Agreement {
 
 /// Node meshes of a raster, as the bake builds them (quantized TIN, level grids).
 fn node_meshes(hf: &Heightfield, georef: &Georef, tile: u32, max_error: f64) -> Vec<NodeMesh> {
-    let opts = BakeOptions { tile_size: tile, max_error, levels: 3 };
+    let opts = BakeOptions { tile_size: tile, max_error, levels: 3, point_levels: bake::PointLevels::All };
     let pyramid = Pyramid::new(hf.width, hf.height, tile).unwrap();
     pyramid.nodes().into_iter().map(|k| bake::node_mesh(&pyramid, hf, georef, k, &opts).unwrap()).collect()
 }

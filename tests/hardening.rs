@@ -68,7 +68,7 @@ fn d1_fuji_small_tiles_bake_with_points_inside_the_bounds() {
     let out = tmp.path().join("x");
     ok(bin()
         .args(["bake", "--quiet", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "64"])
-        .args(["--max-error", "2", "--gpu", "off", "--out"])
+        .args(["--max-error", "2", "--point-levels", "all", "--gpu", "off", "--out"])
         .arg(&out)
         .arg(&fuji));
     assert!(assert_positions_inside_bounds(&out) > 300);
@@ -192,7 +192,7 @@ fn d4_resume_rebakes_damaged_blobs() {
         let out = run_within(
             bin()
                 .args(["bake", "--encoding", "terrain-rgb", "--cell-size", "30", "--tile-size", "128"])
-                .args(["--levels", "3", "--gpu", "off", "--out"])
+                .args(["--levels", "3", "--point-levels", "all", "--gpu", "off", "--out"])
                 .arg(out)
                 .arg(&fuji),
             Duration::from_secs(300),

@@ -17,6 +17,7 @@ use std::time::Duration;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
+use terrastream::bake::PointLevels;
 use terrastream::bake::{BakeOptions, NoProgress};
 use terrastream::raster::{self, LoadOptions};
 use terrastream::server::{PartialConfig, Server};
@@ -29,7 +30,8 @@ const HEIGHT: u32 = 193;
 /// An exact TIN (`max_error` 0) over the smooth test raster keeps enough vertices that both
 /// point levels pay in every node (checked by `point_levels_that_do_not_pay_are_404`), so the
 /// tests below may request any level.
-const OPTS: BakeOptions = BakeOptions { tile_size: 64, max_error: 0.0, levels: 2 };
+const OPTS: BakeOptions =
+    BakeOptions { tile_size: 64, max_error: 0.0, levels: 2, point_levels: PointLevels::All };
 
 #[derive(Debug)]
 struct Resp {
@@ -676,7 +678,7 @@ fn on_demand_store(side: u32) -> (tempfile::TempDir, PathBuf, String) {
     write_raster(&tif, (side, side), 11);
     let store = tmp.path().join("store");
     std::fs::create_dir_all(&store).unwrap();
-    let spec = format!("od={},tile_size=256,max_error=0,levels=2", tif.display());
+    let spec = format!("od={},tile_size=256,max_error=0,levels=2,point_levels=all", tif.display());
     (tmp, store, spec)
 }
 

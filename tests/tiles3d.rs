@@ -21,6 +21,7 @@ use std::time::Duration;
 use serde_json::Value;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
+use terrastream::bake::PointLevels;
 use terrastream::bake::export;
 use terrastream::bake::{BakeOptions, NoProgress};
 use terrastream::codec::{self, Geometry};
@@ -32,7 +33,8 @@ use terrastream::tiling::TileKey;
 
 /// 257² samples in 16-cell leaves: depth 4, so the root chunk has 256 external tilesets below.
 const SIDE: u32 = 257;
-const OPTS: BakeOptions = BakeOptions { tile_size: 16, max_error: 0.5, levels: 2 };
+const OPTS: BakeOptions =
+    BakeOptions { tile_size: 16, max_error: 0.5, levels: 2, point_levels: PointLevels::All };
 
 fn baked(dir: &Path) -> PathBuf {
     let tif = dir.join("t.tif");
@@ -266,7 +268,7 @@ fn export_places_geographic_and_unreferenced_sources() {
     )
     .unwrap();
     let dir = tmp.path().join("fuji");
-    let o = BakeOptions { tile_size: 256, max_error: 4.0, levels: 1 };
+    let o = BakeOptions { tile_size: 256, max_error: 4.0, levels: 1, point_levels: PointLevels::All };
     terrastream::bake::bake_terrain(
         &r,
         "fuji.png",
@@ -313,7 +315,7 @@ fn export_places_geographic_and_unreferenced_sources() {
     drop(f);
     let r = raster::load(&geo, &LoadOptions::default()).unwrap();
     let dir = tmp.path().join("geo");
-    let o = BakeOptions { tile_size: 32, max_error: 1.0, levels: 1 };
+    let o = BakeOptions { tile_size: 32, max_error: 1.0, levels: 1, point_levels: PointLevels::All };
     terrastream::bake::bake_terrain(
         &r,
         "geo.tif",

@@ -21,5 +21,5 @@ pub mod terrain3d;
 
 pub mod model_tileset;
 
-pub use node::{NodeMesh, bake_node, node_from_blobs, node_mesh};
+pub use node::{LevelPlan, NodeMesh, ParentInfo, bake_node, node_from_blobs, node_mesh};
 pub use terrain::*;

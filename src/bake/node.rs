@@ -8,11 +8,13 @@ use crate::codec::{self, Quantization};
 use crate::geom::{Bounds, ErrorFigures, Mesh, PointCloud};
 use crate::lod::{self, PointBaker};
 use crate::raster::{Georef, LoadedRaster, WindowReader};
-use crate::store::{self, NodeEntry, NodeLevel, Store, StoreError};
+use crate::store::{self, NodeEntry, NodeLevel, SkipReason, SkippedLevel, Store, StoreError};
 use crate::tiling::{Pyramid, TileKey};
 use crate::tin;
 
-use super::{BakeError, BakeOptions, MESH_Z_STEPS_PER_ERROR, POINT_STEPS_PER_CELL, check_options};
+use super::{
+    BakeError, BakeOptions, MESH_Z_STEPS_PER_ERROR, POINT_STEPS_PER_CELL, PointLevels, check_options,
+};
 
 /// Bakes one node (every level) of `raster` and writes its blobs into `store`, exactly as
 /// [`super::bake_terrain`] would (same bytes); returns its index entry (the index and manifest
@@ -31,11 +33,74 @@ pub fn bake_node(
     if !pyramid.contains(key) {
         return Err(BakeError::OutsidePyramid(key));
     }
-    bake_node_in(&pyramid, hf, &raster.georef, key, opts, baker, store)
+    let parent = match parent_key(key) {
+        Some(p) if opts.point_levels == PointLevels::Auto => {
+            Some(parent_info(&pyramid, hf, &raster.georef, p, opts, Some(store))?)
+        }
+        _ => None,
+    };
+    bake_node_in(&pyramid, hf, &raster.georef, key, opts, baker, store, parent)
 }
 
-/// [`bake_node`] inside a pyramid already checked: TIN, point levels by `baker` (on the GPU all
-/// the node's levels in one submission), blobs written.
+/// The parent of `key` in the quadtree, if it has one.
+#[must_use]
+pub(crate) fn parent_key(key: TileKey) -> Option<TileKey> {
+    (key.z > 0).then(|| TileKey::new(key.z - 1, key.x / 2, key.y / 2))
+}
+
+/// What a node's parent leaves its point levels ([`lod::reach`]): the error of the parent's
+/// finest level (its mesh) and the centre of its box, where a selector measures its distance.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ParentInfo {
+    pub error: f64,
+    pub centre: glam::DVec3,
+}
+
+impl ParentInfo {
+    /// From the parent's index entry (a baked or resumed node).
+    #[must_use]
+    pub fn of_entry(e: &NodeEntry) -> Self {
+        Self {
+            error: e.levels.first().map_or(f64::INFINITY, |l| l.errors.geometric()),
+            centre: e.bounds.center(),
+        }
+    }
+
+    /// From the parent's level 0 as built.
+    #[must_use]
+    pub fn of_mesh(nm: &NodeMesh) -> Self {
+        Self { error: nm.mesh_errors.geometric(), centre: nm.bounds.center() }
+    }
+}
+
+/// [`ParentInfo`] of `parent`: from its mesh blob when `store` holds it whole, else by building
+/// its level 0 (the same figures: a blob's header holds the errors and box it was built with).
+pub(crate) fn parent_info(
+    pyramid: &Pyramid,
+    reader: &dyn WindowReader,
+    georef: &Georef,
+    parent: TileKey,
+    opts: &BakeOptions,
+    store: Option<&Store>,
+) -> Result<ParentInfo, BakeError> {
+    if let Some(store) = store
+        && let Some(bytes) = store.read_blob(parent, 0)?
+        && let Ok(b) = codec::decode(&bytes)
+        && b.header.key == parent
+        && b.header.level == 0
+    {
+        return Ok(ParentInfo {
+            error: b.header.errors.geometric(),
+            centre: Bounds::new(b.header.bounds[0], b.header.bounds[1]).center(),
+        });
+    }
+    Ok(ParentInfo::of_mesh(&node_mesh(pyramid, reader, georef, parent, opts)?))
+}
+
+/// [`bake_node`] inside a pyramid already checked: TIN, the point levels its plan bakes (by
+/// `baker`; on the GPU all of them in one submission), blobs written. `parent` is required for
+/// `--point-levels auto` below the root ([`NodeMesh::plan_levels`]).
+#[allow(clippy::too_many_arguments)]
 pub(super) fn bake_node_in(
     pyramid: &Pyramid,
     reader: &dyn WindowReader,
@@ -44,11 +109,34 @@ pub(super) fn bake_node_in(
     opts: &BakeOptions,
     baker: &PointBaker,
     store: &Store,
+    parent: Option<ParentInfo>,
 ) -> Result<NodeEntry, BakeError> {
     let nm = node_mesh(pyramid, reader, georef, key, opts)?;
-    let grids: Vec<([f64; 3], f64)> = (1..=opts.levels).map(|l| nm.level_grid(l)).collect();
-    let clouds = baker.bake_levels(&nm.mesh, &grids)?.0;
-    write_node(&nm, clouds, store)
+    let plan = nm.plan_levels(opts, parent);
+    let clouds = baker.bake_levels(&nm.mesh, &plan.grids(&nm))?.0;
+    write_node(&nm, &plan, clouds, store)
+}
+
+/// Which point levels of a node are baked ([`NodeMesh::plan_levels`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LevelPlan {
+    /// Per point level (1, 2, …): `None` to bake it, or why it is not baked.
+    pub levels: Vec<(u8, Option<SkipReason>)>,
+    /// A baked level is kept only if its measured error is under this ([`lod::reach`]).
+    pub reach: f64,
+}
+
+impl LevelPlan {
+    /// The grids of the levels to bake, in order.
+    #[must_use]
+    pub fn grids(&self, nm: &NodeMesh) -> Vec<([f64; 3], f64)> {
+        self.to_bake().map(|l| nm.level_grid(l)).collect()
+    }
+
+    /// The levels to bake, in order.
+    pub fn to_bake(&self) -> impl Iterator<Item = u8> + '_ {
+        self.levels.iter().filter(|(_, s)| s.is_none()).map(|&(l, _)| l)
+    }
 }
 
 /// The world frame of a node sample grid.
@@ -128,6 +216,41 @@ impl NodeMesh {
         pc.positions = codec::snap_positions(&pc.positions, &self.bounds, q)
             .unwrap_or_else(|_| codec::quantize_positions(&pc.positions, &self.bounds, q));
         (pc, q)
+    }
+
+    /// Which point levels to bake: none with `--point-levels none`; all with `all` or at the
+    /// root; with `auto` below the root, those whose error is not already bounded (by their
+    /// spacing, [`lod::reach::gap_lower_bound`]) at or above what the parent leaves them to
+    /// reach ([`lod::reach::reach`]: the parent's mesh error plus the threshold angle times the
+    /// distance between the boxes' centres).
+    #[must_use]
+    pub fn plan_levels(&self, opts: &BakeOptions, parent: Option<ParentInfo>) -> LevelPlan {
+        let reach = match (opts.point_levels, parent) {
+            (PointLevels::Auto, Some(p)) => {
+                lod::reach::reach(p.error, (self.bounds.center() - p.centre).length())
+            }
+            _ => f64::INFINITY,
+        };
+        let footprint = (self.bounds.max.x - self.bounds.min.x) * (self.bounds.max.y - self.bounds.min.y);
+        let levels = (1..=opts.levels)
+            .map(|l| {
+                let skip = if opts.point_levels == PointLevels::None {
+                    Some(SkipReason::Policy)
+                } else if reach.is_finite() && {
+                    let (origin, cell) = self.level_grid(l);
+                    // The bound never exceeds about 0.44 cell (a covering by N ≥ A / cell²
+                    // discs): not worth computing below that.
+                    cell * 0.5 >= reach
+                        && lod::reach::gap_lower_bound(&self.mesh, origin, cell, footprint) >= reach
+                } {
+                    Some(SkipReason::PredictedUnreachable)
+                } else {
+                    None
+                };
+                (l, skip)
+            })
+            .collect();
+        LevelPlan { levels, reach }
     }
 
     /// The errors of a quantized cloud of `level` against this node's mesh.
@@ -283,12 +406,14 @@ pub fn node_mesh(
     })
 }
 
-/// Encodes a node's levels (`clouds` are its baked point levels 1, 2, …), keeps those that pay
-/// ([`store::levels_that_pay`]) and writes their blobs (the others get an `unpaid` marker);
-/// returns its index entry. The pay rule looks at counts and bytes only, so a point level is
-/// measured only once it is known to be kept: the blobs are those of measuring every level.
+/// Encodes a node's levels (`clouds` are the levels `plan` bakes, in order), keeps those that
+/// pay — cheaper than every finer level kept ([`store::Payer`]) and, measured, under the plan's
+/// reach — and writes their blobs (the others get an `unpaid` marker saying why); returns its
+/// index entry. The cost rule looks at counts and bytes only, so a point level is measured only
+/// once it is known to be cheaper: the blobs are those of measuring every level.
 pub(super) fn write_node(
     nm: &NodeMesh,
+    plan: &LevelPlan,
     clouds: Vec<PointCloud>,
     store: &Store,
 ) -> Result<NodeEntry, BakeError> {
@@ -306,71 +431,92 @@ pub(super) fn write_node(
     };
     let mut payer = store::Payer::default();
     payer.keep(mesh_level.count, mesh_level.bytes);
-    let mut levels = vec![(mesh_level.level, Some((mesh_level, mesh_blob)))];
-    for (k, pc) in clouds.into_iter().enumerate() {
-        let level = k as u8 + 1;
+    let mut levels: Vec<LevelToWrite> = vec![(mesh_level.level, Ok((mesh_level, mesh_blob)))];
+    let mut clouds = clouds.into_iter();
+    for &(level, planned_skip) in &plan.levels {
+        if let Some(why) = planned_skip {
+            levels.push((level, Err(why)));
+            continue;
+        }
+        let Some(pc) = clouds.next() else {
+            return Err(BakeError::Plan(format!("tile {key}: no point cloud baked for level {level}")));
+        };
         let (pc, q) = nm.quantize_level(level, pc);
         let count = pc.positions.len() as u32;
-        let mut kept = None;
+        let mut kept = Err(SkipReason::Costlier);
         if payer.may_pay(count) {
             let draft = codec::draft_points(key, level, &nm.bounds, q, &pc).map_err(codec_err(level))?;
-            if payer.keep(count, draft.len() as u64) {
+            if payer.would_pay(count, draft.len() as u64) {
                 let errors = nm.measure_level(level, &pc);
-                let blob = draft.finish(errors).map_err(codec_err(level))?;
-                let info = NodeLevel {
-                    level,
-                    errors,
-                    count,
-                    triangles: 0,
-                    bytes: blob.len() as u64,
-                    checksum: codec::decode_header(&blob).map_err(codec_err(level))?.checksum,
-                };
-                kept = Some((info, blob));
+                if errors.geometric() < plan.reach {
+                    payer.keep(count, draft.len() as u64);
+                    let blob = draft.finish(errors).map_err(codec_err(level))?;
+                    let info = NodeLevel {
+                        level,
+                        errors,
+                        count,
+                        triangles: 0,
+                        bytes: blob.len() as u64,
+                        checksum: codec::decode_header(&blob).map_err(codec_err(level))?.checksum,
+                    };
+                    kept = Ok((info, blob));
+                } else {
+                    kept = Err(SkipReason::Unreachable);
+                }
             }
         }
         levels.push((level, kept));
     }
-    let levels = write_levels(store, key, levels)?;
-    Ok(NodeEntry { key, bounds: nm.bounds, levels })
+    let (levels, skipped) = write_levels(store, key, levels)?;
+    Ok(NodeEntry { key, bounds: nm.bounds, levels, skipped })
 }
 
 /// Writes the blobs of one node's levels that pay and the `unpaid` markers of the others;
-/// returns the kept levels, finest first. Shared by terrain nodes and model tilesets.
+/// returns the kept levels, finest first, and the others. Shared by terrain nodes and model
+/// tilesets.
 pub(crate) fn write_paying(
     store: &Store,
     key: TileKey,
     blobs: Vec<(NodeLevel, Vec<u8>)>,
-) -> Result<Vec<NodeLevel>, store::StoreError> {
+) -> Result<(Vec<NodeLevel>, Vec<SkippedLevel>), store::StoreError> {
     let infos: Vec<NodeLevel> = blobs.iter().map(|(l, _)| *l).collect();
     let pays = store::levels_that_pay(&infos);
-    let levels =
-        blobs.into_iter().zip(pays).map(|((info, bytes), pays)| (info.level, pays.then_some((info, bytes))));
+    let levels = blobs.into_iter().zip(pays).map(|((info, bytes), pays)| {
+        (info.level, if pays { Ok((info, bytes)) } else { Err(SkipReason::Costlier) })
+    });
     write_levels(store, key, levels.collect())
 }
 
-/// One level of a node to write: its id, and its index entry and blob if it is kept.
-type LevelToWrite = (u8, Option<(NodeLevel, Vec<u8>)>);
+/// One level of a node to write: its id, and its index entry and blob if it is kept, else why
+/// not.
+type LevelToWrite = (u8, Result<(NodeLevel, Vec<u8>), SkipReason>);
 
-/// Writes one node's kept levels (`Some`: their blobs) and the `unpaid` markers of the others
-/// (`None`), coarsest first and the mesh (level 0) last: a node counts as complete on resume
-/// only once its mesh blob exists, and then every other level has its blob or its marker.
-/// Returns the kept levels, finest first.
+/// Writes one node's kept levels (`Ok`: their blobs) and the `unpaid` markers of the others
+/// (`Err`: the reason), coarsest first and the mesh (level 0) last: a node counts as complete on
+/// resume only once its mesh blob exists, and then every other level has its blob or its
+/// marker. Returns the kept levels, finest first, and the skipped ones.
 fn write_levels(
     store: &Store,
     key: TileKey,
     levels: Vec<LevelToWrite>,
-) -> Result<Vec<NodeLevel>, store::StoreError> {
+) -> Result<(Vec<NodeLevel>, Vec<SkippedLevel>), store::StoreError> {
     let mut kept = Vec::with_capacity(levels.len());
+    let mut skipped = Vec::new();
     for (level, blob) in levels.into_iter().rev() {
-        if let Some((info, bytes)) = blob {
-            store.write_blob(key, level, &bytes)?;
-            kept.push(info);
-        } else {
-            store.write_unpaid(key, level)?;
+        match blob {
+            Ok((info, bytes)) => {
+                store.write_blob(key, level, &bytes)?;
+                kept.push(info);
+            }
+            Err(why) => {
+                store.write_unpaid(key, level, why)?;
+                skipped.push(SkippedLevel { level, why });
+            }
         }
     }
     kept.reverse();
-    Ok(kept)
+    skipped.reverse();
+    Ok((kept, skipped))
 }
 
 /// The index entry of a node whose mesh blob and every point level's blob are present, whole
@@ -384,10 +530,14 @@ fn write_levels(
 /// would only meet the same store.
 pub fn node_from_blobs(store: &Store, key: TileKey, levels: u8) -> Result<Option<NodeEntry>, StoreError> {
     let mut out = Vec::new();
+    let mut skipped = Vec::new();
     let mut bounds = None;
     for level in 0..=levels {
         let Some(bytes) = store.read_blob(key, level)? else {
-            if level > 0 && store.is_unpaid(key, level)? {
+            if level > 0
+                && let Some(why) = store.unpaid_reason(key, level)?
+            {
+                skipped.push(SkippedLevel { level, why });
                 continue;
             }
             return Ok(None);
@@ -416,11 +566,13 @@ pub fn node_from_blobs(store: &Store, key: TileKey, levels: u8) -> Result<Option
     if pays.iter().any(|p| !p) {
         // Blobs of a bake from before levels had to pay: mark the ones that do not.
         for (l, _) in out.iter().zip(&pays).filter(|(_, p)| !**p) {
-            store.write_unpaid(key, l.level)?;
+            store.write_unpaid(key, l.level, SkipReason::Costlier)?;
+            skipped.push(SkippedLevel { level: l.level, why: SkipReason::Costlier });
         }
+        skipped.sort_by_key(|s| s.level);
         out = out.into_iter().zip(pays).filter(|(_, p)| *p).map(|(l, _)| l).collect();
     }
-    Ok(bounds.map(|bounds| NodeEntry { key, bounds, levels: out }))
+    Ok(bounds.map(|bounds| NodeEntry { key, bounds, levels: out, skipped }))
 }
 
 /// The largest power of two ≤ `v` (v > 0 and finite).
@@ -448,7 +600,7 @@ mod one_node_tests {
             nodata_fallback: 0,
             format: "test".into(),
         };
-        let opts = BakeOptions { tile_size: 32, max_error: 2.0, levels: 2 };
+        let opts = BakeOptions { tile_size: 32, max_error: 2.0, levels: 2, point_levels: PointLevels::Auto };
         let full = tempfile::tempdir().unwrap();
         let full_store = Store::new(full.path());
         super::super::bake_terrain(
@@ -484,13 +636,15 @@ mod tests {
     use super::*;
     use crate::raster::Heightfield;
 
-    /// Every level measured and encoded, then the pay rule: what `write_node` did before it
-    /// measured only the levels it keeps.
+    /// Every baked level measured and encoded, then the rule (cheaper than every finer level
+    /// kept, and under the reach): what `write_node` does while measuring only the levels
+    /// that are cheaper.
     fn write_node_measuring_every_level(
         nm: &NodeMesh,
+        plan: &LevelPlan,
         clouds: Vec<PointCloud>,
         store: &Store,
-    ) -> Vec<NodeLevel> {
+    ) -> (Vec<NodeLevel>, Vec<SkippedLevel>) {
         let key = nm.key;
         let mesh_blob =
             codec::encode_mesh(key, 0, &nm.bounds, nm.quantization, &nm.mesh, nm.mesh_errors).unwrap();
@@ -503,15 +657,30 @@ mod tests {
             checksum: codec::decode_header(blob).unwrap().checksum,
         };
         let n = nm.mesh.positions.len() as u32;
-        let mut blobs =
-            vec![(info(0, nm.mesh_errors, n, nm.mesh.triangles.len() as u32, &mesh_blob), mesh_blob)];
-        for (k, pc) in clouds.into_iter().enumerate() {
-            let level = k as u8 + 1;
-            let (pc, errors, q) = nm.finish_level(level, pc);
+        let mesh = info(0, nm.mesh_errors, n, nm.mesh.triangles.len() as u32, &mesh_blob);
+        let mut payer = store::Payer::default();
+        payer.keep(mesh.count, mesh.bytes);
+        let mut levels: Vec<LevelToWrite> = vec![(0, Ok((mesh, mesh_blob)))];
+        let mut clouds = clouds.into_iter();
+        for &(level, skip) in &plan.levels {
+            if let Some(why) = skip {
+                levels.push((level, Err(why)));
+                continue;
+            }
+            let (pc, errors, q) = nm.finish_level(level, clouds.next().unwrap());
             let blob = codec::encode_points(key, level, &nm.bounds, q, &pc, errors).unwrap();
-            blobs.push((info(level, errors, pc.positions.len() as u32, 0, &blob), blob));
+            let l = info(level, errors, pc.positions.len() as u32, 0, &blob);
+            let kept = if !payer.would_pay(l.count, l.bytes) {
+                Err(SkipReason::Costlier)
+            } else if errors.geometric() >= plan.reach {
+                Err(SkipReason::Unreachable)
+            } else {
+                payer.keep(l.count, l.bytes);
+                Ok((l, blob))
+            };
+            levels.push((level, kept));
         }
-        write_paying(store, key, blobs).unwrap()
+        write_levels(store, key, levels).unwrap()
     }
 
     /// Every file under `dir`, relative path and bytes, sorted.
@@ -534,7 +703,7 @@ mod tests {
 
     #[test]
     fn measuring_only_the_kept_levels_writes_what_measuring_every_level_writes() {
-        let (mut kept_points, mut left_out) = (0, 0);
+        let (mut kept_points, mut left_out) = (0, std::collections::BTreeMap::new());
         // Smooth ground (a TIN cheaper than most point levels) and rough ground with an exact
         // TIN (point levels pay), at several tile sizes.
         for (w, h, seed, roughness, max_error, tile_size) in
@@ -549,23 +718,36 @@ mod tests {
                 .collect();
             let hf = Heightfield { width: w, height: h, data };
             let georef = Georef { dx: 10.0, dy: -10.0, ..Georef::default() };
-            let opts = BakeOptions { tile_size, max_error, levels: 4 };
-            let pyramid = Pyramid::new(w, h, tile_size).unwrap();
-            let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
-            let (sa, sb) = (Store::new(a.path()), Store::new(b.path()));
-            for key in pyramid.nodes() {
-                let nm = node_mesh(&pyramid, &hf, &georef, key, &opts).unwrap();
-                let grids: Vec<_> = (1..=opts.levels).map(|l| nm.level_grid(l)).collect();
-                let clouds = PointBaker::Cpu.bake_levels(&nm.mesh, &grids).unwrap().0;
-                let entry = write_node(&nm, clouds.clone(), &sa).unwrap();
-                let every = write_node_measuring_every_level(&nm, clouds, &sb);
-                assert_eq!(entry.levels, every, "{key}");
-                kept_points += every.iter().filter(|l| l.level > 0).count();
-                left_out += usize::from(opts.levels) + 1 - every.len();
+            for point_levels in [PointLevels::All, PointLevels::Auto] {
+                let opts = BakeOptions { tile_size, max_error, levels: 4, point_levels };
+                let pyramid = Pyramid::new(w, h, tile_size).unwrap();
+                let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+                let (sa, sb) = (Store::new(a.path()), Store::new(b.path()));
+                let mut parents = std::collections::HashMap::new();
+                for key in pyramid.nodes() {
+                    let nm = node_mesh(&pyramid, &hf, &georef, key, &opts).unwrap();
+                    let parent = parent_key(key).map(|p| parents[&p]);
+                    let plan = nm.plan_levels(&opts, parent);
+                    let clouds = PointBaker::Cpu.bake_levels(&nm.mesh, &plan.grids(&nm)).unwrap().0;
+                    let entry = write_node(&nm, &plan, clouds.clone(), &sa).unwrap();
+                    let (kept, skipped) = write_node_measuring_every_level(&nm, &plan, clouds, &sb);
+                    assert_eq!((&entry.levels, &entry.skipped), (&kept, &skipped), "{key}");
+                    parents.insert(key, ParentInfo::of_entry(&entry));
+                    kept_points += kept.iter().filter(|l| l.level > 0).count();
+                    for s in &skipped {
+                        *left_out.entry(s.why).or_insert(0) += 1;
+                    }
+                }
+                assert_eq!(files(a.path()), files(b.path()));
             }
-            assert_eq!(files(a.path()), files(b.path()));
         }
-        // Both paths of the rule were taken.
-        assert!(kept_points > 0 && left_out > 0, "kept {kept_points}, left out {left_out}");
+        // Both measured paths of the rule were taken (the predicted one is `lod::reach`'s bound,
+        // tested there against what the bake measures).
+        assert!(
+            kept_points > 0
+                && left_out.contains_key(&SkipReason::Costlier)
+                && left_out.contains_key(&SkipReason::Unreachable),
+            "kept {kept_points}, left out {left_out:?}"
+        );
     }
 }

@@ -79,6 +79,9 @@ pub struct InputOptions {
     pub max_error: f64,
     /// Point-cloud levels below the mesh.
     pub levels: u8,
+    /// `--point-levels` (a plan written before it existed: `all`).
+    #[serde(default = "super::PointLevels::before_reach")]
+    pub point_levels: super::PointLevels,
     /// How a PNG encodes heights.
     pub encoding: Option<HeightEncoding>,
     /// OpenEXR channel to read.
@@ -116,7 +119,12 @@ pub struct InputOptions {
 impl InputOptions {
     #[must_use]
     pub fn bake_options(&self) -> BakeOptions {
-        BakeOptions { tile_size: self.tile_size, max_error: self.max_error, levels: self.levels }
+        BakeOptions {
+            tile_size: self.tile_size,
+            max_error: self.max_error,
+            levels: self.levels,
+            point_levels: self.point_levels,
+        }
     }
 
     #[must_use]

@@ -28,8 +28,8 @@ use crate::tiling::{Pyramid, TileKey};
 use crate::tin;
 
 #[cfg(feature = "gpu")]
-use super::node::{NodeMesh, node_mesh, write_node};
-use super::node::{bake_node_in, node_from_blobs};
+use super::node::{LevelPlan, NodeMesh, node_mesh, write_node};
+use super::node::{ParentInfo, bake_node_in, node_from_blobs, parent_info, parent_key};
 
 /// Default TIN error bound for leaf tiles, in metres.
 pub const DEFAULT_MAX_ERROR: f64 = 1.0;
@@ -47,6 +47,10 @@ pub struct BakeOptions {
     pub tile_size: u32,
     pub max_error: f64,
     pub levels: u8,
+    /// Which point levels a node stores (`--point-levels`). A plan written before the option
+    /// existed stored every level that was cheaper: `all`.
+    #[serde(default = "PointLevels::before_reach")]
+    pub point_levels: PointLevels,
 }
 
 impl Default for BakeOptions {
@@ -55,7 +59,31 @@ impl Default for BakeOptions {
             tile_size: crate::tiling::DEFAULT_TILE_SIZE,
             max_error: DEFAULT_MAX_ERROR,
             levels: DEFAULT_LEVELS,
+            point_levels: PointLevels::Auto,
         }
+    }
+}
+
+/// Which point levels a node stores (`--point-levels`).
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PointLevels {
+    /// Those a screen-space-error selector can choose (`lod::reach`: under the parent's mesh
+    /// error plus the threshold angle times the distance between their centres; the root keeps
+    /// every level) and that are cheaper than every finer level kept. Levels whose spacing
+    /// already bounds their error above that reach are not baked.
+    #[default]
+    Auto,
+    /// Every level cheaper than every finer level kept (the rule before `auto`).
+    All,
+    /// The meshes alone.
+    None,
+}
+
+impl PointLevels {
+    pub(crate) fn before_reach() -> Self {
+        Self::All
     }
 }
 
@@ -346,26 +374,131 @@ pub(crate) fn bake_nodes(
     store: &Store,
     progress: &dyn Progress,
 ) -> Result<NodesBaked, BakeError> {
-    // Larger nodes first (`nodes` comes root first): parents measure against more
-    // full-resolution samples, so starting them early keeps both cores busy until the end.
     let resumed: Vec<Option<NodeEntry>> =
         nodes.par_iter().map(|&k| node_from_blobs(store, k, opts.levels)).collect::<Result<_, _>>()?;
     let resumed_count = resumed.iter().filter(|r| r.is_some()).count() as u64;
     progress.start(nodes.len() as u64, resumed_count);
-    #[allow(unused_mut)]
-    let mut gpu_report: Option<[u64; 4]> = None;
-    let entries: Vec<NodeEntry> = match baker {
-        PointBaker::Cpu => bake_nodes_cpu(pyramid, input, opts, nodes, resumed, store, progress)?,
-        #[cfg(feature = "gpu")]
-        PointBaker::Gpu(gpu) => {
-            let (entries, report) =
-                bake_nodes_gpu(gpu, pyramid, input, opts, nodes, resumed, store, progress)?;
-            gpu_report =
-                Some([report.batches, report.peak_batch_bytes, report.budget_bytes, report.cpu_jobs]);
-            entries
+    let mut parents = Parents::new(input, opts, pyramid, nodes, &resumed, store)?;
+    let mut entries = resumed;
+    #[cfg(feature = "gpu")]
+    let mut gpu_report: Option<lod::gpu::BatchReport> = None;
+    // Depth by depth, root first: with `--point-levels auto` a node's levels depend on its
+    // parent's mesh, which is then done. Within a depth, larger nodes first would not matter:
+    // they are all alike.
+    for depth in depth_groups(nodes, &entries) {
+        match baker {
+            PointBaker::Cpu => {
+                bake_nodes_cpu(pyramid, input, opts, nodes, &depth, &parents, &mut entries, store, progress)?;
+            }
+            #[cfg(feature = "gpu")]
+            PointBaker::Gpu(gpu) => {
+                let report = bake_nodes_gpu(
+                    gpu,
+                    pyramid,
+                    input,
+                    opts,
+                    nodes,
+                    &depth,
+                    &parents,
+                    &mut entries,
+                    store,
+                    progress,
+                )?;
+                gpu_report
+                    .get_or_insert_with(|| lod::gpu::BatchReport {
+                        budget_bytes: gpu.budget_bytes(),
+                        ..Default::default()
+                    })
+                    .merge(&report);
+            }
         }
-    };
+        parents.add(depth.iter().filter_map(|&i| entries[i].as_ref()));
+    }
+    let entries = entries
+        .into_iter()
+        // Every depth was baked above, so every node has its entry.
+        .map(|e| e.ok_or(BakeError::GpuWorkerStopped))
+        .collect::<Result<Vec<_>, _>>()?;
+    #[cfg(feature = "gpu")]
+    let gpu_report = gpu_report.map(|r| [r.batches, r.peak_batch_bytes, r.budget_bytes, r.cpu_jobs]);
+    #[cfg(not(feature = "gpu"))]
+    let gpu_report: Option<[u64; 4]> = None;
     Ok(NodesBaked { entries, resumed: resumed_count, gpu_report })
+}
+
+/// The indices of `nodes` still to bake, grouped by depth, shallowest first.
+fn depth_groups(nodes: &[TileKey], entries: &[Option<NodeEntry>]) -> Vec<Vec<usize>> {
+    let mut groups: std::collections::BTreeMap<u8, Vec<usize>> = std::collections::BTreeMap::new();
+    for (i, k) in nodes.iter().enumerate() {
+        if entries[i].is_none() {
+            groups.entry(k.z).or_default().push(i);
+        }
+    }
+    groups.into_values().collect()
+}
+
+/// The [`ParentInfo`] of every node whose children a bake may need: those baked or resumed so
+/// far, and the parents outside the nodes asked for (a shard's roots), built up front.
+struct Parents {
+    auto: bool,
+    known: std::collections::HashMap<TileKey, ParentInfo>,
+}
+
+impl Parents {
+    fn new(
+        input: &TerrainInput<'_>,
+        opts: &BakeOptions,
+        pyramid: &Pyramid,
+        nodes: &[TileKey],
+        resumed: &[Option<NodeEntry>],
+        store: &Store,
+    ) -> Result<Self, BakeError> {
+        let auto = opts.point_levels == PointLevels::Auto;
+        let mut p = Self { auto, known: std::collections::HashMap::new() };
+        if !auto {
+            return Ok(p);
+        }
+        p.add(resumed.iter().flatten());
+        let asked: std::collections::HashSet<TileKey> = nodes.iter().copied().collect();
+        let mut outside: Vec<TileKey> = nodes
+            .iter()
+            .zip(resumed)
+            .filter(|(_, r)| r.is_none())
+            .filter_map(|(&k, _)| parent_key(k))
+            .filter(|pk| !asked.contains(pk))
+            .collect();
+        outside.sort_unstable();
+        outside.dedup();
+        let infos: Vec<(TileKey, ParentInfo)> = outside
+            .par_iter()
+            .map(|&pk| {
+                parent_info(pyramid, input.reader, &input.georef, pk, opts, Some(store)).map(|i| (pk, i))
+            })
+            .collect::<Result<_, _>>()?;
+        p.known.extend(infos);
+        Ok(p)
+    }
+
+    fn add<'a>(&mut self, entries: impl Iterator<Item = &'a NodeEntry>) {
+        if self.auto {
+            self.known.extend(entries.map(|e| (e.key, ParentInfo::of_entry(e))));
+        }
+    }
+
+    /// What `key`'s parent leaves it; `None` for a root or a rule that does not ask.
+    fn of(&self, key: TileKey) -> Result<Option<ParentInfo>, BakeError> {
+        if !self.auto {
+            return Ok(None);
+        }
+        match parent_key(key) {
+            None => Ok(None),
+            Some(pk) => {
+                self.known.get(&pk).copied().map(Some).ok_or_else(|| {
+                    BakeError::Plan(format!("tile {key}: its parent {pk} was not baked first"))
+                })
+            }
+        }
+    }
 }
 
 /// Writes the index chunks of `entries` (every node of the pyramid, in [`Pyramid::nodes`]
@@ -422,16 +555,20 @@ pub(crate) fn publish(
     Ok(totals)
 }
 
-/// The CPU path: every node on its own, in parallel.
+/// The CPU path: the nodes `todo` (indices into `nodes`, one depth) each on its own, in
+/// parallel; their entries go into `entries`.
+#[allow(clippy::too_many_arguments)]
 fn bake_nodes_cpu(
     pyramid: &Pyramid,
     input: &TerrainInput<'_>,
     opts: &BakeOptions,
     nodes: &[TileKey],
-    resumed: Vec<Option<NodeEntry>>,
+    todo: &[usize],
+    parents: &Parents,
+    entries: &mut [Option<NodeEntry>],
     store: &Store,
     progress: &dyn Progress,
-) -> Result<Vec<NodeEntry>, BakeError> {
+) -> Result<(), BakeError> {
     // The first failure stops the others (nodes already in flight finish) and is what the bake
     // reports.
     let first_error: Mutex<Option<BakeError>> = Mutex::new(None);
@@ -440,13 +577,10 @@ fn bake_nodes_cpu(
         failed.store(true, Ordering::Relaxed);
         first_error.lock().unwrap_or_else(std::sync::PoisonError::into_inner).get_or_insert(e);
     };
-    let entries: Option<Vec<NodeEntry>> = nodes
+    let baked: Vec<(usize, NodeEntry)> = todo
         .par_iter()
-        .zip(resumed.into_par_iter())
-        .map(|(&key, prev)| {
-            if let Some(entry) = prev {
-                return Some(entry);
-            }
+        .filter_map(|&i| {
+            let key = nodes[i];
             if failed.load(Ordering::Relaxed) {
                 return None;
             }
@@ -454,17 +588,20 @@ fn bake_nodes_cpu(
                 fail(BakeError::Cancelled(why));
                 return None;
             }
-            let r = bake_node_in(pyramid, input.reader, &input.georef, key, opts, &PointBaker::Cpu, store);
+            let r = parents.of(key).and_then(|parent| {
+                bake_node_in(pyramid, input.reader, &input.georef, key, opts, &PointBaker::Cpu, store, parent)
+            });
             progress.node_done();
-            r.map_err(fail).ok()
+            r.map_err(fail).ok().map(|e| (i, e))
         })
         .collect();
-    match (entries, first_error.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner)) {
-        (Some(entries), None) => Ok(entries),
-        (_, Some(e)) => Err(e),
-        // A `None` is only ever returned after `fail`.
-        (None, None) => unreachable!("a node failed without an error"),
+    if let Some(e) = first_error.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner) {
+        return Err(e);
     }
+    for (i, e) in baked {
+        entries[i] = Some(e);
+    }
+    Ok(())
 }
 
 /// Nodes per GPU round: their TINs are built (in parallel) while the GPU bakes the round
@@ -472,9 +609,10 @@ fn bake_nodes_cpu(
 #[cfg(feature = "gpu")]
 pub const GPU_ROUND_NODES: usize = 32;
 
-/// The GPU path: rounds of nodes, each round's TINs built on the CPU while the GPU bakes the
-/// previous round's point levels, which are then measured, encoded and written in parallel.
-/// Each node's result is what it would be alone (a job's output does not depend on its batch).
+/// The GPU path: the nodes `todo` (one depth) in rounds, each round's TINs built on the CPU
+/// while the GPU bakes the previous round's point levels, which are then measured, encoded and
+/// written in parallel. Each node's result is what it would be alone (a job's output does not
+/// depend on its batch).
 #[cfg(feature = "gpu")]
 #[allow(clippy::too_many_arguments)]
 fn bake_nodes_gpu(
@@ -483,25 +621,26 @@ fn bake_nodes_gpu(
     input: &TerrainInput<'_>,
     opts: &BakeOptions,
     nodes: &[TileKey],
-    resumed: Vec<Option<NodeEntry>>,
+    todo: &[usize],
+    parents: &Parents,
+    entries: &mut [Option<NodeEntry>],
     store: &Store,
     progress: &dyn Progress,
-) -> Result<(Vec<NodeEntry>, lod::gpu::BatchReport), BakeError> {
+) -> Result<lod::gpu::BatchReport, BakeError> {
     use std::sync::mpsc;
-    type Round = (Vec<usize>, Vec<NodeMesh>);
-    type Baked = (Vec<usize>, Vec<NodeMesh>, Vec<PointCloud>, lod::gpu::BatchReport);
+    type Planned = (NodeMesh, LevelPlan);
+    type Round = (Vec<usize>, Vec<Planned>);
+    type Baked = (Vec<usize>, Vec<Planned>, Vec<PointCloud>, lod::gpu::BatchReport);
 
-    let pending: Vec<usize> = (0..nodes.len()).filter(|&i| resumed[i].is_none()).collect();
-    let mut entries = resumed;
     let mut report = lod::gpu::BatchReport { budget_bytes: gpu.budget_bytes(), ..Default::default() };
-    let levels = opts.levels;
-    let bake_round = |meshes: &[NodeMesh]| -> Result<(Vec<PointCloud>, lod::gpu::BatchReport), BakeError> {
-        let jobs: Vec<lod::gpu::LevelJob<'_>> = meshes
+    let bake_round = |planned: &[Planned]| -> Result<(Vec<PointCloud>, lod::gpu::BatchReport), BakeError> {
+        let jobs: Vec<lod::gpu::LevelJob<'_>> = planned
             .iter()
-            .flat_map(|nm| {
-                (1..=levels).map(move |l| {
-                    let (origin, cell) = nm.level_grid(l);
-                    lod::gpu::LevelJob { mesh: &nm.mesh, origin, cell }
+            .flat_map(|(nm, plan)| {
+                plan.grids(nm).into_iter().map(move |(origin, cell)| lod::gpu::LevelJob {
+                    mesh: &nm.mesh,
+                    origin,
+                    cell,
                 })
             })
             .collect();
@@ -514,47 +653,53 @@ fn bake_nodes_gpu(
         let (to_gpu, gpu_in) = mpsc::sync_channel::<Round>(1);
         let (gpu_out, from_gpu) = mpsc::channel::<Result<Baked, BakeError>>();
         scope.spawn(move || {
-            for (ids, meshes) in gpu_in {
-                let r = bake_round(&meshes).map(|(clouds, rep)| (ids, meshes, clouds, rep));
+            for (ids, planned) in gpu_in {
+                let r = bake_round(&planned).map(|(clouds, rep)| (ids, planned, clouds, rep));
                 if gpu_out.send(r).is_err() {
                     break;
                 }
             }
         });
-        let finish = |entries: &mut Vec<Option<NodeEntry>>,
-                      baked: Baked|
-         -> Result<lod::gpu::BatchReport, BakeError> {
-            let (ids, meshes, clouds, rep) = baked;
-            let mut clouds = clouds.into_iter();
-            let work: Vec<(usize, NodeMesh, Vec<PointCloud>)> = ids
-                .into_iter()
-                .zip(meshes)
-                .map(|(i, nm)| (i, nm, clouds.by_ref().take(usize::from(levels)).collect()))
-                .collect();
-            let done: Vec<(usize, NodeEntry)> = work
-                .into_par_iter()
-                .map(|(i, nm, clouds)| {
-                    let e = write_node(&nm, clouds, store);
-                    progress.node_done();
-                    e.map(|e| (i, e))
-                })
-                .collect::<Result<_, _>>()?;
-            for (i, e) in done {
-                entries[i] = Some(e);
-            }
-            Ok(rep)
-        };
+        let finish =
+            |entries: &mut [Option<NodeEntry>], baked: Baked| -> Result<lod::gpu::BatchReport, BakeError> {
+                let (ids, planned, clouds, rep) = baked;
+                let mut clouds = clouds.into_iter();
+                let work: Vec<(usize, Planned, Vec<PointCloud>)> = ids
+                    .into_iter()
+                    .zip(planned)
+                    .map(|(i, (nm, plan))| {
+                        let n = plan.to_bake().count();
+                        (i, (nm, plan), clouds.by_ref().take(n).collect())
+                    })
+                    .collect();
+                let done: Vec<(usize, NodeEntry)> = work
+                    .into_par_iter()
+                    .map(|(i, (nm, plan), clouds)| {
+                        let e = write_node(&nm, &plan, clouds, store);
+                        progress.node_done();
+                        e.map(|e| (i, e))
+                    })
+                    .collect::<Result<_, _>>()?;
+                for (i, e) in done {
+                    entries[i] = Some(e);
+                }
+                Ok(rep)
+            };
         let mut sent = 0usize;
         let mut received = 0usize;
-        for round in pending.chunks(GPU_ROUND_NODES) {
+        for round in todo.chunks(GPU_ROUND_NODES) {
             if let Some(why) = progress.cancelled() {
                 return Err(BakeError::Cancelled(why));
             }
-            let meshes: Vec<NodeMesh> = round
+            let planned: Vec<Planned> = round
                 .par_iter()
-                .map(|&i| node_mesh(pyramid, input.reader, &input.georef, nodes[i], opts))
-                .collect::<Result<_, _>>()?;
-            if to_gpu.send((round.to_vec(), meshes)).is_err() {
+                .map(|&i| {
+                    let nm = node_mesh(pyramid, input.reader, &input.georef, nodes[i], opts)?;
+                    let plan = nm.plan_levels(opts, parents.of(nodes[i])?);
+                    Ok((nm, plan))
+                })
+                .collect::<Result<_, BakeError>>()?;
+            if to_gpu.send((round.to_vec(), planned)).is_err() {
                 return Err(BakeError::GpuWorkerStopped);
             }
             sent += 1;
@@ -562,23 +707,18 @@ fn bake_nodes_gpu(
             if sent - received > 1 {
                 let baked = from_gpu.recv().map_err(|_| BakeError::GpuWorkerStopped)??;
                 received += 1;
-                report.merge(&finish(&mut entries, baked)?);
+                report.merge(&finish(entries, baked)?);
             }
         }
         drop(to_gpu);
         while received < sent {
             let baked = from_gpu.recv().map_err(|_| BakeError::GpuWorkerStopped)??;
             received += 1;
-            report.merge(&finish(&mut entries, baked)?);
+            report.merge(&finish(entries, baked)?);
         }
         Ok(())
     })?;
-    let entries = entries
-        .into_iter()
-        // Every round was sent and received above, so every node has its entry.
-        .map(|e| e.ok_or(BakeError::GpuWorkerStopped))
-        .collect::<Result<_, _>>()?;
-    Ok((entries, report))
+    Ok(report)
 }
 
 fn heights_crc(data: &[f32]) -> String {
@@ -626,6 +766,14 @@ pub fn options_record_of(
     }
     if u64::from(width) * u64::from(height) > tin::MEASURE_STRIP_SAMPLES as u64 {
         record["measure_strip_samples"] = serde_json::json!(tin::MEASURE_STRIP_SAMPLES);
+    }
+    if opts.point_levels != PointLevels::All {
+        // `auto` (with its threshold angle, the rule's one constant) and `none` store other
+        // levels than `all`, the rule of every earlier record.
+        record["point_levels"] = serde_json::json!(opts.point_levels);
+        if opts.point_levels == PointLevels::Auto {
+            record["reach_angle"] = serde_json::json!(lod::reach::REACH_ANGLE);
+        }
     }
     record
 }
@@ -706,7 +854,7 @@ mod bounds_tests {
             };
             let dir = tempfile::tempdir().unwrap();
             let store = Store::new(dir.path());
-            let opts = BakeOptions { tile_size, max_error, levels };
+            let opts = BakeOptions { tile_size, max_error, levels, point_levels: PointLevels::All };
             bake_terrain(&raster, "t.tif", &opts, &PointBaker::Cpu, &store, &NoProgress).map_err(|e| TestCaseError::fail(e.to_string()))?;
             prop_assert!(check_inside(&store)? > 0);
         }

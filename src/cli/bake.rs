@@ -105,6 +105,10 @@ pub struct InputArgs {
     /// Point-cloud levels below the mesh (cells of 2, 4, 8, … leaf cells).
     #[arg(long, default_value_t = bake::DEFAULT_LEVELS)]
     pub levels: u8,
+    /// Which point levels a node stores: `auto`, those a screen-space selector can choose below
+    /// the parent's mesh (docs/lod.md); `all`, every level cheaper than a finer one; `none`.
+    #[arg(long, value_enum, default_value_t = bake::PointLevels::Auto)]
+    pub point_levels: bake::PointLevels,
     /// How a PNG encodes heights.
     #[arg(long, value_enum)]
     pub encoding: Option<HeightEncoding>,
@@ -171,6 +175,7 @@ impl InputArgs {
             tile_size: self.tile_size,
             max_error: self.max_error,
             levels: self.levels,
+            point_levels: self.point_levels,
             encoding: self.encoding,
             channel: self.channel.clone(),
             cell_size: self.cell_size,

@@ -491,6 +491,7 @@ pub fn entry(key: TileKey, bounds: Bounds, errors: &[f64]) -> NodeEntry {
                 checksum: 0,
             })
             .collect(),
+        skipped: Vec::new(),
     }
 }
 

@@ -8,6 +8,7 @@ mod footprint;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod measure;
+pub mod reach;
 pub use footprint::{MODEL_FOOTPRINT_HALF, TERRAIN_FOOTPRINT_HALF};
 
 #[cfg(feature = "gpu")]

@@ -224,6 +224,7 @@ pub async fn upload(
         tile_size: params.tile_size.unwrap_or(d.tile_size),
         max_error: params.max_error.unwrap_or(d.max_error),
         levels: params.levels.unwrap_or(d.levels),
+        point_levels: d.point_levels,
     };
     crate::bake::check_options(&opts).map_err(|e| Problem::bad_request(e.to_string()))?;
     // Checked before anything is stored (the raster's own frame is checked when it is read).

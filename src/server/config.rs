@@ -73,6 +73,8 @@ pub struct SourceSpec {
     pub tile_size: Option<u32>,
     pub max_error: Option<f64>,
     pub levels: Option<u8>,
+    /// Which point levels a node stores (`bake --point-levels`): auto, all or none.
+    pub point_levels: Option<crate::bake::PointLevels>,
     /// Globe terrain (quantized-mesh): the error scale and deepest zoom of `bake --terrain`.
     pub terrain_error_scale: Option<f64>,
     pub terrain_max_zoom: Option<u8>,
@@ -98,7 +100,7 @@ pub enum SourceSpecError {
     #[error("{key}={value:?} in {spec:?} is not a valid {what}")]
     BadValue { key: String, value: String, spec: String, what: &'static str },
     #[error(
-        "unknown source option {key:?} in {spec:?} (encoding, cell_size, tile_size, max_error, levels, terrain_error_scale, terrain_max_zoom, crs, vertical_datum)"
+        "unknown source option {key:?} in {spec:?} (encoding, cell_size, tile_size, max_error, levels, point_levels, terrain_error_scale, terrain_max_zoom, crs, vertical_datum)"
     )]
     UnknownOption { key: String, spec: String },
 }
@@ -106,7 +108,7 @@ pub enum SourceSpecError {
 impl std::str::FromStr for SourceSpec {
     type Err = SourceSpecError;
     /// `NAME=RASTER[,key=value…]` with keys encoding, cell_size, tile_size, max_error, levels,
-    /// terrain_error_scale, terrain_max_zoom.
+    /// point_levels, terrain_error_scale, terrain_max_zoom, crs, vertical_datum.
     fn from_str(s: &str) -> Result<Self, SourceSpecError> {
         let (name, rest) = s.split_once('=').ok_or_else(|| SourceSpecError::NoName { spec: s.to_owned() })?;
         if !super::valid_name(name) {
@@ -134,6 +136,14 @@ impl std::str::FromStr for SourceSpec {
                 "tile_size" => spec.tile_size = Some(v.parse().map_err(|_| num("integer"))?),
                 "max_error" => spec.max_error = Some(v.parse().map_err(|_| num("number"))?),
                 "levels" => spec.levels = Some(v.parse().map_err(|_| num("integer"))?),
+                "point_levels" => {
+                    spec.point_levels = Some(match v {
+                        "auto" => crate::bake::PointLevels::Auto,
+                        "all" => crate::bake::PointLevels::All,
+                        "none" => crate::bake::PointLevels::None,
+                        _ => return Err(num("point level rule (auto, all or none)")),
+                    });
+                }
                 "terrain_error_scale" => {
                     let f: f64 = v.parse().map_err(|_| num("number"))?;
                     if !(f.is_finite() && f > 0.0 && f <= 1e6) {
@@ -473,7 +483,11 @@ mod tests {
         assert_eq!(e("a=/r,cell_size=x"), r#"cell_size="x" in "a=/r,cell_size=x" is not a valid number"#);
         assert_eq!(
             e("a=/r,colour=red"),
-            r#"unknown source option "colour" in "a=/r,colour=red" (encoding, cell_size, tile_size, max_error, levels, terrain_error_scale, terrain_max_zoom, crs, vertical_datum)"#
+            r#"unknown source option "colour" in "a=/r,colour=red" (encoding, cell_size, tile_size, max_error, levels, point_levels, terrain_error_scale, terrain_max_zoom, crs, vertical_datum)"#
+        );
+        assert_eq!(
+            e("a=/r,point_levels=some"),
+            r#"point_levels="some" in "a=/r,point_levels=some" is not a valid point level rule (auto, all or none)"#
         );
         assert_eq!(
             e("a=/r,vertical_datum=msl"),

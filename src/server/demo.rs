@@ -17,7 +17,8 @@ pub const DEMO_CELL: f64 = 10.0;
 /// Name of the demo tileset.
 pub const DEMO_TILESET: &str = "demo";
 /// Bake options of the demo: 4×4 leaf tiles of 256 cells, 3 point levels.
-pub const DEMO_OPTIONS: BakeOptions = BakeOptions { tile_size: 256, max_error: 2.0, levels: 3 };
+pub const DEMO_OPTIONS: BakeOptions =
+    BakeOptions { tile_size: 256, max_error: 2.0, levels: 3, point_levels: crate::bake::PointLevels::Auto };
 
 /// Generates the demo raster into `work` and bakes it into `store/demo` unless a complete bake
 /// is there already (an interrupted one resumes). Returns the store directory to serve and

@@ -174,6 +174,7 @@ fn open_source(root: &std::path::Path, spec: &SourceSpec) -> Result<registry::On
         tile_size: spec.tile_size.unwrap_or(d.tile_size),
         max_error: spec.max_error.unwrap_or(d.max_error),
         levels: spec.levels.unwrap_or(d.levels),
+        point_levels: spec.point_levels.unwrap_or(d.point_levels),
     };
     crate::bake::check_options(&opts).map_err(|e| err(e.into()))?;
     let pyramid = Pyramid::new(raster.heights.width, raster.heights.height, opts.tile_size)

@@ -151,6 +151,70 @@ pub struct NodeEntry {
     /// The levels this node stores, finest first: level 0 (the mesh) always, then the point
     /// levels that pay, by increasing id.
     pub levels: Vec<NodeLevel>,
+    /// The point levels of the ladder it does not store, and why (`inspect` shows them). Absent
+    /// in indexes written before reasons were kept.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub skipped: Vec<SkippedLevel>,
+}
+
+/// A point level a node does not store.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SkippedLevel {
+    pub level: u8,
+    pub why: SkipReason,
+}
+
+/// Why a node does not store one of its point levels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SkipReason {
+    /// Baked, and not cheaper (primitives and bytes) than a finer level the node keeps
+    /// ([`levels_that_pay`]); also every marker written before reasons were kept.
+    Costlier,
+    /// Baked and measured: its error is not under what the parent's finest level leaves to
+    /// reach (`lod::reach`), so no screen-space selector would choose it.
+    Unreachable,
+    /// Not baked: its error is bounded below by its point spacing (`lod::reach::gap_lower_bound`)
+    /// at or above that reach.
+    PredictedUnreachable,
+    /// Not baked: `--point-levels none`.
+    Policy,
+}
+
+impl SkipReason {
+    /// The marker's text (`tiles/{z}/{x}/{y}/{level}.unpaid`; empty in older tilesets).
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Costlier => "costlier",
+            Self::Unreachable => "unreachable",
+            Self::PredictedUnreachable => "predicted-unreachable",
+            Self::Policy => "policy",
+        }
+    }
+
+    /// The reason a marker's bytes name; an empty (older) marker or unknown text is `Costlier`,
+    /// the only reason there was.
+    #[must_use]
+    pub fn from_marker(bytes: &[u8]) -> Self {
+        [Self::Unreachable, Self::PredictedUnreachable, Self::Policy]
+            .into_iter()
+            .find(|r| r.as_str().as_bytes() == bytes.trim_ascii())
+            .unwrap_or(Self::Costlier)
+    }
+
+    /// One line for people.
+    #[must_use]
+    pub fn describe(self) -> &'static str {
+        match self {
+            Self::Costlier => "not cheaper than a finer level kept",
+            Self::Unreachable => "error too large to be chosen below the parent (measured)",
+            Self::PredictedUnreachable => {
+                "error too large to be chosen below the parent (predicted from spacing, not baked)"
+            }
+            Self::Policy => "--point-levels none",
+        }
+    }
 }
 
 impl NodeEntry {
@@ -179,6 +243,8 @@ struct RawNodeEntry {
     key: TileKey,
     bounds: Bounds,
     levels: Vec<NodeLevel>,
+    #[serde(default)]
+    skipped: Vec<SkippedLevel>,
 }
 
 /// Why an index entry's levels are not a node's: the JSON reader reports it with its position.
@@ -198,7 +264,7 @@ pub enum NodeEntryError {
 impl TryFrom<RawNodeEntry> for NodeEntry {
     type Error = NodeEntryError;
     fn try_from(raw: RawNodeEntry) -> Result<Self, NodeEntryError> {
-        let RawNodeEntry { key, bounds, mut levels } = raw;
+        let RawNodeEntry { key, bounds, mut levels, skipped } = raw;
         let unnumbered = levels.iter().filter(|l| l.level == UNNUMBERED).count();
         if unnumbered == levels.len() {
             if levels.len() > usize::from(UNNUMBERED) {
@@ -216,7 +282,7 @@ impl TryFrom<RawNodeEntry> for NodeEntry {
         if let Some(w) = levels.windows(2).find(|w| w[1].level <= w[0].level) {
             return Err(NodeEntryError::IdsNotIncreasing { key, level: w[1].level, after: w[0].level });
         }
-        Ok(Self { key, bounds, levels })
+        Ok(Self { key, bounds, levels, skipped })
     }
 }
 
@@ -247,6 +313,13 @@ impl Payer {
     #[must_use]
     pub fn may_pay(&self, count: u32) -> bool {
         self.cheapest.is_none_or(|(c, _)| count < c)
+    }
+
+    /// Whether a level of `count` primitives and `bytes` bytes would pay ([`Payer::keep`]
+    /// without keeping it).
+    #[must_use]
+    pub fn would_pay(&self, count: u32, bytes: u64) -> bool {
+        self.cheapest.is_none_or(|(c, b)| count < c && bytes < b)
     }
 
     /// Whether the next level (finer ones already seen) pays; if so it is kept.
@@ -828,11 +901,22 @@ impl Store {
         self.location().join(&unpaid_rel(key, level))
     }
 
-    /// Records that `level` of `key` is not stored (it did not pay): writes the marker and
-    /// removes any blob an earlier bake left for it.
-    pub fn write_unpaid(&self, key: TileKey, level: u8) -> Result<(), StoreError> {
-        self.put(&unpaid_rel(key, level), b"")?;
+    /// Records that `level` of `key` is not stored and why: writes the marker (its text is the
+    /// reason) and removes any blob an earlier bake left for it.
+    pub fn write_unpaid(&self, key: TileKey, level: u8, why: SkipReason) -> Result<(), StoreError> {
+        self.put(&unpaid_rel(key, level), why.as_str().as_bytes())?;
         self.backend.remove(&blob_rel(key, level))
+    }
+
+    /// Why `level` of `key` is not stored, when its marker says so ([`Store::write_unpaid`]).
+    pub fn unpaid_reason(&self, key: TileKey, level: u8) -> Result<Option<SkipReason>, StoreError> {
+        let rel = unpaid_rel(key, level);
+        match self.backend.size(&rel)? {
+            None => Ok(None),
+            // A marker is a word: a larger file is not read, and counts as the oldest reason.
+            Some(n) if n > 64 => Ok(Some(SkipReason::Costlier)),
+            Some(_) => Ok(self.get(&rel)?.map(|b| SkipReason::from_marker(&b))),
+        }
     }
 
     /// True when [`Store::write_unpaid`] marked `level` of `key` as not stored.

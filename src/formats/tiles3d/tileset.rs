@@ -124,6 +124,7 @@ impl TilesetInfo {
                 bytes: 0,
                 checksum: 0,
             }],
+            skipped: Vec::new(),
         })
     }
 
