@@ -49,27 +49,25 @@ pub(crate) fn parent_key(key: TileKey) -> Option<TileKey> {
 }
 
 /// What a node's parent leaves its point levels ([`lod::reach`]): the error of the parent's
-/// finest level (its mesh) and the centre of its box, where a selector measures its distance.
+/// finest level (its mesh) and its box (which holds the centres of the nodes whose refinement
+/// keeps the parent split).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ParentInfo {
     pub error: f64,
-    pub centre: glam::DVec3,
+    pub bounds: Bounds,
 }
 
 impl ParentInfo {
     /// From the parent's index entry (a baked or resumed node).
     #[must_use]
     pub fn of_entry(e: &NodeEntry) -> Self {
-        Self {
-            error: e.levels.first().map_or(f64::INFINITY, |l| l.errors.geometric()),
-            centre: e.bounds.center(),
-        }
+        Self { error: e.levels.first().map_or(f64::INFINITY, |l| l.errors.geometric()), bounds: e.bounds }
     }
 
     /// From the parent's level 0 as built.
     #[must_use]
     pub fn of_mesh(nm: &NodeMesh) -> Self {
-        Self { error: nm.mesh_errors.geometric(), centre: nm.bounds.center() }
+        Self { error: nm.mesh_errors.geometric(), bounds: nm.bounds }
     }
 }
 
@@ -91,7 +89,7 @@ pub(crate) fn parent_info(
     {
         return Ok(ParentInfo {
             error: b.header.errors.geometric(),
-            centre: Bounds::new(b.header.bounds[0], b.header.bounds[1]).center(),
+            bounds: Bounds::new(b.header.bounds[0], b.header.bounds[1]),
         });
     }
     Ok(ParentInfo::of_mesh(&node_mesh(pyramid, reader, georef, parent, opts)?))
@@ -222,12 +220,12 @@ impl NodeMesh {
     /// root; with `auto` below the root, those whose error is not already bounded (by their
     /// spacing, [`lod::reach::gap_lower_bound`]) at or above what the parent leaves them to
     /// reach ([`lod::reach::reach`]: the parent's mesh error plus the threshold angle times the
-    /// distance between the boxes' centres).
+    /// distance from this node's centre to the farthest corner of the parent's box).
     #[must_use]
     pub fn plan_levels(&self, opts: &BakeOptions, parent: Option<ParentInfo>) -> LevelPlan {
         let reach = match (opts.point_levels, parent) {
             (PointLevels::Auto, Some(p)) => {
-                lod::reach::reach(p.error, (self.bounds.center() - p.centre).length())
+                lod::reach::reach(p.error, lod::reach::farthest_corner(self.bounds.center(), &p.bounds))
             }
             _ => f64::INFINITY,
         };

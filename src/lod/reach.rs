@@ -1,26 +1,34 @@
 //! Which point levels of a node a screen-space-error selector can ever choose (issue 39). Pure.
 //!
-//! The client (`client::select`) replaces a node by its children only while the node's finest
-//! level, its mesh, is over the threshold: `e_p·k / d_p > τ`, with `d_p` the eye's distance to
-//! the centre of the parent's box and `k = w / (2·tan(φ/2))`; it draws a child's level `l` only
-//! when `e_l·k / d_c ≤ τ`. Both at once need `e_l / d_c < e_p / d_p`, and the centres are `δ`
-//! apart, so `d_c ≤ d_p + δ`: from `e_l·k/τ ≤ d_c ≤ d_p + δ < e_p·k/τ + δ`,
+//! The client (`client::select`) draws a node `B` only while its parent `P` is split, and `P`
+//! stays split only while some node `D` of `P`'s subtree outside `B`'s is over the threshold with
+//! its finest level, its mesh: `e_D·k / d_D > τ` — `P` itself, or a node under one of `B`'s
+//! siblings (`P` merges only once all its children are in the cut). Here `d` is the eye's
+//! distance to a node's box centre and `k = w / (2·tan(φ/2))`. `B` draws its level `l` only when
+//! `e_l·k / d_B ≤ τ`. Both at once need `e_l / d_B < e_D / d_D`, and `d_B ≤ d_D + δ` with `δ` the
+//! distance between the two centres: from `e_l·k/τ ≤ d_B ≤ d_D + δ < e_D·k/τ + δ`,
 //!
 //! ```text
-//!     e_l < e_p + α·δ,     α = τ / k  (the threshold as an angle)
+//!     e_l < e_D + α·δ,     α = τ / k  (the threshold as an angle)
 //! ```
 //!
-//! is necessary for level `l` to be chosen anywhere. A level that fails it is never drawn by
-//! such a client, whatever the camera: storing it costs bytes and bake time for nothing. The
-//! distance clamp near the eye does not change the bound (clamping both distances keeps
-//! `d_c ≤ d_p + δ`). [`REACH_ANGLE`] is the largest `α` a tileset is baked for; a root has no
-//! parent, so every level of it can be reached.
+//! is necessary for level `l` to be drawn anywhere. The centres of `P`'s subtree lie in `P`'s
+//! box and the meshes below `P` are finer than `P`'s, so a node keeps a point level only if
 //!
-//! The bound is tight only where the camera sits near the line through both centres; it is the
-//! rule because anything tighter would drop levels some camera can choose. 3D Tiles clients
-//! refine by the same comparison with distances to boxes, and the 3D Tiles tree lists a child's
-//! level only when its error is at most its parent's (the spec's monotone chain), which is
-//! within this bound.
+//! ```text
+//!     e_l < e_P + α·δ_P,   δ_P = distance from B's centre to the farthest corner of P's box
+//! ```
+//!
+//! ([`reach`], [`farthest_corner`]). A level that fails it is never drawn by such a client,
+//! whatever the camera: storing it costs bytes and bake time for nothing. The distance clamp
+//! near the eye does not change the bound (clamping both distances keeps `d_B ≤ d_D + δ`).
+//! [`REACH_ANGLE`] is the largest `α` a tileset is baked for; a root has no parent, so every
+//! level of it can be reached. `tests/levels_reach.rs` replays flights with the selector itself
+//! over tilesets with every level stored and checks that no level it draws was dropped.
+//!
+//! 3D Tiles clients refine by the same comparison with distances to boxes; the 3D Tiles tree
+//! lists a child's level only when its error is at most its parent's (the spec's monotone
+//! chain), which is within this bound.
 //!
 //! [`gap_lower_bound`] predicts, before a level is baked, that it cannot be reached: the level's
 //! error is at least its gap (the largest distance from the surface to its nearest point), and
@@ -36,11 +44,23 @@ use crate::geom::Mesh;
 /// instead (finer, never a hole). `--point-levels all` stores every level that is cheaper.
 pub const REACH_ANGLE: f64 = 4.0 * 1.154_700_538_379_251_5 / 1024.0;
 
-/// The error below which a child's point level can be chosen: `e_p + α·δ` for a parent whose
-/// finest level's error is `parent_error` and whose box centre is `delta` away from the child's.
+/// The error below which a child's point level can be chosen: `e_P + α·δ` for a parent whose
+/// finest level's error is `parent_error`, `delta` from [`farthest_corner`].
 #[must_use]
 pub fn reach(parent_error: f64, delta: f64) -> f64 {
     parent_error + REACH_ANGLE * delta
+}
+
+/// The distance from `centre` to the farthest corner of `parent`.
+#[must_use]
+pub fn farthest_corner(centre: glam::DVec3, parent: &crate::geom::Bounds) -> f64 {
+    let far = |a: f64, lo: f64, hi: f64| (a - lo).abs().max((hi - a).abs());
+    glam::DVec3::new(
+        far(centre.x, parent.min.x, parent.max.x),
+        far(centre.y, parent.min.y, parent.max.y),
+        far(centre.z, parent.min.z, parent.max.z),
+    )
+    .length()
 }
 
 /// A lower bound on the geometric error of a point level of a terrain node's `mesh` (one that
