@@ -6,6 +6,7 @@
 //! must be stored by `auto`. Since the selector never finds a dropped level under its threshold
 //! while its node is drawn, both tilesets must draw the very same (tile, level) pairs, frame by
 //! frame: the same bytes and primitives, no frame over the threshold that `all` does not have.
+#![allow(clippy::unwrap_used)]
 
 mod common;
 
@@ -23,7 +24,7 @@ use terrastream::lod::PointBaker;
 use terrastream::raster::{self, Georef, Heightfield, LoadOptions, LoadedRaster};
 use terrastream::store::{SkipReason, Store};
 
-fn bake_both(raster: &LoadedRaster, opts: BakeOptions, dir: &Path) -> (Store, Store) {
+fn bake_both(raster: &LoadedRaster, opts: &BakeOptions, dir: &Path) -> (Store, Store) {
     let out = |p: PointLevels, name: &str| {
         let store = Store::new(&dir.join(name));
         let o = BakeOptions { point_levels: p, ..opts.clone() };
@@ -176,7 +177,7 @@ fn auto_keeps_every_level_the_selector_draws_on_a_rough_dsm() {
     };
     let tmp = tempfile::tempdir().unwrap();
     let opts = BakeOptions { tile_size: 32, max_error: 0.5, levels: 4, point_levels: PointLevels::Auto };
-    let (all, auto) = bake_both(&raster, opts, tmp.path());
+    let (all, auto) = bake_both(&raster, &opts, tmp.path());
     let (nodes, stored_all, stored_auto, unreachable) = figures(&all, &auto);
     eprintln!(
         "rough DSM: {nodes} nodes, point levels stored: all {stored_all}, auto {stored_auto} ({unreachable} unreachable)"
@@ -209,7 +210,7 @@ fn auto_keeps_every_level_the_selector_draws_on_the_shared_terrains() {
         let opts =
             BakeOptions { tile_size: *tile, point_levels: PointLevels::Auto, ..BakeOptions::default() };
         let dir = tmp.path().join(name.replace('/', "_"));
-        let (all, auto) = bake_both(r, opts, &dir);
+        let (all, auto) = bake_both(r, &opts, &dir);
         let (nodes, stored_all, stored_auto, unreachable) = figures(&all, &auto);
         eprintln!(
             "{name}: {nodes} nodes, point levels stored: all {stored_all}, auto {stored_auto} ({unreachable} unreachable)"
