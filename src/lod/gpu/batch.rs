@@ -2,6 +2,7 @@
 //! the budget and the binding limits, recording and submitting a batch's passes, reading it back,
 //! and the pooled buffers kept from batch to batch.
 
+use std::sync::atomic::AtomicU64;
 use std::sync::mpsc;
 use std::time::Instant;
 
@@ -15,7 +16,7 @@ use super::{
     GpuJob, GpuLevel, GpuParams, InFlight, LEVEL_STRIDE, LIST_BYTES, LevelJob, MAX_GROUPS_X, N_POOLED,
     P_BITMAP, P_COLUMNS, P_COUNTERS, P_LIST, P_OUT, P_SCAN, P_STAGING, P_TABLE, P_TRIS, P_VERTS, PLACE,
     POINT_BYTES, POOL_SETS, POOLED, Prepared, RASTER, SCAN, SCAN_ADD, SCAN_BLOCK, SCAN_ROWS, SLOT_BYTES,
-    WORKGROUP,
+    WORKGROUP, busy_s, timed,
 };
 
 /// Running sizes of a batch being packed, in items of each buffer.
@@ -425,7 +426,7 @@ impl GpuBaker {
                 .map_err(Self::map_err)?;
             let all: &[u32] = view.as_deref().map_or(&[], bytemuck::cast_slice);
             let t_map = t.elapsed().as_secs_f64();
-            let t = Instant::now();
+            let busy = AtomicU64::new(0);
             let out = f
                 .jobs
                 .into_par_iter()
@@ -434,12 +435,12 @@ impl GpuBaker {
                 .map(|((p, c), &(start, len))| {
                     let r = c.and_then(|stats| {
                         let w = (start * 8) as usize..((start + len) * 8) as usize;
-                        convert(&p, &jobs[p.job], stats, &all[w])
+                        timed(&busy, || convert(&p, &jobs[p.job], stats, &all[w]))
                     });
                     (p, r)
                 })
                 .collect();
-            report.convert_s += t.elapsed().as_secs_f64();
+            report.convert_s += busy_s(&busy);
             report.map_s += t_map;
             out
         };

@@ -61,6 +61,7 @@
 //! reused by later batches when large enough and at most twice what they need, within the
 //! budget; only the accumulating ranges are cleared ([`BatchReport::reused_buffers`]).
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc;
 use std::time::Instant;
 
@@ -73,7 +74,7 @@ mod prepare;
 use prepare::{MeshPrep, prepare_job, prepare_mesh};
 
 use super::cpu::{BakeStats, BakedCell, MAX_GRID_COORD, NORMAL_FRACTION_BITS, SliceOptions};
-use crate::geom::{Mesh, triangle_normal};
+use crate::geom::Mesh;
 use crate::gpu::{GpuError, open};
 
 /// Default GPU memory budget of one batch, in MiB.
@@ -507,6 +508,8 @@ impl GpuBaker {
         let mut results: Vec<Option<JobResult>> = vec![None; jobs.len()];
 
         let t = Instant::now();
+        // Busy time of the parallel parts, summed over items (so over threads).
+        let busy = AtomicU64::new(0);
         // Distinct meshes, in order of first use.
         let mut mesh_of: std::collections::HashMap<*const Mesh, usize> = std::collections::HashMap::new();
         let mut distinct: Vec<&Mesh> = Vec::new();
@@ -519,12 +522,14 @@ impl GpuBaker {
                 })
             })
             .collect();
-        let meshes: Vec<MeshPrep> = distinct.par_iter().map(|m| prepare_mesh(m)).collect();
+        let seq = t.elapsed();
+        let meshes: Vec<MeshPrep> = distinct.par_iter().map(|m| timed(&busy, || prepare_mesh(m))).collect();
         let prepared: Vec<Result<Prepared, Unfit>> = jobs
             .par_iter()
             .enumerate()
-            .map(|(n, j)| prepare_job(n, j, job_mesh[n], &meshes[job_mesh[n]]))
+            .map(|(n, j)| timed(&busy, || prepare_job(n, j, job_mesh[n], &meshes[job_mesh[n]])))
             .collect();
+        let t = Instant::now();
         let mut queue: std::collections::VecDeque<Prepared> = std::collections::VecDeque::new();
         let mut cpu: Vec<usize> = Vec::new();
         for (n, p) in prepared.into_iter().enumerate() {
@@ -534,7 +539,7 @@ impl GpuBaker {
                 Err(Unfit::Empty(stats)) => results[n] = Some((Vec::new(), stats)),
             }
         }
-        report.prepare_s += t.elapsed().as_secs_f64();
+        report.prepare_s += (seq + t.elapsed()).as_secs_f64() + busy_s(&busy);
         report.gpu_jobs = queue.len() as u64;
         report.cpu_jobs = cpu.len() as u64;
 
@@ -589,6 +594,19 @@ impl GpuBaker {
             .collect::<Result<_, _>>()?;
         Ok((results, report))
     }
+}
+
+/// Runs `f`, adding its wall time to `acc` (ns): busy time of a parallel phase, summed over the
+/// items, so over the threads that ran them.
+fn timed<T>(acc: &AtomicU64, f: impl FnOnce() -> T) -> T {
+    let t = Instant::now();
+    let r = f();
+    acc.fetch_add(u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX), Ordering::Relaxed);
+    r
+}
+
+fn busy_s(acc: &AtomicU64) -> f64 {
+    acc.load(Ordering::Relaxed) as f64 * 1e-9
 }
 
 /// The host's part of a job: its cell box and grid transform, its room on the device.

@@ -7,9 +7,17 @@
 use super::{
     BakeStats, BakedCell, COLUMN_BYTES, COUNTER_WORDS, Decoded, FILL_BIT, GpuJob, LIST_BYTES, LevelJob,
     MAX_EXTENT, MAX_GRID_COORD, NORMAL_FRACTION_BITS, POINT_BYTES, POS_ONE, Prepared, RETRY_GROWTH, Redo,
-    SCAN_BLOCK, SLOT_BYTES, Unfit, triangle_normal,
+    SCAN_BLOCK, SLOT_BYTES, Unfit,
 };
 use crate::geom::Mesh;
+use glam::DVec3;
+
+/// `x.floor()` for |x| < 2^31, without the libm call (x86-64's baseline has no `roundsd`):
+/// exact, as truncation to an integer of that range is.
+fn floor_small(x: f64) -> i32 {
+    let t = x as i32;
+    if f64::from(t) > x { t - 1 } else { t }
+}
 
 /// A mesh ready to upload, shared by its level jobs.
 pub(super) struct MeshPrep {
@@ -100,21 +108,26 @@ pub(super) fn check(p: &Prepared, counters: &[u32]) -> Result<BakeStats, Redo> {
 /// reference's cells: the local cell and the fixed-point position move to the job's grid (an
 /// integer add and a multiply-add per axis).
 pub(super) fn convert(p: &Prepared, job: &LevelJob<'_>, stats: BakeStats, points: &[u32]) -> Decoded {
+    let base = p.base.map(|b| b as i32);
+    let basef = p.base.map(|b| b as f64);
+    let (o, cell) = (job.origin, job.cell);
+    let scale = 1.0 / POS_ONE;
     let cells = points
         .chunks_exact(8)
-        .map(|r| {
-            let local = [r[0] & 0xffff, r[0] >> 16, r[1] & 0xffff];
-            let index = [0, 1, 2].map(|d| (p.base[d] + i64::from(local[d])) as i32);
-            let position = [0, 1, 2]
-                .map(|d| job.origin[d] + (p.base[d] as f64 + f64::from(r[2 + d]) / POS_ONE) * job.cell);
-            let normal = [0, 1, 2].map(|d| f32::from_bits(r[5 + d]));
-            BakedCell {
-                index,
-                position,
-                normal,
-                samples: u64::from((r[1] & !FILL_BIT) >> 16),
-                filled: r[1] & FILL_BIT != 0,
-            }
+        .map(|r| BakedCell {
+            index: [
+                base[0] + (r[0] & 0xffff) as i32,
+                base[1] + (r[0] >> 16) as i32,
+                base[2] + (r[1] & 0xffff) as i32,
+            ],
+            position: [
+                o[0] + (basef[0] + f64::from(r[2]) * scale) * cell,
+                o[1] + (basef[1] + f64::from(r[3]) * scale) * cell,
+                o[2] + (basef[2] + f64::from(r[4]) * scale) * cell,
+            ],
+            normal: [f32::from_bits(r[5]), f32::from_bits(r[6]), f32::from_bits(r[7])],
+            samples: u64::from((r[1] & !FILL_BIT) >> 16),
+            filled: r[1] & FILL_BIT != 0,
         })
         .collect();
     Ok((cells, stats))
@@ -122,10 +135,11 @@ pub(super) fn convert(p: &Prepared, job: &LevelJob<'_>, stats: BakeStats, points
 
 /// The per-mesh share (see the module doc).
 pub(super) fn prepare_mesh(mesh: &Mesh) -> MeshPrep {
-    let finite: Vec<bool> = mesh.positions.iter().map(|p| p.iter().all(|c| c.is_finite())).collect();
+    let finite: Vec<bool> =
+        mesh.positions.iter().map(|p| p[0].is_finite() && p[1].is_finite() && p[2].is_finite()).collect();
     let ok = |id: u32| finite.get(id as usize).copied().unwrap_or(false);
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
+    let mut lo = DVec3::INFINITY;
+    let mut hi = DVec3::NEG_INFINITY;
     let mut area = 0.0;
     let normal_one = f64::from(1u32 << NORMAL_FRACTION_BITS);
     let limit = f64::from((1u32 << NORMAL_FRACTION_BITS) - 1);
@@ -142,24 +156,20 @@ pub(super) fn prepare_mesh(mesh: &Mesh) -> MeshPrep {
             2
         };
         let ids = [tri[lead], tri[(lead + 1) % 3], tri[(lead + 2) % 3]];
-        let [a, b, c] = ids.map(|i| mesh.positions[i as usize]);
-        for v in [a, b, c] {
-            for d in 0..3 {
-                lo[d] = lo[d].min(v[d]);
-                hi[d] = hi[d].max(v[d]);
-            }
-        }
-        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-        area += 0.5
-            * ((u[1] * v[2] - u[2] * v[1]).abs()
-                + (u[2] * v[0] - u[0] * v[2]).abs()
-                + (u[0] * v[1] - u[1] * v[0]).abs());
-        tris.extend_from_slice(&ids);
-        for c in triangle_normal(a, b, c) {
-            tris.push(((c * normal_one + 0.5).floor().clamp(-limit, limit) as i32).cast_unsigned());
-        }
+        let [a, b, c] = ids.map(|i| DVec3::from_array(mesh.positions[i as usize]));
+        lo = lo.min(a).min(b).min(c);
+        hi = hi.max(a).max(b).max(c);
+        // `triangle_normal`'s cross product, once for the normal and the projected areas.
+        let n = (b - a).cross(c - a);
+        area += 0.5 * (n.x.abs() + n.y.abs() + n.z.abs());
+        let len = n.length();
+        let unit = if len > 0.0 { n / len } else { DVec3::ZERO };
+        let q = |c: f64| {
+            floor_small((c * normal_one + 0.5).clamp(-limit, limit + 1.0)).min(limit as i32).cast_unsigned()
+        };
+        tris.extend_from_slice(&[ids[0], ids[1], ids[2], q(unit.x), q(unit.y), q(unit.z)]);
     }
+    let (lo, hi) = (lo.to_array(), hi.to_array());
     MeshPrep { vertices: mesh.positions.len() as u64, tris, triangles: mesh.triangles.len(), lo, hi, area }
 }
 
@@ -192,13 +202,19 @@ pub(super) fn prepare_job(
     }
     // Fragments ≈ the projected area; occupied cells ≤ fragments. Overflow re-runs the job.
     let out_cap = (m.area / (cell * cell) * 1.25) as u64 + 256;
-    let mut verts = vec![0f32; job.mesh.positions.len() * 3];
-    for (p, v) in job.mesh.positions.iter().zip(verts.chunks_exact_mut(3)) {
-        let g = [0, 1, 2].map(|d| (p[d] - origin[d]) / cell);
-        if g.iter().all(|c| c.is_finite() && c.abs() <= MAX_GRID_COORD) {
-            for d in 0..3 {
-                v[d] = (g[d] - base[d] as f64) as f32;
-            }
+    let mut verts = Vec::with_capacity(job.mesh.positions.len() * 3);
+    let basef = base.map(|b| b as f64);
+    for p in &job.mesh.positions {
+        let g = [(p[0] - origin[0]) / cell, (p[1] - origin[1]) / cell, (p[2] - origin[2]) / cell];
+        let ok = |c: f64| c.is_finite() && c.abs() <= MAX_GRID_COORD;
+        if ok(g[0]) && ok(g[1]) && ok(g[2]) {
+            verts.extend_from_slice(&[
+                (g[0] - basef[0]) as f32,
+                (g[1] - basef[1]) as f32,
+                (g[2] - basef[2]) as f32,
+            ]);
+        } else {
+            verts.extend_from_slice(&[0.0; 3]);
         }
     }
     Ok(Prepared {
