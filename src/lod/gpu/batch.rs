@@ -108,13 +108,12 @@ impl GpuBaker {
             (0u64, 0u64, 0u64, 0u64, 0u64, 0u64, 0u64);
         for p in &batch {
             let m = &meshes[p.mesh];
-            let tri0 = match placed.iter().find(|e| e.0 == p.mesh) {
-                Some(&(_, t)) => t,
-                None => {
-                    placed.push((p.mesh, mesh_tris as u32));
-                    mesh_tris += m.tris.len() as u64 / 6;
-                    mesh_tris as u32 - (m.tris.len() / 6) as u32
-                }
+            let tri0 = if let Some(&(_, t)) = placed.iter().find(|e| e.0 == p.mesh) {
+                t
+            } else {
+                placed.push((p.mesh, mesh_tris as u32));
+                mesh_tris += m.tris.len() as u64 / 6;
+                mesh_tris as u32 - (m.tris.len() / 6) as u32
             };
             let tri_count = m.tris.len() as u64 / 6;
             gjobs.push(GpuJob {
@@ -173,12 +172,14 @@ impl GpuBaker {
             levels.push(level(0));
             scan_runs.push((SCAN_ROWS, 0, rows));
             for l in 1..top {
-                levels.push(level(l));
-                scan_runs.push((SCAN, levels.len() - 1, level_len[l]));
+                let lv = level(l);
+                levels.push(lv);
+                scan_runs.push((SCAN, levels.len() - 1, u64::from(lv.count)));
             }
             for l in (0..top.saturating_sub(1)).rev() {
-                levels.push(level(l));
-                scan_runs.push((SCAN_ADD, levels.len() - 1, level_len[l]));
+                let lv = level(l);
+                levels.push(lv);
+                scan_runs.push((SCAN_ADD, levels.len() - 1, u64::from(lv.count)));
             }
         }
         let scan_words = scan_words.max(2);
@@ -433,7 +434,7 @@ impl GpuBaker {
                 .zip(checked)
                 .zip(starts.par_iter())
                 .map(|((p, c), &(start, len))| {
-                    let r = c.and_then(|stats| {
+                    let r = c.map(|stats| {
                         let w = (start * 8) as usize..((start + len) * 8) as usize;
                         timed(&busy, || convert(&p, &jobs[p.job], stats, &all[w]))
                     });

@@ -5,7 +5,7 @@
 //! already decoded and in their final order on the device, into the reference's output.
 
 use super::{
-    BakeStats, BakedCell, COLUMN_BYTES, COUNTER_WORDS, Decoded, FILL_BIT, GpuJob, LIST_BYTES, LevelJob,
+    BakeStats, BakedCell, COLUMN_BYTES, COUNTER_WORDS, FILL_BIT, GpuJob, JobResult, LIST_BYTES, LevelJob,
     MAX_EXTENT, MAX_GRID_COORD, NORMAL_FRACTION_BITS, POINT_BYTES, POS_ONE, Prepared, RETRY_GROWTH, Redo,
     SCAN_BLOCK, SLOT_BYTES, Unfit,
 };
@@ -107,7 +107,7 @@ pub(super) fn check(p: &Prepared, counters: &[u32]) -> Result<BakeStats, Redo> {
 /// One job's points, decoded and ordered on the device (`shaders/bake/place.wgsl`), as the
 /// reference's cells: the local cell and the fixed-point position move to the job's grid (an
 /// integer add and a multiply-add per axis).
-pub(super) fn convert(p: &Prepared, job: &LevelJob<'_>, stats: BakeStats, points: &[u32]) -> Decoded {
+pub(super) fn convert(p: &Prepared, job: &LevelJob<'_>, stats: BakeStats, points: &[u32]) -> JobResult {
     let base = p.base.map(|b| b as i32);
     let basef = p.base.map(|b| b as f64);
     let (o, cell) = (job.origin, job.cell);
@@ -130,7 +130,7 @@ pub(super) fn convert(p: &Prepared, job: &LevelJob<'_>, stats: BakeStats, points
             filled: r[1] & FILL_BIT != 0,
         })
         .collect();
-    Ok((cells, stats))
+    (cells, stats)
 }
 
 /// The per-mesh share (see the module doc).
