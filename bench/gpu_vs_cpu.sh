@@ -12,7 +12,7 @@
 #      writes are the same in both): tiles/s and point levels' points/s end to end, and the
 #      GPU memory peak per batch against the --gpu-budget-mib flag.
 # Usage: bench/gpu_vs_cpu.sh [SIZE] [extra bake flags…]   (SIZE defaults to 4097)
-# SPHERE_TRIANGLES=N sizes the dense mesh (lavapipe takes minutes on 10 M: make it smaller there).
+# SPHERE_TRIANGLES=N sizes the dense mesh (on lavapipe, size it down: 2,000,000 was measured there).
 # BIN and LOD_THROUGHPUT name prebuilt binaries (a GPU machine that cannot build), else both are
 # built here.
 set -euo pipefail
