@@ -75,10 +75,12 @@
 //! an estimate but results never depend on them. A job that alone exceeds the budget, or whose
 //! cell box does not fit the 32-bit keys (an extent over 2^16 − 1 cells, or over 2^32 − 2 cells
 //! in all), or in which one cell gets over 1023 fragments of one view (the per-axis count
-//! fields of the table, see `shaders/bake/common.wgsl`), is baked by the CPU reference instead and
-//! counted in [`BatchReport::cpu_jobs`].
-//! While the GPU runs one batch the host prepares and submits the next and decodes the
-//! previous, so at most two batches are in flight: the device memory peak is at most twice the
+//! fields of the table, see `shaders/bake/common.wgsl`), or whose mesh's box reaches past the
+//! reference's grid range ([`super::cpu::MAX_GRID_COORD`]) at that level (the reference then
+//! decides which triangles to skip), is baked by the CPU reference instead and counted in
+//! [`BatchReport::cpu_jobs`].
+//! While the GPU runs one batch the host submits the next and reads back the previous, so at
+//! most two batches are in flight: the device memory peak is at most twice the
 //! batch budget. The buffers of a read batch are kept (two sets at most, between calls too) and
 //! reused by later batches when large enough and at most twice what they need, within the
 //! budget; only the accumulating ranges (counters, table, columns, bitmap) are cleared
