@@ -3,11 +3,16 @@
 # lavapipe where there is no GPU) against the CPU reference (`lod::cpu`, all cores), same input,
 # same run:
 #   1. the point-level stage alone (examples/lod_throughput.rs: TINs built first, untimed, then
-#      every node's levels baked by each path): points/s, tiles/s, GPU batches and peak bytes;
+#      every node's levels baked by each path): points/s, tiles/s, GPU batches and peak bytes,
+#      and the GPU path's host work (lod::gpu::BatchReport: host seconds per million points by
+#      phase, bytes uploaded and read back per point, submissions and dispatches per batch, and
+#      the host threads' CPU time from /proc); the same on the Stanford bunny and on a generated
+#      dense mesh (a noisy sphere of SPHERE_TRIANGLES triangles, default 10,000,000; 0 skips it);
 #   2. the whole bake, `bake --gpu off` then `bake --gpu on` (TIN, measurement, encoding and
 #      writes are the same in both): tiles/s and point levels' points/s end to end, and the
 #      GPU memory peak per batch against the --gpu-budget-mib flag.
 # Usage: bench/gpu_vs_cpu.sh [SIZE] [extra bake flags…]   (SIZE defaults to 4097)
+# SPHERE_TRIANGLES=N sizes the dense mesh (on lavapipe, size it down: 2,000,000 was measured there).
 # BIN and LOD_THROUGHPUT name prebuilt binaries (a GPU machine that cannot build), else both are
 # built here.
 set -euo pipefail
@@ -25,6 +30,16 @@ echo "machine: $(nproc) cores, GPU: $(nvidia-smi --query-gpu=name,driver_version
 
 echo "== point-level stage alone (same level jobs, both paths)"
 $lod "$tmp/synth.tif" "$@"
+bunny="${TERRASTREAM_DATA:-../shared/data}/stanford-bunny.obj"
+if [ -f "$bunny" ]; then
+  echo "== point-level stage alone: the Stanford bunny, grids of 512, 256, 128, 64 cells"
+  $lod --model "$bunny"
+fi
+sphere="${SPHERE_TRIANGLES:-10000000}"
+if [ "$sphere" -gt 0 ]; then
+  echo "== point-level stage alone: generated noisy sphere of about $sphere triangles, grids of 512, 256, 128, 64 cells"
+  $lod --sphere "$sphere"
+fi
 
 # Points of the point levels (levels 1..) in a bake summary's level table.
 points_of() { awk '$2 == "points" { n += $4 } END { print n + 0 }' "$1"; }
@@ -41,7 +56,6 @@ done
 # The Stanford bunny through bake-model: the default ladder (the paper's Table 3 sizes) and a
 # finer one (T = 512, 384, 256, 128) where the point stage dominates. "bake" is the point
 # levels baked, measured and encoded (reading the OBJ excluded).
-bunny="${TERRASTREAM_DATA:-../shared/data}/stanford-bunny.obj"
 if [ -f "$bunny" ]; then
   for res in 80 512; do
     for mode in off on; do

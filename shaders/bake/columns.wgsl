@@ -9,14 +9,14 @@
 //                               1 back slice + 1 (both 0 when empty). The front and back cells
 //                               are then the cells of the column at those slices: `fill`
 //                               finds them in the table by key.
-//   7  points    storage, read  the cell list (word 0 of each record: a table slot)
+//   7  list      storage, read  the cell list (table slots)
 //
 // Items: every cell-list entry (`job.out_cap` per job); entries past the list's end return.
 
 @group(0) @binding(2) var<storage, read> counters: array<u32>;
 @group(0) @binding(3) var<storage, read> table: array<u32>;
 @group(0) @binding(4) var<storage, read_write> columns: array<atomic<u32>>;
-@group(0) @binding(7) var<storage, read> points: array<u32>;
+@group(0) @binding(7) var<storage, read> list: array<u32>;
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
@@ -30,7 +30,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if job.fill == 0u || idx >= min(counters[counter_word(j, C_OUT)], job.out_cap) {
         return;
     }
-    let slot = points[point_word(item)];
+    let slot = list[item];
     let c = unpack_key(job, table[slot_word(slot)] - 1u);
     for (var axis = 0u; axis < 3u; axis++) {
         let col = column_index(job, axis, c[(axis + 1u) % 3u], c[(axis + 2u) % 3u]) * COLUMN_WORDS;

@@ -7,8 +7,9 @@
 //   0  params    uniform        `Params`: job count and the item count of each pass
 //   1  jobs      storage, read  `Job` per (mesh, level) of the batch (see `lod::gpu::GpuJob`)
 //   2  counters  storage        8 words per job: 0 cells inserted (the job's cell list
-//                               length), 2..4 fragments per view axis, 5 overflow (table
-//                               full), 6 count overflow (a cell's per-axis count full)
+//                               length), 1 cells inserted by `fill`, 2..4 fragments per view
+//                               axis, 5 overflow (table full), 6 count overflow (a cell's
+//                               per-axis count full)
 //   3  table     storage        the cell hash table, `SLOT_WORDS` words per slot: 0 packed
 //                               local cell key + 1 (0 = empty), 1 per-view-axis counts
 //                               (`COUNT_BITS` each from bit 0, axis after axis; FILL_BIT set
@@ -16,21 +17,33 @@
 //                               offsets (units cell/2^16), 5..7 normal sums (i32 bits, units
 //                               2^-15). A fragment of view `axis` lies at the pixel centre on
 //                               the other two axes, so the position sum on axis d is sum d plus
-//                               POS_HALF per fragment of the other views: the host rebuilds
+//                               POS_HALF per fragment of the other views: `place` rebuilds
 //                               the three position sums exactly, with two atomics per
 //                               fragment instead of four.
 //   4  columns   storage        per-view column occupancy (`columns.wgsl`)
-//   5  verts, 6 tris  storage, read  raster inputs (`raster.wgsl`)
-//   7  points    storage        8 words per output point, job after job (room `job.out_cap`
-//                               from `job.out_start`): word 0 first holds the table slot of
-//                               the job's n-th inserted cell (the cell list, written on
-//                               insertion by `raster` and `fill`), then `compact` overwrites
-//                               the record with the point (`compact.wgsl`)
-// `insert.wgsl` declares 2, 3 and 7 read-write with atomics for the passes that insert cells
+//   5  verts     storage, read  f32 × 3 per vertex of each job: grid coordinates relative to
+//                               the job's base cell (`rasterize.wgsl`)
+//   6  tris      storage, read  u32 × 6 per triangle of each mesh (uploaded once per mesh and
+//                               batch, shared by the mesh's levels): vertex indices relative
+//                               to the mesh's first vertex, smallest first, then the quantized
+//                               normal (i32 bits)
+//   7  list      storage        the cell list: one table slot per inserted cell, job after job
+//                               (room `job.out_cap` from `job.out_start`), appended on insertion
+//                               by `raster` and `fill`
+//   8  bitmap    storage        one bit per cell of each job's box, row after row (a row is one
+//                               (k, j), `job.row_words` words of i), set on insertion
+//   9  scan      storage        per row of every job, the number of cells before it in the
+//                               batch (cell order (k, j, i), job after job), and the block sums
+//                               of the scan (`scan.wgsl`)
+//  10  out       storage        the batch's points, in their final order, 8 words each
+//                               (`place.wgsl`)
+//  11  level     uniform        one scan level (`scan.wgsl`), at a dynamic offset
+// `insert.wgsl` declares 2, 3, 7 and 8 read-write with atomics for the passes that insert cells
 // (`raster`, `fill`); the others declare what they read as plain read-only arrays.
 //
-// Work is a flat list of items per pass (triangle × axis, column, or cell-list entry), laid out
-// job after job; an invocation finds its job by binary search over the jobs' item starts.
+// Work is a flat list of items per pass (triangle × axis, column, cell-list entry or
+// row), laid out job after job; an invocation finds its job by binary search over the jobs'
+// item starts.
 
 struct Params {
     n_jobs: u32,
@@ -38,9 +51,9 @@ struct Params {
     slots: u32,
     col_items: u32,
     out_items: u32,
+    rows: u32,
     pad0: u32,
     pad1: u32,
-    pad2: u32,
 }
 
 struct Job {
@@ -57,9 +70,9 @@ struct Job {
     out_cap: u32,
     col_start: u32,
     fill: u32,
-    pad0: u32,
-    pad1: u32,
-    pad2: u32,
+    row_start: u32,
+    bit_start: u32,
+    row_words: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -70,6 +83,7 @@ const SLOT_WORDS: u32 = 8u;
 const COUNTER_WORDS: u32 = 8u;
 const POINT_WORDS: u32 = 8u;
 const C_OUT: u32 = 0u;
+const C_FILLED: u32 = 1u;
 const C_FRAGS: u32 = 2u;
 const C_OVERFLOW: u32 = 5u;
 const C_COUNT_OVERFLOW: u32 = 6u;
@@ -97,7 +111,8 @@ fn item_start(j: u32, which: u32) -> u32 {
     switch which {
         case 0u: { return jobs[j].raster_start; }
         case 1u: { return jobs[j].out_start; }
-        default: { return jobs[j].col_start; }
+        case 2u: { return jobs[j].col_start; }
+        default: { return jobs[j].row_start; }
     }
 }
 
@@ -164,6 +179,7 @@ fn counter_word(j: u32, c: u32) -> u32 {
 fn slot_word(s: u32) -> u32 {
     return s * SLOT_WORDS;
 }
+
 
 fn point_word(n: u32) -> u32 {
     return n * POINT_WORDS;

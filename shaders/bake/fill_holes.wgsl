@@ -5,7 +5,7 @@
 // to the cell table like fragments. It reads only the pre-fill column data, so the result does
 // not depend on the order in which invocations run.
 //
-// Bindings (after common.wgsl's 0..1, and insert.wgsl's 2, 3, 7 read-write):
+// Bindings (after common.wgsl's 0..1, and insert.wgsl's 2, 3, 7, 8 read-write):
 //   4  columns  storage, read  as in `columns.wgsl`
 //
 // Items: every column of the three views of every job.
@@ -145,7 +145,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         if len > 0.0 {
             nq = vec3<i32>(floor(m / len * NORMAL_ONE + 0.5));
         }
-        let slot = find_or_insert(j, job, pack_key(job, c));
+        let slot = find_or_insert(j, job, pack_key(job, c), true);
         if slot < 0 {
             atomicAdd(&counters[counter_word(j, C_OVERFLOW)], 1u);
             continue;

@@ -2,11 +2,13 @@
 // the fragments into the cell table (the module doc of `lod::cpu` is the specification; this
 // is the same rule in f32 on job-local grid coordinates).
 //
-// Bindings (after common.wgsl's 0..1, and insert.wgsl's 2, 3, 7 read-write):
-//   5  verts  storage, read  f32 × 3 per vertex: grid coordinates relative to the job's base
-//                            cell (host-computed in f64), so cell indices start at 0
-//   6  tris   storage, read  u32 × 6 per triangle: vertex indices relative to the job's first
-//                            vertex, smallest first, then the quantized normal (i32 bits)
+// Bindings (after common.wgsl's 0..1, and insert.wgsl's 2, 3, 7, 8 read-write):
+//   5  verts  storage, read  f32 × 3 per vertex of the job's mesh: grid coordinates relative
+//                            to the job's base cell (host-computed in f64 per job, as the
+//                            reference specifies), so cell indices start at 0
+//   6  tris   storage, read  u32 × 6 per triangle of the job's mesh: vertex indices relative
+//                            to the mesh's first vertex, smallest first, then the quantized
+//                            normal (i32 bits)
 //
 // Items: job.tri_count × 3 per job, item = axis × tri_count + triangle: neighbouring
 // invocations (one SIMD batch on llvmpipe) rasterize the same view, whose triangles have
@@ -175,7 +177,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             if any(c >= dims) {
                 continue;
             }
-            let slot = find_or_insert(j, job, pack_key(job, c));
+            let slot = find_or_insert(j, job, pack_key(job, c), false);
             if slot < 0 {
                 overflow += 1u;
                 continue;

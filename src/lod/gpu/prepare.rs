@@ -1,12 +1,47 @@
-//! The host's share of a job (the module doc's *Rasterization in compute*): grid coordinates and
-//! the cell box in f64 as the CPU reference computes them, ready to upload; and decoding a job's
-//! read-back counters and points into the reference's output.
+//! The host's share (the module doc's *Passes*): once per mesh, what the CPU reference computes
+//! in f64 per triangle (validity, the smallest-index-first rotation, the quantized normal, the
+//! vertices' box and projected area), ready to upload; once per job, the cell box and the grid
+//! coordinates of the vertices (f64, then f32, as the reference specifies); and turning a job's read-back points,
+//! already decoded and in their final order on the device, into the reference's output.
 
 use super::{
-    BakeStats, BakedCell, COLUMN_BYTES, COUNT_BITS, COUNT_FIELD, COUNTER_WORDS, Decoded, FILL_BIT, GpuJob,
-    LevelJob, MAX_EXTENT, MAX_GRID_COORD, NORMAL_FRACTION_BITS, POINT_BYTES, POS_HALF, POS_ONE, Prepared,
-    RETRY_GROWTH, Redo, SLOT_BYTES, Unfit, triangle_normal,
+    BakeStats, BakedCell, COLUMN_BYTES, COUNTER_WORDS, FILL_BIT, GpuJob, JobResult, LIST_BYTES, LevelJob,
+    MAX_EXTENT, MAX_GRID_COORD, NORMAL_FRACTION_BITS, POINT_BYTES, POS_ONE, Prepared, RETRY_GROWTH, Redo,
+    SCAN_BLOCK, SLOT_BYTES, Unfit,
 };
+use crate::geom::Mesh;
+use glam::DVec3;
+
+/// `x.floor()` for |x| < 2^31, without the libm call (x86-64's baseline has no `roundsd`):
+/// exact, as truncation to an integer of that range is.
+fn floor_small(x: f64) -> i32 {
+    let t = x as i32;
+    if f64::from(t) > x { t - 1 } else { t }
+}
+
+/// A mesh ready to upload, shared by its level jobs.
+pub(super) struct MeshPrep {
+    /// Vertices of the mesh.
+    pub vertices: u64,
+    /// 6 words per valid triangle (vertex indices in range, positions finite): the rotated
+    /// indices and the quantized normal.
+    pub tris: Vec<u32>,
+    /// Triangles of the mesh.
+    pub triangles: usize,
+    /// The valid triangles' vertices' box, world coordinates.
+    pub lo: [f64; 3],
+    pub hi: [f64; 3],
+    /// Sum over valid triangles of half their absolute normal components (world units²): the
+    /// projected area of the three views, fragments ≈ area / cell².
+    pub area: f64,
+}
+
+impl MeshPrep {
+    /// Bytes the mesh adds to a batch that holds any of its jobs.
+    pub(super) fn bytes(&self) -> u64 {
+        self.tris.len() as u64 * 4
+    }
+}
 
 impl Prepared {
     pub(super) fn columns(&self, fill: bool) -> u64 {
@@ -17,13 +52,30 @@ impl Prepared {
         y * z + z * x + x * y
     }
 
-    /// Bytes this job adds to a batch: inputs, table, columns, output and its staging copy,
-    /// counters and descriptor.
-    pub(super) fn bytes(&self, fill: bool) -> u64 {
-        self.verts.len() as u64 * 4
-            + self.tris.len() as u64 * 4
+    /// Rows of the job's box, one per (k, j).
+    pub(super) fn rows(&self) -> u64 {
+        u64::from(self.dims[1]) * u64::from(self.dims[2])
+    }
+
+    /// Bitmap words per row.
+    pub(super) fn row_words(&self) -> u64 {
+        u64::from(self.dims[0]).div_ceil(32)
+    }
+
+    /// Words of the scan buffer the job accounts for: its rows and, generously, its share of
+    /// the upper levels.
+    pub(super) fn scan_words(&self) -> u64 {
+        self.rows() + self.rows() / (SCAN_BLOCK / 2) + 8
+    }
+
+    /// Bytes this job adds to a batch besides its mesh: vertices' grid coordinates, table,
+    /// columns, cell list, bitmap, scan, output and its read-back, counters and descriptor.
+    pub(super) fn bytes(&self, vertices: u64, fill: bool) -> u64 {
+        vertices * 12
             + self.table_slots * SLOT_BYTES
             + self.columns(fill) * COLUMN_BYTES
+            + self.out_cap * LIST_BYTES
+            + (self.rows() * self.row_words() + self.scan_words()) * 4
             + 2 * (self.out_cap * POINT_BYTES + COUNTER_WORDS as u64 * 4)
             + std::mem::size_of::<GpuJob>() as u64
     }
@@ -34,8 +86,8 @@ impl Prepared {
     }
 }
 
-/// Turns one job's counters and points into the reference's output.
-pub(super) fn decode(p: &Prepared, job: &LevelJob<'_>, counters: &[u32], points: &[u32]) -> Decoded {
+/// Whether the job's result is usable, and its statistics: from its counters.
+pub(super) fn check(p: &Prepared, counters: &[u32]) -> Result<BakeStats, Redo> {
     let n = u64::from(counters[0]);
     if counters[6] > 0 {
         return Err(Redo::Cpu);
@@ -43,65 +95,59 @@ pub(super) fn decode(p: &Prepared, job: &LevelJob<'_>, counters: &[u32], points:
     if n > p.out_cap || counters[5] > 0 {
         return Err(Redo::Grow);
     }
-    let recs = &points[..n as usize * 8];
-    let filled = recs.chunks_exact(8).filter(|r| r[1] & FILL_BIT != 0).count();
-    let stats = BakeStats {
+    let filled = counters[1] as usize;
+    Ok(BakeStats {
         fragments: [u64::from(counters[2]), u64::from(counters[3]), u64::from(counters[4])],
         occupied: n as usize - filled,
         filled,
         skipped_triangles: p.skipped,
-    };
-    let mut recs: Vec<&[u32]> = recs.chunks_exact(8).collect();
-    recs.sort_unstable_by_key(|r| r[0]);
-    let [nx, ny, _] = p.dims;
-    let cells = recs
-        .iter()
-        .map(|r| {
-            let key = r[0];
-            let local = [key % nx, (key / nx) % ny, key / nx / ny];
-            let index = [0, 1, 2].map(|d| (p.base[d] + i64::from(local[d])) as i32);
-            // Per-axis counts and depth sums → the three position sums (`shaders/bake/common.wgsl`).
-            let counts = [0, 1, 2].map(|d: u32| u64::from((r[1] >> (d * COUNT_BITS)) & COUNT_FIELD));
-            let count = counts.iter().sum::<u64>();
-            let denom = count.max(1) as f64 * POS_ONE;
-            let position = [0, 1, 2].map(|d| {
-                let sum = u64::from(r[2 + d]) + POS_HALF * (count - counts[d]);
-                job.origin[d] + (f64::from(index[d]) + sum as f64 / denom) * job.cell
-            });
-            let n = [0, 1, 2].map(|d| f64::from(r[5 + d].cast_signed()));
-            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            let normal = if len > 0.0 {
-                [(n[0] / len) as f32, (n[1] / len) as f32, (n[2] / len) as f32]
-            } else {
-                [0.0, 0.0, 1.0]
-            };
-            BakedCell { index, position, normal, samples: count, filled: r[1] & FILL_BIT != 0 }
-        })
-        .collect();
-    Ok((cells, stats))
+    })
 }
 
-/// The host's share of a job (see the module doc).
-pub(super) fn prepare(n: usize, job: &LevelJob<'_>) -> Result<Prepared, Unfit> {
-    let mesh = job.mesh;
-    let (origin, cell) = (job.origin, job.cell);
-    let all_skipped = BakeStats { skipped_triangles: mesh.triangles.len(), ..BakeStats::default() };
-    if !(cell.is_finite() && cell > 0.0) || origin.iter().any(|c| !c.is_finite()) {
-        return Err(Unfit::Empty(all_skipped));
-    }
-    let grid: Vec<Option<[f64; 3]>> = mesh
-        .positions
-        .iter()
-        .map(|p| {
-            let g = [0, 1, 2].map(|d| (p[d] - origin[d]) / cell);
-            g.iter().all(|c| c.is_finite() && c.abs() <= MAX_GRID_COORD).then_some(g)
+/// One job's points, decoded and ordered on the device (`shaders/bake/place.wgsl`), as the
+/// reference's cells: the local cell and the fixed-point position move to the job's grid (an
+/// integer add and a multiply-add per axis).
+pub(super) fn convert(p: &Prepared, job: &LevelJob<'_>, stats: BakeStats, points: &[u32]) -> JobResult {
+    let base = p.base.map(|b| b as i32);
+    let basef = p.base.map(|b| b as f64);
+    let (o, cell) = (job.origin, job.cell);
+    let scale = 1.0 / POS_ONE;
+    let cells = points
+        .chunks_exact(8)
+        .map(|r| BakedCell {
+            index: [
+                base[0] + (r[0] & 0xffff) as i32,
+                base[1] + (r[0] >> 16) as i32,
+                base[2] + (r[1] & 0xffff) as i32,
+            ],
+            position: [
+                o[0] + (basef[0] + f64::from(r[2]) * scale) * cell,
+                o[1] + (basef[1] + f64::from(r[3]) * scale) * cell,
+                o[2] + (basef[2] + f64::from(r[4]) * scale) * cell,
+            ],
+            normal: [f32::from_bits(r[5]), f32::from_bits(r[6]), f32::from_bits(r[7])],
+            samples: u64::from((r[1] & !FILL_BIT) >> 16),
+            filled: r[1] & FILL_BIT != 0,
         })
         .collect();
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    let mut valid: Vec<([u32; 3], [[f64; 3]; 3])> = Vec::with_capacity(mesh.triangles.len());
+    (cells, stats)
+}
+
+/// The per-mesh share (see the module doc).
+pub(super) fn prepare_mesh(mesh: &Mesh) -> MeshPrep {
+    let finite: Vec<bool> =
+        mesh.positions.iter().map(|p| p[0].is_finite() && p[1].is_finite() && p[2].is_finite()).collect();
+    let ok = |id: u32| finite.get(id as usize).copied().unwrap_or(false);
+    let mut lo = DVec3::INFINITY;
+    let mut hi = DVec3::NEG_INFINITY;
     let mut area = 0.0;
+    let normal_one = f64::from(1u32 << NORMAL_FRACTION_BITS);
+    let limit = f64::from((1u32 << NORMAL_FRACTION_BITS) - 1);
+    let mut tris = Vec::with_capacity(mesh.triangles.len() * 6);
     for tri in &mesh.triangles {
+        if !(ok(tri[0]) && ok(tri[1]) && ok(tri[2])) {
+            continue;
+        }
         let lead = if tri[0] <= tri[1] && tri[0] <= tri[2] {
             0
         } else if tri[1] <= tri[2] {
@@ -110,63 +156,74 @@ pub(super) fn prepare(n: usize, job: &LevelJob<'_>) -> Result<Prepared, Unfit> {
             2
         };
         let ids = [tri[lead], tri[(lead + 1) % 3], tri[(lead + 2) % 3]];
-        let g = |id: u32| grid.get(id as usize).copied().flatten();
-        let (Some(a), Some(b), Some(c)) = (g(ids[0]), g(ids[1]), g(ids[2])) else {
-            continue;
+        let [a, b, c] = ids.map(|i| DVec3::from_array(mesh.positions[i as usize]));
+        lo = lo.min(a).min(b).min(c);
+        hi = hi.max(a).max(b).max(c);
+        // `triangle_normal`'s cross product, once for the normal and the projected areas.
+        let n = (b - a).cross(c - a);
+        area += 0.5 * (n.x.abs() + n.y.abs() + n.z.abs());
+        let len = n.length();
+        let unit = if len > 0.0 { n / len } else { DVec3::ZERO };
+        let q = |c: f64| {
+            floor_small((c * normal_one + 0.5).clamp(-limit, limit + 1.0)).min(limit as i32).cast_unsigned()
         };
-        for v in [a, b, c] {
-            for d in 0..3 {
-                lo[d] = lo[d].min(v[d]);
-                hi[d] = hi[d].max(v[d]);
-            }
-        }
-        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-        area += 0.5
-            * ((u[1] * v[2] - u[2] * v[1]).abs()
-                + (u[2] * v[0] - u[0] * v[2]).abs()
-                + (u[0] * v[1] - u[1] * v[0]).abs());
-        valid.push((ids, [a, b, c]));
+        tris.extend_from_slice(&[ids[0], ids[1], ids[2], q(unit.x), q(unit.y), q(unit.z)]);
     }
-    let skipped = mesh.triangles.len() - valid.len();
-    if valid.is_empty() {
+    let (lo, hi) = (lo.to_array(), hi.to_array());
+    MeshPrep { vertices: mesh.positions.len() as u64, tris, triangles: mesh.triangles.len(), lo, hi, area }
+}
+
+/// The per-job share (see the module doc): the reference's cell box, from the mesh's box (the
+/// grid map is monotonic, so the box of the grid coordinates is the map of the box), and the
+/// vertices' grid coordinates. A job whose box leaves the reference's grid range would skip triangles the
+/// mesh's preparation kept: the reference bakes it (`TooLarge`).
+pub(super) fn prepare_job(
+    n: usize,
+    job: &LevelJob<'_>,
+    mesh: usize,
+    m: &MeshPrep,
+) -> Result<Prepared, Unfit> {
+    let (origin, cell) = (job.origin, job.cell);
+    let all_skipped = BakeStats { skipped_triangles: m.triangles, ..BakeStats::default() };
+    if !(cell.is_finite() && cell > 0.0) || origin.iter().any(|c| !c.is_finite()) || m.tris.is_empty() {
         return Err(Unfit::Empty(all_skipped));
     }
+    let glo = [0, 1, 2].map(|d| (m.lo[d] - origin[d]) / cell);
+    let ghi = [0, 1, 2].map(|d| (m.hi[d] - origin[d]) / cell);
+    if glo.iter().chain(&ghi).any(|g| !(g.is_finite() && g.abs() <= MAX_GRID_COORD)) {
+        return Err(Unfit::TooLarge);
+    }
     // One cell of margin below and above the vertices' floor box, as the reference.
-    let base = [0, 1, 2].map(|d| lo[d].floor() as i64 - 1);
-    let top = [0, 1, 2].map(|d| hi[d].floor() as i64 + 1);
+    let base = [0, 1, 2].map(|d| glo[d].floor() as i64 - 1);
+    let top = [0, 1, 2].map(|d| ghi[d].floor() as i64 + 1);
     let ext = [0, 1, 2].map(|d| top[d] - base[d] + 1);
     if ext.iter().any(|&e| e > MAX_EXTENT) || ext.iter().product::<i64>() >= i64::from(u32::MAX) - 1 {
         return Err(Unfit::TooLarge);
     }
-    let mut verts = vec![0f32; mesh.positions.len() * 3];
-    for (k, g) in grid.iter().enumerate() {
-        if let Some(g) = g {
-            for d in 0..3 {
-                verts[k * 3 + d] = (g[d] - base[d] as f64) as f32;
-            }
-        }
-    }
-    let normal_one = f64::from(1u32 << NORMAL_FRACTION_BITS);
-    let limit = f64::from((1u32 << NORMAL_FRACTION_BITS) - 1);
-    let mut tris = Vec::with_capacity(valid.len() * 6);
-    for (ids, _) in &valid {
-        let w = ids.map(|i| mesh.positions[i as usize]);
-        let nrm = triangle_normal(w[0], w[1], w[2]);
-        tris.extend_from_slice(ids);
-        for c in nrm {
-            tris.push(((c * normal_one + 0.5).floor().clamp(-limit, limit) as i32).cast_unsigned());
-        }
-    }
     // Fragments ≈ the projected area; occupied cells ≤ fragments. Overflow re-runs the job.
-    let out_cap = (area * 1.25) as u64 + 256;
+    let out_cap = (m.area / (cell * cell) * 1.25) as u64 + 256;
+    let mut verts = Vec::with_capacity(job.mesh.positions.len() * 3);
+    let basef = base.map(|b| b as f64);
+    for p in &job.mesh.positions {
+        let g = [(p[0] - origin[0]) / cell, (p[1] - origin[1]) / cell, (p[2] - origin[2]) / cell];
+        let ok = |c: f64| c.is_finite() && c.abs() <= MAX_GRID_COORD;
+        if ok(g[0]) && ok(g[1]) && ok(g[2]) {
+            verts.extend_from_slice(&[
+                (g[0] - basef[0]) as f32,
+                (g[1] - basef[1]) as f32,
+                (g[2] - basef[2]) as f32,
+            ]);
+        } else {
+            verts.extend_from_slice(&[0.0; 3]);
+        }
+    }
     Ok(Prepared {
         job: n,
+        mesh,
         base,
         dims: ext.map(|e| e as u32),
         verts,
-        tris,
-        skipped,
+        skipped: m.triangles - m.tris.len() / 6,
         out_cap,
         table_slots: (2 * out_cap).next_power_of_two(),
     })

@@ -1,0 +1,82 @@
+//! The GPU bake's host work (issue 39): a mesh's triangles go up once per batch whatever its
+//! level count, the read-back is exactly the points (in the reference's order) and the
+//! counters, and the report counts submissions and dispatches. Needs an adapter: skips without
+//! one unless `TERRASTREAM_REQUIRE_GPU=1`.
+#![cfg(feature = "gpu")]
+#![allow(clippy::unwrap_used, clippy::panic)]
+
+mod common;
+use common::require_gpu;
+
+use terrastream::geom::Mesh;
+use terrastream::lod::cpu::{self, SliceOptions};
+use terrastream::lod::gpu::{GpuBaker, LevelJob};
+
+fn baker() -> Option<GpuBaker> {
+    match GpuBaker::open_default(64 << 20) {
+        Ok(b) => Some(b),
+        Err(e) if require_gpu() => panic!("TERRASTREAM_REQUIRE_GPU=1 but no GPU baker: {e}"),
+        Err(e) => {
+            eprintln!("skipping GPU test: {e} (set TERRASTREAM_REQUIRE_GPU=1 to fail instead)");
+            None
+        }
+    }
+}
+
+/// A bumpy heightfield mesh of `n` × `n` quads.
+fn terrain(n: u32) -> Mesh {
+    let mut positions = Vec::new();
+    for y in 0..=n {
+        for x in 0..=n {
+            let (fx, fy) = (f64::from(x), f64::from(y));
+            positions.push([
+                fx * 10.0,
+                fy * 10.0,
+                40.0 * (fx * 0.21).sin() * (fy * 0.17).cos() + 3.0 * fx.sqrt(),
+            ]);
+        }
+    }
+    let id = |x: u32, y: u32| y * (n + 1) + x;
+    let mut triangles = Vec::new();
+    for y in 0..n {
+        for x in 0..n {
+            triangles.push([id(x, y), id(x + 1, y), id(x + 1, y + 1)]);
+            triangles.push([id(x, y), id(x + 1, y + 1), id(x, y + 1)]);
+        }
+    }
+    Mesh { positions, triangles }
+}
+
+#[test]
+fn mesh_goes_up_once_and_only_the_points_come_back() {
+    let Some(gpu) = baker() else { return };
+    let meshes = [terrain(60), terrain(40)];
+    let cells = [8.0, 16.0, 32.0, 64.0];
+    let jobs: Vec<LevelJob<'_>> = meshes
+        .iter()
+        .flat_map(|m| cells.iter().map(move |&cell| LevelJob { mesh: m, origin: [-5.0, -5.0, -100.0], cell }))
+        .collect();
+    let opts = SliceOptions::default();
+    let (out, r) = gpu.bake_jobs(&jobs, &opts).unwrap();
+    assert_eq!((r.batches, r.gpu_jobs, r.retried_jobs, r.cpu_jobs), (1, 8, 0, 0), "{r:?}");
+    let points: usize = out.iter().map(|(c, _)| c.len()).sum();
+    assert_eq!(r.points, points as u64, "{r:?}");
+    // Counters (8 words per job), then 32 bytes per point: nothing else is read back.
+    assert_eq!(r.bytes_read_back, 32 * r.points + 32 * jobs.len() as u64, "{r:?}");
+    assert_eq!(r.submissions, 2, "{r:?}");
+    assert!(r.dispatches >= 6 && r.dispatches <= 12, "{r:?}");
+    // Triangles (24 bytes) once per mesh; grid coordinates (12 bytes) per vertex and level;
+    // parameters, jobs and scan levels besides.
+    let tris: u64 = meshes.iter().map(|m| m.triangles.len() as u64).sum();
+    let verts: u64 = meshes.iter().map(|m| m.positions.len() as u64).sum();
+    let expected = 24 * tris + 12 * verts * cells.len() as u64;
+    assert!(r.bytes_uploaded >= expected && r.bytes_uploaded <= expected + 8192, "{r:?} vs {expected}");
+    assert!(r.host_s() > 0.0 && r.wait_s > 0.0, "{r:?}");
+    // The points come back in the reference's order and cells.
+    for (job, (g, _)) in jobs.iter().zip(&out) {
+        let (c, _) = cpu::bake_cells(job.mesh, job.origin, job.cell, &opts);
+        let order = |i: [i32; 3]| (i[2], i[1], i[0]);
+        assert!(g.windows(2).all(|w| order(w[0].index) < order(w[1].index)), "not sorted");
+        assert!(g.len().abs_diff(c.len()) <= 1 + c.len() / 200, "{} vs {}", g.len(), c.len());
+    }
+}
