@@ -8,7 +8,9 @@
 use std::io;
 
 use crate::formats::interchange::{self, Format};
-use crate::formats::tiles3d::{Anchor, AnchorRangeError, Tiles3dError, TilesetInfo, chunk_tileset, tile_glb};
+use crate::formats::tiles3d::{
+    Anchor, AnchorRangeError, Tiles3dError, TilesetInfo, chunk_tileset, path_cap, tile_glb,
+};
 
 /// Errors of the export driver.
 #[derive(Debug, thiserror::Error)]
@@ -182,6 +184,8 @@ pub fn export_3dtiles(
             std::fs::remove_dir_all(&stage).map_err(io_err(&stage))?;
         }
         let mut docs = 0u64;
+        let entries: std::collections::HashMap<crate::tiling::TileKey, &crate::store::NodeEntry> =
+            chunks.iter().flat_map(|c| &c.nodes).map(|n| (n.key, n)).collect();
         for c in &chunks {
             let root = c.root.z == 0;
             let path = if root {
@@ -189,7 +193,20 @@ pub fn export_3dtiles(
             } else {
                 stage.join(format!("index/{}/{}/{}.json", c.root.z, c.root.x, c.root.y))
             };
-            let doc = chunk_tileset(&info, c, root)
+            let cap = if root {
+                f64::INFINITY
+            } else {
+                let k = c.root;
+                let path: Vec<crate::store::NodeEntry> = (0..k.z)
+                    .filter_map(|z| {
+                        let shift = k.z - z;
+                        let a = crate::tiling::TileKey::new(z, k.x >> shift, k.y >> shift);
+                        entries.get(&a).map(|n| (*n).clone())
+                    })
+                    .collect();
+                path_cap(&info, &path)
+            };
+            let doc = chunk_tileset(&info, c, root, cap)
                 .map_err(|source| ExportError::Tiles3d { path: store.dir().to_owned(), source })?;
             let mut bytes = serde_json::to_vec(&doc).unwrap_or_default();
             bytes.push(b'\n');

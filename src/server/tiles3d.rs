@@ -20,8 +20,8 @@ use super::loaders::{
 use super::problem::Problem;
 use super::registry::{Tileset, etag_of};
 use crate::bake::export;
-use crate::formats::tiles3d::{GLB_TYPE, TilesetInfo, chunk_tileset, tile_glb};
-use crate::store::{IndexChunk, SUBTREE_LEVELS};
+use crate::formats::tiles3d::{GLB_TYPE, TilesetInfo, chunk_tileset, path_cap, planned_entry, tile_glb};
+use crate::store::{IndexChunk, SUBTREE_LEVELS, chunk_root};
 use crate::tiling::TileKey;
 
 /// The viewer page (`GET /viewer`): a small WebGL 2 client of the 3D Tiles routes, no
@@ -67,6 +67,29 @@ async fn chunk(app: &App, ts: &Arc<Tileset>, key: TileKey) -> Result<(IndexChunk
     Ok((chunk, growing))
 }
 
+/// The cap of the external tileset rooted at `key` ([`path_cap`]: the least mesh error from the
+/// root to `key`'s parent), from the index chunks above it; and whether one of them is still
+/// growing (an on-demand tileset baking).
+async fn cap_above(
+    app: &App,
+    ts: &Arc<Tileset>,
+    info: &TilesetInfo,
+    key: TileKey,
+) -> Result<(f64, bool), Problem> {
+    let mut path = Vec::with_capacity(usize::from(key.z));
+    let mut growing = false;
+    for z in 0..key.z {
+        let shift = key.z - z;
+        let a = TileKey::new(z, key.x >> shift, key.y >> shift);
+        let (c, g) = chunk(app, ts, chunk_root(a)).await?;
+        growing |= g;
+        if let Some(n) = c.nodes.into_iter().find(|n| n.key == a).or_else(|| planned_entry(info, a)) {
+            path.push(n);
+        }
+    }
+    Ok((path_cap(info, &path), growing))
+}
+
 fn json_entry(v: &serde_json::Value) -> Entry {
     let body = serde_json::to_vec(v).unwrap_or_default();
     Entry { etag: etag_value(&etag_of(&body)), bytes: Bytes::from(body) }
@@ -85,7 +108,9 @@ pub(super) async fn root(
     let ts = tileset(&app, &name)?;
     let info = info(&ts, true).await?;
     let (c, growing) = chunk(&app, &ts, TileKey::new(0, 0, 0)).await?;
-    let entry = json_entry(&chunk_tileset(&info, &c, true).map_err(|e| placement_problem(&ts.name, &e))?);
+    let entry = json_entry(
+        &chunk_tileset(&info, &c, true, f64::INFINITY).map_err(|e| placement_problem(&ts.name, &e))?,
+    );
     Ok(send(&method, &headers, &entry, "application/json", if growing { NO_CACHE } else { SHORT }))
 }
 
@@ -119,7 +144,10 @@ pub(super) async fn subtree(
     }
     let info = info(&ts, false).await?;
     let (c, growing) = chunk(&app, &ts, key).await?;
-    let entry = json_entry(&chunk_tileset(&info, &c, false).map_err(|e| placement_problem(&ts.name, &e))?);
+    let (cap, above_growing) = cap_above(&app, &ts, &info, key).await?;
+    let growing = growing || above_growing;
+    let entry =
+        json_entry(&chunk_tileset(&info, &c, false, cap).map_err(|e| placement_problem(&ts.name, &e))?);
     if growing {
         return Ok(send(&method, &headers, &entry, "application/json", NO_CACHE));
     }

@@ -167,7 +167,75 @@ pub fn assert_levels_pay(dir: &Path) -> (usize, usize, usize) {
             }
         }
     }
+    // `--point-levels auto`: no stored level of a node below the root is out of the selector's
+    // reach (`lod::reach`), and the index's reasons are the markers'.
+    if m.options.get("point_levels").and_then(|v| v.as_str()) == Some("auto") {
+        let by_key: std::collections::HashMap<_, _> = nodes.iter().map(|n| (n.key, n)).collect();
+        for n in &nodes {
+            for sk in &n.skipped {
+                assert_eq!(
+                    store.unpaid_reason(n.key, sk.level).unwrap(),
+                    Some(sk.why),
+                    "{} level {}",
+                    n.key,
+                    sk.level
+                );
+            }
+            if n.key.z == 0 {
+                continue;
+            }
+            let p = by_key[&terrastream::tiling::TileKey::new(n.key.z - 1, n.key.x / 2, n.key.y / 2)];
+            let reach = terrastream::lod::reach::reach(
+                p.levels[0].errors.geometric(),
+                terrastream::lod::reach::farthest_corner(n.bounds.center(), &p.bounds),
+            );
+            for l in n.levels.iter().skip(1) {
+                assert!(
+                    l.errors.geometric() < reach,
+                    "{} level {}: error {} is out of reach ({reach}) below its parent",
+                    n.key,
+                    l.level,
+                    l.errors.geometric()
+                );
+            }
+        }
+    }
+    assert_tiles3d_monotone(dir);
     (nodes.len(), stored, left_out)
+}
+
+/// Exports the tileset in `dir` as 3D Tiles (the library's `export_3dtiles`, the documents the
+/// server sends) and asserts its error chain is monotone: on every path from the root, across
+/// external tilesets too, no tile's `geometricError` is above its parent's. Returns the tiles
+/// checked.
+pub fn assert_tiles3d_monotone(dir: &Path) -> usize {
+    let store = terrastream::store::Store::new(dir);
+    let out = tempfile::tempdir().unwrap();
+    let out = out.path().join("3dtiles");
+    terrastream::bake::export::export_3dtiles(&store, &out, None, &|_, _| {}).unwrap();
+    fn walk(base: &Path, tile: &serde_json::Value, cap: f64, where_: &str, n: &mut usize) {
+        let e = tile["geometricError"].as_f64().unwrap();
+        assert!(
+            e <= cap * (1.0 + 1e-12) + 1e-12,
+            "{where_}: tile {} has geometricError {e} under a parent of {cap}",
+            tile["extras"]["terrastream"]
+        );
+        *n += 1;
+        if let Some(uri) = tile["content"]["uri"].as_str().filter(|u| u.ends_with(".json")) {
+            let doc: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(base.join(uri)).unwrap()).unwrap();
+            assert!(doc["geometricError"].as_f64().unwrap() <= e * (1.0 + 1e-12) + 1e-12, "{uri}");
+            walk(base, &doc["root"], e, uri, n);
+        }
+        for c in tile["children"].as_array().into_iter().flatten() {
+            walk(base, c, e, where_, n);
+        }
+    }
+    let root: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
+    let mut n = 0;
+    walk(&out, &root["root"], root["geometricError"].as_f64().unwrap(), "tileset.json", &mut n);
+    n
 }
 
 /// A `terrastream serve` process on a free 127.0.0.1 port, killed when dropped.

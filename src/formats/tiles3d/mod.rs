@@ -24,7 +24,7 @@ pub use glb::{GENERATOR, GLB_TYPE, glb, mesh_skirt_depth};
 pub use placement::{
     Anchor, AnchorError, AnchorFrom, AnchorRangeError, Axes, DEFAULT_ANCHOR, MAX_ANCHOR_HEIGHT, Placement,
 };
-pub use tileset::{TilesetInfo, chunk_tileset, tile_glb};
+pub use tileset::{TilesetInfo, chunk_tileset, path_cap, planned_entry, tile_glb};
 
 /// Errors of the 3D Tiles view: an anchor that cannot be read or lies out of range, a manifest
 /// that cannot be read as a tileset's.

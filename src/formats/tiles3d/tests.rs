@@ -264,3 +264,58 @@ fn models_stand_on_their_base_at_the_anchor() {
     assert_eq!(place.enu_of([0.0, 2.0, 0.0]), [0.0, 1.0, 0.0]);
     assert!(!place.mirrored());
 }
+
+/// The 3D Tiles chain stays monotone whatever the measured errors: a child mesh measured above
+/// its parent's, point levels finer than their own mesh, coarser than the tile above, out of
+/// order — a child's `geometricError` never exceeds its parent's, and a listed point level keeps
+/// its own error.
+#[test]
+fn error_chain_is_monotone_for_any_measured_errors() {
+    use crate::store::{IndexChunk, NodeEntry, NodeLevel};
+    let bounds = Bounds::new([0.0, 0.0, 0.0], [64.0, 64.0, 10.0]);
+    let mut m = manifest(Georef { dx: 1.0, dy: 1.0, ..Georef::default() }, bounds);
+    m.source.width = 65;
+    m.source.height = 65;
+    m.depth = 2;
+    let info = TilesetInfo::new(
+        "t",
+        TilesetKind::Terrain,
+        m.clone(),
+        Placement::of(&m, TilesetKind::Terrain, None).unwrap(),
+        String::new(),
+    );
+    let level = |level: u8, e: f64| NodeLevel {
+        level,
+        errors: ErrorFigures { max: e, rms: 0.0, gap: 0.0 },
+        count: 10,
+        triangles: 0,
+        bytes: 10,
+        checksum: 0,
+    };
+    let p = info.pyramid.unwrap();
+    let mut seed = 9u64;
+    for _ in 0..50 {
+        let mut nodes = Vec::new();
+        for key in p.nodes() {
+            let mut next = || {
+                seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+                ((seed >> 33) % 100) as f64
+            };
+            let levels = (0..4).map(|l| level(l, next())).collect();
+            nodes.push(NodeEntry { key, bounds: info.planned_bounds(key), levels, skipped: Vec::new() });
+        }
+        let chunk = IndexChunk { root: TileKey::new(0, 0, 0), nodes: nodes.clone() };
+        let doc = chunk_tileset(&info, &chunk, true, f64::INFINITY).unwrap();
+        fn walk(t: &Value, cap: f64, n: &mut usize) {
+            let e = t["geometricError"].as_f64().unwrap();
+            assert!(e <= cap, "{e} under {cap}");
+            *n += 1;
+            for c in t["children"].as_array().into_iter().flatten() {
+                walk(c, e, n);
+            }
+        }
+        let mut n = 0;
+        walk(&doc["root"], f64::INFINITY, &mut n);
+        assert!(n >= nodes.len());
+    }
+}

@@ -92,7 +92,7 @@ impl TilesetInfo {
     }
 
     /// World box of a node before it is baked: its samples' extent, the dataset's height range.
-    fn planned_bounds(&self, key: TileKey) -> Bounds {
+    pub(crate) fn planned_bounds(&self, key: TileKey) -> Bounds {
         let m = &self.manifest;
         let Some(p) = self.pyramid else { return m.bounds };
         let s = p.span(key);
@@ -150,11 +150,25 @@ fn prefix(root: bool) -> &'static str {
 /// stored levels, coarsest first, `REPLACE` down to level 0 and then to the children), nodes
 /// below the chunk as external tilesets. `root` gives the tileset's root document (with the
 /// `transform` and the tileset-wide extras); otherwise the external tileset of that chunk.
-pub fn chunk_tileset(info: &TilesetInfo, chunk: &IndexChunk, root: bool) -> Result<Value, Tiles3dError> {
+///
+/// The tree's geometric errors never grow downwards (3D Tiles: a child's error is at most its
+/// parent's): a point level is listed in its node's chain only when its error is at most what
+/// the tile above allows and at least its mesh's (a level finer than its own mesh would have to
+/// hang below it, above the children, which are finer still); a mesh whose measured error is
+/// above its parent's is listed with its parent's (rare: a child is measured against the same
+/// samples with half the bound): a mesh is listed with the least mesh error on its path from
+/// the root. `cap` is that of the chunk root's parent ([`path_cap`]; infinite for the root
+/// chunk).
+pub fn chunk_tileset(
+    info: &TilesetInfo,
+    chunk: &IndexChunk,
+    root: bool,
+    cap: f64,
+) -> Result<Value, Tiles3dError> {
     let nodes: std::collections::HashMap<TileKey, &NodeEntry> =
         chunk.nodes.iter().map(|n| (n.key, n)).collect();
     let pre = prefix(root);
-    let mut tile = match node_tiles(info, &nodes, chunk.root, chunk.root, pre)? {
+    let mut tile = match node_tiles(info, &nodes, chunk.root, chunk.root, pre, cap)? {
         Some(t) => t,
         None => {
             json!({ "boundingVolume": info.place.bounding_volume(&info.manifest.bounds)?, "geometricError": 0.0 })
@@ -191,13 +205,36 @@ pub fn chunk_tileset(info: &TilesetInfo, chunk: &IndexChunk, root: bool) -> Resu
     Ok(json!({ "asset": asset, "geometricError": geometric_error, "root": tile }))
 }
 
-/// The chain of tiles of node `key` (coarsest level first), with its children below level 0.
+/// The geometric error a node's mesh tile is listed with before the cap of its path: its
+/// measured error plus what placing it on the Earth adds.
+fn mesh_error(info: &TilesetInfo, node: &NodeEntry) -> f64 {
+    node.levels.first().map_or(0.0, |l| l.errors.geometric()) + info.place.position_error(&node.bounds)
+}
+
+/// The error the mesh tile of the last of `path` (nodes from the root down, each the parent of
+/// the next) is listed with: the least mesh error on the path. An external tileset rooted at a
+/// child of that node passes it to [`chunk_tileset`]. Nodes of the path that are not baked yet
+/// (an on-demand tileset) stand in with their planned entries.
+#[must_use]
+pub fn path_cap(info: &TilesetInfo, path: &[NodeEntry]) -> f64 {
+    path.iter().map(|n| mesh_error(info, n)).fold(f64::INFINITY, f64::min)
+}
+
+/// The entry an on-demand tileset lists for a node it has not baked yet.
+#[must_use]
+pub fn planned_entry(info: &TilesetInfo, key: TileKey) -> Option<NodeEntry> {
+    info.planned_node(key)
+}
+
+/// The chain of tiles of node `key` (coarsest level first), with its children below level 0;
+/// no tile's geometric error above `cap` (the tile above it).
 fn node_tiles(
     info: &TilesetInfo,
     nodes: &std::collections::HashMap<TileKey, &NodeEntry>,
     chunk: TileKey,
     key: TileKey,
     pre: &str,
+    cap: f64,
 ) -> Result<Option<Value>, Tiles3dError> {
     let planned;
     let (node, provisional) = match nodes.get(&key) {
@@ -209,31 +246,49 @@ fn node_tiles(
         }
         None => return Ok(None),
     };
+    // The chain from the top: coarse point levels whose errors fall from `cap` to the mesh's,
+    // then the mesh. A point level without points (a node whose surface no slice hit) has no
+    // content a client could draw: an empty glTF is not valid glTF, so the chain skips it.
+    let Some(mesh) = node.levels.first() else { return Ok(None) };
+    let error_of = |l: &NodeLevel| l.errors.geometric() + info.place.position_error(&node.bounds);
+    let mesh_error = mesh_error(info, node);
+    let mut chain: Vec<(&NodeLevel, f64)> = Vec::new();
+    let mut above = cap;
+    for l in node.levels.iter().skip(1).rev().filter(|l| l.count > 0) {
+        let e = error_of(l);
+        if e <= above && e >= mesh_error {
+            chain.push((l, e));
+            above = e;
+        }
+    }
+    let mesh_listed = mesh_error.min(above);
+    chain.push((mesh, mesh_listed));
+
     let last = key.z >= chunk.z.saturating_add(SUBTREE_LEVELS - 1);
     let mut children = Vec::new();
     for c in info.children(key) {
         if last {
-            children.push(reference_tile(info, node, c, pre)?);
-        } else if let Some(t) = node_tiles(info, nodes, chunk, c, pre)? {
+            children.push(reference_tile(info, node, c, pre, mesh_listed)?);
+        } else if let Some(t) = node_tiles(info, nodes, chunk, c, pre, mesh_listed)? {
             children.push(t);
         }
     }
     let mut below = children;
     let mut head = None;
-    // A point level without points (a node whose surface no slice hit) has no content a client
-    // could draw: an empty glTF is not valid glTF, so the chain skips it.
-    for l in node.levels.iter().filter(|l| l.level == 0 || l.count > 0) {
-        let t = level_tile(info, node, l, std::mem::take(&mut below), pre, provisional)?;
+    for &(l, e) in chain.iter().rev() {
+        let t = level_tile(info, node, l, e, std::mem::take(&mut below), pre, provisional)?;
         below = vec![t.clone()];
         head = Some(t);
     }
     Ok(head)
 }
 
+#[allow(clippy::too_many_arguments)]
 fn level_tile(
     info: &TilesetInfo,
     node: &NodeEntry,
     l: &NodeLevel,
+    geometric_error: f64,
     children: Vec<Value>,
     pre: &str,
     provisional: bool,
@@ -267,7 +322,7 @@ fn level_tile(
     }
     let mut t = json!({
         "boundingVolume": info.place.bounding_volume(&b)?,
-        "geometricError": l.errors.geometric() + info.place.position_error(&node.bounds),
+        "geometricError": geometric_error,
         "refine": "REPLACE",
         "content": { "uri": format!("{pre}tiles/{}/{}/{}/{}.glb{}", key.z, key.x, key.y, l.level, info.query) },
         "extras": { "terrastream": extras },
@@ -280,12 +335,13 @@ fn level_tile(
 
 /// A tile standing for the subtree of `child` (a chunk root below this chunk): its content is
 /// that chunk's external tileset. Its box is the child's extent at the dataset's height range
-/// and its error the parent's mesh error (the chunk file says the rest).
+/// and its error the parent's mesh tile's, `error` (the chunk file says the rest).
 fn reference_tile(
     info: &TilesetInfo,
     parent: &NodeEntry,
     child: TileKey,
     pre: &str,
+    error: f64,
 ) -> Result<Value, Tiles3dError> {
     let mut b = info.planned_bounds(child);
     let parent_error = parent.levels.first().map_or(0.0, |l| l.errors.max);
@@ -293,7 +349,7 @@ fn reference_tile(
     b.max.z = b.max.z.max(parent.bounds.max.z);
     Ok(json!({
         "boundingVolume": info.place.bounding_volume(&b)?,
-        "geometricError": parent.levels.first().map_or(0.0, |l| l.errors.geometric()),
+        "geometricError": error,
         "refine": "REPLACE",
         "content": { "uri": format!("{pre}index/{}/{}/{}.json{}", child.z, child.x, child.y, info.query) },
         "extras": { "terrastream": { "key": child.to_string(), "subtree": true } },
