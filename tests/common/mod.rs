@@ -204,6 +204,25 @@ pub fn assert_levels_pay(dir: &Path) -> (usize, usize, usize) {
     (nodes.len(), stored, left_out)
 }
 
+/// [`assert_tiles3d_monotone`]'s walk: `tile` and below, under a parent of error `cap`.
+fn walk_monotone(base: &Path, tile: &serde_json::Value, cap: f64, where_: &str, n: &mut usize) {
+    let e = tile["geometricError"].as_f64().unwrap();
+    assert!(
+        e <= cap * (1.0 + 1e-12) + 1e-12,
+        "{where_}: tile {} has geometricError {e} under a parent of {cap}",
+        tile["extras"]["terrastream"]
+    );
+    *n += 1;
+    if let Some(uri) = tile["content"]["uri"].as_str().filter(|u| u.ends_with(".json")) {
+        let doc: serde_json::Value = serde_json::from_slice(&std::fs::read(base.join(uri)).unwrap()).unwrap();
+        assert!(doc["geometricError"].as_f64().unwrap() <= e * (1.0 + 1e-12) + 1e-12, "{uri}");
+        walk_monotone(base, &doc["root"], e, uri, n);
+    }
+    for c in tile["children"].as_array().into_iter().flatten() {
+        walk_monotone(base, c, e, where_, n);
+    }
+}
+
 /// Exports the tileset in `dir` as 3D Tiles (the library's `export_3dtiles`, the documents the
 /// server sends) and asserts its error chain is monotone: on every path from the root, across
 /// external tilesets too, no tile's `geometricError` is above its parent's. Returns the tiles
@@ -213,28 +232,10 @@ pub fn assert_tiles3d_monotone(dir: &Path) -> usize {
     let out = tempfile::tempdir().unwrap();
     let out = out.path().join("3dtiles");
     terrastream::bake::export::export_3dtiles(&store, &out, None, &|_, _| {}).unwrap();
-    fn walk(base: &Path, tile: &serde_json::Value, cap: f64, where_: &str, n: &mut usize) {
-        let e = tile["geometricError"].as_f64().unwrap();
-        assert!(
-            e <= cap * (1.0 + 1e-12) + 1e-12,
-            "{where_}: tile {} has geometricError {e} under a parent of {cap}",
-            tile["extras"]["terrastream"]
-        );
-        *n += 1;
-        if let Some(uri) = tile["content"]["uri"].as_str().filter(|u| u.ends_with(".json")) {
-            let doc: serde_json::Value =
-                serde_json::from_slice(&std::fs::read(base.join(uri)).unwrap()).unwrap();
-            assert!(doc["geometricError"].as_f64().unwrap() <= e * (1.0 + 1e-12) + 1e-12, "{uri}");
-            walk(base, &doc["root"], e, uri, n);
-        }
-        for c in tile["children"].as_array().into_iter().flatten() {
-            walk(base, c, e, where_, n);
-        }
-    }
     let root: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
     let mut n = 0;
-    walk(&out, &root["root"], root["geometricError"].as_f64().unwrap(), "tileset.json", &mut n);
+    walk_monotone(&out, &root["root"], root["geometricError"].as_f64().unwrap(), "tileset.json", &mut n);
     n
 }
 

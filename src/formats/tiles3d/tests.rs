@@ -265,6 +265,16 @@ fn models_stand_on_their_base_at_the_anchor() {
     assert!(!place.mirrored());
 }
 
+/// Every tile under `t` (and `t`) has a geometric error at most its parent's (`cap`).
+fn walk_chain(t: &Value, cap: f64, n: &mut usize) {
+    let e = t["geometricError"].as_f64().unwrap();
+    assert!(e <= cap, "{e} under {cap}");
+    *n += 1;
+    for c in t["children"].as_array().into_iter().flatten() {
+        walk_chain(c, e, n);
+    }
+}
+
 /// The 3D Tiles chain stays monotone whatever the measured errors: a child mesh measured above
 /// its parent's, point levels finer than their own mesh, coarser than the tile above, out of
 /// order — a child's `geometricError` never exceeds its parent's, and a listed point level keeps
@@ -306,16 +316,8 @@ fn error_chain_is_monotone_for_any_measured_errors() {
         }
         let chunk = IndexChunk { root: TileKey::new(0, 0, 0), nodes: nodes.clone() };
         let doc = chunk_tileset(&info, &chunk, true, f64::INFINITY).unwrap();
-        fn walk(t: &Value, cap: f64, n: &mut usize) {
-            let e = t["geometricError"].as_f64().unwrap();
-            assert!(e <= cap, "{e} under {cap}");
-            *n += 1;
-            for c in t["children"].as_array().into_iter().flatten() {
-                walk(c, e, n);
-            }
-        }
         let mut n = 0;
-        walk(&doc["root"], f64::INFINITY, &mut n);
+        walk_chain(&doc["root"], f64::INFINITY, &mut n);
         assert!(n >= nodes.len());
     }
 }
