@@ -213,7 +213,9 @@ fn walk_monotone(base: &Path, tile: &serde_json::Value, cap: f64, where_: &str, 
         tile["extras"]["terrastream"]
     );
     *n += 1;
-    if let Some(uri) = tile["content"]["uri"].as_str().filter(|u| u.ends_with(".json")) {
+    if let Some(uri) =
+        tile["content"]["uri"].as_str().filter(|u| Path::new(u).extension().is_some_and(|x| x == "json"))
+    {
         let doc: serde_json::Value = serde_json::from_slice(&std::fs::read(base.join(uri)).unwrap()).unwrap();
         assert!(doc["geometricError"].as_f64().unwrap() <= e * (1.0 + 1e-12) + 1e-12, "{uri}");
         walk_monotone(base, &doc["root"], e, uri, n);
