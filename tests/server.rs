@@ -1357,7 +1357,7 @@ async fn point_levels_that_do_not_pay_are_404() {
             } else {
                 r.assert_problem(404);
                 let body = String::from_utf8_lossy(&r.body).into_owned();
-                assert!(body.contains("did not pay") && body.contains(&key.to_string()), "{body}");
+                assert!(body.contains("is not stored") && body.contains(&key.to_string()), "{body}");
                 missing += 1;
             }
         }

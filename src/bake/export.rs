@@ -46,8 +46,13 @@ pub fn export_tile(
     use crate::codec::{Geometry, decode};
     let path = store.blob_path(key, level);
     let Some(bytes) = store.read_blob(key, level)? else {
-        return Err(if store.is_unpaid(key, level)? {
-            crate::store::StoreError::LevelNotStored { path: store.dir().to_owned(), key, level }
+        return Err(if let Some(why) = store.unpaid_reason(key, level)? {
+            crate::store::StoreError::LevelNotStored {
+                path: store.dir().to_owned(),
+                key,
+                level,
+                why: why.describe(),
+            }
         } else {
             crate::store::StoreError::NoSuchTile { path: store.dir().to_owned(), key, level }
         }

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use terrastream::bake::model_tileset::{self, ModelLevelTable};
-use terrastream::store::{LevelTable, LevelTotals, Store, level_sets};
+use terrastream::store::{LevelTable, LevelTotals, NodeEntry, Store, level_sets, skipped_counts};
 use terrastream::tiling::Pyramid;
 use terrastream::tiling::TileKey;
 
@@ -67,10 +67,7 @@ pub fn run(a: &InspectArgs) -> Result<()> {
         outln!("{}", ModelLevelTable(&m.model.levels));
         outln!("{MODEL_LEGEND}");
         let nodes: Vec<_> = store.node(TileKey::new(0, 0, 0))?.into_iter().collect();
-        outln!("levels per node (a node stores only the levels that pay):");
-        for (set, n) in level_sets(&nodes) {
-            outln!("  {n:>7} nodes: levels {set:?}");
-        }
+        print_level_sets(&nodes);
         return Ok(());
     }
     if let Some(key) = tile {
@@ -89,6 +86,9 @@ pub fn run(a: &InspectArgs) -> Result<()> {
                 }
             }
             outln!("{}", LevelTable(&totals));
+            for sk in &node.skipped {
+                outln!("level {} not stored: {}", sk.level, sk.why.describe());
+            }
             outln!("{TERRAIN_LEGEND}");
         }
         return Ok(());
@@ -111,10 +111,22 @@ pub fn run(a: &InspectArgs) -> Result<()> {
         outln!("{TERRAIN_LEGEND}");
         let pyramid = Pyramid::new(manifest.source.width, manifest.source.height, manifest.tile_size)?;
         let nodes = store.all_nodes(&pyramid)?;
-        outln!("levels per node (a node stores only the levels that pay):");
-        for (set, n) in level_sets(&nodes) {
-            outln!("  {n:>7} nodes: levels {set:?}");
-        }
+        print_level_sets(&nodes);
     }
     Ok(())
+}
+
+/// Which levels the nodes store, and why the others are left out.
+fn print_level_sets(nodes: &[NodeEntry]) {
+    outln!("levels per node (a node stores only the levels that pay):");
+    for (set, n) in level_sets(nodes) {
+        outln!("  {n:>7} nodes: levels {set:?}");
+    }
+    let skipped = skipped_counts(nodes);
+    if !skipped.is_empty() {
+        outln!("levels left out (nodes, level, why):");
+        for ((level, why), n) in skipped {
+            outln!("  {n:>7} nodes: level {level}: {}", why.describe());
+        }
+    }
 }

@@ -261,9 +261,10 @@ pub(super) async fn load_blob(
                     })?;
                 if unpaid {
                     return Err(Problem::not_found(format!(
-                        "tile {key} has no level {level} in tileset {:?}: that level did not pay (it would \
-                         cost as many primitives or bytes as a finer level of the tile); its index entry \
-                         lists the levels it has",
+                        "tile {key} has no level {level} in tileset {:?}: that level is not stored (not \
+                         cheaper than a finer level of the tile, or too coarse for any screen-space selector \
+                         to choose below its parent); its index entry lists the levels it has and why the \
+                         others are left out",
                         ts.name
                     )));
                 }

@@ -95,10 +95,10 @@ pub enum StoreError {
     #[error("{path}: no tile {key} level {level} in this tileset")]
     NoSuchTile { path: PathBuf, key: TileKey, level: u8 },
     #[error(
-        "{path}: tile {key} does not store level {level}: it did not pay (it would cost as many primitives \
-         or bytes as a finer level); `terrastream inspect --tile {key}` lists the levels it has"
+        "{path}: tile {key} does not store level {level}: {why}; `terrastream inspect --tile {key}` lists the \
+         levels it has"
     )]
-    LevelNotStored { path: PathBuf, key: TileKey, level: u8 },
+    LevelNotStored { path: PathBuf, key: TileKey, level: u8, why: &'static str },
 }
 
 /// What a level is and how it was made.
@@ -381,7 +381,7 @@ impl std::fmt::Display for LevelTable<'_> {
         )?;
         for (l, t) in self.0.iter().enumerate() {
             if l > 0 && t.tiles == 0 {
-                write!(f, "\n{l:>5}  {:>6}  {:>7}  (not stored: it did not pay)", "points", 0)?;
+                write!(f, "\n{l:>5}  {:>6}  {:>7}  (not stored)", "points", 0)?;
                 continue;
             }
             write!(
@@ -412,6 +412,21 @@ pub fn level_sets<'a>(nodes: impl IntoIterator<Item = &'a NodeEntry>) -> Vec<(Ve
     }
     let mut out: Vec<(Vec<u8>, u64)> = sets.into_iter().collect();
     out.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+    out
+}
+
+/// How many nodes left out each level, by reason (from the index: a tileset indexed before
+/// reasons were kept counts none).
+#[must_use]
+pub fn skipped_counts<'a>(
+    nodes: impl IntoIterator<Item = &'a NodeEntry>,
+) -> std::collections::BTreeMap<(u8, SkipReason), u64> {
+    let mut out = std::collections::BTreeMap::new();
+    for n in nodes {
+        for s in &n.skipped {
+            *out.entry((s.level, s.why)).or_default() += 1;
+        }
+    }
     out
 }
 
