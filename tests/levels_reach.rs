@@ -140,9 +140,10 @@ fn figures(all: &Store, auto: &Store) -> (usize, usize, usize, usize) {
     let p = all_pyramid(all);
     let (na, nb) = (all.all_nodes(&p).unwrap(), auto.all_nodes(&p).unwrap());
     let points = |n: &[terrastream::store::NodeEntry]| n.iter().map(|e| e.levels.len() - 1).sum::<usize>();
+    let ladder: Vec<u8> = auto.manifest().unwrap().levels.iter().map(|l| l.level).collect();
     let unreachable = nb
         .iter()
-        .flat_map(|e| &e.skipped)
+        .flat_map(|e| terrastream::store::skipped_levels(auto, e, &ladder).unwrap())
         .filter(|s| matches!(s.why, SkipReason::Unreachable | SkipReason::PredictedUnreachable))
         .count();
     (na.len(), points(&na), points(&nb), unreachable)

@@ -414,13 +414,13 @@ pub fn bake_model(
             (nl, l.blob.clone())
         })
         .collect();
-    let (node_levels, skipped) = super::node::write_paying(store, MODEL_TILE, blobs)?;
+    let (node_levels, _) = super::node::write_paying(store, MODEL_TILE, blobs)?;
     for l in &mut levels {
         l.info.stored = node_levels.iter().any(|n| n.level == l.info.level);
     }
     store.write_chunk(&IndexChunk {
         root: MODEL_TILE,
-        nodes: vec![NodeEntry { key: MODEL_TILE, bounds, levels: node_levels.clone(), skipped }],
+        nodes: vec![NodeEntry { key: MODEL_TILE, bounds, levels: node_levels.clone() }],
     })?;
     let infos: Vec<ModelLevel> = levels.into_iter().map(|l| l.info).collect();
     let s = model.stats;

@@ -465,8 +465,8 @@ pub(super) fn write_node(
         }
         levels.push((level, kept));
     }
-    let (levels, skipped) = write_levels(store, key, levels)?;
-    Ok(NodeEntry { key, bounds: nm.bounds, levels, skipped })
+    let (levels, _) = write_levels(store, key, levels)?;
+    Ok(NodeEntry { key, bounds: nm.bounds, levels })
 }
 
 /// Writes the blobs of one node's levels that pay and the `unpaid` markers of the others;
@@ -528,14 +528,10 @@ fn write_levels(
 /// would only meet the same store.
 pub fn node_from_blobs(store: &Store, key: TileKey, levels: u8) -> Result<Option<NodeEntry>, StoreError> {
     let mut out = Vec::new();
-    let mut skipped = Vec::new();
     let mut bounds = None;
     for level in 0..=levels {
         let Some(bytes) = store.read_blob(key, level)? else {
-            if level > 0
-                && let Some(why) = store.unpaid_reason(key, level)?
-            {
-                skipped.push(SkippedLevel { level, why });
+            if level > 0 && store.is_unpaid(key, level)? {
                 continue;
             }
             return Ok(None);
@@ -565,12 +561,10 @@ pub fn node_from_blobs(store: &Store, key: TileKey, levels: u8) -> Result<Option
         // Blobs of a bake from before levels had to pay: mark the ones that do not.
         for (l, _) in out.iter().zip(&pays).filter(|(_, p)| !**p) {
             store.write_unpaid(key, l.level, SkipReason::Costlier)?;
-            skipped.push(SkippedLevel { level: l.level, why: SkipReason::Costlier });
         }
-        skipped.sort_by_key(|s| s.level);
         out = out.into_iter().zip(pays).filter(|(_, p)| *p).map(|(l, _)| l).collect();
     }
-    Ok(bounds.map(|bounds| NodeEntry { key, bounds, levels: out, skipped }))
+    Ok(bounds.map(|bounds| NodeEntry { key, bounds, levels: out }))
 }
 
 /// The largest power of two ≤ `v` (v > 0 and finite).
@@ -729,7 +723,9 @@ mod tests {
                     let clouds = PointBaker::Cpu.bake_levels(&nm.mesh, &plan.grids(&nm)).unwrap().0;
                     let entry = write_node(&nm, &plan, clouds.clone(), &sa).unwrap();
                     let (kept, skipped) = write_node_measuring_every_level(&nm, &plan, clouds, &sb);
-                    assert_eq!((&entry.levels, &entry.skipped), (&kept, &skipped), "{key}");
+                    assert_eq!(entry.levels, kept, "{key}");
+                    let ladder: Vec<u8> = (0..=opts.levels).collect();
+                    assert_eq!(store::skipped_levels(&sa, &entry, &ladder).unwrap(), skipped, "{key}");
                     parents.insert(key, ParentInfo::of_entry(&entry));
                     kept_points += kept.iter().filter(|l| l.level > 0).count();
                     for s in &skipped {

@@ -4,7 +4,9 @@ use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use terrastream::bake::model_tileset::{self, ModelLevelTable};
-use terrastream::store::{LevelTable, LevelTotals, NodeEntry, Store, level_sets, skipped_counts};
+use terrastream::store::{
+    LevelTable, LevelTotals, NodeEntry, Store, level_sets, skipped_counts, skipped_levels,
+};
 use terrastream::tiling::Pyramid;
 use terrastream::tiling::TileKey;
 
@@ -67,7 +69,7 @@ pub fn run(a: &InspectArgs) -> Result<()> {
         outln!("{}", ModelLevelTable(&m.model.levels));
         outln!("{MODEL_LEGEND}");
         let nodes: Vec<_> = store.node(TileKey::new(0, 0, 0))?.into_iter().collect();
-        print_level_sets(&nodes);
+        print_level_sets(&store, &nodes, &m.model.levels.iter().map(|l| l.level).collect::<Vec<u8>>())?;
         return Ok(());
     }
     if let Some(key) = tile {
@@ -86,7 +88,8 @@ pub fn run(a: &InspectArgs) -> Result<()> {
                 }
             }
             outln!("{}", LevelTable(&totals));
-            for sk in &node.skipped {
+            let ladder: Vec<u8> = manifest.levels.iter().map(|l| l.level).collect();
+            for sk in skipped_levels(&store, &node, &ladder)? {
                 outln!("level {} not stored: {}", sk.level, sk.why.describe());
             }
             outln!("{TERRAIN_LEGEND}");
@@ -111,22 +114,23 @@ pub fn run(a: &InspectArgs) -> Result<()> {
         outln!("{TERRAIN_LEGEND}");
         let pyramid = Pyramid::new(manifest.source.width, manifest.source.height, manifest.tile_size)?;
         let nodes = store.all_nodes(&pyramid)?;
-        print_level_sets(&nodes);
+        print_level_sets(&store, &nodes, &manifest.levels.iter().map(|l| l.level).collect::<Vec<u8>>())?;
     }
     Ok(())
 }
 
-/// Which levels the nodes store, and why the others are left out.
-fn print_level_sets(nodes: &[NodeEntry]) {
+/// Which levels the nodes store, and why the others of `ladder` are left out (their markers).
+fn print_level_sets(store: &Store, nodes: &[NodeEntry], ladder: &[u8]) -> Result<()> {
     outln!("levels per node (a node stores only the levels that pay):");
     for (set, n) in level_sets(nodes) {
         outln!("  {n:>7} nodes: levels {set:?}");
     }
-    let skipped = skipped_counts(nodes);
+    let skipped = skipped_counts(store, nodes, ladder)?;
     if !skipped.is_empty() {
         outln!("levels left out (nodes, level, why):");
         for ((level, why), n) in skipped {
             outln!("  {n:>7} nodes: level {level}: {}", why.describe());
         }
     }
+    Ok(())
 }

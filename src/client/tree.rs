@@ -491,7 +491,6 @@ pub fn entry(key: TileKey, bounds: Bounds, errors: &[f64]) -> NodeEntry {
                 checksum: 0,
             })
             .collect(),
-        skipped: Vec::new(),
     }
 }
 

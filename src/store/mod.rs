@@ -151,14 +151,11 @@ pub struct NodeEntry {
     /// The levels this node stores, finest first: level 0 (the mesh) always, then the point
     /// levels that pay, by increasing id.
     pub levels: Vec<NodeLevel>,
-    /// The point levels of the ladder it does not store, and why (`inspect` shows them). Absent
-    /// in indexes written before reasons were kept.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub skipped: Vec<SkippedLevel>,
 }
 
-/// A point level a node does not store.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+/// A point level a node does not store, and why (its `unpaid` marker says so: the index, which
+/// clients stream, does not).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SkippedLevel {
     pub level: u8,
     pub why: SkipReason,
@@ -182,19 +179,19 @@ pub enum SkipReason {
 }
 
 impl SkipReason {
-    /// The marker's text (`tiles/{z}/{x}/{y}/{level}.unpaid`; empty in older tilesets).
+    /// The marker's text (`tiles/{z}/{x}/{y}/{level}.unpaid`): empty for `Costlier`, as every
+    /// marker was before reasons were kept (so `--point-levels all` writes what it always wrote).
     #[must_use]
     pub fn as_str(self) -> &'static str {
         match self {
-            Self::Costlier => "costlier",
+            Self::Costlier => "",
             Self::Unreachable => "unreachable",
             Self::PredictedUnreachable => "predicted-unreachable",
             Self::Policy => "policy",
         }
     }
 
-    /// The reason a marker's bytes name; an empty (older) marker or unknown text is `Costlier`,
-    /// the only reason there was.
+    /// The reason a marker's bytes name; an empty marker or unknown text is `Costlier`.
     #[must_use]
     pub fn from_marker(bytes: &[u8]) -> Self {
         [Self::Unreachable, Self::PredictedUnreachable, Self::Policy]
@@ -243,8 +240,6 @@ struct RawNodeEntry {
     key: TileKey,
     bounds: Bounds,
     levels: Vec<NodeLevel>,
-    #[serde(default)]
-    skipped: Vec<SkippedLevel>,
 }
 
 /// Why an index entry's levels are not a node's: the JSON reader reports it with its position.
@@ -264,7 +259,7 @@ pub enum NodeEntryError {
 impl TryFrom<RawNodeEntry> for NodeEntry {
     type Error = NodeEntryError;
     fn try_from(raw: RawNodeEntry) -> Result<Self, NodeEntryError> {
-        let RawNodeEntry { key, bounds, mut levels, skipped } = raw;
+        let RawNodeEntry { key, bounds, mut levels } = raw;
         let unnumbered = levels.iter().filter(|l| l.level == UNNUMBERED).count();
         if unnumbered == levels.len() {
             if levels.len() > usize::from(UNNUMBERED) {
@@ -282,7 +277,7 @@ impl TryFrom<RawNodeEntry> for NodeEntry {
         if let Some(w) = levels.windows(2).find(|w| w[1].level <= w[0].level) {
             return Err(NodeEntryError::IdsNotIncreasing { key, level: w[1].level, after: w[0].level });
         }
-        Ok(Self { key, bounds, levels, skipped })
+        Ok(Self { key, bounds, levels })
     }
 }
 
@@ -415,19 +410,35 @@ pub fn level_sets<'a>(nodes: impl IntoIterator<Item = &'a NodeEntry>) -> Vec<(Ve
     out
 }
 
-/// How many nodes left out each level, by reason (from the index: a tileset indexed before
-/// reasons were kept counts none).
-#[must_use]
+/// The point levels of `ladder` (level ids) that `node` does not store, and why (from their
+/// `unpaid` markers; a level with neither blob nor marker is not listed).
+pub fn skipped_levels(
+    store: &Store,
+    node: &NodeEntry,
+    ladder: &[u8],
+) -> Result<Vec<SkippedLevel>, StoreError> {
+    let mut out = Vec::new();
+    for &level in ladder.iter().filter(|&&l| l > 0 && node.level(l).is_none()) {
+        if let Some(why) = store.unpaid_reason(node.key, level)? {
+            out.push(SkippedLevel { level, why });
+        }
+    }
+    Ok(out)
+}
+
+/// How many nodes left out each level, by reason ([`skipped_levels`]).
 pub fn skipped_counts<'a>(
+    store: &Store,
     nodes: impl IntoIterator<Item = &'a NodeEntry>,
-) -> std::collections::BTreeMap<(u8, SkipReason), u64> {
+    ladder: &[u8],
+) -> Result<std::collections::BTreeMap<(u8, SkipReason), u64>, StoreError> {
     let mut out = std::collections::BTreeMap::new();
     for n in nodes {
-        for s in &n.skipped {
+        for s in skipped_levels(store, n, ladder)? {
             *out.entry((s.level, s.why)).or_default() += 1;
         }
     }
-    out
+    Ok(out)
 }
 
 impl LevelTotals {
@@ -928,8 +939,9 @@ impl Store {
         let rel = unpaid_rel(key, level);
         match self.backend.size(&rel)? {
             None => Ok(None),
-            // A marker is a word: a larger file is not read, and counts as the oldest reason.
-            Some(n) if n > 64 => Ok(Some(SkipReason::Costlier)),
+            // A marker is a word: an empty one (the cheaper-only rule's) or a larger file is not
+            // read.
+            Some(n) if n == 0 || n > 64 => Ok(Some(SkipReason::Costlier)),
             Some(_) => Ok(self.get(&rel)?.map(|b| SkipReason::from_marker(&b))),
         }
     }

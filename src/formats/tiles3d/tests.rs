@@ -312,7 +312,7 @@ fn error_chain_is_monotone_for_any_measured_errors() {
                 ((seed >> 33) % 100) as f64
             };
             let levels = (0..4).map(|l| level(l, next())).collect();
-            nodes.push(NodeEntry { key, bounds: info.planned_bounds(key), levels, skipped: Vec::new() });
+            nodes.push(NodeEntry { key, bounds: info.planned_bounds(key), levels });
         }
         let chunk = IndexChunk { root: TileKey::new(0, 0, 0), nodes: nodes.clone() };
         let doc = chunk_tileset(&info, &chunk, true, f64::INFINITY).unwrap();

@@ -124,7 +124,6 @@ impl TilesetInfo {
                 bytes: 0,
                 checksum: 0,
             }],
-            skipped: Vec::new(),
         })
     }
 
