@@ -16,7 +16,7 @@ use axum::extract::Request;
 use axum::response::Response;
 use http_body_util::BodyExt;
 use libfuzzer_sys::fuzz_target;
-use terrastream::bake::{BakeOptions, NoProgress};
+use terrastream::bake::{BakeOptions, NoProgress, PointLevels};
 use terrastream::lod::GpuMode;
 use terrastream::raster::{Georef, Heightfield, LoadedRaster};
 use terrastream::server::{Config, Server};
@@ -54,7 +54,7 @@ fn setup() -> State {
         nodata_fallback: 0,
         format: "synthetic".into(),
     };
-    let opts = BakeOptions { tile_size: 32, max_error: 2.0, levels: 2 };
+    let opts = BakeOptions { tile_size: 32, max_error: 2.0, levels: 2, point_levels: PointLevels::All };
     let demo = dir.path().join("demo");
     terrastream::bake::bake_terrain(
         &raster,
