@@ -11,7 +11,8 @@
 //!
 //! `lod_throughput [RASTER | --model PATH | --sphere N] [--tile-size N] [--levels K]
 //! [--max-error E] [--gpu-budget-mib M] [--repeat R]` (R GPU bakes of the same jobs, figures
-//! averaged) prints one line per path, the GPU path's host work
+//! averaged; each GPU bake returns point clouds, as `bake` and the model bake take them,
+//! `GpuBaker::bake_clouds`) prints one line per path, the GPU path's host work
 //! (`BatchReport`: host seconds per million points by phase, bytes up and down per point,
 //! submissions and dispatches per batch), the CPU time of the host threads (this one and
 //! rayon's, from `/proc`: what the host spent, lavapipe's threads left out) and one JSON line with all the figures (`*_cpu_s`:
@@ -194,7 +195,7 @@ fn main() -> anyhow::Result<()> {
     let mut report = BatchReport::default();
     let mut gpu_out = Vec::new();
     for _ in 0..repeat {
-        let (out, r) = gpu.bake_jobs(&jobs, &lod)?;
+        let (out, r) = gpu.bake_clouds(&jobs, &lod)?;
         report.merge(&r);
         gpu_out = out;
     }
@@ -202,7 +203,7 @@ fn main() -> anyhow::Result<()> {
     let gpu_s = t.elapsed().as_secs_f64() / runs;
     let gpu_cpu_s = (process_cpu_s() - c) / runs;
     let host_cpu_s = (threads_cpu_s(&ids) - h) / runs;
-    let gpu_points: usize = gpu_out.iter().map(|(c, _)| c.len()).sum();
+    let gpu_points: usize = gpu_out.iter().map(|(c, _)| c.positions.len()).sum();
 
     let nodes = nodes as f64;
     let threads = rayon::current_num_threads();

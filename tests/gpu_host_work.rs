@@ -80,3 +80,31 @@ fn mesh_goes_up_once_and_only_the_points_come_back() {
         assert!(g.len().abs_diff(c.len()) <= 1 + c.len() / 200, "{} vs {}", g.len(), c.len());
     }
 }
+
+/// The bake's form (`bake_clouds`, written straight from the read-back) holds exactly the
+/// cells' positions and normals, in their order, with the same statistics and the same
+/// transfers.
+#[test]
+fn clouds_are_the_cells_positions_and_normals() {
+    let Some(gpu) = baker() else { return };
+    let meshes = [terrain(50), terrain(33)];
+    let jobs: Vec<LevelJob<'_>> = meshes
+        .iter()
+        .flat_map(|m| {
+            [6.0, 12.0, 40.0].map(move |cell| LevelJob { mesh: m, origin: [-7.0, -3.0, -80.0], cell })
+        })
+        .collect();
+    let opts = SliceOptions::default();
+    let (cells, rc) = gpu.bake_jobs(&jobs, &opts).unwrap();
+    let (clouds, rp) = gpu.bake_clouds(&jobs, &opts).unwrap();
+    assert_eq!((rc.points, rc.batches, rc.bytes_read_back), (rp.points, rp.batches, rp.bytes_read_back));
+    assert_eq!(cells.len(), clouds.len());
+    let mut total = 0;
+    for ((c, cs), (p, ps)) in cells.iter().zip(&clouds) {
+        assert_eq!(cs, ps);
+        assert_eq!(p.positions, c.iter().map(|x| x.position).collect::<Vec<_>>());
+        assert_eq!(p.normals, c.iter().map(|x| x.normal).collect::<Vec<_>>());
+        total += p.positions.len();
+    }
+    assert!(total > 1000, "{total} points");
+}

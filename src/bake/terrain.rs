@@ -382,10 +382,10 @@ pub(crate) fn bake_nodes(
     let mut entries = resumed;
     #[cfg(feature = "gpu")]
     let mut gpu_report: Option<lod::gpu::BatchReport> = None;
-    // Depth by depth, root first: with `--point-levels auto` a node's levels depend on its
-    // parent's mesh, which is then done. Within a depth, larger nodes first would not matter:
-    // they are all alike.
-    for depth in depth_groups(nodes, &entries) {
+    // With `--point-levels auto`, depth by depth, root first: a node's levels depend on its
+    // parent's mesh, which is then done. Other policies need no parent: one group, so the
+    // nodes of every depth share the threads (and the GPU's batches).
+    for depth in depth_groups(nodes, &entries, parents.auto) {
         match baker {
             PointBaker::Cpu => {
                 bake_nodes_cpu(pyramid, input, opts, nodes, &depth, &parents, &mut entries, store, progress)?;
@@ -426,12 +426,13 @@ pub(crate) fn bake_nodes(
     Ok(NodesBaked { entries, resumed: resumed_count, gpu_report })
 }
 
-/// The indices of `nodes` still to bake, grouped by depth, shallowest first.
-fn depth_groups(nodes: &[TileKey], entries: &[Option<NodeEntry>]) -> Vec<Vec<usize>> {
+/// The indices of `nodes` still to bake: grouped by depth, shallowest first, when `by_depth`,
+/// else one group in the order of `nodes`.
+fn depth_groups(nodes: &[TileKey], entries: &[Option<NodeEntry>], by_depth: bool) -> Vec<Vec<usize>> {
     let mut groups: std::collections::BTreeMap<u8, Vec<usize>> = std::collections::BTreeMap::new();
     for (i, k) in nodes.iter().enumerate() {
         if entries[i].is_none() {
-            groups.entry(k.z).or_default().push(i);
+            groups.entry(if by_depth { k.z } else { 0 }).or_default().push(i);
         }
     }
     groups.into_values().collect()
@@ -645,8 +646,8 @@ fn bake_nodes_gpu(
             })
             .collect();
         let (results, rep) =
-            gpu.bake_jobs(&jobs, &lod::cpu::SliceOptions::default()).map_err(lod::BakerError::from)?;
-        let clouds = results.into_iter().map(|(cells, _)| lod::cells_to_cloud(&cells)).collect();
+            gpu.bake_clouds(&jobs, &lod::cpu::SliceOptions::default()).map_err(lod::BakerError::from)?;
+        let clouds = results.into_iter().map(|(cloud, _)| cloud).collect();
         Ok((clouds, rep))
     };
     std::thread::scope(|scope| -> Result<(), BakeError> {

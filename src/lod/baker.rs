@@ -93,8 +93,8 @@ impl PointBaker {
             Self::Gpu(gpu) => {
                 let jobs: Vec<gpu::LevelJob<'_>> =
                     grids.iter().map(|&(origin, cell)| gpu::LevelJob { mesh, origin, cell }).collect();
-                let (results, rep) = gpu.bake_jobs(&jobs, &cpu::SliceOptions::default())?;
-                let clouds = results.into_iter().map(|(cells, _)| cells_to_cloud(&cells)).collect();
+                let (results, rep) = gpu.bake_clouds(&jobs, &cpu::SliceOptions::default())?;
+                let clouds = results.into_iter().map(|(cloud, _)| cloud).collect();
                 Ok((clouds, Some([rep.batches, rep.peak_batch_bytes, rep.budget_bytes, rep.cpu_jobs])))
             }
         }
@@ -117,8 +117,8 @@ impl PointBaker {
             Self::Gpu(gpu) => {
                 let jobs: Vec<gpu::LevelJob<'_>> =
                     grids.iter().map(|&(origin, cell)| gpu::LevelJob { mesh, origin, cell }).collect();
-                let (results, _) = gpu.bake_jobs(&jobs, &cpu::SliceOptions::default())?;
-                Ok(results.into_iter().map(|(cells, stats)| (cells_to_cloud(&cells), stats)).collect())
+                let (results, _) = gpu.bake_clouds(&jobs, &cpu::SliceOptions::default())?;
+                Ok(results)
             }
         }
     }
@@ -143,13 +143,4 @@ pub enum BakerError {
     #[cfg(feature = "gpu")]
     #[error(transparent)]
     Gpu(#[from] crate::gpu::GpuError),
-}
-
-/// The GPU's baked cells as a point cloud.
-#[cfg(feature = "gpu")]
-pub(crate) fn cells_to_cloud(cells: &[cpu::BakedCell]) -> PointCloud {
-    PointCloud {
-        positions: cells.iter().map(|c| c.position).collect(),
-        normals: cells.iter().map(|c| c.normal).collect(),
-    }
 }

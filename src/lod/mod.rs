@@ -11,6 +11,4 @@ pub mod measure;
 pub mod reach;
 pub use footprint::{MODEL_FOOTPRINT_HALF, TERRAIN_FOOTPRINT_HALF};
 
-#[cfg(feature = "gpu")]
-pub(crate) use baker::cells_to_cloud;
 pub use baker::{BakerError, DEFAULT_GPU_BUDGET_MIB, GpuMode, PointBaker};

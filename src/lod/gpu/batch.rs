@@ -13,10 +13,10 @@ use super::BatchReport;
 use super::prepare::{MeshPrep, check, convert};
 use super::{
     BATCH_OVERHEAD, BINDINGS, COLUMN_BYTES, COLUMNS, COUNTER_WORDS, Decoded, FILL, GpuBaker, GpuError,
-    GpuJob, GpuLevel, GpuParams, InFlight, LEVEL_STRIDE, LIST_BYTES, LevelJob, MAX_GROUPS_X, N_POOLED,
-    P_BITMAP, P_COLUMNS, P_COUNTERS, P_LIST, P_OUT, P_SCAN, P_STAGING, P_TABLE, P_TRIS, P_VERTS, PLACE,
-    POINT_BYTES, POOL_SETS, POOLED, Prepared, RASTER, SCAN, SCAN_ADD, SCAN_BLOCK, SCAN_ROWS, SLOT_BYTES,
-    WORKGROUP, busy_s, timed,
+    GpuJob, GpuLevel, GpuParams, InFlight, JobOutput, LEVEL_STRIDE, LIST_BYTES, LevelJob, MAX_GROUPS_X,
+    N_POOLED, P_BITMAP, P_COLUMNS, P_COUNTERS, P_LIST, P_OUT, P_SCAN, P_STAGING, P_TABLE, P_TRIS, P_VERTS,
+    PLACE, POINT_BYTES, POOL_SETS, POOLED, Prepared, RASTER, SCAN, SCAN_ADD, SCAN_BLOCK, SCAN_ROWS,
+    SLOT_BYTES, WORKGROUP, busy_s, timed,
 };
 
 /// Running sizes of a batch being packed, in items of each buffer.
@@ -362,12 +362,12 @@ impl GpuBaker {
 
     /// Waits for a batch's counters, copies exactly its points (already in their final order)
     /// to the read-back buffer, and turns each job's into the reference's cells.
-    pub(super) fn finish(
+    pub(super) fn finish<O: JobOutput>(
         &self,
         f: InFlight,
         jobs: &[LevelJob<'_>],
         report: &mut BatchReport,
-    ) -> Result<Vec<(Prepared, Decoded)>, GpuError> {
+    ) -> Result<Vec<(Prepared, Decoded<O>)>, GpuError> {
         let t = Instant::now();
         self.wait(&f.mapped)?;
         report.wait_s += t.elapsed().as_secs_f64();
@@ -420,7 +420,7 @@ impl GpuBaker {
             report.points += total;
         }
         let t = Instant::now();
-        let out: Vec<(Prepared, Decoded)> = {
+        let out: Vec<(Prepared, Decoded<O>)> = {
             let view = (points_bytes > 0)
                 .then(|| staging.slice(f.counters_bytes..f.counters_bytes + points_bytes).get_mapped_range())
                 .transpose()

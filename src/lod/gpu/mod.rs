@@ -53,8 +53,9 @@
 //! The host maps the counters (each job's list length, overflows, fragment and fill counts),
 //! checks each job, then submits one copy of exactly the batch's points and maps them: no
 //! room, no table, nothing per cell but the points themselves (32 bytes each). Turning a
-//! point into the caller's [`BakedCell`] is an integer add and a multiply-add per axis (the
-//! f64 grid of the job): no sort, no division, no square root on the host. Positions differ
+//! point into the caller's [`PointCloud`] (or, for parity checks, [`BakedCell`]) is an integer
+//! add and a multiply-add per axis (the f64 grid of the job): no sort, no division, no square
+//! root on the host, and no intermediate copy. Positions differ
 //! from the reference's by at most 2^-17 cell (the fixed-point rounding), normals by the f32
 //! normalisation; the bars are ≥ 99.5 % of cells agreeing and 1/1000 cell.
 //!
@@ -101,7 +102,7 @@ mod prepare;
 use prepare::{MeshPrep, prepare_job, prepare_mesh};
 
 use super::cpu::{BakeStats, BakedCell, MAX_GRID_COORD, NORMAL_FRACTION_BITS, SliceOptions};
-use crate::geom::Mesh;
+use crate::geom::{Mesh, PointCloud};
 use crate::gpu::{GpuError, open};
 
 /// Default GPU memory budget of one batch, in MiB.
@@ -343,8 +344,99 @@ pub struct GpuLevel {
     pub pad: u32,
 }
 
-/// One job's output: what [`super::cpu::bake_cells`] returns.
+/// One job's output in the reference's form: what [`super::cpu::bake_cells`] returns.
 pub type JobResult = (Vec<BakedCell>, BakeStats);
+
+/// What a job's points are returned as: the reference's cells ([`BakedCell`], in the order
+/// and form [`super::cpu::bake_cells`] gives them, which parity tests compare) or a
+/// [`PointCloud`], the bake's own output, written straight from the read-back (36 bytes a
+/// point, no 64-byte cell between).
+pub trait JobOutput: Sized + Send + sealed::Sealed {
+    /// A job's read-back points (8 words each, see `shaders/bake/place.wgsl`).
+    #[doc(hidden)]
+    fn decode(d: &PointDecode, points: &[u32]) -> Self;
+    /// A job baked by the CPU reference.
+    #[doc(hidden)]
+    fn from_cells(cells: Vec<BakedCell>) -> Self;
+}
+
+mod sealed {
+    pub trait Sealed {}
+    impl Sealed for Vec<super::BakedCell> {}
+    impl Sealed for crate::geom::PointCloud {}
+}
+
+/// A job's grid, to turn its read-back points into world positions: the local cell and the
+/// fixed-point position move to the job's grid (an integer add and a multiply-add per axis).
+#[doc(hidden)]
+pub struct PointDecode {
+    base: [i32; 3],
+    basef: [f64; 3],
+    origin: [f64; 3],
+    cell: f64,
+}
+
+impl PointDecode {
+    #[inline]
+    fn position(&self, r: &[u32]) -> [f64; 3] {
+        let scale = 1.0 / POS_ONE;
+        let (o, b, cell) = (self.origin, self.basef, self.cell);
+        [
+            o[0] + (b[0] + f64::from(r[2]) * scale) * cell,
+            o[1] + (b[1] + f64::from(r[3]) * scale) * cell,
+            o[2] + (b[2] + f64::from(r[4]) * scale) * cell,
+        ]
+    }
+}
+
+#[inline]
+fn point_normal(r: &[u32]) -> [f32; 3] {
+    [f32::from_bits(r[5]), f32::from_bits(r[6]), f32::from_bits(r[7])]
+}
+
+impl JobOutput for Vec<BakedCell> {
+    fn decode(d: &PointDecode, points: &[u32]) -> Self {
+        let base = d.base;
+        points
+            .chunks_exact(8)
+            .map(|r| BakedCell {
+                index: [
+                    base[0] + (r[0] & 0xffff) as i32,
+                    base[1] + (r[0] >> 16) as i32,
+                    base[2] + (r[1] & 0xffff) as i32,
+                ],
+                position: d.position(r),
+                normal: point_normal(r),
+                samples: u64::from((r[1] & !FILL_BIT) >> 16),
+                filled: r[1] & FILL_BIT != 0,
+            })
+            .collect()
+    }
+
+    fn from_cells(cells: Vec<BakedCell>) -> Self {
+        cells
+    }
+}
+
+impl JobOutput for PointCloud {
+    fn decode(d: &PointDecode, points: &[u32]) -> Self {
+        let n = points.len() / 8;
+        let mut positions = Vec::with_capacity(n);
+        let mut normals = Vec::with_capacity(n);
+        for r in points.chunks_exact(8) {
+            positions.push(d.position(r));
+            normals.push(point_normal(r));
+        }
+        Self { positions, normals }
+    }
+
+    fn from_cells(cells: Vec<BakedCell>) -> Self {
+        Self {
+            positions: cells.iter().map(|c| c.position).collect(),
+            normals: cells.iter().map(|c| c.normal).collect(),
+        }
+    }
+}
 
 /// Why a job cannot go to the GPU.
 enum Unfit {
@@ -530,9 +622,28 @@ impl GpuBaker {
         jobs: &[LevelJob<'_>],
         options: &SliceOptions,
     ) -> Result<(Vec<JobResult>, BatchReport), GpuError> {
+        self.bake_jobs_as(jobs, options)
+    }
+
+    /// [`Self::bake_jobs`] with each job's points as a [`PointCloud`] (positions and normals,
+    /// the same values and order as the cells'): the bake's path.
+    pub fn bake_clouds(
+        &self,
+        jobs: &[LevelJob<'_>],
+        options: &SliceOptions,
+    ) -> Result<(Vec<(PointCloud, BakeStats)>, BatchReport), GpuError> {
+        self.bake_jobs_as(jobs, options)
+    }
+
+    /// [`Self::bake_jobs`] with the points as `O`.
+    pub fn bake_jobs_as<O: JobOutput>(
+        &self,
+        jobs: &[LevelJob<'_>],
+        options: &SliceOptions,
+    ) -> Result<(Vec<(O, BakeStats)>, BatchReport), GpuError> {
         let fill = options.fill_holes;
         let mut report = BatchReport { budget_bytes: self.budget, ..BatchReport::default() };
-        let mut results: Vec<Option<JobResult>> = vec![None; jobs.len()];
+        let mut results: Vec<Option<(O, BakeStats)>> = (0..jobs.len()).map(|_| None).collect();
 
         let t = Instant::now();
         // Busy time of the parallel parts, summed over items (so over threads).
@@ -563,7 +674,7 @@ impl GpuBaker {
             match p {
                 Ok(p) if self.fits_alone(&p, &meshes, fill) => queue.push_back(p),
                 Ok(_) | Err(Unfit::TooLarge) => cpu.push(n),
-                Err(Unfit::Empty(stats)) => results[n] = Some((Vec::new(), stats)),
+                Err(Unfit::Empty(stats)) => results[n] = Some((O::from_cells(Vec::new()), stats)),
             }
         }
         report.prepare_s += (seq + t.elapsed()).as_secs_f64() + busy_s(&busy);
@@ -608,9 +719,13 @@ impl GpuBaker {
                 break;
             }
         }
-        let cpu_results: Vec<(usize, JobResult)> = cpu
+        let cpu_results: Vec<(usize, (O, BakeStats))> = cpu
             .par_iter()
-            .map(|&n| (n, super::cpu::bake_cells(jobs[n].mesh, jobs[n].origin, jobs[n].cell, options)))
+            .map(|&n| {
+                let (cells, stats) =
+                    super::cpu::bake_cells(jobs[n].mesh, jobs[n].origin, jobs[n].cell, options);
+                (n, (O::from_cells(cells), stats))
+            })
             .collect();
         for (n, r) in cpu_results {
             results[n] = Some(r);
@@ -663,4 +778,4 @@ enum Redo {
 }
 
 /// A job's GPU result, or why it is not used.
-type Decoded = Result<JobResult, Redo>;
+type Decoded<O> = Result<(O, BakeStats), Redo>;

@@ -5,9 +5,9 @@
 //! already decoded and in their final order on the device, into the reference's output.
 
 use super::{
-    BakeStats, BakedCell, COLUMN_BYTES, COUNTER_WORDS, FILL_BIT, GpuJob, JobResult, LIST_BYTES, LevelJob,
-    MAX_EXTENT, MAX_GRID_COORD, NORMAL_FRACTION_BITS, POINT_BYTES, POS_ONE, Prepared, RETRY_GROWTH, Redo,
-    SCAN_BLOCK, SLOT_BYTES, Unfit,
+    BakeStats, COLUMN_BYTES, COUNTER_WORDS, GpuJob, JobOutput, LIST_BYTES, LevelJob, MAX_EXTENT,
+    MAX_GRID_COORD, NORMAL_FRACTION_BITS, POINT_BYTES, PointDecode, Prepared, RETRY_GROWTH, Redo, SCAN_BLOCK,
+    SLOT_BYTES, Unfit,
 };
 use crate::geom::Mesh;
 use glam::DVec3;
@@ -104,33 +104,20 @@ pub(super) fn check(p: &Prepared, counters: &[u32]) -> Result<BakeStats, Redo> {
     })
 }
 
-/// One job's points, decoded and ordered on the device (`shaders/bake/place.wgsl`), as the
-/// reference's cells: the local cell and the fixed-point position move to the job's grid (an
-/// integer add and a multiply-add per axis).
-pub(super) fn convert(p: &Prepared, job: &LevelJob<'_>, stats: BakeStats, points: &[u32]) -> JobResult {
-    let base = p.base.map(|b| b as i32);
-    let basef = p.base.map(|b| b as f64);
-    let (o, cell) = (job.origin, job.cell);
-    let scale = 1.0 / POS_ONE;
-    let cells = points
-        .chunks_exact(8)
-        .map(|r| BakedCell {
-            index: [
-                base[0] + (r[0] & 0xffff) as i32,
-                base[1] + (r[0] >> 16) as i32,
-                base[2] + (r[1] & 0xffff) as i32,
-            ],
-            position: [
-                o[0] + (basef[0] + f64::from(r[2]) * scale) * cell,
-                o[1] + (basef[1] + f64::from(r[3]) * scale) * cell,
-                o[2] + (basef[2] + f64::from(r[4]) * scale) * cell,
-            ],
-            normal: [f32::from_bits(r[5]), f32::from_bits(r[6]), f32::from_bits(r[7])],
-            samples: u64::from((r[1] & !FILL_BIT) >> 16),
-            filled: r[1] & FILL_BIT != 0,
-        })
-        .collect();
-    (cells, stats)
+/// One job's points, decoded and ordered on the device (`shaders/bake/place.wgsl`), as `O`.
+pub(super) fn convert<O: JobOutput>(
+    p: &Prepared,
+    job: &LevelJob<'_>,
+    stats: BakeStats,
+    points: &[u32],
+) -> (O, BakeStats) {
+    let d = PointDecode {
+        base: p.base.map(|b| b as i32),
+        basef: p.base.map(|b| b as f64),
+        origin: job.origin,
+        cell: job.cell,
+    };
+    (O::decode(&d, points), stats)
 }
 
 /// The per-mesh share (see the module doc).
