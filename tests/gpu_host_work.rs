@@ -108,3 +108,30 @@ fn clouds_are_the_cells_positions_and_normals() {
     }
     assert!(total > 1000, "{total} points");
 }
+
+/// A batch whose triangles exceed the adapter's largest storage binding (lavapipe's is
+/// 128 MiB: 5.6 M triangles) is rasterized in windows of triangles, one dispatch each: the
+/// points are exactly those of one window, and no job leaves the GPU.
+#[test]
+fn triangles_beyond_one_binding_are_rasterized_in_windows() {
+    let Some(gpu) = baker() else { return };
+    let Some(mut windowed) = baker() else { return };
+    // 768 bytes: 32 triangles a window, so the 2 × 40² + 2 × 25² triangles take 116 windows
+    // (jobs of one mesh straddle window ends).
+    windowed.set_triangle_window_bytes(768);
+    let meshes = [terrain(40), terrain(25)];
+    let jobs: Vec<LevelJob<'_>> = meshes
+        .iter()
+        .flat_map(|m| {
+            [5.0, 11.0, 30.0].map(move |cell| LevelJob { mesh: m, origin: [-2.0, -9.0, -60.0], cell })
+        })
+        .collect();
+    let opts = SliceOptions::default();
+    let (one, r1) = gpu.bake_jobs(&jobs, &opts).unwrap();
+    let (many, rw) = windowed.bake_jobs(&jobs, &opts).unwrap();
+    assert_eq!((rw.cpu_jobs, rw.retried_jobs, rw.batches), (0, 0, 1), "{rw:?}");
+    let tris: u64 = meshes.iter().map(|m| m.triangles.len() as u64).sum();
+    assert_eq!(rw.dispatches, r1.dispatches + tris.div_ceil(32) - 1, "{r1:?} {rw:?}");
+    assert_eq!(one, many);
+    assert!(one.iter().map(|(c, _)| c.len()).sum::<usize>() > 1000);
+}

@@ -8,7 +8,11 @@
 //                            reference specifies), so cell indices start at 0
 //   6  tris   storage, read  u32 × 6 per triangle of the job's mesh: vertex indices relative
 //                            to the mesh's first vertex, smallest first, then the quantized
-//                            normal (i32 bits)
+//                            normal (i32 bits); only the triangles of the dispatch's window
+//  11  tri_window uniform    the window: the batch's triangles `base .. base + count` are bound
+//                            at 6 (a batch whose triangles exceed the adapter's largest
+//                            storage binding is rasterized in several dispatches, one per
+//                            window; the other items return at once)
 //
 // Items: job.tri_count × 3 per job, item = axis × tri_count + triangle: neighbouring
 // invocations (one SIMD batch on llvmpipe) rasterize the same view, whose triangles have
@@ -17,6 +21,14 @@
 
 @group(0) @binding(5) var<storage, read> verts: array<f32>;
 @group(0) @binding(6) var<storage, read> tris: array<u32>;
+
+struct TriWindow {
+    base: u32,
+    count: u32,
+    pad0: u32,
+    pad1: u32,
+}
+@group(0) @binding(11) var<uniform> tri_window: TriWindow;
 
 struct Edge {
     p: vec2<f32>,
@@ -102,7 +114,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let job = jobs[j];
     let local = item - job.raster_start;
     let axis = local / job.tri_count;
-    let tb = (job.tri_start + local - axis * job.tri_count) * 6u;
+    let t = job.tri_start + local - axis * job.tri_count;
+    if t < tri_window.base || t - tri_window.base >= tri_window.count {
+        return;
+    }
+    let tb = (t - tri_window.base) * 6u;
     let g0 = vert(job, tris[tb]);
     let g1 = vert(job, tris[tb + 1u]);
     let g2 = vert(job, tris[tb + 2u]);

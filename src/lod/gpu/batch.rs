@@ -59,7 +59,8 @@ impl GpuBaker {
             && s.out * POINT_BYTES <= b
             && s.cols * COLUMN_BYTES <= b
             && s.verts * 12 <= b
-            && s.tris * 24 <= b
+            && s.tris * 24 <= self.max_buffer
+            && s.tris <= limit_items
             && s.bits * 4 <= b
             && s.scan * 4 <= b
             && s.slots.max(s.cols).max(s.bits).max(s.scan).max(s.verts * 3).max(s.out * 8) <= limit_items
@@ -183,6 +184,18 @@ impl GpuBaker {
             }
         }
         let scan_words = scan_words.max(2);
+        // The raster's triangle windows: the batch's triangles in runs that fit the adapter's
+        // largest storage binding, at offsets aligned for binding (768 bytes = 32 triangles is
+        // a multiple of every offset alignment WebGPU allows); usually one window.
+        let window_tris = (self.tri_window_bytes / 768 * 32).max(32);
+        let windows: Vec<(u64, u64, usize)> = (0..mesh_tris.div_ceil(window_tris).max(1))
+            .map(|w| {
+                let base = w * window_tris;
+                let count = window_tris.min(mesh_tris - base.min(mesh_tris));
+                levels.push(GpuLevel { src: base as u32, count: count as u32, dst: 0, pad: 0 });
+                (base, count, levels.len() - 1)
+            })
+            .collect();
         let params = GpuParams {
             n_jobs: gjobs.len() as u32,
             raster_items: raster as u32,
@@ -265,24 +278,33 @@ impl GpuBaker {
                 size: std::num::NonZeroU64::new(std::mem::size_of::<GpuLevel>() as u64),
             }),
         ];
-        let groups: Vec<wgpu::BindGroup> = BINDINGS
-            .iter()
-            .zip(&self.layouts)
-            .map(|(bindings, layout)| {
-                let entries: Vec<wgpu::BindGroupEntry<'_>> = bindings
-                    .iter()
-                    .map(|&(binding, _)| wgpu::BindGroupEntry {
-                        binding,
-                        resource: resources[binding as usize].clone(),
-                    })
-                    .collect();
-                d.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("lod::gpu batch"),
-                    layout,
-                    entries: &entries,
+        let group = |n: usize, tris: Option<(u64, u64)>| {
+            let entries: Vec<wgpu::BindGroupEntry<'_>> = BINDINGS[n]
+                .iter()
+                .map(|&(binding, _)| wgpu::BindGroupEntry {
+                    binding,
+                    resource: match tris.or(Some((windows[0].0, windows[0].1))) {
+                        Some((base, count)) if binding as usize == 6 => {
+                            wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                                buffer: &pooled[P_TRIS],
+                                offset: base * 24,
+                                size: std::num::NonZeroU64::new((count * 24).max(16)),
+                            })
+                        }
+                        _ => resources[binding as usize].clone(),
+                    },
                 })
+                .collect();
+            d.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("lod::gpu batch"),
+                layout: &self.layouts[n],
+                entries: &entries,
             })
-            .collect();
+        };
+        let groups: Vec<wgpu::BindGroup> = (0..BINDINGS.len()).map(|n| group(n, None)).collect();
+        // `groups` binds the first triangle window; one more raster group per further window.
+        let raster_groups: Vec<(wgpu::BindGroup, usize)> =
+            windows[1..].iter().map(|&(base, count, l)| (group(RASTER, Some((base, count))), l)).collect();
         let mut enc =
             d.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("lod::gpu batch") });
         // What the passes accumulate into starts at zero; the other buffers are written before
@@ -296,25 +318,32 @@ impl GpuBaker {
                 label: Some("bake"),
                 timestamp_writes: None,
             });
-            let mut run = |n: usize, level: Option<usize>, items: u64, per_group: u64| {
-                if items == 0 {
-                    return;
-                }
-                let wgs = items.div_ceil(per_group);
-                let x = wgs.min(u64::from(MAX_GROUPS_X));
-                let y = wgs.div_ceil(x);
-                pass.set_pipeline(&self.pipelines[n]);
-                match level {
-                    Some(l) => pass.set_bind_group(0, &groups[n], &[(l as u64 * LEVEL_STRIDE) as u32]),
-                    None => pass.set_bind_group(0, &groups[n], &[]),
-                }
-                pass.dispatch_workgroups(x as u32, y as u32, 1);
-                dispatches += 1;
-            };
+            let mut run_in =
+                |n: usize, group: &wgpu::BindGroup, level: Option<usize>, items: u64, per_group: u64| {
+                    if items == 0 {
+                        return;
+                    }
+                    let wgs = items.div_ceil(per_group);
+                    let x = wgs.min(u64::from(MAX_GROUPS_X));
+                    let y = wgs.div_ceil(x);
+                    pass.set_pipeline(&self.pipelines[n]);
+                    match level {
+                        Some(l) => pass.set_bind_group(0, group, &[(l as u64 * LEVEL_STRIDE) as u32]),
+                        None => pass.set_bind_group(0, group, &[]),
+                    }
+                    pass.dispatch_workgroups(x as u32, y as u32, 1);
+                    dispatches += 1;
+                };
             let wg = u64::from(WORKGROUP);
+            run_in(RASTER, &groups[RASTER], Some(windows[0].2), raster, wg);
+            for (g, l) in &raster_groups {
+                run_in(RASTER, g, Some(*l), raster, wg);
+            }
+            let mut run = |n: usize, level: Option<usize>, items: u64, per_group: u64| {
+                run_in(n, &groups[n], level, items, per_group);
+            };
             // The passes after `raster` run over the cell lists (room `out` in all), not the
             // tables, or over the rows.
-            run(RASTER, None, raster, wg);
             if fill {
                 run(COLUMNS, None, out, wg);
                 run(FILL, None, cols, wg);

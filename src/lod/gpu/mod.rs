@@ -172,7 +172,7 @@ const PLACE: usize = 6;
 #[derive(Clone, Copy)]
 enum Access {
     Uniform,
-    /// A uniform at a dynamic offset (the scan level).
+    /// A uniform at a dynamic offset (the scan level, the raster's triangle window).
     Level,
     Read,
     ReadWrite,
@@ -183,7 +183,7 @@ enum Access {
 const BINDINGS: [&[(u32, Access)]; 7] = {
     use Access::{Level as L, Read as R, ReadWrite as W, Uniform as U};
     [
-        &[(0, U), (1, R), (2, W), (3, W), (5, R), (6, R), (7, W), (8, W)],
+        &[(0, U), (1, R), (2, W), (3, W), (5, R), (6, R), (7, W), (8, W), (11, L)],
         &[(0, U), (1, R), (2, R), (3, R), (4, W), (7, R)],
         &[(0, U), (1, R), (2, W), (3, W), (4, R), (7, W), (8, W)],
         &[(0, U), (1, R), (8, R), (9, W), (11, L)],
@@ -498,6 +498,11 @@ pub struct GpuBaker {
     pipelines: [wgpu::ComputePipeline; 7],
     budget: u64,
     max_binding: u64,
+    /// The adapter's largest buffer: a batch's triangles may exceed `max_binding` (they are
+    /// then bound in windows), not this.
+    max_buffer: u64,
+    /// Bytes of the raster's triangle windows: `max_binding` unless a test sets it lower.
+    tri_window_bytes: u64,
     /// Buffer sets of finished batches (at most `POOL_SETS`, kept between calls), reused by
     /// the next ones: a fresh buffer costs a page fault and a zero fill per page on every
     /// batch (on lavapipe about a tenth of the point stage's time), a reused one only the
@@ -572,6 +577,7 @@ impl GpuBaker {
             });
         }
         let max_binding = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        let max_buffer = limits.max_buffer_size;
         Ok(Self {
             device,
             queue,
@@ -580,6 +586,8 @@ impl GpuBaker {
             pipelines,
             budget: budget_bytes.max(1 << 20),
             max_binding,
+            max_buffer,
+            tri_window_bytes: max_binding,
             pool: std::sync::Mutex::new(Vec::new()),
         })
     }
@@ -600,6 +608,14 @@ impl GpuBaker {
     #[must_use]
     pub fn budget_bytes(&self) -> u64 {
         self.budget
+    }
+
+    /// Binds a batch's triangles to the raster pass in windows of at most `bytes` (at least
+    /// 32 triangles), as on an adapter whose largest storage binding is that small: a test
+    /// of the windowed raster on any adapter. Results do not depend on it.
+    #[doc(hidden)]
+    pub fn set_triangle_window_bytes(&mut self, bytes: u64) {
+        self.tri_window_bytes = bytes.min(self.max_binding);
     }
 
     /// [`super::cpu::bake_cells`] on the GPU: one job, one batch.
