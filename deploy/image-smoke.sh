@@ -22,9 +22,12 @@
 #   deploy/image-smoke.sh [--bin PATH | --from-source] [--runtime-image IMAGE] [--work DIR]
 #                         [--keep-image]
 #
-# Needs podman and runc (and mmdebstrap without --runtime-image), kubectl (kustomize), python3
-# with PyYAML, curl. The input is $TERRASTREAM_DATA/geo/utm32n_pixelispoint_n00e010.tif
-# (1,205², 39 tiles: enough leaves for the base's 16 shards).
+# Needs podman and runc (and mmdebstrap without --runtime-image), kubectl (kustomize), curl, and
+# $PYTHON (default python3) with PyYAML. The input is
+# $TERRASTREAM_DATA/geo/utm32n_pixelispoint_n00e010.tif (1,205², 39 tiles: enough leaves for the
+# base's 16 shards). The base tar is kept in --work (default target/image-smoke) for the next run.
+# Environment: IMAGE_SMOKE_WAIT_S (a server's /healthz, 60), IMAGE_SMOKE_STEP_S (any one step,
+# 600), IMAGE_SMOKE_RUNTIME (runc), RUST_IMAGE (--from-source).
 set -uo pipefail
 cd "$(dirname "$0")/.." || exit 1
 
@@ -60,8 +63,9 @@ finish() {
   exit 1
 }
 
-# Every container carries this label; the exit trap removes them by it.
+# Every container carries the label terrastream-smoke=RUN_ID; the exit trap removes them by it.
 RUN_ID="terrastream-smoke-$$"
+LABEL="terrastream-smoke=$RUN_ID"
 # runc, not crun (crun's setrlimit is refused in some sandboxes). Limits no higher than this
 # process's own hard limits (a container may not raise them without CAP_SYS_RESOURCE; podman's
 # defaults are higher), nproc at most pid_max.
@@ -78,7 +82,7 @@ host_pid="" made_base=0
 cleanup() {
   [ -n "$host_pid" ] && kill "$host_pid" 2> /dev/null && wait "$host_pid" 2> /dev/null
   local ids
-  ids=$("${PODMAN[@]}" ps -aq --filter "label=$RUN_ID" 2> /dev/null)
+  ids=$("${PODMAN[@]}" ps -aq --filter "label=$LABEL" 2> /dev/null)
   # shellcheck disable=SC2086
   [ -n "$ids" ] && "${PODMAN[@]}" rm -f -t 2 $ids > /dev/null 2>&1
   rm -f deploy/prebuilt/terrastream
@@ -98,11 +102,12 @@ timed() { timeout --kill-after=10 "$STEP_S" "$@" > "$log" 2>&1; }
 last() { grep -v '^\s*$' "$log" | tail -n "${1:-1}" | tr '\n' ' '; }
 
 # --- tools --------------------------------------------------------------------------------------
-for tool in podman curl kubectl python3 timeout cmp; do
+PYTHON="${PYTHON:-python3}"
+for tool in podman curl kubectl "$PYTHON" timeout cmp; do
   command -v "$tool" > /dev/null || { fail "tools: $tool not on PATH"; finish; }
 done
 command -v "${IMAGE_SMOKE_RUNTIME:-runc}" > /dev/null || { fail "tools: ${IMAGE_SMOKE_RUNTIME:-runc} not on PATH"; finish; }
-python3 -c 'import yaml' 2> /dev/null || { fail "tools: python3 has no PyYAML (apt-get install python3-yaml)"; finish; }
+"$PYTHON" -c 'import yaml' 2> /dev/null || { fail "tools: $PYTHON has no PyYAML (pip install PyYAML, or apt-get install python3-yaml)"; finish; }
 [ -f "$INPUT" ] || { fail "input: $INPUT missing (TERRASTREAM_DATA=$DATA)"; finish; }
 if [ "$FROM_SOURCE" -eq 0 ] && [ ! -x "$BIN" ]; then
   fail "binary: $BIN missing (cargo build, or --bin PATH)"
@@ -110,6 +115,11 @@ if [ "$FROM_SOURCE" -eq 0 ] && [ ! -x "$BIN" ]; then
 fi
 if [ "$FROM_SOURCE" -eq 1 ]; then BIN_HOST="${BIN_HOST:-$BIN}"; else BIN_HOST=$BIN; fi
 [ -x "$BIN_HOST" ] || { fail "binary: the host's reference binary $BIN_HOST missing"; finish; }
+# Containers of an earlier run that was killed (its process is gone).
+"${PODMAN[@]}" ps -a --filter label=terrastream-smoke --format '{{.ID}} {{index .Labels "terrastream-smoke"}}' 2> /dev/null |
+  while read -r id run; do
+    kill -0 "${run##*-}" 2> /dev/null || "${PODMAN[@]}" rm -f -t 2 "$id" > /dev/null 2>&1
+  done
 pass "tools: $(podman --version), $("${IMAGE_SMOKE_RUNTIME:-runc}" --version | head -n 1), ulimits ${ULIMITS[*]}"
 
 rm -rf "$WORK/run"
@@ -170,7 +180,7 @@ fi
 
 # The hardening of deploy/k8s: user 10001, read-only root, /tmp a tmpfs, no capabilities.
 HARDENED=(--user 10001:10001 --read-only --tmpfs /tmp:rw,size=1g --cap-drop ALL
-  --security-opt no-new-privileges "${ULIMITS[@]}" --label "$RUN_ID")
+  --security-opt no-new-privileges "${ULIMITS[@]}" --label "$LABEL")
 
 # --- 3. a bake in the image against the host's ----------------------------------------------------
 mkdir -p "$RUN/inputs" "$RUN/host" "$RUN/image"
@@ -199,7 +209,7 @@ else
 fi
 
 # --- 4. serve from the image against serve on the host --------------------------------------------
-free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
+free_port() { "$PYTHON" -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
 wait_healthz() { # URL: 0 once it answers 200, 1 after WAIT_S seconds
   local end=$((SECONDS + WAIT_S))
   while [ $SECONDS -lt $end ]; do
@@ -284,7 +294,7 @@ if ! kubectl kustomize deploy/k8s/base > "$RUN/base.yaml" 2> "$log"; then
   fail "Indexed Job: kubectl kustomize deploy/k8s/base: $(last 2)"
   finish
 fi
-if ! python3 - "$RUN/base.yaml" "$RUN" "$RUN/jobs.env" > "$log" 2>&1 << 'EOF'; then
+if ! "$PYTHON" - "$RUN/base.yaml" "$RUN" "$RUN/jobs.env" > "$log" 2>&1 << 'EOF'; then
 import re, sys, yaml
 
 docs = [d for d in yaml.safe_load_all(open(sys.argv[1])) if d]
@@ -348,7 +358,7 @@ play() { # JOB: runs it as the Job controller would, with run-indexed-job.sh
   [ "$indexed" = 1 ] && index_env=(-e JOB_COMPLETION_INDEX)
   if timed deploy/run-indexed-job.sh --completions "$completions" --parallelism "$parallelism" \
     --backoff-limit-per-index "$retries" --fail-index-codes "$codes" --retry-delay 1 -- \
-    "${PODMAN[@]}" run --rm "${ULIMITS[@]}" --label "$RUN_ID" --cap-drop ALL "${opts[@]}" \
+    "${PODMAN[@]}" run --rm "${ULIMITS[@]}" --label "$LABEL" --cap-drop ALL "${opts[@]}" \
     --env-file "$RUN/jobs.env" "${index_env[@]}" -v "$RUN/jobs:/store" "$IMAGE" "${args[@]}"; then
     pass "Indexed Job: $job (${args[*]}; $completions × $parallelism at a time; $((SECONDS - t0)) s): $(tail -n 1 "$log")"
   else
@@ -364,6 +374,6 @@ if play bake-plan && play bake-shards && play bake-finish; then
     fail "Indexed Job: /store/$tileset differs from the one-machine bake: $(head -n 3 "$RUN/diff" | tr '\n' ' ')"
   fi
 fi
-left=$("${PODMAN[@]}" ps -aq --filter "label=$RUN_ID" | wc -l)
+left=$("${PODMAN[@]}" ps -aq --filter "label=$LABEL" | wc -l)
 if [ "$left" -eq 0 ]; then pass "containers: none left running"; else fail "containers: $left left behind"; fi
 finish
