@@ -113,6 +113,12 @@ if [ "$FROM_SOURCE" -eq 0 ] && [ ! -x "$BIN" ]; then
   fail "binary: $BIN missing (cargo build, or --bin PATH)"
   finish
 fi
+# deploy/prebuilt/terrastream is this script's for the build, and removed after it: a different
+# binary there is someone else's.
+if [ -e deploy/prebuilt/terrastream ] && ! cmp -s deploy/prebuilt/terrastream "$BIN"; then
+  fail "binary: deploy/prebuilt/terrastream exists and is not $BIN: move it away, or pass it with --bin"
+  finish
+fi
 if [ "$FROM_SOURCE" -eq 1 ]; then BIN_HOST="${BIN_HOST:-$BIN}"; else BIN_HOST=$BIN; fi
 [ -x "$BIN_HOST" ] || { fail "binary: the host's reference binary $BIN_HOST missing"; finish; }
 # Containers of an earlier run that was killed (its process is gone).
