@@ -216,10 +216,13 @@ fi
 
 # --- 4. serve from the image against serve on the host --------------------------------------------
 free_port() { "$PYTHON" -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
-wait_healthz() { # URL: 0 once it answers 200, 1 after WAIT_S seconds
+wait_healthz() { # URL [CONTAINER]: 0 once it answers 200; 1 after WAIT_S s, or when CONTAINER stopped
   local end=$((SECONDS + WAIT_S))
   while [ $SECONDS -lt $end ]; do
     curl -sf -m 2 -o /dev/null "$1/healthz" && return 0
+    if [ -n "${2:-}" ] && [ "$("${PODMAN[@]}" inspect -f '{{.State.Running}}' "$2" 2> /dev/null)" != true ]; then
+      return 1
+    fi
     sleep 0.2
   done
   return 1
@@ -230,10 +233,10 @@ host_port=$(free_port)
 # systemd here): `podman healthcheck run` runs it on demand.
 if timed "${PODMAN[@]}" run -d --name "$RUN_ID-serve" "${HARDENED[@]}" --health-interval disable \
   -p "127.0.0.1:$img_port:8080" -v "$RUN/host:/store:ro" -e TERRASTREAM_POLL_MS=500 "$IMAGE"; then
-  if wait_healthz "http://127.0.0.1:$img_port"; then
+  if wait_healthz "http://127.0.0.1:$img_port" "$RUN_ID-serve"; then
     pass "serve in the image: /healthz 200 on 127.0.0.1:$img_port"
   else
-    fail "serve in the image: no /healthz within $WAIT_S s: $("${PODMAN[@]}" logs "$RUN_ID-serve" 2>&1 | tail -n 3 | tr '\n' ' ')"
+    fail "serve in the image: no /healthz within $WAIT_S s (running: $("${PODMAN[@]}" inspect -f '{{.State.Running}} {{.State.ExitCode}}' "$RUN_ID-serve" 2>&1)): $("${PODMAN[@]}" logs "$RUN_ID-serve" 2>&1 | tail -n 3 | tr '\n' ' ')"
   fi
 else
   fail "serve in the image: podman run: $(last 2)"
