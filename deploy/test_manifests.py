@@ -559,6 +559,11 @@ def manifest_checks(docs: list[dict], docker: dict) -> list[tuple[str, callable]
 # --- the Dockerfile ---------------------------------------------------------------------------
 
 
+# Where a binary built outside the image goes for BINARY_FROM=prebuilt (deploy/image-smoke.sh
+# puts it there); not in the repository.
+PREBUILT_DIR = "deploy/prebuilt/"
+
+
 def parse_dockerfile(path: str) -> list[tuple[str, str]]:
     """(INSTRUCTION, rest) with continuation lines joined and comments dropped."""
     out, cur = [], ""
@@ -646,7 +651,37 @@ def dockerfile_checks(path: str, repo: str) -> tuple[list[tuple[str, callable]],
                     continue
                 parts = [p for p in rest.split() if not p.startswith("--")]
                 for src in parts[:-1]:
+                    # The prebuilt binary is put there by whoever builds with BINARY_FROM=prebuilt.
+                    if src.startswith(PREBUILT_DIR):
+                        continue
                     need(os.path.exists(os.path.join(repo, src)), f"COPY {src}: not in the repository")
+
+    def binary_source():
+        args = {}
+        for ins, rest in lines:
+            if ins == "ARG" and "=" in rest:
+                k, v = rest.split("=", 1)
+                args[k.strip()] = v.strip()
+        names = {}
+        for st in stages:
+            m = re.fullmatch(r"(\S+)\s+AS\s+(\S+)", st[0][1], re.IGNORECASE)
+            if m:
+                names[m.group(2).lower()] = (m.group(1), st)
+        need(args.get("BINARY_FROM") == "build", f"ARG BINARY_FROM={args.get('BINARY_FROM')!r}, want build (from source)")
+        need("build" in names, "no stage `build`")
+        need("binary" in names and names["binary"][0] == "${BINARY_FROM}", "no stage `FROM ${BINARY_FROM} AS binary`")
+        pre = names.get("prebuilt")
+        need(pre, "no stage `prebuilt`")
+        copies = [rest.split() for ins, rest in pre[1] if ins == "COPY"]
+        need(
+            copies and copies[0][0].startswith(PREBUILT_DIR) and copies[0][-1] == "/terrastream",
+            f"stage prebuilt: COPY {copies[:1]}, want {PREBUILT_DIR}terrastream /terrastream",
+        )
+        finals = [rest for ins, rest in final if ins == "COPY" and "--from=" in rest]
+        need(any("--from=binary " in r for r in finals), f"the final stage copies {finals}, want --from=binary")
+        ign = os.path.join(repo, PREBUILT_DIR, ".gitignore")
+        need(os.path.exists(ign), f"no {PREBUILT_DIR}.gitignore (a prebuilt binary would show in git status)")
+        return "BINARY_FROM=build (default) | prebuilt"
 
     def dockerignore():
         ign = path + ".dockerignore"
@@ -663,6 +698,7 @@ def dockerfile_checks(path: str, repo: str) -> tuple[list[tuple[str, callable]],
         ("Dockerfile: dependency layer from Cargo.toml + Cargo.lock, then build, then runtime", deps_layer),
         ("Dockerfile: EXPOSE is TERRASTREAM_BIND's port, TERRASTREAM_GPU=off", expose),
         ("Dockerfile: COPY sources exist", copy_sources),
+        ("Dockerfile: the binary from `build`, or deploy/prebuilt/ with BINARY_FROM=prebuilt", binary_source),
         ("Dockerfile.dockerignore: excludes target/ and .git/", dockerignore),
     ], info
 
