@@ -70,8 +70,12 @@
 //!
 //! Jobs are packed into batches whose buffers (device buffers and the read-back staging
 //! buffer, counted exactly as allocated) stay within the batch budget
-//! ([`DEFAULT_BATCH_BUDGET_MIB`], `--gpu-budget-mib`) and the adapter's binding limits. The
-//! table and output sizes of a job come from its projected area (fragments ≈ area): a job whose
+//! ([`DEFAULT_BATCH_BUDGET_MIB`], `--gpu-budget-mib`) and the adapter's binding limits, except
+//! the triangles: a batch's triangles (24 bytes each) need only fit the adapter's largest
+//! buffer, and when they exceed its largest storage binding (128 MiB on lavapipe, and WebGPU's
+//! default: 5.6 M triangles) the raster pass runs once per window of triangles that fits, each
+//! dispatch binding its window (the other items return at once), so a dense model of tens of
+//! millions of triangles stays on the GPU. The table and output sizes of a job come from its projected area (fragments ≈ area): a job whose
 //! table or output overflows is re-run in a later batch with four times the room, so sizes are
 //! an estimate but results never depend on them. A job that alone exceeds the budget, or whose
 //! cell box does not fit the 32-bit keys (an extent over 2^16 − 1 cells, or over 2^32 − 2 cells
