@@ -16,10 +16,22 @@ pub struct Packed {
     archive: Arc<Archive>,
 }
 
-/// A failure reading `rel` from the archive at `location` (a remote error, as every archive
-/// read reports it, naming the archive and the file).
-fn archive_err(location: &Location, rel: &str, e: &ArchiveError) -> StoreError {
-    StoreError::Remote { url: format!("{location} ({rel})"), message: e.to_string() }
+/// A failure reading `rel` from the archive at `location`, naming the archive and the file:
+/// damage found in the archive (a checksum, an entry out of range) is [`StoreError::Corrupt`],
+/// a file over its limit [`StoreError::TooLarge`]; only a failed read (local I/O, a remote
+/// request) is an I/O or remote error, which may pass.
+fn archive_err(location: &Location, rel: &str, e: ArchiveError) -> StoreError {
+    let path = || std::path::PathBuf::from(format!("{location} ({rel})"));
+    match e {
+        e @ (ArchiveError::Corrupt(_) | ArchiveError::Format(_)) => {
+            StoreError::Corrupt { path: path(), message: e.to_string() }
+        }
+        ArchiveError::TooLarge { len, limit, what, .. } => {
+            StoreError::TooLarge { path: path(), size: Some(len), limit, what }
+        }
+        ArchiveError::Io(source) if location.as_url().is_none() => StoreError::Io { path: path(), source },
+        e => StoreError::Remote { url: format!("{location} ({rel})"), message: e.to_string() },
+    }
 }
 
 impl Packed {
@@ -34,7 +46,14 @@ impl Packed {
         } else {
             (Archive::open_file(Path::new(location)), Location::Path(location.into()))
         };
-        let archive = a.map_err(|e| refused(e.to_string()))?;
+        // Not an archive (or a FIFO, a device) is damage, which reading again will not mend; a
+        // failed read may pass.
+        let archive = a.map_err(|e| match e {
+            e @ ArchiveError::Format(_) => {
+                StoreError::Corrupt { path: location.into(), message: e.to_string() }
+            }
+            e => refused(e.to_string()),
+        })?;
         Ok(Self { location: at, archive: Arc::new(archive) })
     }
 
@@ -44,7 +63,7 @@ impl Packed {
         &self.archive
     }
 
-    fn err(&self, rel: &str, e: &ArchiveError) -> StoreError {
+    fn err(&self, rel: &str, e: ArchiveError) -> StoreError {
         archive_err(&self.location, rel, e)
     }
 
@@ -62,23 +81,23 @@ impl Backend for Packed {
         &self.location
     }
 
-    fn read(&self, rel: &str) -> Result<Option<Vec<u8>>, StoreError> {
-        self.archive.read(rel).map_err(|e| self.err(rel, &e))
+    fn read(&self, rel: &str, limit: u64) -> Result<Option<Vec<u8>>, StoreError> {
+        self.archive.read_within(rel, limit, crate::store::read_limit(rel).1).map_err(|e| self.err(rel, e))
     }
 
     fn size(&self, rel: &str) -> Result<Option<u64>, StoreError> {
-        Ok(self.archive.entry(rel).map_err(|e| self.err(rel, &e))?.map(|e| e.len))
+        Ok(self.archive.entry(rel).map_err(|e| self.err(rel, e))?.map(|e| e.len))
     }
 
     fn exists(&self, rel: &str) -> Result<bool, StoreError> {
-        self.archive.entry(rel).map(|e| e.is_some()).map_err(|e| self.err(rel, &e))
+        self.archive.entry(rel).map(|e| e.is_some()).map_err(|e| self.err(rel, e))
     }
 
     fn list(&self) -> Result<Vec<(String, u64)>, StoreError> {
         Ok(self
             .archive
             .entries()
-            .map_err(|e| self.err("", &e))?
+            .map_err(|e| self.err("", e))?
             .into_iter()
             .map(|e| (e.path, e.len))
             .collect())
@@ -109,16 +128,20 @@ impl Backend for Packed {
     fn read_async<'a>(
         &'a self,
         rel: &'a str,
+        limit: u64,
     ) -> super::BoxFuture<'a, Result<Option<bytes::Bytes>, StoreError>> {
         let (a, at, rel2) = (self.archive.clone(), self.location.clone(), rel.to_owned());
         Box::pin(async move {
-            tokio::task::spawn_blocking(move || a.read(&rel2).map_err(|e| archive_err(&at, &rel2, &e)))
-                .await
-                .map_err(|e| StoreError::Remote {
-                    url: self.location.join(rel).display().to_string(),
-                    message: e.to_string(),
-                })?
-                .map(|b| b.map(bytes::Bytes::from))
+            tokio::task::spawn_blocking(move || {
+                a.read_within(&rel2, limit, crate::store::read_limit(&rel2).1)
+                    .map_err(|e| archive_err(&at, &rel2, e))
+            })
+            .await
+            .map_err(|e| StoreError::Remote {
+                url: self.location.join(rel).display().to_string(),
+                message: e.to_string(),
+            })?
+            .map(|b| b.map(bytes::Bytes::from))
         })
     }
 
@@ -133,7 +156,7 @@ impl Backend for Packed {
                     url: self.location.join(rel).display().to_string(),
                     message: e.to_string(),
                 })?
-                .map_err(|e| self.err(rel, &e))
+                .map_err(|e| self.err(rel, e))
         })
     }
 }
