@@ -160,3 +160,70 @@ impl Backend for Packed {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::archive::ArchiveWriter;
+
+    /// An archive file holding `files`, and where each lies.
+    fn packed(dir: &Path, files: &[(&str, &[u8])]) -> std::path::PathBuf {
+        let mut w = ArchiveWriter::new(Vec::new()).unwrap();
+        for (p, b) in files {
+            w.add(p, b).unwrap();
+        }
+        let (bytes, _) = w.finish().unwrap();
+        let p = dir.join("t.tsa");
+        std::fs::write(&p, bytes).unwrap();
+        p
+    }
+
+    /// Damage found in an archive that opened (a file's checksum, a directory page's checksum)
+    /// is [`StoreError::Corrupt`], a file over the limit [`StoreError::TooLarge`]: both damage
+    /// the server answers `500`, never the retryable I/O error.
+    #[test]
+    fn damage_in_an_archive_is_corrupt_and_limits_hold() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = packed(dir.path(), &[("a.json", b"{\"x\": 1}"), ("b.tsb", &[7; 40])]);
+        let s = Packed::open(p.to_str().unwrap()).unwrap();
+        assert_eq!(s.read("a.json", 100).unwrap().unwrap(), b"{\"x\": 1}");
+        let e = s.read("b.tsb", 39).unwrap_err();
+        assert!(matches!(e, StoreError::TooLarge { size: Some(40), limit: 39, .. }), "{e}");
+        assert!(e.to_string().contains("t.tsa (b.tsb)"), "{e}");
+
+        // A payload byte: the file's checksum.
+        let mut bytes = std::fs::read(&p).unwrap();
+        let e = s.archive().entry("b.tsb").unwrap().unwrap();
+        bytes[(e.offset + 3) as usize] ^= 1;
+        // The directory page (read on the first lookup, after the root, which holds its CRC).
+        let page_at = (e.offset + e.len) as usize;
+        let mut page_damaged = std::fs::read(&p).unwrap();
+        page_damaged[page_at + 4] ^= 1;
+        std::fs::write(&p, &bytes).unwrap();
+        let s = Packed::open(p.to_str().unwrap()).unwrap();
+        let e = s.read("b.tsb", 100).unwrap_err();
+        assert!(matches!(e, StoreError::Corrupt { .. }) && e.is_damaged(), "{e}");
+        assert!(e.to_string().contains("b.tsb") && e.to_string().contains("checksum"), "{e}");
+        std::fs::write(&p, &page_damaged).unwrap();
+        let s = Packed::open(p.to_str().unwrap()).unwrap();
+        let e = s.read("a.json", 100).unwrap_err();
+        assert!(matches!(e, StoreError::Corrupt { .. }), "{e}");
+        assert!(e.to_string().contains("directory page 0"), "{e}");
+        let e = s.exists("a.json").unwrap_err();
+        assert!(e.is_damaged(), "{e}");
+    }
+
+    /// A FIFO named like an archive is refused by its type, without being opened (an open
+    /// would wait for a writer forever), as damage.
+    #[test]
+    fn a_fifo_is_not_opened_as_an_archive() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("pipe.tsa");
+        if !std::process::Command::new("mkfifo").arg(&p).status().is_ok_and(|s| s.success()) {
+            eprintln!("mkfifo is not available; skipped");
+            return;
+        }
+        let e = Packed::open(p.to_str().unwrap()).unwrap_err();
+        assert!(e.is_damaged() && e.to_string().contains("FIFO"), "{e}");
+    }
+}
