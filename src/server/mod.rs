@@ -355,12 +355,13 @@ impl Server {
             // (the server listens, not ready, and polling takes over once it ends).
             let a = app.clone();
             let first = tokio::task::spawn_blocking(move || a.rescan());
-            match tokio::time::timeout(app.scan_deadline(), first).await {
-                Ok(r) => r.map_err(|e| ServerError::Config(format!("--store: {e}")))?,
-                Err(_) => tracing::error!(
+            if let Ok(r) = tokio::time::timeout(app.scan_deadline(), first).await {
+                r.map_err(|e| ServerError::Config(format!("--store: {e}")))?;
+            } else {
+                tracing::error!(
                     store = %app.config.store.display(),
                     "the first store scan has not finished; listening, not ready until a scan completes"
-                ),
+                );
             }
         }
         let listener =

@@ -69,6 +69,14 @@ fn damaged(what: impl Into<String>) -> ArchiveError {
     ArchiveError::Corrupt(what.into())
 }
 
+/// A directory page is read after the archive opened: what is wrong in it is damage.
+fn field<T>(r: Result<T, ArchiveError>) -> Result<T, ArchiveError> {
+    r.map_err(|e| match e {
+        ArchiveError::Format(m) => damaged(m),
+        e => e,
+    })
+}
+
 /// One file in the directory.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Entry {
@@ -423,13 +431,6 @@ impl Archive {
         }
         let mut c = Cursor(&bytes);
         let mut out = Vec::with_capacity(r.count as usize);
-        // A page is read after the archive opened: what is wrong in it is damage.
-        fn field<T>(r: Result<T, ArchiveError>) -> Result<T, ArchiveError> {
-            r.map_err(|e| match e {
-                ArchiveError::Format(m) => damaged(m),
-                e => e,
-            })
-        }
         while !c.0.is_empty() {
             let e = Entry {
                 path: field(c.path("directory page"))?,

@@ -144,9 +144,10 @@ pub const MAX_BLOB_BYTES: u64 = crate::codec::PREFIX_LEN as u64 + crate::codec::
 /// [`MAX_DOCUMENT_BYTES`] for the tileset's JSON documents.
 #[must_use]
 pub fn read_limit(rel: &str) -> (u64, &'static str) {
-    if std::path::Path::new(rel).extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
+    let ext = std::path::Path::new(rel).extension();
+    if ext.is_some_and(|e| e.eq_ignore_ascii_case("json")) {
         (MAX_DOCUMENT_BYTES, "JSON document of a tileset")
-    } else if rel.ends_with(".tsb") {
+    } else if ext.is_some_and(|e| e.eq_ignore_ascii_case("tsb")) {
         (MAX_BLOB_BYTES, "blob")
     } else {
         (MAX_BLOB_BYTES, "file of a tileset")
