@@ -59,7 +59,7 @@ impl Server {
             .arg("--store")
             .arg(store)
             .args(["--poll-ms", "100", "--bind", &addr.to_string()])
-            .env("RUST_LOG", "info")
+            .env("TERRASTREAM_LOG", "info")
             .stdout(Stdio::null())
             .stderr(std::fs::File::create(&log).unwrap())
             .spawn()
@@ -361,4 +361,30 @@ fn pack_writes_archives_with_the_umask_mode() {
         let got = std::fs::metadata(&out).unwrap().permissions().mode() & 0o777;
         assert_eq!(got, mode, "umask {umask}: {got:o}");
     }
+}
+
+/// N10's sibling: a loaded tileset whose directory cannot be read now (here replaced by a file)
+/// stays listed and is logged once, not at every poll; once readable again, that is logged.
+#[test]
+fn an_unreadable_tileset_is_logged_once_per_change() {
+    let tmp = tempfile::tempdir().unwrap();
+    let store = tmp.path().join("store");
+    baked(&store, "u");
+    let srv = Server::start(&store, tmp.path().join("serve.log"), Duration::from_secs(20));
+    assert_eq!(srv.status("/tilesets/u/tileset.json"), 200);
+    std::fs::rename(store.join("u"), tmp.path().join("u-away")).unwrap();
+    std::fs::write(store.join("u"), b"not a folder").unwrap();
+    std::thread::sleep(Duration::from_millis(1500));
+    assert_eq!(srv.status("/tilesets/u/tileset.json"), 200);
+    let log = srv.log();
+    let n = log.lines().filter(|l| l.contains("tileset cannot be read")).count();
+    assert_eq!(n, 1, "logged {n} times in ~15 polls:\n{log}");
+    std::fs::remove_file(store.join("u")).unwrap();
+    std::fs::rename(tmp.path().join("u-away"), store.join("u")).unwrap();
+    let t0 = Instant::now();
+    while !srv.log().contains("tileset readable again") {
+        assert!(t0.elapsed() < Duration::from_secs(20), "{}", srv.log());
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(srv.status("/tilesets/u/tileset.json"), 200);
 }

@@ -218,6 +218,10 @@ pub struct Registry {
     /// had then: a damaged one is not read again, nor logged again, until the stamp changes, so
     /// a broken file costs one `stat` per poll and one log line per change.
     failed: std::sync::Mutex<HashMap<String, Broken>>,
+    /// Loaded tilesets that cannot be read now (kept listed), with the error last logged and
+    /// the scan that last saw it: logged once per change of the error, not every poll.
+    unreadable: std::sync::Mutex<HashMap<String, (String, u64)>>,
+    scans: AtomicU64,
 }
 
 /// A tileset that failed to load, as [`Registry::load_failed`] recorded it.
@@ -240,7 +244,41 @@ impl Registry {
             on_demand,
             map: RwLock::new(HashMap::new()),
             failed: std::sync::Mutex::new(HashMap::new()),
+            unreadable: std::sync::Mutex::new(HashMap::new()),
+            scans: AtomicU64::new(0),
         })
+    }
+
+    /// Logs that the loaded tileset `name` cannot be read now (`path`: what failed), once per
+    /// change of the error.
+    fn note_unreadable(&self, name: &str, path: &str, e: &dyn std::fmt::Display) {
+        let scan = self.scans.load(Ordering::Relaxed);
+        let message = format!("{path}: {e}");
+        let Ok(mut u) = self.unreadable.lock() else { return };
+        if u.get(name).is_none_or(|(m, _)| *m != message) {
+            tracing::error!(
+                tileset = %name, path = %path, error = %e,
+                "tileset cannot be read; still listed, its reads fail (logged again when the error changes)"
+            );
+        }
+        u.insert(name.to_owned(), (message, scan));
+    }
+
+    /// Starts a scan: tilesets not noted unreadable by it are readable again.
+    fn begin_scan(&self) {
+        self.scans.fetch_add(1, Ordering::Relaxed);
+    }
+
+    fn end_scan(&self) {
+        let scan = self.scans.load(Ordering::Relaxed);
+        if let Ok(mut u) = self.unreadable.lock() {
+            u.retain(|name, (_, seen)| {
+                if *seen != scan {
+                    tracing::info!(tileset = %name, "tileset readable again");
+                }
+                *seen == scan
+            });
+        }
     }
 
     /// Whether the tileset `name` failed to load with the same stamp `st` already, for a reason
@@ -350,7 +388,7 @@ impl Registry {
                         Ok(None) => continue,
                         Err(e) => {
                             if let Some(old) = current.get(&name) {
-                                tracing::error!(tileset = %name, error = %e, "tileset cannot be read; still listed, its reads fail");
+                                self.note_unreadable(&name, &format!("{}/{p}", r.url()), &e);
                                 next.insert(name, Arc::clone(old));
                             }
                             continue;
@@ -399,6 +437,15 @@ impl Registry {
 
     /// Re-scans the store; returns an error only when the store itself cannot be read.
     pub fn scan(&self) -> Result<(), ServerError> {
+        self.begin_scan();
+        let r = self.scan_store();
+        if r.is_ok() {
+            self.end_scan();
+        }
+        r
+    }
+
+    fn scan_store(&self) -> Result<(), ServerError> {
         if let Some(r) = &self.remote {
             return self.scan_remote(r);
         }
@@ -413,7 +460,7 @@ impl Registry {
         // manifest that is not there any more (NotFound) drops it.
         let keep_unreadable = |name: &str, path: &Path, e: &std::io::Error, next: &mut HashMap<_, _>| {
             if let Some(old) = current.get(name) {
-                tracing::error!(tileset = %name, path = %path.display(), error = %e, "tileset cannot be read; still listed, its reads fail");
+                self.note_unreadable(name, &path.display().to_string(), e);
                 next.insert(name.to_owned(), Arc::clone(old));
             }
         };
