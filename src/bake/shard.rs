@@ -220,7 +220,7 @@ impl Plan {
             )));
         };
         store.read_file_within(FALLBACK_FILE, len..=len).map_err(|e| match e {
-            e @ StoreError::Invalid { .. } => BakeError::Plan(e.to_string()),
+            e if e.is_damaged() || matches!(e, StoreError::Invalid { .. }) => BakeError::Plan(e.to_string()),
             e => e.into(),
         })
     }
@@ -240,7 +240,8 @@ struct Fragment {
 /// than [`MAX_STEP_FILE_BYTES`] (checked before reading).
 fn read_step_file(store: &Store, rel: &str) -> Result<Option<Vec<u8>>, BakeError> {
     store.read_file_within(rel, 0..=MAX_STEP_FILE_BYTES).map_err(|e| match e {
-        e @ StoreError::Invalid { .. } => BakeError::Plan(e.to_string()),
+        // Damaged, too large, or a FIFO or device (`plan.json -> /dev/zero`), refused unread.
+        e if e.is_damaged() || matches!(e, StoreError::Invalid { .. }) => BakeError::Plan(e.to_string()),
         e => e.into(),
     })
 }

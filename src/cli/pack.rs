@@ -56,7 +56,13 @@ pub fn run(a: &PackArgs, quiet: bool) -> Result<()> {
         tempfile::Builder::new().prefix("terrastream-pack-").suffix(ARCHIVE_SUFFIX).tempfile()
     } else {
         let parent = local_target.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        tempfile::Builder::new().prefix(".pack-").suffix(".tmp").tempfile_in(parent)
+        // The mode every file of a bake gets (0666 less the umask, 0644 typically), not a
+        // temporary file's 0600: a server running as another user must be able to read it.
+        tempfile::Builder::new()
+            .prefix(".pack-")
+            .suffix(".tmp")
+            .permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666))
+            .tempfile_in(parent)
     }
     .with_context(|| format!("pack: cannot create a temporary file for {out}"))?;
     let file = tmp.as_file().try_clone().with_context(|| format!("pack: writing {out}"))?;

@@ -139,6 +139,13 @@ pub const PREFIX_LEN: usize = 8 + HEADER_LEN;
 pub const MAX_ELEMENTS: u32 = 1 << 24;
 /// Largest decompressed payload accepted (256 MiB).
 pub const MAX_RAW_LEN: u32 = 1 << 28;
+/// Most bytes a payload's stream table takes beyond its streams: mode, count and 9 bytes per
+/// stream. A stream is stored as is when zstd would not shrink it, so a payload is never more
+/// than this larger than its decompressed size.
+pub const PAYLOAD_TABLE_MAX: u32 = 2 + 9 * stream::MAX_STREAMS as u32;
+/// Largest stored payload the format allows ([`MAX_RAW_LEN`] and its stream table): with
+/// [`PREFIX_LEN`], the most bytes a reader ever needs to take of one blob.
+pub const MAX_PAYLOAD_LEN: u32 = MAX_RAW_LEN + PAYLOAD_TABLE_MAX;
 /// Largest quantized coordinate per axis; keeps every delta and product in range.
 pub const MAX_QUANT: i64 = (1 << 31) - 1;
 /// zstd level of the payload streams. Fixed so output is reproducible. The streams are already
@@ -649,6 +656,9 @@ pub fn decode_header(bytes: &[u8]) -> Result<BlobHeader, CodecError> {
     }
     if header.raw_len > MAX_RAW_LEN {
         return Err(CodecError::InvalidHeader("decompressed size above the limit"));
+    }
+    if u64::from(header.payload_len) > u64::from(header.raw_len) + u64::from(PAYLOAD_TABLE_MAX) {
+        return Err(CodecError::InvalidHeader("stored payload larger than its decompressed size allows"));
     }
     if header.kind == Kind::Points && header.triangle_count != 0 {
         return Err(CodecError::InvalidHeader("point blob with triangles"));

@@ -10,7 +10,7 @@ use std::io::Read;
 use super::CodecError;
 
 /// Most streams a container may hold; a decoded count above this is corruption.
-const MAX_STREAMS: usize = 16;
+pub(crate) const MAX_STREAMS: usize = 16;
 
 /// An append-only byte stream.
 #[derive(Debug, Default, Clone)]

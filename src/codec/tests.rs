@@ -285,6 +285,19 @@ fn forged_headers_are_rejected() {
         reseal(&mut b);
         assert!(decode(&b).is_err(), "field at {at} = {v}");
     }
+    // A stored payload larger than its decompressed size and stream table allow: what a reader
+    // checks a blob's size against before reading it (`MAX_PAYLOAD_LEN`).
+    let raw_len = u32::from_le_bytes(blob[120..124].try_into().unwrap());
+    for (v, ok) in
+        [(raw_len + PAYLOAD_TABLE_MAX, true), (raw_len + PAYLOAD_TABLE_MAX + 1, false), (u32::MAX, false)]
+    {
+        let mut b = blob.clone();
+        b[124..128].copy_from_slice(&v.to_le_bytes());
+        reseal(&mut b);
+        let r = decode_header(&b);
+        assert_eq!(r.is_ok(), ok, "payload_len {v}: {r:?}");
+    }
+    assert!(decode_header(&blob).unwrap().payload_len <= raw_len + PAYLOAD_TABLE_MAX);
     // A bad kind index.
     let mut b = blob.clone();
     b[10] = 7;

@@ -141,10 +141,7 @@ pub(super) async fn chunk_entry(
             Ok(None) => {
                 return Err(Problem::not_found(format!("no index chunk {key} in tileset {name:?}")));
             }
-            Err(e) => {
-                tracing::error!(path = %ts.store.describe(&rel), error = %e, "cannot read index chunk");
-                return Err(store_unavailable("the index chunk could not be read from the store".into()));
-            }
+            Err(e) => return Err(stored_file_problem(app, ts, &rel, &format!("index chunk {key}"), &e)),
         };
         let e = Entry { etag: etag_value(&super::registry::etag_of(&bytes)), bytes };
         app.cache.insert(ck, e.clone());
@@ -162,6 +159,30 @@ pub const STORE_IO_RETRY_AFTER_S: u32 = 5;
 /// does not keep the failure once the store is readable again.
 fn store_unavailable(detail: String) -> Problem {
     Problem::unavailable("store-io", detail, STORE_IO_RETRY_AFTER_S)
+}
+
+/// The answer when reading the stored file `what` (named for the client, without paths) of
+/// tileset `ts` failed with `e`: damage found in the stored bytes (an archive's checksum or
+/// directory, a file over its kind's limit, a FIFO or device where a file should be) is `500`
+/// (`corrupt-blob`), logged at `error` as corruption naming the file and counted in
+/// `terrastream_corrupt_blobs_total`, the same as a blob failing verification in a folder; only
+/// a failed read (I/O, a remote request) is `503` + `Retry-After` (`store-io`).
+pub(super) fn stored_file_problem(
+    app: &App,
+    ts: &Tileset,
+    rel: &str,
+    what: &str,
+    e: &crate::store::StoreError,
+) -> Problem {
+    let path = ts.store.describe(rel);
+    if e.is_damaged() {
+        app.metrics.corrupt_blobs.fetch_add(1, Ordering::Relaxed);
+        tracing::error!(tileset = %ts.name, path = %path, error = %e, "corrupt stored file detected; not sent");
+        Problem::internal("corrupt-blob", format!("the stored {what} failed verification and was not sent"))
+    } else {
+        tracing::error!(tileset = %ts.name, path = %path, error = %e, "cannot read the store");
+        store_unavailable(format!("the {what} could not be read from the store"))
+    }
 }
 
 /// What reading a blob from disk found.
@@ -197,6 +218,9 @@ async fn read_verified(store: &crate::store::Store, key: TileKey, level: u8) -> 
     match store.get_async(&rel).await {
         Ok(Some(b)) => Ok(verify(b, key, level)),
         Ok(None) => Ok(Read::Missing),
+        // Damage found by the store (an archive's checksum or directory, a file over the blob
+        // limit, a FIFO): the same failed verification as a bad blob in a folder.
+        Err(e) if e.is_damaged() => Ok(Read::Corrupt(e.to_string())),
         Err(e) => {
             tracing::error!(path = %store.describe(&rel), error = %e, "cannot read blob");
             Err(store_unavailable(format!("tile {key} level {level} could not be read from the store")))
@@ -252,13 +276,10 @@ pub(super) async fn load_blob(
                 }
             }
             Read::Missing => {
-                let unpaid =
-                    ts.store.exists_async(&crate::store::unpaid_rel(key, level)).await.map_err(|e| {
-                        tracing::error!(error = %e, "cannot look up an unpaid marker");
-                        store_unavailable(format!(
-                            "tile {key} level {level} could not be read from the store"
-                        ))
-                    })?;
+                let marker = crate::store::unpaid_rel(key, level);
+                let unpaid = ts.store.exists_async(&marker).await.map_err(|e| {
+                    stored_file_problem(app, ts, &marker, &format!("tile {key} level {level}"), &e)
+                })?;
                 if unpaid {
                     return Err(Problem::not_found(format!(
                         "tile {key} has no level {level} in tileset {:?}: that level is not stored (not \

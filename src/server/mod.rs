@@ -100,13 +100,35 @@ pub struct App {
     in_flight: AtomicUsize,
     rate: rate_limit::RateLimiter,
     ready: AtomicBool,
+    /// When the store scan running now began (`None`: none runs). One scan runs at a time; a
+    /// scan stuck on a file (a FIFO swapped in after its type was checked, a hung mount) makes
+    /// the server not ready once it has run past [`App::scan_deadline`], and holds up nothing
+    /// else: requests, polling's timer and shutdown do not wait for it.
+    scan_since: std::sync::Mutex<Option<std::time::Instant>>,
     /// Computes point levels for on-demand and admin bakes (opened once at startup).
     baker: Arc<PointBaker>,
 }
 
 impl App {
-    /// Re-scans the store for added, changed and removed tilesets now.
+    /// Re-scans the store for added, changed and removed tilesets now (blocking: call it off
+    /// the async workers). Does nothing while another scan still runs.
     pub fn rescan(&self) {
+        struct Running<'a>(&'a std::sync::Mutex<Option<std::time::Instant>>);
+        impl Drop for Running<'_> {
+            fn drop(&mut self) {
+                if let Ok(mut s) = self.0.lock() {
+                    *s = None;
+                }
+            }
+        }
+        {
+            let Ok(mut since) = self.scan_since.lock() else { return };
+            if since.is_some() {
+                return;
+            }
+            *since = Some(std::time::Instant::now());
+        }
+        let _running = Running(&self.scan_since);
         match self.registry.scan() {
             Ok(()) => self.ready.store(true, Ordering::Relaxed),
             Err(e) => {
@@ -114,6 +136,20 @@ impl App {
                 tracing::error!(error = %e, "store scan failed");
             }
         }
+    }
+
+    /// How long a store scan may run before the server says it is not ready: ten poll
+    /// intervals, and at least [`SCAN_DEADLINE_MIN`].
+    #[must_use]
+    pub fn scan_deadline(&self) -> std::time::Duration {
+        (self.config.poll * 10).max(SCAN_DEADLINE_MIN)
+    }
+
+    /// How long the scan running now has run, when that is past [`App::scan_deadline`].
+    #[must_use]
+    pub fn scan_stuck(&self) -> Option<std::time::Duration> {
+        let since = (*self.scan_since.lock().ok()?)?;
+        Some(since.elapsed()).filter(|d| *d > self.scan_deadline())
     }
 
     /// What bakes point levels in this server: "cpu" or "gpu: <adapter>".
@@ -223,6 +259,15 @@ fn remove_staging_leftovers(root: &std::path::Path) {
     }
 }
 
+/// The shortest time a store scan may run before the server reports not ready
+/// ([`App::scan_deadline`]): a scan of a large store or a bucket takes seconds.
+pub const SCAN_DEADLINE_MIN: std::time::Duration = std::time::Duration::from_secs(30);
+
+/// How long stopping the server waits for blocking work still running (a store read stuck on
+/// a file, a tileset being deleted): the process then exits without it. Every write is atomic,
+/// so nothing is left half-written.
+const BLOCKING_SHUTDOWN_WAIT: std::time::Duration = std::time::Duration::from_secs(2);
+
 /// Connections the kernel queues for `accept` (capped by `net.core.somaxconn`): room for a
 /// burst of clients while the server is at `--max-connections` or accepting a flood; the
 /// 1024 of a plain `bind` drops SYNs of a burst, which then wait seconds to be retried.
@@ -301,14 +346,23 @@ impl Server {
             in_flight: AtomicUsize::new(0),
             rate: rate_limit::RateLimiter::new(config.rate_limit),
             ready: AtomicBool::new(false),
+            scan_since: std::sync::Mutex::new(None),
             metrics,
             config,
         });
         {
+            // The first scan, before listening; one stuck past its deadline is left running
+            // (the server listens, not ready, and polling takes over once it ends).
             let a = app.clone();
-            tokio::task::spawn_blocking(move || a.rescan())
-                .await
-                .map_err(|e| ServerError::Config(format!("--store: {e}")))?;
+            let first = tokio::task::spawn_blocking(move || a.rescan());
+            if let Ok(r) = tokio::time::timeout(app.scan_deadline(), first).await {
+                r.map_err(|e| ServerError::Config(format!("--store: {e}")))?;
+            } else {
+                tracing::error!(
+                    store = %app.config.store.display(),
+                    "the first store scan has not finished; listening, not ready until a scan completes"
+                );
+            }
         }
         let listener =
             listen(app.config.bind).map_err(|source| ServerError::Bind { addr: app.config.bind, source })?;
@@ -342,10 +396,24 @@ impl Server {
             tokio::spawn(async move {
                 let mut tick = tokio::time::interval(app.config.poll);
                 tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+                let mut stuck_logged = false;
                 loop {
                     tick.tick().await;
+                    // Not awaited: a scan stuck on a file must not stop the timer (the next
+                    // tick's scan returns at once while it runs) nor hold up shutdown.
                     let a = app.clone();
-                    let _ = tokio::task::spawn_blocking(move || a.rescan()).await;
+                    drop(tokio::task::spawn_blocking(move || a.rescan()));
+                    match app.scan_stuck() {
+                        Some(d) if !stuck_logged => {
+                            stuck_logged = true;
+                            tracing::error!(
+                                seconds = d.as_secs(),
+                                "a store scan has not finished (a file that blocks on open, a hung mount?); not ready until it does"
+                            );
+                        }
+                        None => stuck_logged = false,
+                        Some(_) => {}
+                    }
                 }
             })
         };
@@ -412,11 +480,14 @@ pub async fn shutdown_signal() {
 /// bound address (print URLs there).
 pub fn serve_blocking(config: Config, on_ready: impl FnOnce(SocketAddr, &App)) -> Result<(), ServerError> {
     let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
-    rt.block_on(async move {
+    let r = rt.block_on(async move {
         let server = Server::bind(config).await?;
         on_ready(server.local_addr()?, &server.app);
         server.run(shutdown_signal()).await
-    })
+    });
+    // Dropping the runtime would wait for every blocking task, a read stuck on a file too.
+    rt.shutdown_timeout(BLOCKING_SHUTDOWN_WAIT);
+    r
 }
 
 #[cfg(test)]

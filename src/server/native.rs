@@ -32,6 +32,18 @@ pub(super) async fn healthz() -> Response {
 }
 
 pub(super) async fn readyz(State(app): State<Arc<App>>) -> Response {
+    if let Some(d) = app.scan_stuck() {
+        return Problem::unavailable(
+            "not-ready",
+            format!(
+                "a scan of the store {} has run for {} s without finishing (a file that blocks when read, a hung mount?)",
+                app.registry.root().display(),
+                d.as_secs()
+            ),
+            5,
+        )
+        .into_response();
+    }
     // A bucket is readable when its last scan (a listing) succeeded: `ready` says so.
     let store_ok = app.registry.is_remote() || app.registry.root().is_dir();
     let ready = app.ready.load(Ordering::Relaxed) && store_ok;

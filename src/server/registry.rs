@@ -214,6 +214,22 @@ pub struct Registry {
     remote: Option<crate::store::Bucket>,
     on_demand: HashMap<String, OnDemand>,
     map: RwLock<HashMap<String, Arc<Tileset>>>,
+    /// Tilesets whose manifest (or archive) failed to load, with the stamp (mtime, size) it
+    /// had then: a damaged one is not read again, nor logged again, until the stamp changes, so
+    /// a broken file costs one `stat` per poll and one log line per change.
+    failed: std::sync::Mutex<HashMap<String, Broken>>,
+    /// Loaded tilesets that cannot be read now (kept listed), with the error last logged and
+    /// the scan that last saw it: logged once per change of the error, not every poll.
+    unreadable: std::sync::Mutex<HashMap<String, (String, u64)>>,
+    scans: AtomicU64,
+}
+
+/// A tileset that failed to load, as [`Registry::load_failed`] recorded it.
+#[derive(PartialEq)]
+struct Broken {
+    stamp: Option<(SystemTime, u64)>,
+    message: String,
+    transient: bool,
 }
 
 impl Registry {
@@ -222,7 +238,80 @@ impl Registry {
         let text = root.to_string_lossy();
         let remote =
             if crate::store::is_remote(&text) { Some(crate::store::Bucket::open(&text)?) } else { None };
-        Ok(Self { root: root.to_owned(), remote, on_demand, map: RwLock::new(HashMap::new()) })
+        Ok(Self {
+            root: root.to_owned(),
+            remote,
+            on_demand,
+            map: RwLock::new(HashMap::new()),
+            failed: std::sync::Mutex::new(HashMap::new()),
+            unreadable: std::sync::Mutex::new(HashMap::new()),
+            scans: AtomicU64::new(0),
+        })
+    }
+
+    /// Logs that the loaded tileset `name` cannot be read now (`path`: what failed), once per
+    /// change of the error.
+    fn note_unreadable(&self, name: &str, path: &str, e: &dyn std::fmt::Display) {
+        let scan = self.scans.load(Ordering::Relaxed);
+        let message = format!("{path}: {e}");
+        let Ok(mut u) = self.unreadable.lock() else { return };
+        if u.get(name).is_none_or(|(m, _)| *m != message) {
+            tracing::error!(
+                tileset = %name, path = %path, error = %e,
+                "tileset cannot be read; still listed, its reads fail (logged again when the error changes)"
+            );
+        }
+        u.insert(name.to_owned(), (message, scan));
+    }
+
+    /// Starts a scan: tilesets not noted unreadable by it are readable again.
+    fn begin_scan(&self) {
+        self.scans.fetch_add(1, Ordering::Relaxed);
+    }
+
+    fn end_scan(&self) {
+        let scan = self.scans.load(Ordering::Relaxed);
+        if let Ok(mut u) = self.unreadable.lock() {
+            u.retain(|name, (_, seen)| {
+                if *seen != scan {
+                    tracing::info!(tileset = %name, "tileset readable again");
+                }
+                *seen == scan
+            });
+        }
+    }
+
+    /// Whether the tileset `name` failed to load with the same stamp `st` already, for a reason
+    /// in its files (damaged, too large, not a regular file, invalid): not worth reading again.
+    fn known_broken(&self, name: &str, st: Option<(SystemTime, u64)>) -> bool {
+        self.failed.lock().is_ok_and(|f| f.get(name).is_some_and(|b| b.stamp == st && !b.transient))
+    }
+
+    /// Records a load of `name` (stamp `st`) that failed with `e`; logged once per change of
+    /// the stamp or the error. A failed read (I/O, a remote request) is tried again at the next
+    /// scan; anything else waits for the files to change.
+    fn load_failed(&self, name: &str, st: Option<(SystemTime, u64)>, e: &ServerError) {
+        use crate::store::StoreError;
+        let transient = matches!(
+            e,
+            ServerError::Io(_) | ServerError::Store(StoreError::Io { .. } | StoreError::Remote { .. })
+        );
+        let broken = Broken { stamp: st, message: e.to_string(), transient };
+        let Ok(mut f) = self.failed.lock() else { return };
+        if f.get(name) != Some(&broken) {
+            tracing::warn!(
+                tileset = %name, error = %e,
+                "tileset skipped (logged again only when its files or the error change)"
+            );
+            f.insert(name.to_owned(), broken);
+        }
+    }
+
+    /// Forgets the failures of tilesets loaded now, or no longer in the store.
+    fn prune_failed(&self, present: &dyn Fn(&str) -> bool, next: &HashMap<String, Arc<Tileset>>) {
+        if let Ok(mut f) = self.failed.lock() {
+            f.retain(|name, _| present(name) && !next.contains_key(name));
+        }
     }
 
     #[must_use]
@@ -280,6 +369,7 @@ impl Registry {
                 found.push((name.clone(), Found::Prefix(name)));
             }
         }
+        let found_names = found.iter().map(|(n, _)| n.clone()).collect();
         let mut next = HashMap::with_capacity(found.len());
         for (name, f) in found {
             // Ok: an archive object's name; Err: a folder tileset's prefix.
@@ -298,7 +388,7 @@ impl Registry {
                         Ok(None) => continue,
                         Err(e) => {
                             if let Some(old) = current.get(&name) {
-                                tracing::error!(tileset = %name, error = %e, "tileset cannot be read; still listed, its reads fail");
+                                self.note_unreadable(&name, &format!("{}/{p}", r.url()), &e);
                                 next.insert(name, Arc::clone(old));
                             }
                             continue;
@@ -313,6 +403,9 @@ impl Registry {
                 next.insert(name, old.clone());
                 continue;
             }
+            if self.known_broken(&name, st) {
+                continue;
+            }
             let opened = match store {
                 Ok(file) => Store::archive_at(&format!("{}/{file}", r.url())),
                 Err(child) => Ok(Store::from_bucket(child)),
@@ -322,9 +415,11 @@ impl Registry {
                     tracing::info!(tileset = %name, content_version = %ts.content_version, "tileset loaded");
                     next.insert(name, Arc::new(ts));
                 }
-                Err(e) => tracing::warn!(tileset = %name, error = %e, "tileset skipped"),
+                Err(e) => self.load_failed(&name, st, &e),
             }
         }
+        let names: std::collections::HashSet<String> = found_names;
+        self.prune_failed(&|n| names.contains(n), &next);
         self.publish(&current, next);
         Ok(())
     }
@@ -342,6 +437,15 @@ impl Registry {
 
     /// Re-scans the store; returns an error only when the store itself cannot be read.
     pub fn scan(&self) -> Result<(), ServerError> {
+        self.begin_scan();
+        let r = self.scan_store();
+        if r.is_ok() {
+            self.end_scan();
+        }
+        r
+    }
+
+    fn scan_store(&self) -> Result<(), ServerError> {
         if let Some(r) = &self.remote {
             return self.scan_remote(r);
         }
@@ -356,7 +460,7 @@ impl Registry {
         // manifest that is not there any more (NotFound) drops it.
         let keep_unreadable = |name: &str, path: &Path, e: &std::io::Error, next: &mut HashMap<_, _>| {
             if let Some(old) = current.get(name) {
-                tracing::error!(tileset = %name, path = %path.display(), error = %e, "tileset cannot be read; still listed, its reads fail");
+                self.note_unreadable(name, &path.display().to_string(), e);
                 next.insert(name.to_owned(), Arc::clone(old));
             }
         };
@@ -399,6 +503,7 @@ impl Registry {
                 seen.insert(name.clone(), Found::Dir(self.root.join(name)));
             }
         }
+        let found_names: std::collections::HashSet<String> = seen.keys().cloned().collect();
         for (name, found) in seen {
             let dir = match found {
                 Found::Dir(dir) => dir,
@@ -409,6 +514,10 @@ impl Registry {
                         next.insert(name, old.clone());
                         continue;
                     }
+                    if self.known_broken(&name, st) {
+                        continue;
+                    }
+                    // A FIFO or device named NAME.tsa is refused by its type, never opened.
                     match Store::archive_at(&file)
                         .map_err(ServerError::from)
                         .and_then(|s| load_complete(&name, s, st, None))
@@ -417,7 +526,7 @@ impl Registry {
                             tracing::info!(tileset = %name, content_version = %ts.content_version, "tileset loaded (archive)");
                             next.insert(name, Arc::new(ts));
                         }
-                        Err(e) => tracing::warn!(tileset = %name, error = %e, "tileset skipped"),
+                        Err(e) => self.load_failed(&name, st, &e),
                     }
                     continue;
                 }
@@ -438,6 +547,9 @@ impl Registry {
                 next.insert(name, old.clone());
                 continue;
             }
+            if st.is_some() && self.known_broken(&name, st) {
+                continue;
+            }
             let loaded = match (st, od) {
                 (Some(_), _) => load_complete(&name, Store::new(&dir), st, od.map(|o| o.source.clone())),
                 (None, Some(o)) => Ok(load_provisional(&name, &dir, o.source.clone(), &o.options)),
@@ -448,12 +560,12 @@ impl Registry {
                     tracing::info!(tileset = %name, content_version = %ts.content_version, "tileset loaded");
                     next.insert(name, Arc::new(ts));
                 }
-                Err(e) => {
-                    // A half-copied or foreign directory: skip it now, retry on the next scan.
-                    tracing::warn!(tileset = %name, error = %e, "tileset skipped");
-                }
+                // A half-copied or foreign directory, a manifest that is a FIFO or too large:
+                // skipped, and read again only once its manifest changes.
+                Err(e) => self.load_failed(&name, st, &e),
             }
         }
+        self.prune_failed(&|n| found_names.contains(n), &next);
         self.publish(&current, next);
         Ok(())
     }

@@ -24,7 +24,7 @@ use tokio::sync::{OnceCell, Semaphore};
 use super::App;
 use super::cache::Entry;
 use super::conditional::{Conditional, etag_value, send};
-use super::loaders::{SHORT, parse_num, tileset, versioned_cache};
+use super::loaders::{SHORT, parse_num, stored_file_problem, tileset, versioned_cache};
 use super::problem::Problem;
 use super::registry::{Tileset, etag_of};
 use crate::bake::qmesh::{TERRAIN_DIR, TerrainSource, tile_rel};
@@ -75,31 +75,25 @@ type Rejection = axum::extract::rejection::PathRejection;
 type TilePath = (String, String, String, String);
 
 /// Whether the tileset's store holds baked terrain (its `terrain/layer.json`).
-async fn baked(ts: &Arc<Tileset>) -> Result<Option<Vec<u8>>, Problem> {
+async fn baked(app: &App, ts: &Arc<Tileset>) -> Result<Option<Vec<u8>>, Problem> {
     let store = ts.store.clone();
-    let name = ts.name.clone();
-    tokio::task::spawn_blocking(move || {
-        store.read_file_within(&format!("{TERRAIN_DIR}/layer.json"), 2..=MAX_STORED_BYTES)
-    })
-    .await
-    .map_err(|_| Problem::internal("terrain", "reading the terrain failed"))?
-    .map_err(|e| {
-        tracing::error!(tileset = %name, error = %e, "cannot read the baked terrain's layer.json");
-        Problem::internal("store-io", format!("the terrain of tileset {name:?} cannot be read"))
-    })
+    let rel = format!("{TERRAIN_DIR}/layer.json");
+    let rel2 = rel.clone();
+    tokio::task::spawn_blocking(move || store.read_file_within(&rel2, 2..=MAX_STORED_BYTES))
+        .await
+        .map_err(|_| Problem::internal("terrain", "reading the terrain failed"))?
+        .map_err(|e| stored_file_problem(app, ts, &rel, "terrain layer", &e))
 }
 
 /// Whether the tileset's store holds baked terrain, without reading its layer.
-async fn has_baked(ts: &Arc<Tileset>) -> Result<bool, Problem> {
+async fn has_baked(app: &App, ts: &Arc<Tileset>) -> Result<bool, Problem> {
     let store = ts.store.clone();
-    let name = ts.name.clone();
-    tokio::task::spawn_blocking(move || store.has_file(&format!("{TERRAIN_DIR}/layer.json")))
+    let rel = format!("{TERRAIN_DIR}/layer.json");
+    let rel2 = rel.clone();
+    tokio::task::spawn_blocking(move || store.has_file(&rel2))
         .await
         .map_err(|_| Problem::internal("terrain", "reading the terrain failed"))?
-        .map_err(|e| {
-            tracing::error!(tileset = %name, error = %e, "cannot look for the baked terrain");
-            Problem::unavailable("store-io", format!("the terrain of tileset {name:?} cannot be read"), 5)
-        })
+        .map_err(|e| stored_file_problem(app, ts, &rel, "terrain layer", &e))
 }
 
 fn no_terrain(name: &str) -> Problem {
@@ -135,7 +129,7 @@ async fn layer_entry(app: &Arc<App>, ts: &Arc<Tileset>) -> Result<Entry, Problem
     if let Some(e) = app.cache.get(&ck) {
         return Ok(e);
     }
-    let body = if let Some(b) = baked(ts).await? {
+    let body = if let Some(b) = baked(app, ts).await? {
         b
     } else if let Some(src) = ts.source.clone() {
         let (name2, version) = (ts.name.clone(), ts.content_version.clone());
@@ -248,7 +242,7 @@ async fn full_tile(app: &Arc<App>, ts: &Arc<Tileset>, id: TileId) -> Result<Byte
     if let Some(e) = app.cache.get(&ck) {
         return Ok(e.bytes);
     }
-    let bytes = if has_baked(ts).await? {
+    let bytes = if has_baked(app, ts).await? {
         let store = ts.store.clone();
         let rel = tile_rel(id);
         let got = tokio::task::spawn_blocking(move || store.read_file_within(&rel, 88..=MAX_STORED_BYTES))
@@ -259,13 +253,17 @@ async fn full_tile(app: &Arc<App>, ts: &Arc<Tileset>, id: TileId) -> Result<Byte
             Ok(None) => {
                 return Err(Problem::not_found(format!("tileset {:?} has no terrain tile {id}", ts.name)));
             }
-            Err(e) => {
+            // A tile of the wrong size is damage; a failed read may pass (503).
+            Err(e @ crate::store::StoreError::Invalid { .. }) => {
                 tracing::error!(tileset = %ts.name, tile = %id, error = %e, "cannot read a terrain tile");
                 app.metrics.corrupt_blobs.fetch_add(1, Ordering::Relaxed);
                 return Err(Problem::internal(
                     "corrupt-blob",
                     format!("terrain tile {id} of {:?} cannot be read", ts.name),
                 ));
+            }
+            Err(e) => {
+                return Err(stored_file_problem(app, ts, &tile_rel(id), &format!("terrain tile {id}"), &e));
             }
         }
     } else if ts.source.is_some() {
@@ -365,8 +363,8 @@ async fn layer_value(app: &Arc<App>, ts: &Arc<Tileset>) -> Result<serde_json::Va
 }
 
 /// Zoom 0's error bound: the bake's (`terrain/stats.json`), or the on-demand source's.
-async fn level0_error(ts: &Arc<Tileset>) -> Result<f64, Problem> {
-    if has_baked(ts).await? {
+async fn level0_error(app: &App, ts: &Arc<Tileset>) -> Result<f64, Problem> {
+    if has_baked(app, ts).await? {
         let store = ts.store.clone();
         tokio::task::spawn_blocking(move || crate::bake::terrain3d::level0_error(&store))
             .await
@@ -450,7 +448,7 @@ pub(super) async fn tileset3d(
     let root = TileId { z: 0, x: 0, y: 0 };
     let entry = cached_t3(&app, &ts, root, T3_TILESET, false, async {
         let layer = layer_value(&app, &ts).await?;
-        let e0 = level0_error(&ts).await?;
+        let e0 = level0_error(&app, &ts).await?;
         tiles3d::tileset_from_layer(&layer, e0).map_err(|e| {
             tracing::error!(tileset = %ts.name, error = %e, "the terrain's layer.json cannot be made a tileset");
             Problem::internal("corrupt-blob", format!("the terrain of tileset {:?}: {e}", ts.name))

@@ -51,10 +51,30 @@ const CACHED_PAGES: usize = 512;
 pub enum ArchiveError {
     #[error("{0}")]
     Io(#[from] std::io::Error),
+    /// The file is not an archive this build reads (found when it is opened).
     #[error("not a terrastream archive: {0}")]
     Format(String),
+    /// Damage found inside an archive that opened: a directory page or a file whose bytes do
+    /// not match their checksum, an entry out of range. Reading again will not help.
+    #[error("damaged archive: {0}")]
+    Corrupt(String),
+    /// A file larger than its kind's limit (checked against the directory before reading).
+    #[error("{path}: {len} bytes; a {what} is at most {limit} bytes (not read)")]
+    TooLarge { path: String, len: u64, limit: u64, what: &'static str },
     #[error("{0}")]
     Write(String),
+}
+
+fn damaged(what: impl Into<String>) -> ArchiveError {
+    ArchiveError::Corrupt(what.into())
+}
+
+/// A directory page is read after the archive opened: what is wrong in it is damage.
+fn field<T>(r: Result<T, ArchiveError>) -> Result<T, ArchiveError> {
+    r.map_err(|e| match e {
+        ArchiveError::Format(m) => damaged(m),
+        e => e,
+    })
 }
 
 /// One file in the directory.
@@ -365,11 +385,22 @@ impl Archive {
         Ok(Self { source, len, count, data_end, root, pages: Mutex::new(HashMap::new()) })
     }
 
-    /// Opens a local archive file.
+    /// Opens a local archive file. Anything but a regular file (a FIFO, whose open would wait
+    /// for a writer; a device) is refused without being opened.
     pub fn open_file(path: &std::path::Path) -> Result<Self, ArchiveError> {
+        let irregular = |ty| {
+            crate::store::bounded::irregular_kind(ty)
+                .map(|kind| bad(format!("it is {kind}, not a regular file; refused without reading it")))
+        };
+        if let Some(e) = irregular(std::fs::metadata(path)?.file_type()) {
+            return Err(e);
+        }
         let file = std::fs::File::open(path)?;
-        let len = file.metadata()?.len();
-        Self::open(Box::new(FileSource(file)), len)
+        let md = file.metadata()?;
+        if let Some(e) = irregular(md.file_type()) {
+            return Err(e);
+        }
+        Self::open(Box::new(FileSource(file)), md.len())
     }
 
     /// The archive's length in bytes.
@@ -396,22 +427,25 @@ impl Archive {
         let r = &self.root[i];
         let bytes = self.source.read_range(r.offset, u64::from(r.len))?;
         if bytes.len() != r.len as usize || crc32fast::hash(&bytes) != r.crc {
-            return Err(bad(format!("directory page {i}'s checksum does not match")));
+            return Err(damaged(format!("directory page {i}'s checksum does not match")));
         }
         let mut c = Cursor(&bytes);
         let mut out = Vec::with_capacity(r.count as usize);
         while !c.0.is_empty() {
             let e = Entry {
-                path: c.path("directory page")?,
-                offset: c.u64("directory page")?,
-                len: c.u64("directory page")?,
-                crc: c.u32("directory page")?,
+                path: field(c.path("directory page"))?,
+                offset: field(c.u64("directory page"))?,
+                len: field(c.u64("directory page"))?,
+                crc: field(c.u32("directory page"))?,
             };
             if out.last().is_some_and(|l: &Entry| l.path >= e.path)
                 || e.offset < MAGIC.len() as u64
                 || e.offset.checked_add(e.len).is_none_or(|end| end > self.data_end)
             {
-                return Err(bad(format!("directory page {i}: entry {:?} is out of order or range", e.path)));
+                return Err(damaged(format!(
+                    "directory page {i}: entry {:?} is out of order or range",
+                    e.path
+                )));
             }
             out.push(e);
         }
@@ -420,7 +454,7 @@ impl Archive {
             || out.first().map(|e| &e.path) != Some(&r.first)
             || out.last().zip(next).is_some_and(|(l, n)| &l.path >= n)
         {
-            return Err(bad(format!(
+            return Err(damaged(format!(
                 "directory page {i} does not match the root (its file count, first path, or order before the next page)"
             )));
         }
@@ -446,12 +480,26 @@ impl Archive {
 
     /// The bytes of `path`, checked against its CRC-32; `None` when there is no such file.
     pub fn read(&self, path: &str) -> Result<Option<Vec<u8>>, ArchiveError> {
+        self.read_within(path, u64::MAX, "file")
+    }
+
+    /// [`Archive::read`] of a file of at most `limit` bytes (a `what`, for messages): a larger
+    /// entry is [`ArchiveError::TooLarge`], refused before any of it is read.
+    pub fn read_within(
+        &self,
+        path: &str,
+        limit: u64,
+        what: &'static str,
+    ) -> Result<Option<Vec<u8>>, ArchiveError> {
         let Some(e) = self.entry(path)? else { return Ok(None) };
+        if e.len > limit {
+            return Err(ArchiveError::TooLarge { path: path.to_owned(), len: e.len, limit, what });
+        }
         // An empty file (a marker) is read without a request: a range of no bytes is not a
         // valid HTTP range.
         let bytes = if e.len == 0 { Vec::new() } else { self.source.read_range(e.offset, e.len)? };
         if bytes.len() as u64 != e.len || crc32fast::hash(&bytes) != e.crc {
-            return Err(bad(format!("{path}: its bytes do not match the directory's checksum")));
+            return Err(damaged(format!("{path}: its bytes do not match the directory's checksum")));
         }
         Ok(Some(bytes))
     }

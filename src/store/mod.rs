@@ -18,6 +18,7 @@
 
 pub mod archive;
 pub mod backend;
+pub mod bounded;
 pub mod model_manifest;
 
 use std::io::Write;
@@ -99,6 +100,58 @@ pub enum StoreError {
          levels it has"
     )]
     LevelNotStored { path: PathBuf, key: TileKey, level: u8, why: &'static str },
+    /// A stored file failed a check of its own bytes (an archive's checksum, a directory entry
+    /// out of range): the data is damaged, and reading it again will not help.
+    #[error("{path}: {message}")]
+    Corrupt { path: PathBuf, message: String },
+    /// A stored file larger than any file of its kind can be (checked before it is read).
+    #[error("{path}: {}", too_large(*.size, *.limit, .what))]
+    TooLarge { path: PathBuf, size: Option<u64>, limit: u64, what: &'static str },
+    /// A FIFO, device or socket where a stored file should be: refused without opening it.
+    #[error("{path}: is {kind}, not a regular file; refused without reading it")]
+    NotRegular { path: PathBuf, kind: &'static str },
+}
+
+fn too_large(size: Option<u64>, limit: u64, what: &str) -> String {
+    match size {
+        Some(n) => format!("is {n} bytes; a {what} is at most {limit} bytes (not read)"),
+        None => format!("holds more than {limit} bytes, the most a {what} may hold (read no further)"),
+    }
+}
+
+impl StoreError {
+    /// Whether the error says the stored data itself is bad (damaged, too large, not a regular
+    /// file), as opposed to the store being unreadable now (I/O, a remote error): a server
+    /// answers the first `500` and the second `503` (retry later).
+    #[must_use]
+    pub fn is_damaged(&self) -> bool {
+        matches!(
+            self,
+            Self::Corrupt { .. } | Self::TooLarge { .. } | Self::NotRegular { .. } | Self::Json { .. }
+        )
+    }
+}
+
+/// Largest JSON document of a tileset a reader accepts (manifest, index chunk, options and
+/// placement records), checked before reading. Real bakes write far less: a manifest of a few
+/// KiB, an index chunk of 85 nodes × 17 levels under 1 MiB (about 600 bytes per node level).
+pub const MAX_DOCUMENT_BYTES: u64 = 4 << 20;
+/// Largest blob a reader accepts: its header and the largest payload the blob format allows.
+pub const MAX_BLOB_BYTES: u64 = crate::codec::PREFIX_LEN as u64 + crate::codec::MAX_PAYLOAD_LEN as u64;
+
+/// The most bytes a reader takes of the tileset file `rel`, and what the file is (for
+/// messages): a blob's limit for blobs and other binary files (quantized-mesh tiles, glTF),
+/// [`MAX_DOCUMENT_BYTES`] for the tileset's JSON documents.
+#[must_use]
+pub fn read_limit(rel: &str) -> (u64, &'static str) {
+    let ext = std::path::Path::new(rel).extension();
+    if ext.is_some_and(|e| e.eq_ignore_ascii_case("json")) {
+        (MAX_DOCUMENT_BYTES, "JSON document of a tileset")
+    } else if ext.is_some_and(|e| e.eq_ignore_ascii_case("tsb")) {
+        (MAX_BLOB_BYTES, "blob")
+    } else {
+        (MAX_BLOB_BYTES, "file of a tileset")
+    }
 }
 
 /// What a level is and how it was made.
@@ -634,8 +687,9 @@ impl Store {
     }
 
     /// A file of the tileset (relative path); `Ok(None)` when it does not exist.
+    /// Its size is checked against [`read_limit`] before (and while) it is read.
     fn get(&self, rel: &str) -> Result<Option<Vec<u8>>, StoreError> {
-        self.backend.read(rel)
+        self.backend.read(rel, read_limit(rel).0)
     }
 
     /// Writes a file of the tileset whole: a temporary file renamed into place, or one PUT.
@@ -645,10 +699,11 @@ impl Store {
 
     /// A file of the tileset by its relative path, for the server: `Ok(None)` when it does not
     /// exist. Local files are read on tokio's blocking pool, objects through the async client,
-    /// archive ranges on the blocking pool.
+    /// archive ranges on the blocking pool. Its size is checked against [`read_limit`] before
+    /// (and while) it is read.
     #[cfg(feature = "server")]
     pub async fn get_async(&self, rel: &str) -> Result<Option<bytes::Bytes>, StoreError> {
-        self.backend.read_async(rel).await
+        self.backend.read_async(rel, read_limit(rel).0).await
     }
 
     /// Whether a file of the tileset exists, for the server.
@@ -817,7 +872,7 @@ impl Store {
         match size {
             None => Ok(None),
             Some(size) if !lens.contains(&size) => Err(wrong(size)),
-            Some(_) => match self.get(rel)? {
+            Some(_) => match self.backend.read(rel, *lens.end())? {
                 // Replaced between the two requests.
                 Some(b) if !lens.contains(&(b.len() as u64)) => Err(wrong(b.len() as u64)),
                 other => Ok(other),

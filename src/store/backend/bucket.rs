@@ -230,9 +230,16 @@ impl Bucket {
         StoreError::Remote { url: format!("{}/{rel}", self.url()), message: e.to_string() }
     }
 
-    /// The object's bytes; `Ok(None)` when it does not exist.
-    pub async fn get_async(&self, rel: &str) -> Result<Option<bytes::Bytes>, StoreError> {
+    /// The object's bytes; `Ok(None)` when it does not exist. An object larger than `limit` is
+    /// [`StoreError::TooLarge`], its body not read (the size comes with the response head).
+    pub async fn get_async(&self, rel: &str, limit: u64) -> Result<Option<bytes::Bytes>, StoreError> {
         match self.store.get(&self.key(rel)).await {
+            Ok(r) if r.meta.size > limit => Err(StoreError::TooLarge {
+                path: self.location.join(rel),
+                size: Some(r.meta.size),
+                limit,
+                what: crate::store::read_limit(rel).1,
+            }),
             Ok(r) => r.bytes().await.map(Some).map_err(|e| self.err(rel, &e)),
             Err(object_store::Error::NotFound { .. }) => Ok(None),
             Err(e) => Err(self.err(rel, &e)),
@@ -252,8 +259,15 @@ impl Bucket {
         }
     }
 
+    /// [`Bucket::get_async`], blocking, with the limit of the file's kind
+    /// ([`crate::store::read_limit`]).
     pub fn get(&self, rel: &str) -> Result<Option<Vec<u8>>, StoreError> {
-        block(self.get_async(rel)).map(|b| b.map(|b| b.to_vec()))
+        self.get_within(rel, crate::store::read_limit(rel).0)
+    }
+
+    /// [`Bucket::get_async`], blocking.
+    pub fn get_within(&self, rel: &str, limit: u64) -> Result<Option<Vec<u8>>, StoreError> {
+        block(self.get_async(rel, limit)).map(|b| b.map(|b| b.to_vec()))
     }
 
     /// Writes the object whole (a PUT is atomic).
@@ -420,8 +434,8 @@ impl Backend for Bucket {
         &self.location
     }
 
-    fn read(&self, rel: &str) -> Result<Option<Vec<u8>>, StoreError> {
-        self.get(rel)
+    fn read(&self, rel: &str, limit: u64) -> Result<Option<Vec<u8>>, StoreError> {
+        self.get_within(rel, limit)
     }
 
     fn size(&self, rel: &str) -> Result<Option<u64>, StoreError> {
@@ -466,8 +480,9 @@ impl Backend for Bucket {
     fn read_async<'a>(
         &'a self,
         rel: &'a str,
+        limit: u64,
     ) -> super::BoxFuture<'a, Result<Option<bytes::Bytes>, StoreError>> {
-        Box::pin(self.get_async(rel))
+        Box::pin(self.get_async(rel, limit))
     }
 
     #[cfg(feature = "server")]

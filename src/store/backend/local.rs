@@ -8,7 +8,8 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use super::{Backend, Location, Sweep};
-use crate::store::StoreError;
+use crate::store::bounded::read_regular;
+use crate::store::{StoreError, read_limit};
 
 /// Folders below a tileset's top a listing follows at most (a tileset is 6 deep).
 const MAX_LIST_DEPTH: u32 = 16;
@@ -41,13 +42,8 @@ impl Backend for LocalDir {
         &self.location
     }
 
-    fn read(&self, rel: &str) -> Result<Option<Vec<u8>>, StoreError> {
-        let path = self.dir().join(rel);
-        match fs::read(&path) {
-            Ok(b) => Ok(Some(b)),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-            Err(e) => Err(io(&path)(e)),
-        }
+    fn read(&self, rel: &str, limit: u64) -> Result<Option<Vec<u8>>, StoreError> {
+        read_regular(&self.dir().join(rel), limit, read_limit(rel).1)
     }
 
     fn size(&self, rel: &str) -> Result<Option<u64>, StoreError> {
@@ -172,14 +168,16 @@ impl Backend for LocalDir {
     fn read_async<'a>(
         &'a self,
         rel: &'a str,
+        limit: u64,
     ) -> super::BoxFuture<'a, Result<Option<bytes::Bytes>, StoreError>> {
         Box::pin(async move {
             let path = self.dir().join(rel);
-            match tokio::fs::read(&path).await {
-                Ok(b) => Ok(Some(bytes::Bytes::from(b))),
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-                Err(e) => Err(io(&path)(e)),
-            }
+            let what = read_limit(rel).1;
+            let p = path.clone();
+            tokio::task::spawn_blocking(move || read_regular(&p, limit, what))
+                .await
+                .map_err(|e| io(&path)(std::io::Error::other(e)))?
+                .map(|b| b.map(bytes::Bytes::from))
         })
     }
 

@@ -99,8 +99,11 @@ pub trait Backend: std::fmt::Debug + Send + Sync + std::any::Any {
     /// Where the tileset is.
     fn location(&self) -> &Location;
 
-    /// The file's bytes; `Ok(None)` when it does not exist.
-    fn read(&self, rel: &str) -> Result<Option<Vec<u8>>, StoreError>;
+    /// The file's bytes; `Ok(None)` when it does not exist. A file larger than `limit` is
+    /// [`StoreError::TooLarge`] (checked before reading where the size is known, and never more
+    /// than `limit + 1` bytes read), a local one that is not a regular file
+    /// [`StoreError::NotRegular`] (never opened).
+    fn read(&self, rel: &str, limit: u64) -> Result<Option<Vec<u8>>, StoreError>;
 
     /// The file's size, without reading it; `Ok(None)` when it does not exist.
     fn size(&self, rel: &str) -> Result<Option<u64>, StoreError>;
@@ -141,9 +144,14 @@ pub trait Backend: std::fmt::Debug + Send + Sync + std::any::Any {
         Ok(0)
     }
 
-    /// [`Backend::read`] for the server, without blocking its runtime.
+    /// [`Backend::read`] for the server, without blocking its runtime (local files are read
+    /// on tokio's blocking pool).
     #[cfg(feature = "server")]
-    fn read_async<'a>(&'a self, rel: &'a str) -> BoxFuture<'a, Result<Option<bytes::Bytes>, StoreError>>;
+    fn read_async<'a>(
+        &'a self,
+        rel: &'a str,
+        limit: u64,
+    ) -> BoxFuture<'a, Result<Option<bytes::Bytes>, StoreError>>;
 
     /// [`Backend::exists`] for the server, without blocking its runtime.
     #[cfg(feature = "server")]

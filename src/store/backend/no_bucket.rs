@@ -59,7 +59,7 @@ impl Bucket {
         match *self {}
     }
     #[cfg(feature = "server")]
-    pub async fn get_async(&self, _: &str) -> Result<Option<bytes::Bytes>, StoreError> {
+    pub async fn get_async(&self, _: &str, _: u64) -> Result<Option<bytes::Bytes>, StoreError> {
         match *self {}
     }
     #[cfg(feature = "server")]
@@ -78,7 +78,7 @@ impl Backend for Bucket {
     fn location(&self) -> &Location {
         match *self {}
     }
-    fn read(&self, _: &str) -> Result<Option<Vec<u8>>, StoreError> {
+    fn read(&self, _: &str, _: u64) -> Result<Option<Vec<u8>>, StoreError> {
         match *self {}
     }
     fn size(&self, _: &str) -> Result<Option<u64>, StoreError> {
@@ -109,6 +109,7 @@ impl Backend for Bucket {
     fn read_async<'a>(
         &'a self,
         _: &'a str,
+        _: u64,
     ) -> super::BoxFuture<'a, Result<Option<bytes::Bytes>, StoreError>> {
         match *self {}
     }
