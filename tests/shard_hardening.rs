@@ -12,6 +12,9 @@ use std::time::Duration;
 
 use common::{bin, ok, run_within, shard_step, tree};
 
+/// An edit of a plan's JSON.
+type Edit = Box<dyn Fn(&mut serde_json::Value)>;
+
 const BAKE: [&str; 6] = ["--tile-size", "32", "--levels", "2", "--max-error", "0.5"];
 
 fn synth(dir: &Path) -> PathBuf {
@@ -125,7 +128,6 @@ fn damaged_plans_exit_3_and_usage_errors_exit_2() {
             "something was written"
         );
     };
-    type Edit = Box<dyn Fn(&mut serde_json::Value)>;
     let cases: Vec<(&str, Edit, &str)> = vec![
         (
             "outside",
@@ -199,6 +201,14 @@ fn damaged_plans_exit_3_and_usage_errors_exit_2() {
     assert_eq!(code, Some(2), "{err}");
     assert!(err.contains("--shards"), "{err}");
     assert!(!d.join("zero").exists());
+    // `plan` refuses an input or a shard count the dataset cannot take as the steps do (3).
+    let (code, err) =
+        run(bin().arg("plan").arg(&tif).arg("--out").arg(d.join("many")).args(["--shards", "5000", "-q"]));
+    assert_eq!(code, Some(3), "{err}");
+    assert!(err.contains("ask for at most that many shards"), "{err}");
+    let (code, err) = run(bin().arg("plan").arg(d.join("missing.tif")).arg("--out").arg(d.join("missing")));
+    assert_eq!(code, Some(3), "{err}");
+    assert!(err.contains("missing.tif"), "{err}");
     for flag in [["--tile-size", "64"], ["--levels", "1"], ["--max-error", "2"], ["--z-scale", "2"]] {
         let (code, err) = run(shard_step(bin(), &base, 0).args(flag));
         assert_eq!(code, Some(2), "{flag:?}: {err}");

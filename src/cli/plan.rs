@@ -55,12 +55,13 @@ pub const INDEX_VARS: [&str; 3] =
 
 pub fn run(a: &PlanArgs, quiet: bool) -> Result<()> {
     Store::at(&a.out)?.check_out()?;
-    let files = raster::dataset::expand_inputs(&a.inputs)?;
+    // The input refused exits as a step's does (3): a retry cannot help.
+    let files = raster::dataset::expand_inputs(&a.inputs).context(InputRefused)?;
     let files: Vec<PathBuf> = files
         .into_iter()
         .map(|f| std::path::absolute(&f).with_context(|| format!("{}", f.display())))
         .collect::<Result<_>>()?;
-    let opened = a.input.open(files, quiet)?;
+    let opened = a.input.open(files, quiet).context(InputRefused)?;
     let (w, h) = {
         let g = opened.dataset.summary();
         (g.width, g.height)
@@ -82,7 +83,8 @@ pub fn run(a: &PlanArgs, quiet: bool) -> Result<()> {
         shards,
         fallback.as_deref(),
         &store,
-    )?;
+    )
+    .map_err(refused_unless_io)?;
     let biggest = plan.shards.iter().map(|s| s.samples).max().unwrap_or(0);
     outln!(
         "plan: {} shards of the subtrees at depth {} ({} tiles each at most, ≤ {:.1} MiB of heights), then a final step for the {} tiles above\n\

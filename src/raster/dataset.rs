@@ -209,19 +209,18 @@ impl BlockSource for TiffSource {
         self.chunk
     }
     fn read_block(&self, path: &Path, bx: u32, by: u32, out: &mut Vec<f32>) -> Result<(), RasterError> {
-        let mut dec = match open_files::POOL.take(self.owner) {
-            Some(Handle::Tiff(d)) => d,
-            _ => {
-                let file = File::open(path).map_err(|e| RasterError::io(path, e))?;
-                let (dec, h) = geotiff::open(path, BufReader::new(file), self.buffer_bytes)?;
-                // Reopened: the file must still be the one opened first.
-                if dec.chunk_dimensions() != self.chunk
-                    || h.nodata.map(f64::to_bits) != self.nodata.map(f64::to_bits)
-                {
-                    return Err(RasterError::corrupt(path, "TIFF", "the file changed while being read"));
-                }
-                Box::new(dec)
+        let mut dec = if let Some(Handle::Tiff(d)) = open_files::POOL.take(self.owner) {
+            d
+        } else {
+            let file = File::open(path).map_err(|e| RasterError::io(path, e))?;
+            let (dec, h) = geotiff::open(path, BufReader::new(file), self.buffer_bytes)?;
+            // Reopened: the file must still be the one opened first.
+            if dec.chunk_dimensions() != self.chunk
+                || h.nodata.map(f64::to_bits) != self.nodata.map(f64::to_bits)
+            {
+                return Err(RasterError::corrupt(path, "TIFF", "the file changed while being read"));
             }
+            Box::new(dec)
         };
         let index = by * self.tiles_across + bx;
         super::guard_decoder(path, "TIFF", || {
