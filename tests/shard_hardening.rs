@@ -65,6 +65,16 @@ fn finish_verifies_what_it_publishes_and_sends_a_damaged_shard_back() {
     for i in 0..4 {
         ok(&mut shard_step(bin(), &out, i));
     }
+    // A shard's result that lacks one of its nodes is sent back too (it would publish a hole).
+    let f1 = out.join("shards/shard-1.json");
+    let mut frag1: serde_json::Value = serde_json::from_slice(&std::fs::read(&f1).unwrap()).unwrap();
+    frag1["nodes"].as_array_mut().unwrap().pop();
+    std::fs::write(&f1, serde_json::to_vec(&frag1).unwrap()).unwrap();
+    let (code, err) = run(&mut finish(&out));
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("shard 1: its result lacks tile"), "{err}");
+    assert!(!f1.exists() && !out.join("tileset.json").exists());
+    ok(&mut shard_step(bin(), &out, 1));
     // The first blob shard 2 recorded, cut short (the shard's result still records its checksum).
     let frag: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("shards/shard-2.json")).unwrap()).unwrap();

@@ -578,7 +578,7 @@ pub fn finish_plan(
             if missing.len() > 20 { ", …" } else { "" }
         )));
     }
-    verify_fragments(plan, &fragments, store)?;
+    verify_fragments(plan, &pyramid, &fragments, store)?;
     let all = pyramid.nodes();
     // Every shard has finished: any temporary file left in the tileset is a killed writer's.
     store.remove_temps(true)?;
@@ -634,16 +634,37 @@ fn check_recorded_blob(
     }
 }
 
-/// Checks every blob the shards' results record (as a resumed bake checks what it keeps: the
-/// length, the blob's own checksums, and the checksum recorded): the final step publishes
+/// Checks that each shard's result lists exactly its subtrees' nodes, and every blob the results
+/// record (as a resumed bake checks what it keeps: the length, the blob's own checksums, and the
+/// checksum recorded): the final step publishes
 /// nothing it has not verified. A shard with a blob that fails is sent back: its result file is
 /// removed, so that running the shard again re-bakes what is damaged (it resumes the rest), and
 /// the step fails naming the shards, the first bad blob of each, and what to run
 /// ([`BakeError::ShardsUnfinished`]: a retry after the shards run again succeeds).
-fn verify_fragments(plan: &Plan, fragments: &[Fragment], store: &Store) -> Result<(), BakeError> {
+fn verify_fragments(
+    plan: &Plan,
+    pyramid: &Pyramid,
+    fragments: &[Fragment],
+    store: &Store,
+) -> Result<(), BakeError> {
     use rayon::prelude::*;
     let mut bad: Vec<(u32, String)> = Vec::new();
     for f in fragments {
+        // The result lists exactly the nodes of the shard's subtrees, each once.
+        let mut want: std::collections::HashSet<TileKey> =
+            plan.shards[f.shard as usize].roots.iter().flat_map(|&r| subtree(pyramid, r)).collect();
+        let stray = f.nodes.iter().find(|e| !want.remove(&e.key));
+        if let Some(e) = stray {
+            bad.push((
+                f.shard,
+                format!("its result lists tile {}, which is not its to bake or is listed twice", e.key),
+            ));
+            continue;
+        }
+        if let Some(k) = want.iter().min_by_key(|k| (k.z, k.y, k.x)) {
+            bad.push((f.shard, format!("its result lacks tile {k} ({} of its tiles)", want.len())));
+            continue;
+        }
         let levels: Vec<(TileKey, &crate::store::NodeLevel)> =
             f.nodes.iter().flat_map(|e| e.levels.iter().map(move |l| (e.key, l))).collect();
         let first = levels
@@ -668,7 +689,7 @@ fn verify_fragments(plan: &Plan, fragments: &[Fragment], store: &Store) -> Resul
     }
     let shown: Vec<String> = bad.iter().take(20).map(|(i, why)| format!("shard {i}: {why}")).collect();
     Err(BakeError::ShardsUnfinished(format!(
-        "{} of {} shards hold blobs that do not match their results, so nothing was published ({}{}); \
+        "{} of {} shards hold results or blobs that do not match, so nothing was published ({}{}); \
          those shards were marked unfinished: run them again (bake --plan … --shard I re-bakes what is damaged), then finish",
         bad.len(),
         plan.shard_count(),
