@@ -224,6 +224,18 @@ fn damaged_plans_exit_3_and_usage_errors_exit_2() {
         assert_eq!(code, Some(2), "{flag:?}: {err}");
         assert!(err.contains(flag[0]) && err.contains("--plan"), "{flag:?}: {err}");
     }
+    // --anchor is the final step's: refused beside a shard, whether the index is a flag or not.
+    let (code, err) = run(shard_step(bin(), &base, 0).args(["--anchor", "138.7,35.3"]));
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("--anchor") && err.contains("--finish"), "{err}");
+    let mut c = bin();
+    c.arg("bake")
+        .arg("--plan")
+        .arg(&base)
+        .args(["--anchor", "138.7,35.3", "-q"])
+        .env("JOB_COMPLETION_INDEX", "0");
+    let (code, err) = run(&mut c);
+    assert_eq!(code, Some(2), "{err}");
     // The block cache is the process's: given beside --plan, it is taken.
     let said = ok(shard_step(bin(), &base, 1).args(["--cache-mib", "64"]));
     assert!(said.contains("shard 1 of 4"), "{said}");

@@ -174,6 +174,14 @@ pub fn run_step(a: &BakeArgs, plan_at: &Path, quiet: bool) -> Result<()> {
         }
     };
     let step = if a.finish { None } else { Some(shard_index(a.shard)?) };
+    if step.is_some() && a.anchor.is_some() {
+        // Not silently ignored: the placement is written by the final step.
+        clap::Error::raw(
+            clap::error::ErrorKind::ArgumentConflict,
+            "--anchor places the finished tileset: give it to `bake --plan … --finish`, not to a shard\n",
+        )
+        .exit();
+    }
     if let Some(i) = step
         && i >= plan.shard_count()
     {
