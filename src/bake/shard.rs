@@ -114,6 +114,9 @@ pub struct InputOptions {
     pub max_side: u32,
     /// Largest heights of a file decoded whole, in bytes.
     pub max_bytes: u64,
+    /// `--allow-sparse`: accept a VRT mostly of no-data.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub allow_sparse: bool,
 }
 
 impl InputOptions {
@@ -148,6 +151,7 @@ impl InputOptions {
             load,
             cache_bytes: self.cache_mib.saturating_mul(1 << 20),
             scratch: self.scratch_dir.clone(),
+            allow_sparse: self.allow_sparse,
         }
     }
 }
@@ -195,8 +199,87 @@ impl Plan {
                 plan.version
             )));
         }
-        check_options(&plan.bake)?;
+        check_options(&plan.bake).map_err(|e| {
+            BakeError::Plan(format!(
+                "{}: field `bake`: {}",
+                store.describe(PLAN_FILE),
+                e.to_string().trim_start_matches("bake: ")
+            ))
+        })?;
+        plan.check_shape().map_err(|m| BakeError::Plan(format!("{}: {m}", store.describe(PLAN_FILE))))?;
         Ok(Some(plan))
+    }
+
+    /// What a plan must hold whatever its dataset: 1 to [`MAX_SHARDS`] shards, each with at least
+    /// one root, every root at the shard depth, the same bake options in `bake` and
+    /// `inputs.read`. (That the roots lie in the dataset's quadtree and cover its shard depth
+    /// once is checked against the dataset: [`Plan::check_roots`].)
+    fn check_shape(&self) -> Result<(), String> {
+        if self.shards.is_empty() || self.shards.len() > MAX_SHARDS as usize {
+            return Err(format!(
+                "field `shards` holds {} shards; a plan has 1 to {MAX_SHARDS}",
+                self.shards.len()
+            ));
+        }
+        for (i, s) in self.shards.iter().enumerate() {
+            if s.roots.is_empty() {
+                return Err(format!("shard {i} has no roots"));
+            }
+            if let Some(r) = s.roots.iter().find(|r| r.z != self.shard_depth) {
+                return Err(format!(
+                    "shard {i} has the root {r}, not at the plan's shard depth {}",
+                    self.shard_depth
+                ));
+            }
+        }
+        let read = self.inputs.read.bake_options();
+        if read != self.bake {
+            return Err(format!(
+                "fields `bake` ({:?}) and `inputs.read` ({:?}) give different bake options",
+                self.bake, read
+            ));
+        }
+        Ok(())
+    }
+
+    /// Checks the shards' roots against the dataset's quadtree: the shard depth is in it, every
+    /// root is a node of it, and the roots are every node at that depth, each once (so the
+    /// shards and the final step bake every node once, and none outside the tree).
+    fn check_roots(&self, pyramid: &Pyramid, store: &Store) -> Result<(), BakeError> {
+        let refuse = |m: String| BakeError::Plan(format!("{}: {m}; plan again", store.describe(PLAN_FILE)));
+        if self.shard_depth > pyramid.depth {
+            return Err(refuse(format!(
+                "field `shard_depth` is {}, below the dataset's leaves (depth {})",
+                self.shard_depth, pyramid.depth
+            )));
+        }
+        let mut seen = std::collections::HashSet::new();
+        for (i, s) in self.shards.iter().enumerate() {
+            for &r in &s.roots {
+                if !pyramid.contains(r) {
+                    let (nx, ny) = pyramid.nodes_at(r.z);
+                    return Err(refuse(format!(
+                        "shard {i} has the root {r}, outside the dataset's quadtree ({nx}×{ny} nodes at depth {})",
+                        r.z
+                    )));
+                }
+                if !seen.insert(r) {
+                    return Err(refuse(format!(
+                        "shard {i} has the root {r}, which an earlier shard has too"
+                    )));
+                }
+            }
+        }
+        let (nx, ny) = pyramid.nodes_at(self.shard_depth);
+        let all = u64::from(nx) * u64::from(ny);
+        if seen.len() as u64 != all {
+            return Err(refuse(format!(
+                "the shards have {} roots, but depth {} of the dataset's quadtree has {all} nodes",
+                seen.len(),
+                self.shard_depth
+            )));
+        }
+        Ok(())
     }
 
     #[must_use]
@@ -383,9 +466,18 @@ fn check_input(plan: &Plan, input: &TerrainInput<'_>, store: &Store) -> Result<P
             crate::store::diff_keys(&plan.options, &options)
         )));
     }
-    store.check_bake(&options)?;
+    store.check_bake(&options).map_err(|e| match e {
+        // The tileset holds another bake than the plan's: a plan edited or for another tileset.
+        e @ StoreError::OptionsChanged { .. } => {
+            BakeError::Plan(format!("{e} (the plan {} is not this tileset's)", store.describe(PLAN_FILE)))
+        }
+        e => e.into(),
+    })?;
     let (w, h) = input.reader.size();
-    Ok(Pyramid::new(w, h, plan.bake.tile_size)?)
+    let pyramid = Pyramid::new(w, h, plan.bake.tile_size)
+        .map_err(|e| BakeError::Plan(format!("{}: {e}", store.describe(PLAN_FILE))))?;
+    plan.check_roots(&pyramid, store)?;
+    Ok(pyramid)
 }
 
 /// Bakes shard `index` of `plan` into `store`: every node of its subtrees (resuming whole ones),
@@ -487,6 +579,7 @@ pub fn finish_plan(
             if missing.len() > 20 { ", …" } else { "" }
         )));
     }
+    verify_fragments(plan, &pyramid, &fragments, store)?;
     let all = pyramid.nodes();
     // Every shard has finished: any temporary file left in the tileset is a killed writer's.
     store.remove_temps(true)?;
@@ -515,6 +608,95 @@ pub fn finish_plan(
     store.remove_folder(PLAN_DIR)?;
     // The summary counts the tiles this step baked (the shards reported theirs).
     Ok(baked.summary(input, totals, t0, point_baker))
+}
+
+/// Why a blob of a shard's result cannot be published: missing, damaged, or not the blob the
+/// shard recorded (length, checksum, tile or level).
+fn check_recorded_blob(
+    store: &Store,
+    key: TileKey,
+    l: &crate::store::NodeLevel,
+) -> Result<Option<String>, BakeError> {
+    let Some(bytes) = store.read_blob(key, l.level)? else {
+        return Ok(Some("is missing".into()));
+    };
+    if bytes.len() as u64 != l.bytes {
+        return Ok(Some(format!("is {} bytes; the shard recorded {}", bytes.len(), l.bytes)));
+    }
+    match crate::codec::verify(&bytes) {
+        Err(e) => Ok(Some(format!("is damaged: {e}"))),
+        Ok(h) if h.checksum != l.checksum => {
+            Ok(Some(format!("has the checksum {:08x}; the shard recorded {:08x}", h.checksum, l.checksum)))
+        }
+        Ok(h) if h.key != key || h.level != l.level => {
+            Ok(Some(format!("holds tile {} level {}", h.key, h.level)))
+        }
+        Ok(_) => Ok(None),
+    }
+}
+
+/// Checks that each shard's result lists exactly its subtrees' nodes, and every blob the results
+/// record (as a resumed bake checks what it keeps: the length, the blob's own checksums, and the
+/// checksum recorded): the final step publishes
+/// nothing it has not verified. A shard with a blob that fails is sent back: its result file is
+/// removed, so that running the shard again re-bakes what is damaged (it resumes the rest), and
+/// the step fails naming the shards, the first bad blob of each, and what to run
+/// ([`BakeError::ShardsUnfinished`]: a retry after the shards run again succeeds).
+fn verify_fragments(
+    plan: &Plan,
+    pyramid: &Pyramid,
+    fragments: &[Fragment],
+    store: &Store,
+) -> Result<(), BakeError> {
+    use rayon::prelude::*;
+    let mut bad: Vec<(u32, String)> = Vec::new();
+    for f in fragments {
+        // The result lists exactly the nodes of the shard's subtrees, each once.
+        let mut want: std::collections::HashSet<TileKey> =
+            plan.shards[f.shard as usize].roots.iter().flat_map(|&r| subtree(pyramid, r)).collect();
+        let stray = f.nodes.iter().find(|e| !want.remove(&e.key));
+        if let Some(e) = stray {
+            bad.push((
+                f.shard,
+                format!("its result lists tile {}, which is not its to bake or is listed twice", e.key),
+            ));
+            continue;
+        }
+        if let Some(k) = want.iter().min_by_key(|k| (k.z, k.y, k.x)) {
+            bad.push((f.shard, format!("its result lacks tile {k} ({} of its tiles)", want.len())));
+            continue;
+        }
+        let levels: Vec<(TileKey, &crate::store::NodeLevel)> =
+            f.nodes.iter().flat_map(|e| e.levels.iter().map(move |l| (e.key, l))).collect();
+        let first = levels
+            .par_iter()
+            .map(|&(k, l)| {
+                Ok(check_recorded_blob(store, k, l)?.map(|why| format!("tile {k} level {} {why}", l.level)))
+            })
+            .collect::<Result<Vec<Option<String>>, BakeError>>()?
+            .into_iter()
+            .flatten()
+            .next();
+        if let Some(why) = first {
+            bad.push((f.shard, why));
+        }
+    }
+    if bad.is_empty() {
+        return Ok(());
+    }
+    for (i, why) in &bad {
+        tracing::warn!(shard = i, "shard {i} sent back: {why}");
+        store.backend().remove(&fragment_file(*i))?;
+    }
+    let shown: Vec<String> = bad.iter().take(20).map(|(i, why)| format!("shard {i}: {why}")).collect();
+    Err(BakeError::ShardsUnfinished(format!(
+        "{} of {} shards hold results or blobs that do not match, so nothing was published ({}{}); \
+         those shards were marked unfinished: run them again (bake --plan … --shard I re-bakes what is damaged), then finish",
+        bad.len(),
+        plan.shard_count(),
+        shown.join("; "),
+        if bad.len() > 20 { "; …" } else { "" }
+    )))
 }
 
 #[cfg(test)]

@@ -34,7 +34,9 @@ pub struct BakeArgs {
     pub input: InputArgs,
     /// Bake one shard of a sharded bake (`terrastream plan`): the tileset the plan was written
     /// to (its --out), or its shards/plan.json. The inputs and options are the plan's.
-    #[arg(long, value_name = "TILESET")]
+    /// Every option the plan fixes (how the inputs are read and tiled) is refused beside it:
+    /// give those to `plan`.
+    #[arg(long, value_name = "TILESET", conflicts_with_all = PLAN_FIXES)]
     pub plan: Option<PathBuf>,
     /// The shard to bake, 0 to N-1. Default: the array index of the engine running this process:
     /// JOB_COMPLETION_INDEX (Kubernetes Indexed Job), AWS_BATCH_JOB_ARRAY_INDEX (AWS Batch array
@@ -61,6 +63,28 @@ pub struct BakeArgs {
     #[command(flatten)]
     pub terrain: TerrainArgs,
 }
+
+/// The flags of [`InputArgs`] a plan records and its steps take from it (`bake --plan` refuses
+/// them, a usage error): all but `--cache-mib` and `--scratch-dir`, which are per process.
+const PLAN_FIXES: [&str; 17] = [
+    "tile_size",
+    "max_error",
+    "levels",
+    "point_levels",
+    "encoding",
+    "channel",
+    "cell_size",
+    "origin",
+    "z_scale",
+    "z_offset",
+    "crs",
+    "vertical_datum",
+    "geoid_grid",
+    "target_crs",
+    "max_side",
+    "max_bytes",
+    "allow_sparse",
+];
 
 /// Cesium globe terrain (quantized-mesh-1.0) beside the tileset.
 #[derive(clap::Args, Clone)]
@@ -129,8 +153,9 @@ pub struct InputArgs {
     #[arg(long, allow_hyphen_values = true)]
     pub z_offset: Option<f64>,
     /// Memory for the block caches, in MiB: the dataset is read in blocks and never held whole.
-    #[arg(long, default_value_t = raster::dataset::DEFAULT_CACHE_BYTES >> 20)]
-    pub cache_mib: u64,
+    /// [default: 512] (with --plan: this process's, else the plan's)
+    #[arg(long)]
+    pub cache_mib: Option<u64>,
     /// Directory for scratch files (LAS/LAZ inputs are gridded there; default: the system's
     /// temporary directory). The files are unnamed and vanish when the bake ends.
     #[arg(long)]
@@ -159,6 +184,11 @@ pub struct InputArgs {
     /// Refuse files decoded whole (PNG, OpenEXR) whose heights exceed this many bytes.
     #[arg(long, default_value_t = raster::DEFAULT_MAX_BYTES)]
     pub max_bytes: u64,
+    /// Accept a dataset (a GDAL VRT's extent, or files far apart) more than 64 times the size
+    /// of the samples its files cover (by default refused: the rest is no-data, filled and
+    /// baked as flat terrain).
+    #[arg(long)]
+    pub allow_sparse: bool,
 }
 
 /// An opened dataset and what a bake names it.
@@ -182,7 +212,7 @@ impl InputArgs {
             origin: self.origin,
             z_scale: self.z_scale,
             z_offset: self.z_offset,
-            cache_mib: self.cache_mib,
+            cache_mib: self.cache_mib.unwrap_or(raster::dataset::DEFAULT_CACHE_BYTES >> 20),
             scratch_dir: self.scratch_dir.clone(),
             crs: self.crs.as_ref().map(|c| c.0.clone()),
             vertical_datum: self.vertical_datum.or(self.crs.as_ref().and_then(|c| c.1)),
@@ -190,6 +220,7 @@ impl InputArgs {
             target_crs: self.target_crs.as_ref().map(|c| c.0.clone()),
             max_side: self.max_side,
             max_bytes: self.max_bytes,
+            allow_sparse: self.allow_sparse,
         }
     }
 

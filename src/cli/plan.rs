@@ -22,7 +22,7 @@ pub struct PlanArgs {
     pub out: PathBuf,
     /// Number of shards. Default: as many as keep each shard's region of the raster within
     /// --shard-mib of float heights.
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=i64::from(shard::MAX_SHARDS)))]
     pub shards: Option<u32>,
     /// Largest region of the raster one shard covers, in MiB of 4-byte heights (when --shards is
     /// not given).
@@ -55,12 +55,13 @@ pub const INDEX_VARS: [&str; 3] =
 
 pub fn run(a: &PlanArgs, quiet: bool) -> Result<()> {
     Store::at(&a.out)?.check_out()?;
-    let files = raster::dataset::expand_inputs(&a.inputs)?;
+    // The input refused exits as a step's does (3): a retry cannot help.
+    let files = raster::dataset::expand_inputs(&a.inputs).context(InputRefused)?;
     let files: Vec<PathBuf> = files
         .into_iter()
         .map(|f| std::path::absolute(&f).with_context(|| format!("{}", f.display())))
         .collect::<Result<_>>()?;
-    let opened = a.input.open(files, quiet)?;
+    let opened = a.input.open(files, quiet).context(InputRefused)?;
     let (w, h) = {
         let g = opened.dataset.summary();
         (g.width, g.height)
@@ -82,7 +83,8 @@ pub fn run(a: &PlanArgs, quiet: bool) -> Result<()> {
         shards,
         fallback.as_deref(),
         &store,
-    )?;
+    )
+    .map_err(refused_unless_io)?;
     let biggest = plan.shards.iter().map(|s| s.samples).max().unwrap_or(0);
     outln!(
         "plan: {} shards of the subtrees at depth {} ({} tiles each at most, ≤ {:.1} MiB of heights), then a final step for the {} tiles above\n\
@@ -128,7 +130,17 @@ fn shard_index(given: Option<u32>) -> Result<u32> {
 /// failing past its retries) may be read on a retry; one that is damaged or of another version
 /// may not ([`InputRefused`]).
 fn refused_unless_io(e: terrastream::bake::BakeError) -> anyhow::Error {
-    let refused = !matches!(e, terrastream::bake::BakeError::Store(_));
+    use terrastream::bake::BakeError;
+    use terrastream::store::StoreError;
+    // A plan that is a directory (or another file that is no plan) is the plan's fault too.
+    let not_a_file = |e: &std::io::Error| {
+        matches!(e.kind(), std::io::ErrorKind::IsADirectory | std::io::ErrorKind::NotADirectory)
+    };
+    let refused = match &e {
+        BakeError::Store(StoreError::Io { source, .. }) => not_a_file(source),
+        BakeError::Store(_) => false,
+        _ => true,
+    };
     let e = anyhow::Error::from(e);
     if refused { e.context(InputRefused) } else { e }
 }
@@ -162,6 +174,14 @@ pub fn run_step(a: &BakeArgs, plan_at: &Path, quiet: bool) -> Result<()> {
         }
     };
     let step = if a.finish { None } else { Some(shard_index(a.shard)?) };
+    if step.is_some() && a.anchor.is_some() {
+        // Not silently ignored: the placement is written by the final step.
+        clap::Error::raw(
+            clap::error::ErrorKind::ArgumentConflict,
+            "--anchor places the finished tileset: give it to `bake --plan … --finish`, not to a shard\n",
+        )
+        .exit();
+    }
     if let Some(i) = step
         && i >= plan.shard_count()
     {
@@ -169,14 +189,23 @@ pub fn run_step(a: &BakeArgs, plan_at: &Path, quiet: bool) -> Result<()> {
         return Err(anyhow::anyhow!(
             "shard {i} does not exist: the plan {} has shards 0 to {}",
             store.describe(PLAN_FILE),
-            plan.shard_count() - 1
+            plan.shard_count().saturating_sub(1)
         ))
         .context(InputRefused);
     }
     let fallback = plan.read_fallback(&store).map_err(refused_unless_io)?;
     let inputs = &plan.inputs;
     let scanned = inputs.scan.as_ref().map(|s| (s, fallback.as_deref()));
-    let opened = open_with(&inputs.read, inputs.files.clone(), scanned, quiet).context(InputRefused)?;
+    // The block cache and the scratch folder are this process's (the bytes baked do not depend
+    // on them); every other input flag is the plan's (given here, clap refuses it).
+    let mut read = inputs.read.clone();
+    if let Some(mib) = a.input.cache_mib {
+        read.cache_mib = mib;
+    }
+    if let Some(dir) = &a.input.scratch_dir {
+        read.scratch_dir = Some(dir.clone());
+    }
+    let opened = open_with(&read, inputs.files.clone(), scanned, quiet).context(InputRefused)?;
     let input = terrastream::bake::TerrainInput::of_dataset(&opened.dataset);
     let baker = a.baker.open()?;
     let progress = tiles_bar(quiet, a.time_limit);

@@ -29,9 +29,10 @@ use std::sync::{Arc, Mutex, PoisonError};
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use tiff::decoder::{ChunkType, Decoder};
+use tiff::decoder::ChunkType;
 
 use super::nodata::{self, FALLBACK_BLOCK};
+use super::open_files::{self, Handle};
 pub use super::parts::MAX_DATASET_SIDE;
 use super::parts::{BlockSource, Part, whole_part};
 use super::{
@@ -59,13 +60,26 @@ pub struct DatasetOptions {
     /// Directory for scratch files (the gridded point clouds); `None` = the system's temporary
     /// directory.
     pub scratch: Option<PathBuf>,
+    /// Accept a VRT whose extent is more than [`MAX_SPARSENESS`] times what its sources
+    /// cover (the rest is no-data, filled and baked as flat terrain).
+    pub allow_sparse: bool,
 }
 
 impl Default for DatasetOptions {
     fn default() -> Self {
-        Self { load: LoadOptions::default(), cache_bytes: DEFAULT_CACHE_BYTES, scratch: None }
+        Self {
+            load: LoadOptions::default(),
+            cache_bytes: DEFAULT_CACHE_BYTES,
+            scratch: None,
+            allow_sparse: false,
+        }
     }
 }
+
+/// Most samples a VRT may declare per sample its sources cover (unless
+/// [`DatasetOptions::allow_sparse`]): a few bytes of XML can declare a continent of no-data,
+/// which a bake would fill and bake tile by tile.
+pub const MAX_SPARSENESS: u64 = 64;
 
 /// What a dataset is made of, for the bake's summary and manifest.
 #[derive(Debug, Clone, Serialize)]
@@ -173,14 +187,21 @@ fn file_stamps(paths: &[PathBuf]) -> Result<Vec<FileStamp>, RasterError> {
         .collect()
 }
 
-/// A TIFF read chunk by chunk (tiles or strips), with a pool of decoders so threads read in
-/// parallel.
+/// A TIFF read chunk by chunk (tiles or strips): decoders of the file come from the process's
+/// pool of open files ([`open_files`]), so threads read in parallel and a dataset of many files
+/// holds a bounded number open.
 struct TiffSource {
-    pool: Mutex<Vec<Decoder<BufReader<File>>>>,
+    owner: u64,
     chunk: (u32, u32),
     tiles_across: u32,
     nodata: Option<f64>,
     buffer_bytes: u64,
+}
+
+impl Drop for TiffSource {
+    fn drop(&mut self) {
+        open_files::POOL.forget(self.owner);
+    }
 }
 
 impl BlockSource for TiffSource {
@@ -188,12 +209,18 @@ impl BlockSource for TiffSource {
         self.chunk
     }
     fn read_block(&self, path: &Path, bx: u32, by: u32, out: &mut Vec<f32>) -> Result<(), RasterError> {
-        let pooled = self.pool.lock().unwrap_or_else(PoisonError::into_inner).pop();
-        let mut dec = if let Some(d) = pooled {
+        let mut dec = if let Some(Handle::Tiff(d)) = open_files::POOL.take(self.owner) {
             d
         } else {
             let file = File::open(path).map_err(|e| RasterError::io(path, e))?;
-            geotiff::open(path, BufReader::new(file), self.buffer_bytes)?.0
+            let (dec, h) = geotiff::open(path, BufReader::new(file), self.buffer_bytes)?;
+            // Reopened: the file must still be the one opened first.
+            if dec.chunk_dimensions() != self.chunk
+                || h.nodata.map(f64::to_bits) != self.nodata.map(f64::to_bits)
+            {
+                return Err(RasterError::corrupt(path, "TIFF", "the file changed while being read"));
+            }
+            Box::new(dec)
         };
         let index = by * self.tiles_across + bx;
         super::guard_decoder(path, "TIFF", || {
@@ -201,7 +228,7 @@ impl BlockSource for TiffSource {
                 .map(|r| geotiff::extend_values_of(&r, self.nodata, out))
                 .map_err(|e| geotiff::map_err(path, e))
         })?;
-        self.pool.lock().unwrap_or_else(PoisonError::into_inner).push(dec);
+        open_files::POOL.give(self.owner, Handle::Tiff(dec));
         Ok(())
     }
 }
@@ -209,10 +236,16 @@ impl BlockSource for TiffSource {
 /// Rows of an SRTM tile per block.
 const HGT_BLOCK_ROWS: u32 = 256;
 
-/// An SRTM tile read by rows.
+/// An SRTM tile read by rows, through the pool of open files.
 struct HgtSource {
-    file: Mutex<File>,
+    owner: u64,
     side: u32,
+}
+
+impl Drop for HgtSource {
+    fn drop(&mut self) {
+        open_files::POOL.forget(self.owner);
+    }
 }
 
 impl BlockSource for HgtSource {
@@ -223,7 +256,10 @@ impl BlockSource for HgtSource {
         let r0 = by * HGT_BLOCK_ROWS;
         let rows = HGT_BLOCK_ROWS.min(self.side - r0);
         let mut bytes = vec![0u8; rows as usize * self.side as usize * 2];
-        let mut f = self.file.lock().unwrap_or_else(PoisonError::into_inner);
+        let mut f = match open_files::POOL.take(self.owner) {
+            Some(Handle::File(f)) => f,
+            _ => File::open(path).map_err(|e| RasterError::io(path, e))?,
+        };
         f.seek(SeekFrom::Start(u64::from(r0) * u64::from(self.side) * 2))
             .map_err(|e| RasterError::io(path, e))?;
         f.read_exact(&mut bytes).map_err(|e| {
@@ -233,6 +269,7 @@ impl BlockSource for HgtSource {
                 RasterError::io(path, e)
             }
         })?;
+        open_files::POOL.give(self.owner, Handle::File(f));
         hgt::extend_values(&bytes, out);
         Ok(())
     }
@@ -499,6 +536,24 @@ fn open_input(
         // The VRT's <SRS> says what its grid means; its sources' own keys are not read.
         parts.push((part, shifted(v.georef, src.dst.0, src.dst.1), v.crs.clone()));
     }
+    let declared = u64::from(v.width) * u64::from(v.height);
+    let covered: u64 = parts.iter().map(|(p, _, _)| u64::from(p.width) * u64::from(p.height)).sum();
+    if !opts.allow_sparse && covered > 0 && declared / MAX_SPARSENESS > covered {
+        return Err(dataset_error(
+            path,
+            format!(
+                "declares {}×{} samples ({declared}) but its {} sources cover at most {covered}: {:.1} % of it would be \
+                 no-data, filled and baked as flat terrain ({} samples for each one of data; at most \
+                 {MAX_SPARSENESS} are accepted). Fix the VRT's rasterXSize/rasterYSize, or pass --allow-sparse \
+                 to bake it anyway",
+                v.width,
+                v.height,
+                parts.len(),
+                100.0 * (1.0 - covered as f64 / declared as f64),
+                declared / covered,
+            ),
+        ));
+    }
     Ok(parts)
 }
 
@@ -544,18 +599,16 @@ fn open_part(
                     ),
                 ));
             }
-            let source = TiffSource {
-                pool: Mutex::new(vec![dec]),
-                chunk,
-                tiles_across,
-                nodata: h.nodata,
-                buffer_bytes,
-            };
+            let owner = open_files::new_owner();
+            open_files::POOL.give(owner, Handle::Tiff(Box::new(dec)));
+            let source = TiffSource { owner, chunk, tiles_across, nodata: h.nodata, buffer_bytes };
             Ok((part(Box::new(source), "geotiff", h.width, h.height), h.georef, h.crs))
         }
         Format::Hgt => {
             let (side, georef) = hgt::header(path)?;
-            let part = part(Box::new(HgtSource { file: Mutex::new(file), side }), "hgt", side, side);
+            let owner = open_files::new_owner();
+            open_files::POOL.give(owner, Handle::File(file));
+            let part = part(Box::new(HgtSource { owner, side }), "hgt", side, side);
             Ok((part, georef, hgt::file_crs()))
         }
         Format::Png | Format::Exr => {
@@ -766,7 +819,7 @@ impl Dataset {
             }
             let cell = opts.load.overrides.cell_size.unwrap_or(f64::NAN);
             let scratch = opts.scratch.clone().unwrap_or_else(std::env::temp_dir);
-            let grid = las::grid(paths, cell, &scratch, progress)?;
+            let grid = las::grid(paths, cell, &scratch, opts.allow_sparse, progress)?;
             let format = match grid.stats.compressed_files {
                 0 => "las",
                 n if n == paths.len() => "laz",
@@ -805,6 +858,32 @@ impl Dataset {
         }
         unwrap_longitudes(&parts, &mut georefs);
         let (width, height, file_georef) = place(&mut parts, &georefs, &frames)?;
+        if width < 2 || height < 2 {
+            return Err(dataset_error(
+                first_path,
+                format!(
+                    "{} {width}×{height} samples; a heightfield needs at least 2×2 to be tiled",
+                    if paths.len() == 1 { "is" } else { "the dataset is" }
+                ),
+            ));
+        }
+        // Files far apart make a dataset of mostly no-data, as a VRT of a vast extent does.
+        let declared = u64::from(width) * u64::from(height);
+        let covered: u64 = parts.iter().map(|p| u64::from(p.width) * u64::from(p.height)).sum();
+        if !opts.allow_sparse && covered > 0 && declared / MAX_SPARSENESS > covered {
+            return Err(dataset_error(
+                first_path,
+                format!(
+                    "its {} inputs span {width}×{height} samples ({declared}) but cover at most {covered}: {:.1} % of \
+                     the dataset would be no-data, filled and baked as flat terrain ({} samples for each one of data; \
+                     at most {MAX_SPARSENESS} are accepted). Bake the files apart, or pass --allow-sparse to bake \
+                     them together anyway",
+                    parts.len(),
+                    100.0 * (1.0 - covered as f64 / declared as f64),
+                    declared / covered,
+                ),
+            ));
+        }
         let file_crs = crss.first().map(|c| c.1.clone()).unwrap_or_default();
         // Point clouds: --cell-size is the gridding cell, not an override of a georeference.
         let overrides = if points.is_some() {

@@ -52,6 +52,14 @@ const MAX_SIDE: u64 = 1 << 20;
 const BATCH: u64 = 1 << 20;
 /// Memory for the buckets' write buffers, all together, in bytes.
 const BUCKET_BUFFERS: usize = 64 << 20;
+/// Most points a bake reads, all files together: every point takes [`RECORD`] bytes of scratch
+/// (2^36 points: 1.25 TiB), and a header's count is checked against it before reading.
+pub const MAX_POINTS: u64 = 1 << 36;
+/// The point data record formats LAS 1.0–1.4 define (LAZ sets bit 7, some writers bit 6 too).
+const MAX_POINT_FORMAT: u8 = 10;
+/// Bytes of a VLR's header, and of an EVLR's: the least each one takes.
+const VLR_HEADER: u64 = 54;
+const EVLR_HEADER: u64 = 60;
 /// Memory for reducing one bucket, in bytes (the column range is narrowed to fit).
 const REDUCE_BYTES: u64 = 256 << 20;
 /// Bytes per point record in the scratch file: column u32, row u32, z f64, file u32 (top bit:
@@ -105,7 +113,19 @@ fn bad(path: &Path, compressed: bool, message: impl Into<String>) -> RasterError
 
 /// Checks a raw header against the file's length (pure).
 fn check_header(path: &Path, h: &las::raw::Header, file_len: u64) -> Result<HeaderFacts, RasterError> {
-    let compressed = h.point_data_record_format & 0x80 != 0 || h.point_data_record_format & 0x40 != 0;
+    let format = h.point_data_record_format;
+    if format & 0x3f > MAX_POINT_FORMAT {
+        // Not a LAZ file either: LAZ marks one of the defined formats with bit 7 (or 6).
+        return Err(RasterError::unsupported(
+            path,
+            FORMAT_LAS,
+            format!(
+                "point data record format {format} is not one LAS defines (0 to {MAX_POINT_FORMAT}; LAZ sets bit \
+                 128 on one of them)"
+            ),
+        ));
+    }
+    let compressed = format & 0xc0 != 0;
     let bad = |m: String| bad(path, compressed, m);
     let points = h.large_file.map_or(u64::from(h.number_of_point_records), |l| {
         if l.number_of_point_records == 0 {
@@ -116,6 +136,45 @@ fn check_header(path: &Path, h: &las::raw::Header, file_len: u64) -> Result<Head
     });
     if points == 0 {
         return Err(bad("the header says it holds zero points; there is nothing to grid".into()));
+    }
+    if points > MAX_POINTS {
+        return Err(RasterError::unsupported(
+            path,
+            if compressed { FORMAT_LAZ } else { FORMAT_LAS },
+            format!(
+                "the header says it holds {points} points, more than the {MAX_POINTS} a bake reads (each takes \
+                 {RECORD} bytes of scratch space); split the cloud, or its point count is wrong"
+            ),
+        ));
+    }
+    // The records' offsets and counts, before a reader seeks to them or allocates by them.
+    let header_size = u64::from(h.header_size);
+    let point_data = u64::from(h.offset_to_point_data);
+    if point_data > file_len || point_data < header_size {
+        return Err(bad(format!(
+            "the point data starts at byte {point_data}, outside the file's {file_len} bytes after its {header_size}-byte header"
+        )));
+    }
+    let vlrs = u64::from(h.number_of_variable_length_records);
+    if vlrs.saturating_mul(VLR_HEADER) > point_data - header_size {
+        return Err(bad(format!(
+            "the header says it has {vlrs} variable length records, but only {} bytes lie between the header and the \
+             point data ({VLR_HEADER} bytes each at least)",
+            point_data - header_size
+        )));
+    }
+    if let Some(e) = h.evlr.filter(|e| e.number_of_evlrs > 0) {
+        let room = file_len.saturating_sub(e.start_of_first_evlr);
+        if e.start_of_first_evlr < point_data
+            || e.start_of_first_evlr > file_len
+            || u64::from(e.number_of_evlrs).saturating_mul(EVLR_HEADER) > room
+        {
+            return Err(bad(format!(
+                "the header says it has {} extended variable length records from byte {}, which do not fit the file's \
+                 {file_len} bytes after its point data (byte {point_data})",
+                e.number_of_evlrs, e.start_of_first_evlr
+            )));
+        }
     }
     for (axis, s, o) in [
         ("x", h.x_scale_factor, h.x_offset),
@@ -298,6 +357,7 @@ pub fn grid(
     paths: &[PathBuf],
     cell: f64,
     scratch: &Path,
+    allow_sparse: bool,
     progress: &(dyn Fn(&str, u64, u64) + Sync),
 ) -> Result<Gridded, RasterError> {
     let first = paths.first().map_or(Path::new("bake"), PathBuf::as_path);
@@ -344,11 +404,34 @@ pub fn grid(
         }
         facts.push(fact);
     }
+    let total: u64 = facts.iter().fold(0u64, |t, f| t.saturating_add(f.points));
+    if total > MAX_POINTS {
+        return Err(RasterError::Dataset {
+            path: first.to_owned(),
+            message: format!(
+                "the {} files' headers say they hold {total} points, more than the {MAX_POINTS} a bake reads (each \
+                 takes {RECORD} bytes of scratch space); bake them in parts",
+                paths.len()
+            ),
+        });
+    }
     let (c0, rtop, width, height) = grid_of(first, &facts, cell)?;
+    let cells = u64::from(width) * u64::from(height);
+    if !allow_sparse && cells / crate::raster::dataset::MAX_SPARSENESS > total {
+        return Err(RasterError::Dataset {
+            path: first.to_owned(),
+            message: format!(
+                "at --cell-size {cell} the points make a grid of {width}×{height} cells ({cells}) but there are only \
+                 {total} points: at least {:.1} % of it would be no-data, filled and baked as flat terrain (at most \
+                 {} cells per point are accepted). Use a larger --cell-size, or pass --allow-sparse to grid it anyway",
+                100.0 * (1.0 - total as f64 / cells as f64),
+                crate::raster::dataset::MAX_SPARSENESS
+            ),
+        });
+    }
     let scratch_err = |e: std::io::Error| RasterError::io(scratch, e);
     let bucket_count = height.div_ceil(BUCKET_ROWS) as usize;
     let mut buckets = Buckets::new(tempfile::tempfile_in(scratch).map_err(scratch_err)?, bucket_count);
-    let total: u64 = facts.iter().map(|f| f.points).sum();
     let compressed_files = facts.iter().filter(|f| f.compressed).count();
     let mut stats = PointStats { points: total, compressed_files, ..PointStats::default() };
     let mut classified = vec![false; paths.len()];

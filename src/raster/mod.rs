@@ -13,6 +13,7 @@ pub mod geotiff;
 mod hgt;
 pub mod las;
 mod nodata;
+mod open_files;
 mod openexr;
 mod parts;
 mod png;

@@ -129,6 +129,47 @@ impl crate::store::archive::RangeSource for BucketSource {
     }
 }
 
+/// Whether `e` is a 404 for the bucket rather than for an object (S3's `NoSuchBucket`).
+fn no_such_bucket(e: &object_store::Error) -> bool {
+    e.to_string().contains("<Code>NoSuchBucket</Code>")
+}
+
+/// The text of element `tag` in an S3 XML error body.
+fn xml_field<'a>(xml: &'a str, tag: &str) -> Option<&'a str> {
+    let start = xml.find(&format!("<{tag}>"))? + tag.len() + 2;
+    let len = xml[start..].find(&format!("</{tag}>"))?;
+    Some(xml[start..start + len].trim())
+}
+
+/// An `object_store` error as a person reads it: an S3 XML error body (`<Error><Code>…`) becomes
+/// its code and message (a missing bucket: "bucket B does not exist"), after the request and
+/// status that came before it; any other text is kept.
+fn remote_message(text: &str) -> String {
+    let Some(at) = text.find("<?xml").or_else(|| text.find("<Error>")) else {
+        return text.to_owned();
+    };
+    let (before, xml) = text.split_at(at);
+    let before = before.trim_end().trim_end_matches(':').trim_end();
+    let status = before.find("status code: ").map(|i| {
+        before[i + "status code: ".len()..].trim_end_matches(|c: char| c == ':' || c.is_whitespace())
+    });
+    let code = xml_field(xml, "Code").unwrap_or("an error");
+    let message = xml_field(xml, "Message").unwrap_or_default();
+    if code == "NoSuchBucket" {
+        let bucket = xml_field(xml, "BucketName").map_or_else(String::new, |b| format!(" {b}"));
+        return format!(
+            "the bucket{bucket} does not exist (HTTP {}, NoSuchBucket); create it, or check the URL and \
+             AWS_ENDPOINT_URL",
+            status.unwrap_or("404 Not Found")
+        );
+    }
+    let what = if message.is_empty() { code.to_owned() } else { format!("{code}: {message}") };
+    match status {
+        Some(s) => format!("the server answered HTTP {s}, {what}"),
+        None => format!("{before}: {what}"),
+    }
+}
+
 /// A tileset's location in object storage (or, for [`BucketSource`], one object on a web
 /// server).
 #[derive(Debug, Clone)]
@@ -227,7 +268,7 @@ impl Bucket {
     }
 
     fn err(&self, rel: &str, e: &object_store::Error) -> StoreError {
-        StoreError::Remote { url: format!("{}/{rel}", self.url()), message: e.to_string() }
+        StoreError::Remote { url: format!("{}/{rel}", self.url()), message: remote_message(&e.to_string()) }
     }
 
     /// The object's bytes; `Ok(None)` when it does not exist. An object larger than `limit` is
@@ -241,6 +282,8 @@ impl Bucket {
                 what: crate::store::read_limit(rel).1,
             }),
             Ok(r) => r.bytes().await.map(Some).map_err(|e| self.err(rel, &e)),
+            // A missing bucket answers 404 too: that is no absent object.
+            Err(e @ object_store::Error::NotFound { .. }) if no_such_bucket(&e) => Err(self.err(rel, &e)),
             Err(object_store::Error::NotFound { .. }) => Ok(None),
             Err(e) => Err(self.err(rel, &e)),
         }
@@ -254,6 +297,7 @@ impl Bucket {
     ) -> Result<Option<bytes::Bytes>, StoreError> {
         match self.store.get_range(&self.key(rel), range).await {
             Ok(b) => Ok(Some(b)),
+            Err(e @ object_store::Error::NotFound { .. }) if no_such_bucket(&e) => Err(self.err(rel, &e)),
             Err(object_store::Error::NotFound { .. }) => Ok(None),
             Err(e) => Err(self.err(rel, &e)),
         }
@@ -488,5 +532,28 @@ impl Backend for Bucket {
     #[cfg(feature = "server")]
     fn exists_async<'a>(&'a self, rel: &'a str) -> super::BoxFuture<'a, Result<bool, StoreError>> {
         Box::pin(Bucket::exists_async(self, rel))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::remote_message;
+
+    /// S3's XML error bodies are read out (issue 40, N10): a missing bucket is named as such,
+    /// other codes keep their code and message, and text without XML is kept as it is.
+    #[test]
+    fn s3_error_bodies_read_as_sentences() {
+        let raw = "Generic S3 error: Error performing list request: Error performing GET \
+                   http://127.0.0.1:9/nobucket?list-type=2 in 1ms - Server returned non-2xx status code: 404 Not \
+                   Found: <?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<Error><Code>NoSuchBucket</Code><Message>The \
+                   specified bucket does not exist</Message><BucketName>nobucket</BucketName><RequestId>1</RequestId></Error>";
+        let m = remote_message(raw);
+        assert!(m.contains("bucket nobucket does not exist") && m.contains("404"), "{m}");
+        assert!(!m.contains('<'), "{m}");
+        let denied = "Error performing PUT http://h/b/k in 1ms - Server returned non-2xx status code: 403 Forbidden: \
+                      <?xml version=\"1.0\"?><Error><Code>AccessDenied</Code><Message>Access Denied</Message></Error>";
+        let m = remote_message(denied);
+        assert_eq!(m, "the server answered HTTP 403 Forbidden, AccessDenied: Access Denied");
+        assert_eq!(remote_message("connection refused"), "connection refused");
     }
 }
