@@ -23,6 +23,7 @@ use clap::Parser;
 
 fn main() -> std::process::ExitCode {
     cli::quiet_mesa_device_select();
+    cli::raise_open_file_limit();
     let cli = cli::Cli::parse();
     let json_logs = cli::json_logs(&cli);
     let filter = tracing_subscriber::EnvFilter::try_new(&cli.log).unwrap_or_default();

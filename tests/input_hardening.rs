@@ -318,3 +318,36 @@ fn a_missing_bucket_is_said_in_words() {
         assert!(!e.contains("<?xml") && !e.contains("<Code>"), "{e}");
     }
 }
+
+/// The binary raises its soft open-file limit to the hard one: a shell's soft 64 (hard left
+/// as it is) does not hold a server or a bake of a large mosaic to 64 descriptors.
+#[cfg(target_os = "linux")]
+#[test]
+fn the_soft_open_file_limit_is_raised_to_the_hard_one() {
+    let limits = |pid: u32| {
+        let text = std::fs::read_to_string(format!("/proc/{pid}/limits")).unwrap();
+        let line = text.lines().find(|l| l.starts_with("Max open files")).unwrap().to_owned();
+        let mut f = line.trim_start_matches("Max open files").split_whitespace();
+        (f.next().unwrap().to_owned(), f.next().unwrap().to_owned())
+    };
+    let (_, hard) = limits(std::process::id());
+    if hard != "unlimited" && hard.parse::<u64>().unwrap() <= 64 {
+        eprintln!("skipping: the hard open-file limit here is {hard}");
+        return;
+    }
+    let store = tempfile::tempdir().unwrap();
+    let mut c = Command::new("sh");
+    c.arg("-c")
+        .arg("ulimit -S -n 64 && exec \"$0\" \"$@\"")
+        .arg(env!("CARGO_BIN_EXE_terrastream"))
+        .args(["--quiet", "serve", "--store"])
+        .arg(store.path());
+    let served = common::serve(c);
+    let (soft, hard_seen) = limits(served.child.id());
+    assert_eq!(hard_seen, hard);
+    if hard == "unlimited" {
+        assert_eq!(soft, "64", "an unlimited hard limit is left alone");
+    } else {
+        assert_eq!(soft, hard, "the soft limit was not raised");
+    }
+}

@@ -171,6 +171,31 @@ pub(crate) fn parse_pair(s: &str) -> Result<(f64, f64), String> {
     Ok((f(a)?, f(b)?))
 }
 
+/// Raises the soft limit on open files (`RLIMIT_NOFILE`) to the hard one, as far as the system
+/// allows: a bake of a mosaic of thousands of files, or a server with many clients and
+/// archives, should not stop at a shell's default of 1,024 when the hard limit is higher. The
+/// input files' pool (`raster::open_files`) sizes itself from the soft limit it then finds.
+/// Failures leave the limit as it was.
+pub fn raise_open_file_limit() {
+    #[cfg(unix)]
+    {
+        use rustix::process::{Resource, Rlimit, getrlimit, setrlimit};
+        let Rlimit { current, maximum } = getrlimit(Resource::Nofile);
+        // macOS refuses more than OPEN_MAX (10,240) whatever the hard limit says.
+        let target = if cfg!(target_os = "macos") {
+            maximum.map_or(10_240, |m| m.min(10_240))
+        } else {
+            match maximum {
+                Some(m) => m,
+                None => return,
+            }
+        };
+        if current.is_some_and(|c| c < target) {
+            let _ = setrlimit(Resource::Nofile, Rlimit { current: Some(target), maximum });
+        }
+    }
+}
+
 /// Without a usable `XDG_RUNTIME_DIR` (containers, CI, ssh sessions), Mesa's implicit
 /// device-select Vulkan layer asks libwayland for a display while wgpu opens the adapter, and
 /// libwayland prints "error: XDG_RUNTIME_DIR is invalid or not set in the environment." — a
