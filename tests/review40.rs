@@ -1,0 +1,204 @@
+//! The held-back review of issue 40: inputs and configuration the server and the bakes read
+//! outside the store — a raster that is a FIFO or a device (refused, never opened: an open
+//! waits for a writer forever), a raster too small to tile given to `serve --source` or
+//! uploaded to the admin API (the message names the file), `serve --config` bounded whatever
+//! the file is (a pipe still works).
+#![allow(clippy::unwrap_used, clippy::panic)]
+
+mod common;
+
+use std::io::{Read, Write};
+use std::path::Path;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use common::{bin, fails, run_within};
+
+/// A 1×1 terrain-RGB PNG.
+fn one_pixel_png(path: &Path) {
+    image::RgbImage::from_raw(1, 1, vec![1, 0x86, 0xa0]).unwrap().save(path).unwrap();
+}
+
+fn mkfifo(path: &Path) -> bool {
+    let ok = Command::new("mkfifo").arg(path).status().is_ok_and(|s| s.success());
+    if !ok {
+        eprintln!("mkfifo is not available; skipped");
+    }
+    ok
+}
+
+/// `serve --source` with a 1×1 raster: refused at startup naming the file (it said only
+/// "bake: raster of 1×1 samples is too small to tile").
+#[test]
+fn serve_source_too_small_names_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("one.png");
+    one_pixel_png(&png);
+    let store = dir.path().join("store");
+    std::fs::create_dir(&store).unwrap();
+    let e = fails(
+        bin()
+            .args(["serve", "--gpu", "off", "--bind", "127.0.0.1:0", "--store"])
+            .arg(&store)
+            .arg("--source")
+            .arg(format!("t={},encoding=terrain-rgb,cell_size=30", png.display())),
+    );
+    assert!(e.contains("one.png: is 1×1 samples; a heightfield needs at least 2×2"), "{e}");
+}
+
+/// One HTTP/1.1 request with `Connection: close`; the status and the whole raw response.
+fn http(addr: std::net::SocketAddr, method: &str, path: &str, body: &[u8]) -> (u16, String) {
+    let mut s = std::net::TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    let head = format!(
+        "{method} {path} HTTP/1.1\r\nHost: t\r\nConnection: close\r\nAuthorization: Bearer admin-secret-1\r\n\
+         Content-Length: {}\r\n\r\n",
+        body.len()
+    );
+    s.write_all(head.as_bytes()).unwrap();
+    s.write_all(body).unwrap();
+    let mut out = Vec::new();
+    s.read_to_end(&mut out).unwrap();
+    let text = String::from_utf8_lossy(&out).into_owned();
+    let status = text.get(9..12).and_then(|c| c.parse().ok()).unwrap_or(0);
+    (status, text)
+}
+
+/// An admin upload of a 1×1 raster: the job fails naming the upload and the size, as `bake`
+/// names its input (it said only "bake: raster of 1×1 samples is too small to tile").
+#[test]
+fn admin_upload_too_small_names_the_upload() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("one.png");
+    one_pixel_png(&png);
+    let store = dir.path().join("store");
+    std::fs::create_dir(&store).unwrap();
+    let mut cmd = bin();
+    cmd.args(["serve", "--gpu", "off", "--admin-token", "admin-secret-1", "--store"]).arg(&store);
+    let srv = common::serve(cmd);
+    let (status, r) =
+        http(srv.addr, "POST", "/tilesets/one?encoding=terrain-rgb", &std::fs::read(&png).unwrap());
+    assert_eq!(status, 202, "{r}");
+    let t0 = Instant::now();
+    let job = loop {
+        let (_, j) = http(srv.addr, "GET", "/jobs/j1", &[]);
+        if j.contains("\"failed\"") {
+            break j;
+        }
+        assert!(t0.elapsed() < Duration::from_mins(1) && !j.contains("\"done\""), "{j}");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(
+        job.contains(".upload-j1: is 1×1 samples; a heightfield needs at least 2×2 to be tiled"),
+        "{job}"
+    );
+}
+
+/// `serve --config /dev/zero` is refused at 1 MiB (it read until memory ran out); run under a
+/// 2 GB address-space limit so a regression fails instead of exhausting the machine.
+#[test]
+fn serve_config_is_bounded() {
+    let out = run_within(
+        Command::new("sh").arg("-c").arg(format!(
+            "ulimit -v 2000000; exec {} serve --config /dev/zero --store /nonexistent",
+            env!("CARGO_BIN_EXE_terrastream")
+        )),
+        Duration::from_mins(1),
+    );
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(e.contains("/dev/zero: more than 1048576 bytes"), "{e}");
+}
+
+/// `--config <(…)`: a pipe is read (bounded, not refused), and once: it was read a first time
+/// for the log format and a second time, empty, for the settings, so a piped `read_token` was
+/// silently dropped and the tileset served to anyone.
+#[test]
+fn serve_config_from_a_pipe_is_read_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = dir.path().join("store");
+    std::fs::create_dir(&store).unwrap();
+    let fifo = dir.path().join("config.toml");
+    if !mkfifo(&fifo) {
+        return;
+    }
+    let text =
+        format!("store = {:?}\ngpu = \"off\"\nread_token = \"read-secret-1\"\n", store.display().to_string());
+    let f2 = fifo.clone();
+    let writer = std::thread::spawn(move || std::fs::write(f2, text).unwrap());
+    let mut cmd = bin();
+    cmd.arg("serve").arg("--config").arg(&fifo);
+    let srv = common::serve(cmd);
+    assert_eq!(common::http_get(srv.addr, "/healthz").unwrap().0, 200);
+    assert_eq!(common::http_get(srv.addr, "/tilesets").unwrap().0, 401, "the piped read_token is in force");
+    writer.join().unwrap();
+}
+
+/// A raster input that is a FIFO — given to `bake`, named by a VRT, or given to
+/// `serve --source` — is refused naming it, within seconds (each waited forever for a writer).
+#[test]
+fn fifo_rasters_are_refused_not_waited_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("pipe.tif");
+    if !mkfifo(&fifo) {
+        return;
+    }
+    let vrt = dir.path().join("m.vrt");
+    std::fs::write(
+        &vrt,
+        r#"<VRTDataset rasterXSize="2" rasterYSize="2"><GeoTransform>0,1,0,0,0,-1</GeoTransform>
+<VRTRasterBand dataType="Float32" band="1"><SimpleSource><SourceFilename relativeToVRT="1">pipe.tif</SourceFilename>
+</SimpleSource></VRTRasterBand></VRTDataset>"#,
+    )
+    .unwrap();
+    let store = dir.path().join("store");
+    std::fs::create_dir(&store).unwrap();
+    let limit = Duration::from_secs(30);
+    let want = "pipe.tif: is a FIFO (named pipe), not a regular file";
+    for (what, mut cmd) in [
+        ("bake", {
+            let mut c = bin();
+            c.args(["bake", "-q", "--gpu", "off", "--out"]).arg(dir.path().join("o1")).arg(&fifo);
+            c
+        }),
+        ("bake VRT", {
+            let mut c = bin();
+            c.args(["bake", "-q", "--gpu", "off", "--out"]).arg(dir.path().join("o2")).arg(&vrt);
+            c
+        }),
+        ("serve --source", {
+            let mut c = bin();
+            c.args(["serve", "--gpu", "off", "--bind", "127.0.0.1:0", "--store"])
+                .arg(&store)
+                .arg("--source")
+                .arg(format!("p={}", fifo.display()));
+            c
+        }),
+    ] {
+        let out = run_within(&mut cmd, limit);
+        let e = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{what}");
+        assert!(e.contains(want), "{what}: {e}");
+    }
+}
+
+/// A raster input that is a device (`x.vrt -> /dev/zero`) is refused unread (a VRT was read
+/// until memory ran out: its size check saw 0 bytes).
+#[test]
+fn device_rasters_are_refused_unread() {
+    let dir = tempfile::tempdir().unwrap();
+    let z = dir.path().join("z.vrt");
+    std::os::unix::fs::symlink("/dev/zero", &z).unwrap();
+    let out = run_within(
+        Command::new("sh").arg("-c").arg(format!(
+            "ulimit -v 2000000; exec {} bake -q --gpu off --out {} {}",
+            env!("CARGO_BIN_EXE_terrastream"),
+            dir.path().join("o").display(),
+            z.display()
+        )),
+        Duration::from_mins(1),
+    );
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(e.contains("z.vrt: is a character device, not a regular file"), "{e}");
+}
