@@ -472,6 +472,7 @@ fn bake_to_staging(work: &Work, id: &str, baker: &PointBaker, job: &Job) -> Resu
         return Err(JobError::Stopped(why));
     }
     let raster = crate::raster::load(&work.upload, &load)?;
+    super::tileable(&work.upload, &raster)?;
     let staging: PathBuf = work.root.join(format!(".job-{id}"));
     let r = crate::bake::bake_terrain(&raster, &work.name, &work.opts, baker, &Store::new(&staging), job);
     if let Err(e) = r {
