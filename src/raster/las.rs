@@ -370,7 +370,7 @@ pub fn grid(
     let mut facts = Vec::with_capacity(paths.len());
     let mut crs: Option<FileCrs> = None;
     for p in paths {
-        let mut f = File::open(p).map_err(|e| RasterError::io(p, e))?;
+        let mut f = super::open_input_file(p)?;
         let len = f.metadata().map_err(|e| RasterError::io(p, e))?.len();
         let raw = las::raw::Header::read_from(BufReader::new(&mut f))
             .map_err(|e| bad(p, false, format!("cannot read the header: {e}")))?;
@@ -438,7 +438,7 @@ pub fn grid(
     let mut done = 0u64;
     for (fi, (p, f)) in paths.iter().zip(&facts).enumerate() {
         let bad = |m: String| bad(p, f.compressed, m);
-        let file = File::open(p).map_err(|e| RasterError::io(p, e))?;
+        let file = super::open_input_file(p)?;
         let format = if f.compressed { FORMAT_LAZ } else { FORMAT_LAS };
         let mut reader = super::guard_decoder(p, format, || {
             las::Reader::new(BufReader::with_capacity(1 << 20, file))
