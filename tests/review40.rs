@@ -202,3 +202,46 @@ fn device_rasters_are_refused_unread() {
     assert!(!out.status.success());
     assert!(e.contains("z.vrt: is a character device, not a regular file"), "{e}");
 }
+
+/// A small tileset of `fuji.png` in `dir/name`.
+fn bake_small(dir: &Path, name: &str) -> std::path::PathBuf {
+    let out = dir.join(name);
+    common::ok(
+        bin()
+            .args(["bake", "-q", "--gpu", "off", "--encoding", "terrain-rgb", "--cell-size", "30"])
+            .args(["--tile-size", "128", "--out"])
+            .arg(&out)
+            .arg(common::data("fuji.png")),
+    );
+    out
+}
+
+/// `pack` packs what a server serves from the folder: `tiles/` linked to another disk is
+/// followed (it was skipped: an archive of 3 files, exit 0), and a file that is not a regular
+/// file is refused naming it (it was left out silently: an archive missing that blob).
+#[test]
+fn pack_follows_links_and_refuses_irregular_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let t = bake_small(dir.path(), "t");
+    let files = common::tree(&t).len();
+    let packed = |out: &str| {
+        common::ok(bin().arg("pack").arg(&t).arg("--out").arg(dir.path().join(out)).arg("-q"));
+    };
+    packed("plain.tsa");
+    let plain = std::fs::read(dir.path().join("plain.tsa")).unwrap();
+    // tiles/ moved elsewhere and linked: the same archive.
+    let elsewhere = dir.path().join("elsewhere");
+    std::fs::rename(t.join("tiles"), &elsewhere).unwrap();
+    std::os::unix::fs::symlink(&elsewhere, t.join("tiles")).unwrap();
+    packed("linked.tsa");
+    assert!(std::fs::read(dir.path().join("linked.tsa")).unwrap() == plain, "{files} files: archives differ");
+    // A blob replaced by a FIFO: refused, naming it; no archive.
+    let blob = elsewhere.join("0/0/0/0.tsb");
+    std::fs::remove_file(&blob).unwrap();
+    if !mkfifo(&blob) {
+        return;
+    }
+    let e = fails(bin().arg("pack").arg(&t).arg("--out").arg(dir.path().join("fifo.tsa")));
+    assert!(e.contains("0/0/0/0.tsb: is a FIFO (named pipe), not a regular file"), "{e}");
+    assert!(!dir.path().join("fifo.tsa").exists());
+}
