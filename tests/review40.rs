@@ -245,3 +245,28 @@ fn pack_follows_links_and_refuses_irregular_files() {
     assert!(e.contains("0/0/0/0.tsb: is a FIFO (named pipe), not a regular file"), "{e}");
     assert!(!dir.path().join("fifo.tsa").exists());
 }
+
+/// A damaged index chunk in a folder (truncated: no checksum to catch it) is `500 corrupt-blob`,
+/// counted, never sent — as an archive answers for the same chunk (it was sent, `200`, and
+/// the 3D Tiles routes answered `500 index`, uncounted).
+#[test]
+fn a_damaged_index_chunk_in_a_folder_is_corrupt_not_sent() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = dir.path().join("store");
+    std::fs::create_dir(&store).unwrap();
+    let t = bake_small(&store, "t");
+    let chunk = t.join("index/0/0/0.json");
+    let bytes = std::fs::read(&chunk).unwrap();
+    std::fs::write(&chunk, &bytes[..bytes.len() / 2]).unwrap();
+    let mut cmd = bin();
+    cmd.args(["serve", "--gpu", "off", "--store"]).arg(&store);
+    let srv = common::serve(cmd);
+    for url in ["/tilesets/t/index/0/0/0.json", "/tilesets/t/3dtiles/tileset.json"] {
+        let (status, _, body) = common::http_get(srv.addr, url).unwrap();
+        let body = String::from_utf8_lossy(&body);
+        assert_eq!(status, 500, "{url}: {body}");
+        assert!(body.contains("corrupt-blob"), "{url}: {body}");
+    }
+    let (_, _, metrics) = common::http_get(srv.addr, "/metrics").unwrap();
+    assert!(String::from_utf8_lossy(&metrics).contains("terrastream_corrupt_blobs_total 2"));
+}

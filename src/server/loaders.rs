@@ -143,6 +143,24 @@ pub(super) async fn chunk_entry(
             }
             Err(e) => return Err(stored_file_problem(app, ts, &rel, &format!("index chunk {key}"), &e)),
         };
+        // A folder keeps no checksum of its chunks: a chunk that is not the chunk rooted at
+        // `key` (truncated, edited, another chunk's) is damage, answered as an archive's CRC
+        // mismatch is, never sent.
+        match serde_json::from_slice::<crate::store::IndexChunk>(&bytes) {
+            Ok(c) if c.root == key => {}
+            other => {
+                let why = other.map_or_else(|e| e.to_string(), |c| format!("its root is {}", c.root));
+                app.metrics.corrupt_blobs.fetch_add(1, Ordering::Relaxed);
+                tracing::error!(
+                    tileset = %name, path = %ts.store.describe(&rel), error = %why,
+                    "corrupt index chunk detected; not sent"
+                );
+                return Err(Problem::internal(
+                    "corrupt-blob",
+                    format!("the stored index chunk {key} failed verification and was not sent"),
+                ));
+            }
+        }
         let e = Entry { etag: etag_value(&super::registry::etag_of(&bytes)), bytes };
         app.cache.insert(ck, e.clone());
         e
