@@ -238,7 +238,7 @@ pub async fn upload(
         )));
     }
     let root = app.registry.root().to_owned();
-    if app.registry.get(&name).is_some() || root.join(&name).exists() {
+    if app.registry.get(&name).is_some() || tokio::fs::try_exists(root.join(&name)).await.unwrap_or(false) {
         return Err(Problem::new(
             StatusCode::CONFLICT,
             "exists",
@@ -365,7 +365,11 @@ async fn supervise(app: Arc<App>, job: Arc<Job>, work: Work) {
         }
     };
     if let Some(r) = outcome {
-        conclude(&app, &job, r);
+        // Off the async workers: it renames or removes the staged tileset and rescans the store.
+        let (a, j) = (app.clone(), job.clone());
+        if tokio::task::spawn_blocking(move || conclude(&a, &j, r)).await.is_err() {
+            job.finish(FAILED, Some("publishing the baked tileset failed".to_owned()));
+        }
     }
     drop(permit);
 }
@@ -562,7 +566,7 @@ pub async fn delete(
     }
     let root = app.registry.root().to_owned();
     let dir = root.join(&name);
-    if !dir.is_dir() {
+    if !tokio::fs::metadata(&dir).await.is_ok_and(|m| m.is_dir()) {
         return Err(Problem::not_found(format!("no tileset named {name:?}")));
     }
     // Renamed out of the namespace first (atomic), then removed in the background.

@@ -103,7 +103,9 @@ pub(super) async fn chunk_entry(
     key: TileKey,
 ) -> Result<(Entry, bool), Problem> {
     let name = &ts.name;
-    if let Some(src) = ts.source.clone().filter(|_| !ts.store.manifest_path().exists()) {
+    let baking =
+        ts.source.is_some() && !tokio::fs::try_exists(ts.store.manifest_path()).await.unwrap_or(false);
+    if let Some(src) = ts.source.clone().filter(|_| baking) {
         // On-demand and not fully baked: the nodes baked so far, rebuilt from their blobs.
         if !src.pyramid.contains(key) {
             return Err(Problem::not_found(format!("tile {key} lies outside the data of {name:?}")));
