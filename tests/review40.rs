@@ -270,3 +270,29 @@ fn a_damaged_index_chunk_in_a_folder_is_corrupt_not_sent() {
     let (_, _, metrics) = common::http_get(srv.addr, "/metrics").unwrap();
     assert!(String::from_utf8_lossy(&metrics).contains("terrastream_corrupt_blobs_total 2"));
 }
+
+/// `DELETE /tilesets/NAME` of a tileset served from its archive `NAME.tsa` deletes it (it
+/// answered `404 no tileset named …` while the tileset was being served).
+#[test]
+fn admin_delete_removes_a_packed_tileset() {
+    let dir = tempfile::tempdir().unwrap();
+    let t = bake_small(dir.path(), "t");
+    let store = dir.path().join("store");
+    std::fs::create_dir(&store).unwrap();
+    common::ok(bin().arg("pack").arg(&t).arg("--out").arg(store.join("p.tsa")).arg("-q"));
+    let mut cmd = bin();
+    cmd.args(["serve", "--gpu", "off", "--admin-token", "admin-secret-1", "--store"]).arg(&store);
+    let srv = common::serve(cmd);
+    assert_eq!(common::http_get(srv.addr, "/tilesets/p/tileset.json").unwrap().0, 200);
+    let (status, r) = http(srv.addr, "DELETE", "/tilesets/p", &[]);
+    assert_eq!(status, 204, "{r}");
+    assert_eq!(common::http_get(srv.addr, "/tilesets/p/tileset.json").unwrap().0, 404);
+    let t0 = Instant::now();
+    while store.join("p.tsa").exists() || std::fs::read_dir(&store).unwrap().next().is_some() {
+        assert!(t0.elapsed() < Duration::from_secs(30), "the archive is still in the store");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // Not found again by the next scans.
+    std::thread::sleep(Duration::from_millis(2500));
+    assert_eq!(common::http_get(srv.addr, "/tilesets/p/tileset.json").unwrap().0, 404);
+}

@@ -565,9 +565,14 @@ pub async fn delete(
         ));
     }
     let root = app.registry.root().to_owned();
-    let dir = root.join(&name);
-    if !tokio::fs::metadata(&dir).await.is_ok_and(|m| m.is_dir()) {
-        return Err(Problem::not_found(format!("no tileset named {name:?}")));
+    // The folder, else the archive `NAME.tsa` (a folder of the same name is the one served).
+    let mut dir = root.join(&name);
+    let is_dir = tokio::fs::metadata(&dir).await.is_ok_and(|m| m.is_dir());
+    if !is_dir {
+        dir = root.join(format!("{name}{}", crate::store::ARCHIVE_SUFFIX));
+        if !tokio::fs::metadata(&dir).await.is_ok_and(|m| m.is_file()) {
+            return Err(Problem::not_found(format!("no tileset named {name:?}")));
+        }
     }
     // Renamed out of the namespace first (atomic), then removed in the background.
     let nanos =
@@ -578,7 +583,9 @@ pub async fn delete(
         Problem::internal("store-io", format!("tileset {name:?} could not be deleted"))
     })?;
     app.registry.remove(&name);
-    tokio::task::spawn_blocking(move || std::fs::remove_dir_all(gone));
+    tokio::task::spawn_blocking(move || {
+        if is_dir { std::fs::remove_dir_all(gone) } else { std::fs::remove_file(gone) }
+    });
     tracing::info!(tileset = %name, "tileset deleted");
     Ok(StatusCode::NO_CONTENT.into_response())
 }
