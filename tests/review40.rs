@@ -296,3 +296,57 @@ fn admin_delete_removes_a_packed_tileset() {
     std::thread::sleep(Duration::from_millis(2500));
     assert_eq!(common::http_get(srv.addr, "/tilesets/p/tileset.json").unwrap().0, 404);
 }
+
+/// `--finish` with a shard result that cannot be used — not JSON, a FIFO — sends that shard back
+/// (result removed, exit 1 naming it) as for a damaged blob: running the shard again and
+/// finishing then succeeds. It exited 3 ("fix the input; a retry cannot help") and kept the file.
+#[test]
+fn finish_sends_back_an_unusable_shard_result() {
+    let dir = tempfile::tempdir().unwrap();
+    let w = dir.path().join("w");
+    common::ok(
+        bin()
+            .arg("plan")
+            .arg(common::data("fuji.png"))
+            .args([
+                "--encoding",
+                "terrain-rgb",
+                "--cell-size",
+                "30",
+                "--tile-size",
+                "128",
+                "--shards",
+                "2",
+                "-q",
+            ])
+            .arg("--out")
+            .arg(&w),
+    );
+    for i in 0..2 {
+        common::ok(&mut common::shard_step(bin(), &w, i));
+    }
+    let finish = || {
+        let mut c = bin();
+        c.arg("bake").arg("--plan").arg(&w).args(["--finish", "-q", "--gpu", "off"]);
+        c
+    };
+    let result = |i: u32| w.join(format!("shards/shard-{i}.json"));
+    std::fs::write(result(0), b"not json").unwrap();
+    std::fs::remove_file(result(1)).unwrap();
+    let fifo = mkfifo(&result(1));
+    if !fifo {
+        std::fs::write(result(1), b"[]").unwrap();
+    }
+    let out = run_within(&mut finish(), Duration::from_mins(1));
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{e}");
+    assert!(e.contains("shard 0:") && e.contains("invalid shard result"), "{e}");
+    assert!(e.contains("shard 1:") && e.contains("run them again"), "{e}");
+    assert!(!result(0).exists() && std::fs::symlink_metadata(result(1)).is_err(), "sent back");
+    assert!(!w.join("tileset.json").exists(), "nothing published");
+    for i in 0..2 {
+        common::ok(&mut common::shard_step(bin(), &w, i));
+    }
+    common::ok(&mut finish());
+    assert!(w.join("tileset.json").exists());
+}
