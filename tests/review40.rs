@@ -350,3 +350,26 @@ fn finish_sends_back_an_unusable_shard_result() {
     common::ok(&mut finish());
     assert!(w.join("tileset.json").exists());
 }
+
+/// An upload is written to a new file only: a `.upload-j1` planted in the store after startup
+/// (a link to a file elsewhere) is not written through (the linked file was overwritten with
+/// the upload); the upload fails `500 store-io` and the next one works.
+#[test]
+fn admin_upload_does_not_write_through_a_planted_link() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = dir.path().join("store");
+    std::fs::create_dir(&store).unwrap();
+    let victim = dir.path().join("victim.txt");
+    std::fs::write(&victim, b"keep").unwrap();
+    let mut cmd = bin();
+    cmd.args(["serve", "--gpu", "off", "--admin-token", "admin-secret-1", "--store"]).arg(&store);
+    let srv = common::serve(cmd);
+    std::os::unix::fs::symlink(&victim, store.join(".upload-j1")).unwrap();
+    let png = std::fs::read(common::data("fuji.png")).unwrap();
+    let (status, r) = http(srv.addr, "POST", "/tilesets/one?encoding=terrain-rgb&cell_size=30", &png);
+    assert_eq!(status, 500, "{r}");
+    assert!(r.contains("store-io"), "{r}");
+    assert_eq!(std::fs::read(&victim).unwrap(), b"keep");
+    let (status, r) = http(srv.addr, "POST", "/tilesets/one?encoding=terrain-rgb&cell_size=30", &png);
+    assert_eq!(status, 202, "{r}");
+}

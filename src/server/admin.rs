@@ -447,7 +447,9 @@ async fn stream_to(path: &FsPath, body: Body, limit: u64) -> Result<(), Option<P
         tracing::error!(path = %path.display(), error = %e, "cannot store upload");
         Some(Problem::internal("store-io", "the upload could not be stored"))
     };
-    let mut file = tokio::fs::File::create(path).await.map_err(io)?;
+    // A new file, never one already there: job ids restart at 1, and a `.upload-jN` planted in
+    // the store (a link to a file elsewhere, a FIFO) must not be written through or waited on.
+    let mut file = tokio::fs::OpenOptions::new().write(true).create_new(true).open(path).await.map_err(io)?;
     let mut body = body;
     let mut n = 0u64;
     while let Some(frame) = body.frame().await {
