@@ -140,8 +140,8 @@ impl Flight {
 
     /// Reads a flight file.
     pub fn load(path: &Path) -> Result<Self, ClientError> {
-        let err = |source: FlightError| ClientError::Flight { path: path.to_owned(), source };
         use std::io::Read;
+        let err = |source: FlightError| ClientError::Flight { path: path.to_owned(), source };
         let file = std::fs::File::open(path).map_err(|e| err(FlightError::Read(e)))?;
         if file.metadata().is_ok_and(|m| m.len() > MAX_FLIGHT_BYTES) {
             return Err(err(FlightError::TooLarge { max: MAX_FLIGHT_BYTES }));
