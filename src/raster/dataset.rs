@@ -76,10 +76,7 @@ impl Default for DatasetOptions {
     }
 }
 
-/// Most samples a VRT may declare per sample its sources cover (unless
-/// [`DatasetOptions::allow_sparse`]): a few bytes of XML can declare a continent of no-data,
-/// which a bake would fill and bake tile by tile.
-pub const MAX_SPARSENESS: u64 = 64;
+pub use super::MAX_SPARSENESS;
 
 /// What a dataset is made of, for the bake's summary and manifest.
 #[derive(Debug, Clone, Serialize)]

@@ -417,7 +417,7 @@ pub fn grid(
     }
     let (c0, rtop, width, height) = grid_of(first, &facts, cell)?;
     let cells = u64::from(width) * u64::from(height);
-    if !allow_sparse && cells / crate::raster::dataset::MAX_SPARSENESS > total {
+    if !allow_sparse && cells / super::MAX_SPARSENESS > total {
         return Err(RasterError::Dataset {
             path: first.to_owned(),
             message: format!(
@@ -425,7 +425,7 @@ pub fn grid(
                  {total} points: at least {:.1} % of it would be no-data, filled and baked as flat terrain (at most \
                  {} cells per point are accepted). Use a larger --cell-size, or pass --allow-sparse to grid it anyway",
                 100.0 * (1.0 - total as f64 / cells as f64),
-                crate::raster::dataset::MAX_SPARSENESS
+                super::MAX_SPARSENESS
             ),
         });
     }

@@ -385,6 +385,12 @@ pub enum RasterError {
     HeightOverflow { path: PathBuf, z0: f64, dz: f64, min: f32, max: f32 },
 }
 
+/// Most samples a VRT (or a point cloud's grid) may declare per sample its sources cover
+/// (unless [`dataset::DatasetOptions::allow_sparse`]): a few bytes of XML can declare a
+/// continent of no-data, which a bake would fill and bake tile by tile. Here, not in `dataset`,
+/// so that `las` names it without `dataset` and `las` importing each other.
+pub const MAX_SPARSENESS: u64 = 64;
+
 /// What a file that is not a regular file is, for messages; `None` for a regular file.
 #[must_use]
 pub fn irregular_kind(ty: std::fs::FileType) -> Option<&'static str> {
