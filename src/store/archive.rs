@@ -371,13 +371,6 @@ impl Archive {
             {
                 return Err(bad(format!("root directory entry {} is out of order or range", root.len())));
             }
-            if p.count as usize > PAGE_ENTRIES {
-                return Err(bad(format!(
-                    "root directory entry {} counts {} files; a page holds at most {PAGE_ENTRIES}",
-                    root.len(),
-                    p.count
-                )));
-            }
             if u64::from(p.count) * MIN_ENTRY_BYTES > u64::from(p.len) {
                 return Err(bad(format!(
                     "root directory entry {} counts {} files in a page of {} bytes (at most {} fit)",
@@ -385,6 +378,13 @@ impl Archive {
                     p.count,
                     p.len,
                     u64::from(p.len) / MIN_ENTRY_BYTES
+                )));
+            }
+            if p.count as usize > PAGE_ENTRIES {
+                return Err(bad(format!(
+                    "root directory entry {} counts {} files; a page holds at most {PAGE_ENTRIES}",
+                    root.len(),
+                    p.count
                 )));
             }
             total += u64::from(p.count);
