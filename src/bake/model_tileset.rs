@@ -240,7 +240,7 @@ pub struct ModelFile {
 /// sniffed). Separate from baking so a caller can refuse a bad file before it opens a GPU.
 pub fn read_model_file(path: &Path, file_type: Option<FileType>) -> Result<ModelFile, ModelBakeError> {
     let t0 = Instant::now();
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Io { path: path.to_owned(), source })?;
+    let bytes = crate::model::read_file(path, crate::model::MAX_MODEL_FILE_BYTES)?;
     let shown = path.display().to_string();
     let ty = file_type.or_else(|| {
         match path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).as_deref() {

@@ -549,25 +549,41 @@ pub fn finish_plan(
     let pyramid = check_input(plan, input, store)?;
     let mut fragments = Vec::with_capacity(plan.shards.len());
     let mut missing = Vec::new();
+    // Results that cannot be used (damaged, not a file, too large, another plan's): the shard
+    // is sent back as for a damaged blob — running it again rewrites its result.
+    let mut unusable: Vec<(u32, String)> = Vec::new();
     for i in 0..plan.shard_count() {
         let file = fragment_file(i);
-        match read_step_file(store, &file)? {
-            None => missing.push(i),
-            Some(bytes) => {
-                let f: Fragment = serde_json::from_slice(&bytes).map_err(|e| {
-                    BakeError::Plan(format!("{}: invalid shard result: {e}", store.describe(&file)))
-                })?;
-                if f.shard != i || f.shards != plan.shard_count() || f.options != plan.options {
-                    return Err(BakeError::Plan(format!(
-                        "{}: written for another plan (shard {} of {}); run shard {i} again",
+        let bytes = match read_step_file(store, &file) {
+            Ok(None) => {
+                missing.push(i);
+                continue;
+            }
+            Ok(Some(bytes)) => bytes,
+            Err(BakeError::Plan(why)) => {
+                unusable.push((i, why));
+                continue;
+            }
+            Err(e) => return Err(e),
+        };
+        match serde_json::from_slice::<Fragment>(&bytes) {
+            Err(e) => unusable.push((i, format!("{}: invalid shard result: {e}", store.describe(&file)))),
+            Ok(f) if f.shard != i || f.shards != plan.shard_count() || f.options != plan.options => {
+                unusable.push((
+                    i,
+                    format!(
+                        "{}: written for another plan (shard {} of {})",
                         store.describe(&file),
                         f.shard,
                         f.shards
-                    )));
-                }
-                fragments.push(f);
+                    ),
+                ));
             }
+            Ok(f) => fragments.push(f),
         }
+    }
+    if !unusable.is_empty() {
+        send_back(plan, store, &unusable, "hold results that cannot be used")?;
     }
     if !missing.is_empty() {
         let shown: Vec<String> = missing.iter().take(20).map(ToString::to_string).collect();
@@ -684,13 +700,20 @@ fn verify_fragments(
     if bad.is_empty() {
         return Ok(());
     }
-    for (i, why) in &bad {
+    send_back(plan, store, &bad, "hold results or blobs that do not match")
+}
+
+/// Sends the shards `bad` (index, why) back: removes each one's result file, so that running
+/// it again re-bakes what is damaged (it resumes the rest), and fails naming them
+/// ([`BakeError::ShardsUnfinished`]: a retry after the shards run again succeeds).
+fn send_back(plan: &Plan, store: &Store, bad: &[(u32, String)], what: &str) -> Result<(), BakeError> {
+    for (i, why) in bad {
         tracing::warn!(shard = i, "shard {i} sent back: {why}");
         store.backend().remove(&fragment_file(*i))?;
     }
     let shown: Vec<String> = bad.iter().take(20).map(|(i, why)| format!("shard {i}: {why}")).collect();
     Err(BakeError::ShardsUnfinished(format!(
-        "{} of {} shards hold results or blobs that do not match, so nothing was published ({}{}); \
+        "{} of {} shards {what}, so nothing was published ({}{}); \
          those shards were marked unfinished: run them again (bake --plan … --shard I re-bakes what is damaged), then finish",
         bad.len(),
         plan.shard_count(),

@@ -17,13 +17,21 @@ pub struct ServeArgs {
         help = "TOML file with the same settings (snake_case keys); flags and environment win"
     )]
     pub config: Option<PathBuf>,
+    /// The file's settings, read once: a pipe (`--config <(…)`) reads empty the second time,
+    /// and the log format is looked up before the server starts.
+    #[arg(skip)]
+    pub file: std::sync::OnceLock<Result<server::PartialConfig, String>>,
 }
 
 impl ServeArgs {
     /// Flags and environment over the TOML file over the defaults.
     pub fn config(&self) -> Result<server::Config> {
         let file = match &self.config {
-            Some(p) => server::PartialConfig::from_toml_file(p)?,
+            Some(p) => self
+                .file
+                .get_or_init(|| server::PartialConfig::from_toml_file(p).map_err(|e| e.to_string()))
+                .clone()
+                .map_err(anyhow::Error::msg)?,
             None => server::PartialConfig::default(),
         };
         Ok(self.settings.clone().over(file).resolve()?)

@@ -157,7 +157,18 @@ impl Geoid {
         use std::io::Read;
         let bad = |message: String| GeoidError::Format { path: path.to_owned(), message };
         let io = |source| GeoidError::Io { path: path.to_owned(), source };
+        // A FIFO's open would wait for a writer forever, and a device never ends: refused by
+        // type, unopened (the grid's size is checked against its header below).
+        let not_file = |md: &std::fs::Metadata| {
+            (!md.is_file()).then(|| bad("not a regular file (a FIFO, a device or a directory)".into()))
+        };
+        if let Some(e) = not_file(&std::fs::metadata(path).map_err(io)?) {
+            return Err(e);
+        }
         let mut file = std::fs::File::open(path).map_err(io)?;
+        if let Some(e) = not_file(&file.metadata().map_err(io)?) {
+            return Err(e);
+        }
         let mut head = [0u8; 40];
         file.read_exact(&mut head).map_err(io)?;
         let f = |i: usize| f64::from_be_bytes(head[8 * i..8 * i + 8].try_into().unwrap_or_default());
@@ -183,7 +194,11 @@ impl Geoid {
             return Err(bad(format!("{len} bytes; a {rows}×{cols} grid has {}", 40 + n * 4)));
         }
         let mut raw = Vec::with_capacity(n as usize * 4);
-        file.read_to_end(&mut raw).map_err(io)?;
+        // Exactly the grid's bytes, even if the file grew since its size was read.
+        (&mut file).take(n * 4).read_to_end(&mut raw).map_err(io)?;
+        if raw.len() as u64 != n * 4 {
+            return Err(bad(format!("{} bytes of values; a {rows}×{cols} grid has {}", raw.len(), n * 4)));
+        }
         let values = raw
             .chunks_exact(4)
             .map(|c| {
@@ -280,6 +295,24 @@ mod tests {
         assert!((a - b).abs() < 1e-9);
         assert!(g.undulation(f64::NAN, 0.0).is_none());
         assert!(g.undulation(0.0, 91.0).is_none());
+    }
+
+    /// A FIFO (an open waits for a writer forever) and a device are refused unopened.
+    #[test]
+    fn gtx_fifos_and_devices_are_refused_unopened() {
+        let dir = tempfile::tempdir().unwrap();
+        let zero = dir.path().join("zero.gtx");
+        std::os::unix::fs::symlink("/dev/zero", &zero).unwrap();
+        let e = Geoid::from_gtx(&zero).unwrap_err().to_string();
+        assert!(e.contains("zero.gtx: not a GTX geoid grid: not a regular file"), "{e}");
+        let fifo = dir.path().join("pipe.gtx");
+        if !std::process::Command::new("mkfifo").arg(&fifo).status().is_ok_and(|s| s.success()) {
+            return;
+        }
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || tx.send(Geoid::from_gtx(&fifo).map(|_| ()).map_err(|e| e.to_string())));
+        let e = rx.recv_timeout(std::time::Duration::from_secs(10)).expect("from_gtx waited on the FIFO");
+        assert!(e.unwrap_err().contains("pipe.gtx: not a GTX geoid grid: not a regular file"));
     }
 
     #[test]

@@ -33,6 +33,11 @@ use crate::geom::{Mesh, unit_f32};
 /// ([`crate::codec::MAX_ELEMENTS`]), since the model is stored whole as level 0.
 pub const MAX_MODEL_ELEMENTS: usize = crate::codec::MAX_ELEMENTS as usize;
 
+/// Most bytes a model file may have: checked before reading (a regular file's size) and while
+/// reading (a pipe, a file that grows). Four times what an OBJ of [`MAX_MODEL_ELEMENTS`] vertices
+/// and triangles takes, so every model a blob can hold fits.
+pub const MAX_MODEL_FILE_BYTES: u64 = 4 << 30;
+
 /// The model file types, chosen by extension or, failing that, by signature.
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -127,12 +132,45 @@ pub enum MeshError {
     TooLarge { file: String, what: &'static str, count: usize, max: usize },
     #[error("{file}: empty model: {detail}")]
     Empty { file: String, detail: String },
+    #[error("{}: is {kind}, not a model file", path.display())]
+    NotAFile { path: PathBuf, kind: &'static str },
+    #[error("{}: {} bytes; a model file is at most {max} bytes", path.display(), size.map_or_else(|| "more than that".to_owned(), |s| s.to_string()))]
+    FileTooLarge { path: PathBuf, size: Option<u64>, max: u64 },
+}
+
+/// The bytes of the model file `path`, at most `max` of them. A regular file or a pipe
+/// (`<(…)`) is read; a directory, a device or a socket is refused without being opened
+/// ([`MeshError::NotAFile`]); a larger file is refused before reading, and a pipe or growing
+/// file once past `max` ([`MeshError::FileTooLarge`]).
+pub fn read_file(path: &Path, max: u64) -> Result<Vec<u8>, MeshError> {
+    use std::io::Read;
+    use std::os::unix::fs::FileTypeExt;
+    let io = |source| MeshError::Io { path: path.to_owned(), source };
+    let check = |md: &std::fs::Metadata| {
+        let ty = md.file_type();
+        match crate::raster::irregular_kind(ty) {
+            Some(kind) if !ty.is_fifo() => Err(MeshError::NotAFile { path: path.to_owned(), kind }),
+            _ if md.len() > max => {
+                Err(MeshError::FileTooLarge { path: path.to_owned(), size: Some(md.len()), max })
+            }
+            _ => Ok(md.len()),
+        }
+    };
+    check(&std::fs::metadata(path).map_err(io)?)?;
+    let file = std::fs::File::open(path).map_err(io)?;
+    let size = check(&file.metadata().map_err(io)?)?;
+    let mut bytes = Vec::with_capacity(usize::try_from(size).unwrap_or(0));
+    file.take(max.saturating_add(1)).read_to_end(&mut bytes).map_err(io)?;
+    if bytes.len() as u64 > max {
+        return Err(MeshError::FileTooLarge { path: path.to_owned(), size: None, max });
+    }
+    Ok(bytes)
 }
 
 /// Reads and decodes a model file; the type comes from the extension (`.obj`, `.stl`, `.ply`,
 /// any case) or, for other names, from the content (see [`sniff`]).
 pub fn load(path: &Path) -> Result<Model, MeshError> {
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Io { path: path.to_owned(), source })?;
+    let bytes = read_file(path, MAX_MODEL_FILE_BYTES)?;
     let name = path.display().to_string();
     let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
     let ty = match ext.as_str() {

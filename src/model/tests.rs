@@ -160,3 +160,31 @@ proptest! {
         }
     }
 }
+
+/// A device is refused unread (`/dev/zero` used to be read until memory ran out), a file over
+/// the limit before reading (sparse here: nothing to read), and a pipe is read as a file is.
+#[test]
+fn model_files_are_bounded_and_devices_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let zero = dir.path().join("zero.obj");
+    std::os::unix::fs::symlink("/dev/zero", &zero).unwrap();
+    let e = load(&zero).unwrap_err().to_string();
+    assert!(e.contains("zero.obj: is a character device, not a model file"), "{e}");
+    let e = load(dir.path()).unwrap_err().to_string();
+    assert!(e.contains("is a directory, not a model file"), "{e}");
+    let big = dir.path().join("big.obj");
+    std::fs::File::create(&big).unwrap().set_len(MAX_MODEL_FILE_BYTES + 1).unwrap();
+    let e = load(&big).unwrap_err().to_string();
+    assert!(e.contains("big.obj: 4294967297 bytes; a model file is at most 4294967296 bytes"), "{e}");
+    let small = dir.path().join("small.obj");
+    std::fs::write(&small, OBJ).unwrap();
+    let e = read_file(&small, 10).unwrap_err().to_string();
+    assert!(e.contains("small.obj") && e.contains("at most 10 bytes"), "{e}");
+    let fifo = dir.path().join("pipe.obj");
+    if std::process::Command::new("mkfifo").arg(&fifo).status().is_ok_and(|s| s.success()) {
+        let f2 = fifo.clone();
+        let writer = std::thread::spawn(move || std::fs::write(f2, OBJ).unwrap());
+        assert_eq!(load(&fifo).unwrap().mesh.triangles.len(), 4);
+        writer.join().unwrap();
+    }
+}

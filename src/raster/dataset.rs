@@ -76,9 +76,7 @@ impl Default for DatasetOptions {
     }
 }
 
-/// The bound on no-data, defined with the point clouds' gridding (which this module reads):
-/// see [`super::las::MAX_SPARSENESS`].
-pub use super::las::MAX_SPARSENESS;
+pub use super::MAX_SPARSENESS;
 
 /// What a dataset is made of, for the bake's summary and manifest.
 #[derive(Debug, Clone, Serialize)]
@@ -211,7 +209,7 @@ impl BlockSource for TiffSource {
         let mut dec = if let Some(Handle::Tiff(d)) = open_files::POOL.take(self.owner) {
             d
         } else {
-            let file = File::open(path).map_err(|e| RasterError::io(path, e))?;
+            let file = super::open_input_file(path)?;
             let (dec, h) = geotiff::open(path, BufReader::new(file), self.buffer_bytes)?;
             // Reopened: the file must still be the one opened first.
             if dec.chunk_dimensions() != self.chunk
@@ -257,7 +255,7 @@ impl BlockSource for HgtSource {
         let mut bytes = vec![0u8; rows as usize * self.side as usize * 2];
         let mut f = match open_files::POOL.take(self.owner) {
             Some(Handle::File(f)) => f,
-            _ => File::open(path).map_err(|e| RasterError::io(path, e))?,
+            _ => super::open_input_file(path)?,
         };
         f.seek(SeekFrom::Start(u64::from(r0) * u64::from(self.side) * 2))
             .map_err(|e| RasterError::io(path, e))?;
@@ -441,7 +439,7 @@ fn dataset_error(path: &Path, message: impl Into<String>) -> RasterError {
 
 /// The format of a file, from its first bytes (and its extension).
 fn format_of(path: &Path) -> Result<(File, Format), RasterError> {
-    let mut file = File::open(path).map_err(|e| RasterError::io(path, e))?;
+    let mut file = super::open_input_file(path)?;
     let mut head = Vec::with_capacity(8);
     (&mut file).take(8).read_to_end(&mut head).map_err(|e| RasterError::io(path, e))?;
     let format = super::detect(path, &head)?;
@@ -483,13 +481,24 @@ fn open_input(
         ));
     }
     let mut text = String::new();
-    BufReader::new(file).read_to_string(&mut text).map_err(|e| {
+    // At most one byte past the limit, whatever the size said (a file that grows).
+    BufReader::new(file.take(vrt::MAX_VRT_BYTES + 1)).read_to_string(&mut text).map_err(|e| {
         if e.kind() == std::io::ErrorKind::InvalidData {
             RasterError::corrupt(path, "GDAL VRT", "the file is not UTF-8 text")
         } else {
             RasterError::io(path, e)
         }
     })?;
+    if text.len() as u64 > vrt::MAX_VRT_BYTES {
+        return Err(RasterError::unsupported(
+            path,
+            "GDAL VRT",
+            format!(
+                "the file grew past the {} MiB a VRT may have while being read",
+                vrt::MAX_VRT_BYTES >> 20
+            ),
+        ));
+    }
     let v = vrt::parse(path, &text)?;
     frames.push((v.georef, v.width, v.height));
     let mut parts = Vec::with_capacity(v.sources.len());

@@ -42,13 +42,6 @@ use super::geotiff::geokeys::{self, GeoKeys};
 use super::{FileCrs, FileGeoref, RasterError};
 use crate::crs::Crs;
 
-/// Most samples a dataset may declare per sample its data covers, unless the user passes
-/// `--allow-sparse`: a VRT's declared extent per sample its sources cover, a mosaic's extent per
-/// sample of its files, a point cloud's grid cells per point. A few bytes of XML (or two files
-/// far apart, or a few stray points) can declare a continent of no-data, which a bake would fill
-/// and bake tile by tile. Defined here, with the point clouds' gridding, which `dataset` reads.
-pub const MAX_SPARSENESS: u64 = 64;
-
 /// Side of a block of the scratch raster (the dataset's block).
 pub const BLOCK: u32 = 256;
 /// Rows of cells per bucket of the point pass.
@@ -377,7 +370,7 @@ pub fn grid(
     let mut facts = Vec::with_capacity(paths.len());
     let mut crs: Option<FileCrs> = None;
     for p in paths {
-        let mut f = File::open(p).map_err(|e| RasterError::io(p, e))?;
+        let mut f = super::open_input_file(p)?;
         let len = f.metadata().map_err(|e| RasterError::io(p, e))?.len();
         let raw = las::raw::Header::read_from(BufReader::new(&mut f))
             .map_err(|e| bad(p, false, format!("cannot read the header: {e}")))?;
@@ -424,7 +417,7 @@ pub fn grid(
     }
     let (c0, rtop, width, height) = grid_of(first, &facts, cell)?;
     let cells = u64::from(width) * u64::from(height);
-    if !allow_sparse && cells / MAX_SPARSENESS > total {
+    if !allow_sparse && cells / super::MAX_SPARSENESS > total {
         return Err(RasterError::Dataset {
             path: first.to_owned(),
             message: format!(
@@ -432,7 +425,7 @@ pub fn grid(
                  {total} points: at least {:.1} % of it would be no-data, filled and baked as flat terrain (at most \
                  {} cells per point are accepted). Use a larger --cell-size, or pass --allow-sparse to grid it anyway",
                 100.0 * (1.0 - total as f64 / cells as f64),
-                MAX_SPARSENESS
+                super::MAX_SPARSENESS
             ),
         });
     }
@@ -445,7 +438,7 @@ pub fn grid(
     let mut done = 0u64;
     for (fi, (p, f)) in paths.iter().zip(&facts).enumerate() {
         let bad = |m: String| bad(p, f.compressed, m);
-        let file = File::open(p).map_err(|e| RasterError::io(p, e))?;
+        let file = super::open_input_file(p)?;
         let format = if f.compressed { FORMAT_LAZ } else { FORMAT_LAS };
         let mut reader = super::guard_decoder(p, format, || {
             las::Reader::new(BufReader::with_capacity(1 << 20, file))

@@ -368,12 +368,64 @@ pub enum RasterError {
     /// off the grid, overlapping another file), or a dataset that cannot be read in blocks.
     #[error("{}: {message}", path.display())]
     Dataset { path: PathBuf, message: String },
+    /// The input is not a regular file (a FIFO, a device, a socket, a directory where a file
+    /// is named): refused before it is opened, since opening a FIFO waits for a writer and
+    /// inputs are read by seeking.
+    #[error(
+        "{}: is {kind}, not a regular file; inputs are read by seeking, so pipes and devices cannot be \
+         read (copy the data to a file)",
+        path.display()
+    )]
+    NotRegular { path: PathBuf, kind: &'static str },
     /// The z scale/offset pushed heights beyond the f32 range.
     #[error(
         "{}: heights overflow f32 after z scale {dz} and offset {z0} (raw range {min}..{max})",
         path.display()
     )]
     HeightOverflow { path: PathBuf, z0: f64, dz: f64, min: f32, max: f32 },
+}
+
+/// Most samples a VRT (or a point cloud's grid) may declare per sample its sources cover
+/// (unless [`dataset::DatasetOptions::allow_sparse`]): a few bytes of XML can declare a
+/// continent of no-data, which a bake would fill and bake tile by tile. Here, not in `dataset`,
+/// so that `las` names it without `dataset` and `las` importing each other.
+pub const MAX_SPARSENESS: u64 = 64;
+
+/// What a file that is not a regular file is, for messages; `None` for a regular file.
+#[must_use]
+pub fn irregular_kind(ty: std::fs::FileType) -> Option<&'static str> {
+    use std::os::unix::fs::FileTypeExt;
+    if ty.is_file() {
+        None
+    } else if ty.is_dir() {
+        Some("a directory")
+    } else if ty.is_fifo() {
+        Some("a FIFO (named pipe)")
+    } else if ty.is_char_device() {
+        Some("a character device")
+    } else if ty.is_block_device() {
+        Some("a block device")
+    } else if ty.is_socket() {
+        Some("a socket")
+    } else {
+        Some("not a regular file")
+    }
+}
+
+/// Opens the input file `path` for reading: a file that is not a regular file (symbolic links
+/// followed) is refused without being opened ([`RasterError::NotRegular`]), and the opened file
+/// is checked again (it may have been replaced in between).
+pub(crate) fn open_input_file(path: &Path) -> Result<File, RasterError> {
+    let md = std::fs::metadata(path).map_err(|e| RasterError::io(path, e))?;
+    if let Some(kind) = irregular_kind(md.file_type()) {
+        return Err(RasterError::NotRegular { path: path.to_owned(), kind });
+    }
+    let file = File::open(path).map_err(|e| RasterError::io(path, e))?;
+    let md = file.metadata().map_err(|e| RasterError::io(path, e))?;
+    if let Some(kind) = irregular_kind(md.file_type()) {
+        return Err(RasterError::NotRegular { path: path.to_owned(), kind });
+    }
+    Ok(file)
 }
 
 impl RasterError {
@@ -531,7 +583,7 @@ pub(crate) fn guard_decoder<T>(
 /// `opts.limits`, all samples no-data, an unusable georeference or override.
 pub fn load(path: &Path, opts: &LoadOptions) -> Result<LoadedRaster, RasterError> {
     validate_overrides(path, &opts.overrides)?;
-    let mut file = File::open(path).map_err(|e| RasterError::io(path, e))?;
+    let mut file = open_input_file(path)?;
     let mut head = Vec::with_capacity(8);
     (&mut file).take(8).read_to_end(&mut head).map_err(|e| RasterError::io(path, e))?;
     let format = detect(path, &head)?;

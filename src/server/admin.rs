@@ -238,7 +238,7 @@ pub async fn upload(
         )));
     }
     let root = app.registry.root().to_owned();
-    if app.registry.get(&name).is_some() || root.join(&name).exists() {
+    if app.registry.get(&name).is_some() || tokio::fs::try_exists(root.join(&name)).await.unwrap_or(false) {
         return Err(Problem::new(
             StatusCode::CONFLICT,
             "exists",
@@ -365,7 +365,11 @@ async fn supervise(app: Arc<App>, job: Arc<Job>, work: Work) {
         }
     };
     if let Some(r) = outcome {
-        conclude(&app, &job, r);
+        // Off the async workers: it renames or removes the staged tileset and rescans the store.
+        let (a, j) = (app.clone(), job.clone());
+        if tokio::task::spawn_blocking(move || conclude(&a, &j, r)).await.is_err() {
+            job.finish(FAILED, Some("publishing the baked tileset failed".to_owned()));
+        }
     }
     drop(permit);
 }
@@ -443,7 +447,9 @@ async fn stream_to(path: &FsPath, body: Body, limit: u64) -> Result<(), Option<P
         tracing::error!(path = %path.display(), error = %e, "cannot store upload");
         Some(Problem::internal("store-io", "the upload could not be stored"))
     };
-    let mut file = tokio::fs::File::create(path).await.map_err(io)?;
+    // A new file, never one already there: job ids restart at 1, and a `.upload-jN` planted in
+    // the store (a link to a file elsewhere, a FIFO) must not be written through or waited on.
+    let mut file = tokio::fs::OpenOptions::new().write(true).create_new(true).open(path).await.map_err(io)?;
     let mut body = body;
     let mut n = 0u64;
     while let Some(frame) = body.frame().await {
@@ -472,6 +478,7 @@ fn bake_to_staging(work: &Work, id: &str, baker: &PointBaker, job: &Job) -> Resu
         return Err(JobError::Stopped(why));
     }
     let raster = crate::raster::load(&work.upload, &load)?;
+    super::tileable(&work.upload, &raster)?;
     let staging: PathBuf = work.root.join(format!(".job-{id}"));
     let r = crate::bake::bake_terrain(&raster, &work.name, &work.opts, baker, &Store::new(&staging), job);
     if let Err(e) = r {
@@ -560,9 +567,14 @@ pub async fn delete(
         ));
     }
     let root = app.registry.root().to_owned();
-    let dir = root.join(&name);
-    if !dir.is_dir() {
-        return Err(Problem::not_found(format!("no tileset named {name:?}")));
+    // The folder, else the archive `NAME.tsa` (a folder of the same name is the one served).
+    let mut dir = root.join(&name);
+    let is_dir = tokio::fs::metadata(&dir).await.is_ok_and(|m| m.is_dir());
+    if !is_dir {
+        dir = root.join(format!("{name}{}", crate::store::ARCHIVE_SUFFIX));
+        if !tokio::fs::metadata(&dir).await.is_ok_and(|m| m.is_file()) {
+            return Err(Problem::not_found(format!("no tileset named {name:?}")));
+        }
     }
     // Renamed out of the namespace first (atomic), then removed in the background.
     let nanos =
@@ -573,7 +585,9 @@ pub async fn delete(
         Problem::internal("store-io", format!("tileset {name:?} could not be deleted"))
     })?;
     app.registry.remove(&name);
-    tokio::task::spawn_blocking(move || std::fs::remove_dir_all(gone));
+    tokio::task::spawn_blocking(move || {
+        if is_dir { std::fs::remove_dir_all(gone) } else { std::fs::remove_file(gone) }
+    });
     tracing::info!(tileset = %name, "tileset deleted");
     Ok(StatusCode::NO_CONTENT.into_response())
 }

@@ -50,6 +50,10 @@ pub const DEFAULT_JOB_TIMEOUT_S: u64 = 4 * 3600;
 /// How long finished, failed and cancelled admin jobs stay visible at `/jobs/{id}` (seconds).
 pub const DEFAULT_JOB_TTL_S: u64 = 3600;
 
+/// Most bytes `--config` reads: a config file is a few lines of TOML (sources included), so
+/// 1 MiB is generous, and a wrong path (`/dev/zero`, a huge file) is refused at it.
+pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
+
 /// How log lines are written.
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
@@ -276,10 +280,20 @@ pub struct PartialConfig {
 
 impl PartialConfig {
     /// Reads a TOML file with the same keys as the flags (snake_case).
+    /// At most [`MAX_CONFIG_BYTES`] are read, whatever the file is: a pipe (`--config <(…)`)
+    /// is read as a file is, and a device such as `/dev/zero` is refused past the limit.
     pub fn from_toml_file(path: &Path) -> Result<Self, ServerError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| ServerError::Config(format!("{}: {e}", path.display())))?;
-        toml::from_str(&text).map_err(|e| ServerError::Config(format!("{}: {e}", path.display())))
+        use std::io::Read;
+        let bad = |m: String| ServerError::Config(format!("{}: {m}", path.display()));
+        let file = std::fs::File::open(path).map_err(|e| bad(e.to_string()))?;
+        let mut text = String::new();
+        file.take(MAX_CONFIG_BYTES + 1).read_to_string(&mut text).map_err(|e| bad(e.to_string()))?;
+        if text.len() as u64 > MAX_CONFIG_BYTES {
+            return Err(bad(format!(
+                "more than {MAX_CONFIG_BYTES} bytes; a config file is a few lines of TOML (is it the right file?)"
+            )));
+        }
+        toml::from_str(&text).map_err(|e| bad(e.to_string()))
     }
 
     /// `self` where set, else `lower`.

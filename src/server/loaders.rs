@@ -103,7 +103,9 @@ pub(super) async fn chunk_entry(
     key: TileKey,
 ) -> Result<(Entry, bool), Problem> {
     let name = &ts.name;
-    if let Some(src) = ts.source.clone().filter(|_| !ts.store.manifest_path().exists()) {
+    let baking =
+        ts.source.is_some() && !tokio::fs::try_exists(ts.store.manifest_path()).await.unwrap_or(false);
+    if let Some(src) = ts.source.clone().filter(|_| baking) {
         // On-demand and not fully baked: the nodes baked so far, rebuilt from their blobs.
         if !src.pyramid.contains(key) {
             return Err(Problem::not_found(format!("tile {key} lies outside the data of {name:?}")));
@@ -143,6 +145,24 @@ pub(super) async fn chunk_entry(
             }
             Err(e) => return Err(stored_file_problem(app, ts, &rel, &format!("index chunk {key}"), &e)),
         };
+        // A folder keeps no checksum of its chunks: a chunk that is not the chunk rooted at
+        // `key` (truncated, edited, another chunk's) is damage, answered as an archive's CRC
+        // mismatch is, never sent.
+        match serde_json::from_slice::<crate::store::IndexChunk>(&bytes) {
+            Ok(c) if c.root == key => {}
+            other => {
+                let why = other.map_or_else(|e| e.to_string(), |c| format!("its root is {}", c.root));
+                app.metrics.corrupt_blobs.fetch_add(1, Ordering::Relaxed);
+                tracing::error!(
+                    tileset = %name, path = %ts.store.describe(&rel), error = %why,
+                    "corrupt index chunk detected; not sent"
+                );
+                return Err(Problem::internal(
+                    "corrupt-blob",
+                    format!("the stored index chunk {key} failed verification and was not sent"),
+                ));
+            }
+        }
         let e = Entry { etag: etag_value(&super::registry::etag_of(&bytes)), bytes };
         app.cache.insert(ck, e.clone());
         e

@@ -165,6 +165,23 @@ impl App {
     }
 }
 
+/// Refuses a raster too small to be tiled (under 2×2 samples) with the message `bake` gives,
+/// naming `path`. Checked where the server loads a raster whole (`--source`, admin uploads),
+/// not in the loader: tiny rasters are legitimate inputs to other uses of it.
+pub(crate) fn tileable(
+    path: &std::path::Path,
+    raster: &crate::raster::LoadedRaster,
+) -> Result<(), crate::raster::RasterError> {
+    let (w, h) = (raster.heights.width, raster.heights.height);
+    if w < 2 || h < 2 {
+        return Err(crate::raster::RasterError::Dataset {
+            path: path.to_owned(),
+            message: format!("is {w}×{h} samples; a heightfield needs at least 2×2 to be tiled"),
+        });
+    }
+    Ok(())
+}
+
 /// Loads an on-demand source and prepares its directory (as `bake` would, so either resumes the
 /// other's work).
 fn open_source(root: &std::path::Path, spec: &SourceSpec) -> Result<registry::OnDemand, ServerError> {
@@ -205,6 +222,7 @@ fn open_source(root: &std::path::Path, spec: &SourceSpec) -> Result<registry::On
         ..LoadOptions::default()
     };
     let raster = crate::raster::load(&spec.raster, &load).map_err(|e| err(e.into()))?;
+    tileable(&spec.raster, &raster).map_err(|e| err(e.into()))?;
     let d = BakeOptions::default();
     let opts = BakeOptions {
         tile_size: spec.tile_size.unwrap_or(d.tile_size),

@@ -45,7 +45,9 @@ pub(super) async fn readyz(State(app): State<Arc<App>>) -> Response {
         .into_response();
     }
     // A bucket is readable when its last scan (a listing) succeeded: `ready` says so.
-    let store_ok = app.registry.is_remote() || app.registry.root().is_dir();
+    // On the blocking pool: a stat on a hung mount must not hold an async worker.
+    let store_ok =
+        app.registry.is_remote() || tokio::fs::metadata(app.registry.root()).await.is_ok_and(|m| m.is_dir());
     let ready = app.ready.load(Ordering::Relaxed) && store_ok;
     if ready {
         let n = app.registry.all().len();

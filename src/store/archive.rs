@@ -43,6 +43,10 @@ pub const MAX_PATH: usize = 1024;
 pub const MAX_DIR_BYTES: u64 = 64 << 20;
 /// Fewest bytes one file takes in a directory page (a one-byte path).
 const MIN_ENTRY_BYTES: u64 = 2 + 1 + 8 + 8 + 4;
+/// Largest directory page a reader accepts: [`PAGE_ENTRIES`] files of [`MAX_PATH`]-byte paths
+/// (about 4.1 MiB), what the writer can produce. Checked before a page is read, so one lookup
+/// reads (and the page cache holds) at most that much whatever the archive declares.
+pub const MAX_PAGE_BYTES: u64 = PAGE_ENTRIES as u64 * (MIN_ENTRY_BYTES - 1 + MAX_PATH as u64);
 /// Directory pages a reader keeps in memory.
 const CACHED_PAGES: usize = 512;
 
@@ -362,7 +366,7 @@ impl Archive {
             if root.last().is_some_and(|l| l.first >= p.first)
                 || p.offset < MAGIC.len() as u64
                 || p.offset.checked_add(u64::from(p.len)).is_none_or(|end| end > root_offset)
-                || u64::from(p.len) > MAX_DIR_BYTES
+                || u64::from(p.len) > MAX_PAGE_BYTES
                 || p.count == 0
             {
                 return Err(bad(format!("root directory entry {} is out of order or range", root.len())));
@@ -374,6 +378,13 @@ impl Archive {
                     p.count,
                     p.len,
                     u64::from(p.len) / MIN_ENTRY_BYTES
+                )));
+            }
+            if p.count as usize > PAGE_ENTRIES {
+                return Err(bad(format!(
+                    "root directory entry {} counts {} files; a page holds at most {PAGE_ENTRIES}",
+                    root.len(),
+                    p.count
                 )));
             }
             total += u64::from(p.count);
@@ -624,6 +635,16 @@ mod tests {
         // A page claiming 4 billion files in 46 bytes (a reader would reserve ~200 GiB).
         let many = open_mem(hostile(&[page()], |r| r[0].count = u32::MAX)).unwrap_err();
         assert!(many.to_string().contains("root directory entry 0 counts 4294967295 files"), "{many}");
+        // A page of more files than a page holds (each lookup in it would read and cache it
+        // whole, up to 64 MiB).
+        let big: Vec<Entry> = (0..=PAGE_ENTRIES).map(|i| entry(&format!("t/{i:05}"), 8)).collect();
+        let e = open_mem(hostile(&[big], |_| {})).unwrap_err();
+        assert!(
+            e.to_string().contains("root directory entry 0 counts 4097 files; a page holds at most 4096"),
+            "{e}"
+        );
+        let fits: Vec<Entry> = (0..PAGE_ENTRIES).map(|i| entry(&format!("t/{i:05}"), 8)).collect();
+        assert!(open_mem(hostile(&[fits], |_| {})).is_ok());
         // A page holding a path that sorts after the next page's first: listed, but a lookup
         // by its path would search the wrong page.
         let a =

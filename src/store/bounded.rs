@@ -17,26 +17,7 @@ use std::path::Path;
 
 use super::StoreError;
 
-/// What a file that is not a regular file is, for messages; `None` for a regular file.
-#[must_use]
-pub fn irregular_kind(ty: fs::FileType) -> Option<&'static str> {
-    use std::os::unix::fs::FileTypeExt;
-    if ty.is_file() {
-        None
-    } else if ty.is_dir() {
-        Some("a directory")
-    } else if ty.is_fifo() {
-        Some("a FIFO (named pipe)")
-    } else if ty.is_char_device() {
-        Some("a character device")
-    } else if ty.is_block_device() {
-        Some("a block device")
-    } else if ty.is_socket() {
-        Some("a socket")
-    } else {
-        Some("not a regular file")
-    }
-}
+pub use crate::raster::irregular_kind;
 
 /// Checks that `path` (symbolic links followed) is a regular file of at most `limit` bytes
 /// without opening it; returns its size, or `Ok(None)` when it does not exist.

@@ -34,12 +34,18 @@ use crate::geom::Bounds;
 /// The up direction when a key gives none.
 pub const DEFAULT_UP: [f64; 3] = [0.0, 0.0, 1.0];
 
+/// Most bytes a flight file may have (a million keys are about 150 MB of JSON); read at most
+/// one more, so a wrong path such as `/dev/zero` is refused instead of filling memory.
+pub const MAX_FLIGHT_BYTES: u64 = 256 << 20;
+
 /// What is wrong with a flight; each names the key and field (`keys[i].t`).
 #[derive(Debug, thiserror::Error)]
 pub enum FlightError {
     /// The flight file cannot be read.
     #[error("{0}")]
     Read(#[source] std::io::Error),
+    #[error("more than {max} bytes; a flight file is at most that")]
+    TooLarge { max: u64 },
     #[error("invalid flight JSON: {0}")]
     Json(#[source] serde_json::Error),
     #[error("keys: a flight needs at least one key")]
@@ -134,8 +140,18 @@ impl Flight {
 
     /// Reads a flight file.
     pub fn load(path: &Path) -> Result<Self, ClientError> {
+        use std::io::Read;
         let err = |source: FlightError| ClientError::Flight { path: path.to_owned(), source };
-        let text = std::fs::read_to_string(path).map_err(|e| err(FlightError::Read(e)))?;
+        let file = std::fs::File::open(path).map_err(|e| err(FlightError::Read(e)))?;
+        if file.metadata().is_ok_and(|m| m.len() > MAX_FLIGHT_BYTES) {
+            return Err(err(FlightError::TooLarge { max: MAX_FLIGHT_BYTES }));
+        }
+        let mut text = String::new();
+        // At most one byte past the limit, whatever the file is (a pipe, `/dev/zero`).
+        file.take(MAX_FLIGHT_BYTES + 1).read_to_string(&mut text).map_err(|e| err(FlightError::Read(e)))?;
+        if text.len() as u64 > MAX_FLIGHT_BYTES {
+            return Err(err(FlightError::TooLarge { max: MAX_FLIGHT_BYTES }));
+        }
         Self::from_json(&text).map_err(err)
     }
 
@@ -304,6 +320,17 @@ fn pose(k: &Key) -> Pose {
 #[allow(clippy::float_cmp)] // interpolation of exactly representable keys is exact
 mod tests {
     use super::*;
+
+    /// A flight file past the limit is refused before it is read (a sparse file: before the fix
+    /// its 256 MiB of zeros were read whole and then called invalid JSON).
+    #[test]
+    fn oversized_flight_files_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("flight.json");
+        std::fs::File::create(&p).unwrap().set_len(MAX_FLIGHT_BYTES + 1).unwrap();
+        let e = Flight::load(&p).unwrap_err().to_string();
+        assert!(e.contains("flight.json") && e.contains("more than 268435456 bytes"), "{e}");
+    }
 
     #[test]
     fn parses_interpolates_and_holds() {

@@ -70,10 +70,16 @@ impl Backend for LocalDir {
                 let entry = entry.map_err(io(&dir))?;
                 let name = entry.file_name().to_string_lossy().into_owned();
                 let child = if rel.is_empty() { name.clone() } else { format!("{rel}/{name}") };
-                let md = entry.metadata().map_err(io(&entry.path()))?;
+                // Symbolic links followed (a `tiles/` linked to another disk is the tileset's),
+                // and a file that is not a regular file refused by name: left out, it would be
+                // missing from a pack that says it packed the tileset.
+                let path = entry.path();
+                let md = fs::metadata(&path).map_err(io(&path))?;
                 if md.is_dir() {
-                    stack.push((entry.path(), child, depth + 1));
-                } else if md.is_file() {
+                    stack.push((path, child, depth + 1));
+                } else if let Some(kind) = crate::store::bounded::irregular_kind(md.file_type()) {
+                    return Err(StoreError::NotRegular { path, kind });
+                } else {
                     out.push((child, md.len()));
                 }
             }
