@@ -2,8 +2,12 @@
 //! max errors given, verifies each mesh's max error against every sample, and prints JSON lines.
 //! `bench/tin_vs_pydelatin.py` runs it next to pydelatin in the same run.
 //!
-//! `tin_fuji PNG E1 E2 …` times our TIN; `tin_fuji PNG --measure MESH.bin` measures a foreign
-//! mesh (u32 nv, u32 nt, nv × (f64 col, f64 row), nt × 3 u32, little-endian) on the same heights.
+//! `tin_fuji DEM E1 E2 …` times our TIN; `tin_fuji DEM --measure MESH.bin` measures a foreign
+//! mesh (u32 nv, u32 nt, nv × (f64 col, f64 row), nt × 3 u32, little-endian) on the same heights;
+//! `tin_fuji DEM --dump HEIGHTS.f32` writes the heights the TIN sees (row-major little-endian
+//! f32, no-data filled as a bake fills it) and prints `{"width": W, "height": H}`, so an anchor
+//! triangulates exactly the same samples. DEM: a terrain-RGB PNG (`.png`) or any raster
+//! `bake` reads (GeoTIFF, HGT, …).
 use std::time::Instant;
 
 use anyhow::{Context, bail};
@@ -13,14 +17,24 @@ use terrastream::tin;
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let path = args.first().context("usage: tin_fuji PNG [E…] | PNG --measure MESH.bin")?;
-    let opts = LoadOptions { encoding: Some(HeightEncoding::TerrainRgb), ..LoadOptions::default() };
+    let path =
+        args.first().context("usage: tin_fuji DEM [E…] | DEM --measure MESH.bin | DEM --dump OUT.f32")?;
+    let png = std::path::Path::new(path).extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    let encoding = png.then_some(HeightEncoding::TerrainRgb);
+    let opts = LoadOptions { encoding, ..LoadOptions::default() };
     let r = raster::load(path.as_ref(), &opts)?;
     let (w, h) = (r.heights.width, r.heights.height);
     let hs = &r.heights.data;
     let span = Span { col0: 0, col1: w - 1, row0: 0, row1: h - 1 };
     let z = |c: f64, row: f64| f64::from(hs[row as usize * w as usize + c as usize]);
 
+    if args.get(1).map(String::as_str) == Some("--dump") {
+        let out = args.get(2).context("--dump needs a file")?;
+        let bytes: Vec<u8> = hs.iter().flat_map(|v| v.to_le_bytes()).collect();
+        std::fs::write(out, bytes).with_context(|| format!("writing {out}"))?;
+        println!("{{\"width\": {w}, \"height\": {h}}}");
+        return Ok(());
+    }
     if args.get(1).map(String::as_str) == Some("--measure") {
         let bytes = std::fs::read(args.get(2).context("--measure needs a file")?)?;
         let u32_at = |o: usize| -> anyhow::Result<u32> {
@@ -50,7 +64,7 @@ fn main() -> anyhow::Result<()> {
     for e in if errors.is_empty() { vec![1.0, 10.0, 30.0] } else { errors } {
         let mut best = f64::INFINITY;
         let mut t = tin::Tin::default();
-        for _ in 0..3 {
+        for _ in 0..5 {
             let start = Instant::now();
             t = tin::build(&grid, hs, e)?;
             best = best.min(start.elapsed().as_secs_f64());

@@ -158,7 +158,7 @@ impl FaceHeap {
     /// Sifts `e` up from the hole at `p` and stores it; returns where it landed.
     fn up_with(&mut self, mut p: usize, e: HeapEntry) -> usize {
         while p > 0 {
-            let parent = (p - 1) / 2;
+            let parent = (p - 1) / ARITY;
             let q = self.heap[parent];
             if e.rank <= q.rank {
                 break;
@@ -174,13 +174,12 @@ impl FaceHeap {
         let e = self.heap[p];
         let n = self.heap.len();
         loop {
-            let (l, r) = (2 * p + 1, 2 * p + 2);
+            let first = ARITY * p + 1;
             let (mut best, mut key) = (p, e.rank);
-            if l < n && self.heap[l].rank > key {
-                (best, key) = (l, self.heap[l].rank);
-            }
-            if r < n && self.heap[r].rank > key {
-                best = r;
+            for c in first..(first + ARITY).min(n) {
+                if self.heap[c].rank > key {
+                    (best, key) = (c, self.heap[c].rank);
+                }
             }
             if best == p {
                 break;
@@ -193,6 +192,11 @@ impl FaceHeap {
     }
 }
 
+/// Children per heap node: a node's four 16-byte children lie in one or two cache lines, and the
+/// heap is half as deep as a binary one (re-keying a face after an insertion mostly sifts it
+/// down, through cold entries).
+const ARITY: usize = 4;
+
 /// Nodes with more samples than this are built as independent regions (in parallel), split on
 /// a seam column or row whose vertices are chosen like a node border: by 1-D simplification of
 /// the seam's own samples. The split depends on the node's size and data only, never on the
@@ -202,7 +206,7 @@ pub const REGION_SPLIT_SAMPLES: usize = 1 << 17;
 /// Builds the TIN of `heights` (row-major over `grid.rows × grid.cols`) so that every sample is
 /// within `max_error` (vertical, in height units) of the mesh.
 pub fn build(grid: &NodeGrid, heights: &[f32], max_error: f64) -> Result<Tin, TinError> {
-    build_split(grid, heights, max_error, REGION_SPLIT_SAMPLES, 0.0)
+    build_split(grid, heights, max_error, [REGION_SPLIT_SAMPLES, LOCAL_SPLIT_SAMPLES], 0.0)
 }
 
 /// [`build`] for a surface that a client draws curved away below flat triangles: a triangle
@@ -220,15 +224,16 @@ pub fn build_with_chord(
     if !chord.is_finite() || chord < 0.0 {
         return Err(TinError::BadMaxError(chord));
     }
-    build_split(grid, heights, max_error, REGION_SPLIT_SAMPLES, chord)
+    build_split(grid, heights, max_error, [REGION_SPLIT_SAMPLES, LOCAL_SPLIT_SAMPLES], chord)
 }
 
-/// [`build`], splitting regions of more than `split_samples` samples.
+/// [`build`], splitting regions of more than `split[0]` samples, and of more than `split[1]`
+/// where the seam is dense.
 fn build_split(
     grid: &NodeGrid,
     heights: &[f32],
     max_error: f64,
-    split_samples: usize,
+    [split_samples, local_split_samples]: [usize; 2],
     chord: f64,
 ) -> Result<Tin, TinError> {
     let (nc, nr) = (grid.cols.len(), grid.rows.len());
@@ -244,7 +249,8 @@ fn build_split(
     if let Some(k) = heights.iter().position(|h| !h.is_finite()) {
         return Err(TinError::NonFinite { col: grid.cols[k % nc], row: grid.rows[k / nc] });
     }
-    let node = Node { grid, heights, nc, max_error, split_samples, chord };
+    let local_split_samples = local_split_samples.min(split_samples);
+    let node = Node { grid, heights, nc, max_error, split_samples, local_split_samples, chord };
     let whole = Region { i0: 0, i1: nc - 1, j0: 0, j1: nr - 1 };
     let borders = Borders {
         bottom: node.row_border(0, 0, nc - 1),
@@ -262,6 +268,8 @@ struct Node<'a> {
     nc: usize,
     max_error: f64,
     split_samples: usize,
+    /// Regions above this many samples split where the seam is dense.
+    local_split_samples: usize,
     /// Sag of a chord per squared grid unit of its length (0: a flat surface).
     chord: f64,
 }
@@ -320,70 +328,104 @@ fn within(v: &[usize], lo: usize, hi: usize) -> Vec<usize> {
     v.iter().copied().filter(|&k| k >= lo && k <= hi).collect()
 }
 
+/// Regions with more samples than this are split further when the seam through them is dense
+/// (see [`SEAM_DENSITY`]), on one thread as on many: a region's triangulation then fits in a
+/// core's cache (spade's half-edges, the face heap and the heights of 64² samples take about
+/// 0.5 MiB at full density), and greedy insertion, which jumps to wherever the worst sample is,
+/// stops missing the cache on every step. fuji at 1 m: 1.6× faster on one thread, 0.1 % fewer
+/// vertices.
+pub const LOCAL_SPLIT_SAMPLES: usize = 1 << 12;
+
+/// A seam splits a region of at most [`REGION_SPLIT_SAMPLES`] samples only if its 1-D
+/// simplification keeps at least one sample in this many: where the data is that dense, the
+/// greedy insertion would have put about as many vertices there anyway, so the seam costs few
+/// extra vertices; smooth data (a flat sea: only the corners) is never cut into pieces.
+pub const SEAM_DENSITY: usize = 16;
+
 /// Builds one region: split on a seam when it is large and one is available, else greedily.
 fn build_region(node: &Node, r: Region, b: Borders) -> Result<Tin, TinError> {
     let (w, h) = (r.i1 - r.i0 + 1, r.j1 - r.j0 + 1);
-    if w * h > node.split_samples {
+    let large = w * h > node.split_samples;
+    if large || w * h > node.local_split_samples {
         // Split across the longer side first.
         let vertical = || seam_at(&b.bottom, &b.top, r.i0, r.i1).map(|m| (true, m));
         let horizontal = || seam_at(&b.left, &b.right, r.j0, r.j1).map(|m| (false, m));
         let split = if w >= h { vertical().or_else(horizontal) } else { horizontal().or_else(vertical) };
         if let Some((is_vertical, m)) = split {
-            let (ra, ba, rb, bb) = if is_vertical {
-                let seam = node.col_border(m, r.j0, r.j1);
-                (
-                    Region { i1: m, ..r },
-                    Borders {
-                        bottom: within(&b.bottom, r.i0, m),
-                        top: within(&b.top, r.i0, m),
-                        left: b.left,
-                        right: seam.clone(),
-                    },
-                    Region { i0: m, ..r },
-                    Borders {
-                        bottom: within(&b.bottom, m, r.i1),
-                        top: within(&b.top, m, r.i1),
-                        left: seam,
-                        right: b.right,
-                    },
-                )
+            let (seam, len) = if is_vertical {
+                (node.col_border(m, r.j0, r.j1), h)
             } else {
-                let seam = node.row_border(m, r.i0, r.i1);
-                (
-                    Region { j1: m, ..r },
-                    Borders {
-                        bottom: b.bottom,
-                        top: seam.clone(),
-                        left: within(&b.left, r.j0, m),
-                        right: within(&b.right, r.j0, m),
-                    },
-                    Region { j0: m, ..r },
-                    Borders {
-                        bottom: seam,
-                        top: b.top,
-                        left: within(&b.left, m, r.j1),
-                        right: within(&b.right, m, r.j1),
-                    },
-                )
+                (node.row_border(m, r.i0, r.i1), w)
             };
-            let (a, c) = rayon::join(|| build_region(node, ra, ba), || build_region(node, rb, bb));
-            return Ok(merge(a?, &c?));
+            if large || seam.len() * SEAM_DENSITY >= len {
+                let (ra, ba, rb, bb) = if is_vertical {
+                    (
+                        Region { i1: m, ..r },
+                        Borders {
+                            bottom: within(&b.bottom, r.i0, m),
+                            top: within(&b.top, r.i0, m),
+                            left: b.left,
+                            right: seam.clone(),
+                        },
+                        Region { i0: m, ..r },
+                        Borders {
+                            bottom: within(&b.bottom, m, r.i1),
+                            top: within(&b.top, m, r.i1),
+                            left: seam,
+                            right: b.right,
+                        },
+                    )
+                } else {
+                    (
+                        Region { j1: m, ..r },
+                        Borders {
+                            bottom: b.bottom,
+                            top: seam.clone(),
+                            left: within(&b.left, r.j0, m),
+                            right: within(&b.right, r.j0, m),
+                        },
+                        Region { j0: m, ..r },
+                        Borders {
+                            bottom: seam,
+                            top: b.top,
+                            left: within(&b.left, m, r.j1),
+                            right: within(&b.right, m, r.j1),
+                        },
+                    )
+                };
+                let (a, c) = if large {
+                    rayon::join(|| build_region(node, ra, ba), || build_region(node, rb, bb))
+                } else {
+                    (build_region(node, ra, ba), build_region(node, rb, bb))
+                };
+                return Ok(merge(a?, &c?, usize::from(!is_vertical), m as u32));
+            }
         }
     }
     greedy_region(node, r, &b)
 }
 
-/// Joins two TINs that share the vertices of their seam (same node indices).
-fn merge(a: Tin, b: &Tin) -> Tin {
-    let key = |v: [u32; 2]| (u64::from(v[0]) << 32) | u64::from(v[1]);
-    let index: std::collections::HashMap<u64, u32> =
-        a.vertices.iter().enumerate().map(|(k, &v)| (key(v), k as u32)).collect();
+/// Joins two TINs that share the vertices of their seam: node index `m` on axis `axis` (0: a
+/// column, 1: a row). Only seam vertices can be shared, so only they are looked up.
+fn merge(a: Tin, b: &Tin, axis: usize, m: u32) -> Tin {
+    let other = 1 - axis;
+    let mut seam: Vec<(u32, u32)> = a
+        .vertices
+        .iter()
+        .enumerate()
+        .filter(|(_, v)| v[axis] == m)
+        .map(|(k, v)| (v[other], k as u32))
+        .collect();
+    seam.sort_unstable();
     let mut out = a;
     let remap: Vec<u32> = b
         .vertices
         .iter()
         .map(|&v| {
-            index.get(&key(v)).copied().unwrap_or_else(|| {
+            let shared = (v[axis] == m)
+                .then(|| seam.binary_search_by_key(&v[other], |&(t, _)| t).ok().map(|p| seam[p].1))
+                .flatten();
+            shared.unwrap_or_else(|| {
                 out.vertices.push(v);
                 (out.vertices.len() - 1) as u32
             })
@@ -423,6 +465,7 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
     }
 
     let corner = |v: &Vertex| [v.pos.x, v.pos.y, v.z];
+    let ij = |v: &Vertex| [v.i, v.j];
     // The first sample (in row-major order) of the largest error over the bound wins, so one
     // comparison per sample decides.
     // Inner spans never reach the last column, so a sample's x is `start + i·step` there
@@ -434,7 +477,16 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
         let d2 = |a: [f64; 3], b: [f64; 3]| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2);
         chord * d2(p[0], p[1]).max(d2(p[1], p[2])).max(d2(p[2], p[0]))
     };
-    let scan = |p: [[f64; 3]; 3], hint: u32| {
+    // `corners`: the face's vertex handles; the one nearest the chosen sample becomes the
+    // candidate's hint, where spade's point location starts (its walk then ends at once).
+    let scan = |p: [[f64; 3]; 3], ij: [[u32; 2]; 3], corners: [u32; 3]| {
+        // A face within one grid cell (most faces of a dense mesh) holds no sample but its own
+        // corners, which the mesh passes through: nothing to scan.
+        let (i_lo, i_hi) = (ij[0][0].min(ij[1][0]).min(ij[2][0]), ij[0][0].max(ij[1][0]).max(ij[2][0]));
+        let (j_lo, j_hi) = (ij[0][1].min(ij[1][1]).min(ij[2][1]), ij[0][1].max(ij[1][1]).max(ij[2][1]));
+        if i_hi - i_lo <= 1 && j_hi - j_lo <= 1 {
+            return None;
+        }
         let sag_p = if chord > 0.0 { sag(&p) } else { 0.0 };
         // Grid positions are integers, exact in f64: equality is exact here.
         #[allow(clippy::float_cmp)]
@@ -476,13 +528,19 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
                 k += 1;
             }
         });
-        (sample != u32::MAX).then(|| Candidate::new(worst + sag_p, sample, hint))
+        (sample != u32::MAX).then(|| {
+            let (si, sj) = (sample % nc as u32, sample / nc as u32);
+            let d2 = |c: [u32; 2]| u64::from(c[0].abs_diff(si)).pow(2) + u64::from(c[1].abs_diff(sj)).pow(2);
+            let near = (0..3).min_by_key(|&k| d2(ij[k])).unwrap_or(0);
+            Candidate::new(worst + sag_p, sample, corners[near])
+        })
     };
 
     let mut heap = FaceHeap::default();
     for face in tri.fixed_inner_faces() {
         let vs = tri.face(face).vertices();
-        heap.set(face.index(), scan(vs.map(|v| corner(v.data())), vs[0].fix().index() as u32));
+        let (p, ij) = (vs.map(|v| corner(v.data())), vs.map(|v| ij(v.data())));
+        heap.set(face.index(), scan(p, ij, vs.map(|v| v.fix().index() as u32)));
     }
     while let Some(c) = heap.peek() {
         let hint = FixedVertexHandle::from_index(c.hint as usize);
@@ -502,11 +560,14 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
         // to the new vertex, so its star is all that needs a new scan. The face left of the
         // out-edge v→w is (v, w, next(w)).
         let vh = tri.vertex(v);
-        let pv = corner(vh.data());
+        let (pv, iv) = (corner(vh.data()), ij(vh.data()));
         for e in vh.out_edges() {
             if let Some(f) = e.face().as_inner() {
-                let p = [pv, corner(e.to().data()), corner(e.next().to().data())];
-                heap.set(f.fix().index(), scan(p, v.index() as u32));
+                let (wh, xh) = (e.to(), e.next().to());
+                let (w, x) = (wh.data(), xh.data());
+                let p = [pv, corner(w), corner(x)];
+                let handles = [v.index() as u32, wh.fix().index() as u32, xh.fix().index() as u32];
+                heap.set(f.fix().index(), scan(p, [iv, ij(w), ij(x)], handles));
             }
         }
         // The popped face is always in the star (the new vertex lies in it), so it was re-keyed.
@@ -994,8 +1055,8 @@ mod tests {
         let hs = terrain(w, h, 11);
         let g = grid(w, h);
         let span = Span { col0: 0, col1: w - 1, row0: 0, row1: h - 1 };
-        let whole = build_split(&g, &hs, e, usize::MAX, 0.0).unwrap();
-        let split = build_split(&g, &hs, e, 2_000, 0.0).unwrap();
+        let whole = build_split(&g, &hs, e, [usize::MAX; 2], 0.0).unwrap();
+        let split = build_split(&g, &hs, e, [2_000, usize::MAX], 0.0).unwrap();
         assert_ne!(whole, split, "the small threshold must split the node");
         for tin in [&whole, &split] {
             let pos = positions(&g, &hs, tin);
@@ -1018,6 +1079,32 @@ mod tests {
         }
         let ratio = split.vertices.len() as f64 / whole.vertices.len() as f64;
         assert!((0.9..1.1).contains(&ratio), "{} vs {}", split.vertices.len(), whole.vertices.len());
+    }
+
+    #[test]
+    fn local_splits_keep_the_bound_and_the_vertex_count() {
+        // Dense data (fine bound): split into cache-sized regions, same bound, about the same
+        // vertex count as one region; the split never depends on the thread count.
+        let (w, h, e) = (200, 180, 0.3);
+        let hs = terrain(w, h, 5);
+        let g = grid(w, h);
+        let span = Span { col0: 0, col1: w - 1, row0: 0, row1: h - 1 };
+        let whole = build_split(&g, &hs, e, [usize::MAX; 2], 0.0).unwrap();
+        let local = build(&g, &hs, e).unwrap();
+        assert_ne!(whole, local, "dense data must be split locally");
+        let err = measure_vertical(&positions(&g, &hs, &local), &local.triangles, span, &hs).unwrap();
+        assert!(err.max <= e + 1e-9, "measured {}", err.max);
+        let ratio = local.vertices.len() as f64 / whole.vertices.len() as f64;
+        assert!((0.97..1.03).contains(&ratio), "{} vs {}", local.vertices.len(), whole.vertices.len());
+        let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        assert_eq!(one.install(|| build(&g, &hs, e).unwrap()), local);
+        // Smooth data is not cut into pieces: a large flat node stays two triangles, a plane too.
+        let flat = build(&grid(300, 250), &vec![7.0; 300 * 250], 0.01).unwrap();
+        assert_eq!((flat.vertices.len(), flat.triangles.len()), (4, 2));
+        let plane: Vec<f32> =
+            (0..300 * 250).map(|k| (k % 300) as f32 * 0.5 + (k / 300) as f32 * 0.25).collect();
+        let tin = build(&grid(300, 250), &plane, 0.01).unwrap();
+        assert_eq!((tin.vertices.len(), tin.triangles.len()), (4, 2));
     }
 
     #[test]
