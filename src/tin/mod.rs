@@ -492,7 +492,7 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
         #[allow(clippy::float_cmp)]
         let is_corner = |x: f64, y: f64| chord > 0.0 && p.iter().any(|c| c[0] == x && c[1] == y);
         let (mut worst, mut sample) = (max_error - sag_p, u32::MAX);
-        scan_spans(p, &ax, &ay, true, SMALL_BOX_SAMPLES, 0..usize::MAX, |s| {
+        scan_spans_in(p, Some(ij), &ax, &ay, true, SMALL_BOX_SAMPLES, 0..usize::MAX, |s| {
             let base = (r.j0 + s.j) * node.nc + r.i0;
             // Sample positions are integers (u32 grid coordinates), so stepping x by `step` is
             // exact: the same x, and so the same plane height, as `start + i·step`.
@@ -768,6 +768,23 @@ fn scan_spans(
     inner: bool,
     box_limit: usize,
     rows: std::ops::Range<usize>,
+    f: impl FnMut(RowSpan),
+) {
+    scan_spans_in(p, None, xs, ys, inner, box_limit, rows, f);
+}
+
+/// [`scan_spans`] where the caller may know the triangle's corners as sample indices: `ij`
+/// (column, row of each corner) gives the bounding box's samples without looking positions up
+/// on the axes (the same samples: corners are samples, and the axes are increasing).
+#[allow(clippy::too_many_arguments)]
+fn scan_spans_in(
+    p: [[f64; 3]; 3],
+    ij: Option<[[u32; 2]; 3]>,
+    xs: &Axis,
+    ys: &Axis,
+    inner: bool,
+    box_limit: usize,
+    rows: std::ops::Range<usize>,
     mut f: impl FnMut(RowSpan),
 ) {
     const EPS: f64 = 1e-9;
@@ -788,14 +805,25 @@ fn scan_spans(
         x0: a[0],
     };
     let (lo, hi) = (usize::from(inner), |n: usize| if inner { n.saturating_sub(1) } else { n });
-    let j0 = ys.first_ge(a[1].min(b[1]).min(c[1]) - EPS).max(lo);
-    let j1 = ys.count_le(a[1].max(b[1]).max(c[1]) + EPS).min(hi(ys.len()));
     let iend = hi(xs.len());
+    let ([i0, i1], [j0, j1]) = match ij {
+        Some(ij) => [0, 1]
+            .map(|k| {
+                let (lo_k, hi_k) =
+                    (ij[0][k].min(ij[1][k]).min(ij[2][k]), ij[0][k].max(ij[1][k]).max(ij[2][k]));
+                [lo_k as usize, hi_k as usize + 1]
+            })
+            .into(),
+        None => (
+            [xs.first_ge(a[0].min(b[0]).min(c[0]) - EPS), xs.count_le(a[0].max(b[0]).max(c[0]) + EPS)],
+            [ys.first_ge(a[1].min(b[1]).min(c[1]) - EPS), ys.count_le(a[1].max(b[1]).max(c[1]) + EPS)],
+        ),
+    };
+    let (j0, j1) = (j0.max(lo), j1.min(hi(ys.len())));
     if j1 <= j0 {
         return;
     }
-    let i0 = xs.first_ge(a[0].min(b[0]).min(c[0]) - EPS).max(lo);
-    let i1 = xs.count_le(a[0].max(b[0]).max(c[0]) + EPS).min(iend);
+    let (i0, i1) = (i0.max(lo), i1.min(iend));
     if i1 <= i0 {
         return;
     }
@@ -1233,6 +1261,30 @@ mod tests {
                 proptest::prop_assert_eq!((a.0, a.1), (b.0, b.1));
                 proptest::prop_assert!((a.2 - b.2).abs() <= 1e-9 * (1.0 + a.2.abs()));
             }
+        }
+
+        /// A triangle whose corners are samples scans the very same spans whether its box comes
+        /// from the corners' indices or from their positions on the axes (a clipped last column
+        /// included).
+        #[test]
+        fn index_and_position_boxes_agree(
+            v in proptest::collection::vec((0usize..21, 0usize..41, -50.0f64..50.0), 3),
+            inner: bool,
+            limit in proptest::sample::select(vec![0usize, 48, usize::MAX]),
+        ) {
+            let cols: Vec<u32> = (0..20).map(|k| k * 2).chain([39]).collect();
+            let rows: Vec<u32> = (0..=40).collect();
+            let (xs, ys) = (Axis::of(&cols), Axis::of(&rows));
+            let p: [[f64; 3]; 3] = std::array::from_fn(|k| [xs.at(v[k].0), ys.at(v[k].1), v[k].2]);
+            let ij: [[u32; 2]; 3] = std::array::from_fn(|k| [v[k].0 as u32, v[k].1 as u32]);
+            let collect = |ij| {
+                let mut out = Vec::new();
+                scan_spans_in(p, ij, &xs, &ys, inner, limit, 0..usize::MAX, |s| {
+                    out.extend((s.i0..s.i1).map(|i| (i, s.j, s.z(xs.at(i)).to_bits())));
+                });
+                out
+            };
+            proptest::prop_assert_eq!(collect(Some(ij)), collect(None));
         }
     }
 }
