@@ -86,7 +86,7 @@ impl Glb {
         };
         let ct = a["componentType"].as_u64().unwrap();
         let size = match ct {
-            5120 => 1,
+            5120 | 5121 => 1,
             5123 => 2,
             5125 | 5126 => 4,
             c => panic!("component type {c}"),
@@ -102,6 +102,7 @@ impl Glb {
                         let s = &self.bin[o..o + size];
                         match ct {
                             5120 => f64::from(s[0] as i8) / 127.0,
+                            5121 => f64::from(s[0]),
                             5123 => f64::from(u16::from_le_bytes([s[0], s[1]])),
                             5125 => f64::from(u32::from_le_bytes(s.try_into().unwrap())),
                             _ => f64::from(f32::from_le_bytes(s.try_into().unwrap())),
@@ -477,6 +478,99 @@ async fn served_3d_tiles_are_the_exported_ones_with_blob_caching() {
     assert_eq!(s, 200);
     assert!(h["content-type"].starts_with("text/html"));
     assert!(String::from_utf8_lossy(&body).contains("3dtiles/tileset.json"));
+    let _ = tx.send(());
+    tokio::time::timeout(Duration::from_secs(30), task).await.unwrap().unwrap().unwrap();
+}
+
+/// A body in the named content coding, decoded.
+fn decoded(coding: Option<&str>, body: &[u8]) -> Vec<u8> {
+    use std::io::Read as _;
+    match coding {
+        None => body.to_vec(),
+        Some("gzip") => {
+            let mut out = Vec::new();
+            flate2::read::GzDecoder::new(body).read_to_end(&mut out).unwrap();
+            out
+        }
+        Some("zstd") => zstd::decode_all(body).unwrap(),
+        Some(other) => panic!("unexpected coding {other}"),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn glbs_and_tileset_json_are_sent_compressed_as_asked() {
+    let tmp = tempfile::tempdir().unwrap();
+    baked(tmp.path());
+    let cfg = PartialConfig {
+        store: Some(tmp.path().join("store")),
+        bind: Some("127.0.0.1:0".into()),
+        ..PartialConfig::default()
+    }
+    .resolve()
+    .unwrap();
+    let server = Server::bind(cfg).await.unwrap();
+    let a = server.local_addr().unwrap();
+    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(server.run(async move {
+        let _ = rx.await;
+    }));
+    let offers = [
+        ("gzip", Some("gzip")),
+        ("zstd", Some("zstd")),
+        ("gzip, deflate, br, zstd", Some("zstd")),
+        ("zstd;q=0.5, gzip", Some("gzip")),
+        ("x-gzip", Some("gzip")),
+        ("*", Some("zstd")),
+        ("*;q=0.1, zstd;q=0", Some("gzip")),
+        ("br, deflate", None),
+        ("gzip;q=0, zstd;q=0", None),
+        ("gzip;q=nonsense", None),
+        ("identity", None),
+        ("", None),
+    ];
+    let long = format!("{}, gzip", "x".repeat(2000));
+    for path in [
+        "/tilesets/t/3dtiles/tiles/0/0/0/0.glb",
+        "/tilesets/t/3dtiles/tiles/2/1/3/0.glb",
+        "/tilesets/t/3dtiles/index/4/3/5.json",
+        "/tilesets/t/3dtiles/tileset.json",
+    ] {
+        let (s, h, plain) = get(a, path, &[]).await;
+        assert_eq!(s, 200, "{path}");
+        assert!(!h.contains_key("content-encoding"), "{path}: compressed unasked");
+        assert!(h["vary"].to_ascii_lowercase().contains("accept-encoding"), "{path}: {:?}", h["vary"]);
+        let mut tags = vec![h["etag"].clone()];
+        for (accept, coding) in offers.iter().copied().chain([(long.as_str(), None)]) {
+            for round in 0..2 {
+                // The second round is served from the cache: the same bytes and tag.
+                let (s, h2, body) = get(a, path, &[("Accept-Encoding", accept)]).await;
+                assert_eq!(s, 200, "{path} {accept:?}");
+                assert_eq!(h2.get("content-encoding").map(String::as_str), coding, "{path} {accept:?}");
+                assert!(h2["vary"].to_ascii_lowercase().contains("accept-encoding"));
+                assert_eq!(decoded(coding, &body), plain, "{path} {accept:?} round {round}");
+                assert_eq!(h2["content-length"], body.len().to_string());
+                if coding.is_none() {
+                    assert_eq!(h2["etag"], h["etag"]);
+                    continue;
+                }
+                assert!(body.len() < plain.len(), "{path} {accept:?}: {} ≥ {}", body.len(), plain.len());
+                if !tags.contains(&h2["etag"]) {
+                    tags.push(h2["etag"].clone());
+                }
+                let (s, _, none) =
+                    get(a, path, &[("Accept-Encoding", accept), ("If-None-Match", &h2["etag"])]).await;
+                assert_eq!((s, none.len()), (304, 0), "{path} {accept:?}");
+                let (s, h3, part) =
+                    get(a, path, &[("Accept-Encoding", accept), ("Range", "bytes=0-9")]).await;
+                assert_eq!(s, 206);
+                assert_eq!(part, body[..10].to_vec());
+                assert_eq!(h3["content-range"], format!("bytes 0-9/{}", body.len()));
+                assert_eq!(h3.get("content-encoding").map(String::as_str), coding);
+            }
+        }
+        // One strong tag per coding: plain, gzip, zstd.
+        assert_eq!(tags.len(), 3, "{path}: {tags:?}");
+    }
     let _ = tx.send(());
     tokio::time::timeout(Duration::from_secs(30), task).await.unwrap().unwrap().unwrap();
 }
