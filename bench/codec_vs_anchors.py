@@ -40,7 +40,8 @@ import quantized_mesh_encoder
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DATA = os.environ.get("TERRASTREAM_DATA", os.path.join(ROOT, "..", "shared", "data"))
-EXE = os.path.join(ROOT, "target", "release", "terrastream")
+# $TERRASTREAM_BIN measures another build (say, main's, for a before/after in one sitting).
+EXE = os.environ.get("TERRASTREAM_BIN") or os.path.join(ROOT, "target", "release", "terrastream")
 # gltfpack flag sets measured on every GLB: (label, flags). -c / -cc: EXT_meshopt_compression
 # (normal / higher ratio); -vp 16: 16-bit positions (gltfpack's default is 14 bits, coarser
 # than our grid on large tiles).
@@ -114,7 +115,8 @@ def main():
     ap.add_argument("--levels", default="4")
     ap.add_argument("--tile-size", default="256")
     args = ap.parse_args()
-    subprocess.run(["cargo", "build", "--release", "--quiet"], cwd=ROOT, check=True)
+    if not os.environ.get("TERRASTREAM_BIN"):
+        subprocess.run(["cargo", "build", "--release", "--quiet"], cwd=ROOT, check=True)
     tmp = tempfile.mkdtemp()
     out = os.path.join(tmp, "fuji")
     subprocess.run([EXE, "bake", "--quiet", os.path.join(DATA, "fuji.png"), "--encoding", "terrain-rgb",
@@ -146,6 +148,8 @@ def main():
                 for spec, lv in zip(levels, node["levels"]):
                     level = spec["level"]
                     ply = os.path.join(tmp, "t.ply")
+                    if os.path.exists(ply):
+                        os.remove(ply)  # export refuses to overwrite a file
                     subprocess.run([EXE, "export", out, "--tile", f"{z}/{x}/{y}", "--level", str(level),
                                     "--format", "ply", "--out", ply], check=True, stdout=subprocess.DEVNULL)
                     verts, faces = read_ply(ply)
@@ -157,8 +161,8 @@ def main():
                     data = open(glb_path, "rb").read()
                     glb[level] += len(data)
                     glb_gz[level] += len(gzip.compress(data, 9))
-                    z = zstd19(data)
-                    glb_zst[level] = None if z is None or glb_zst[level] is None else glb_zst[level] + z
+                    zb = zstd19(data)
+                    glb_zst[level] = None if zb is None or glb_zst[level] is None else glb_zst[level] + zb
                     count, ctype, itype = glb_info(data)
                     glb_verts[level] += count
                     glb_types[level].add(f"{ctype}/{itype}")
@@ -205,7 +209,7 @@ def main():
                         anchor[level] += len(buf.getvalue())
     describe = subprocess.run(["git", "describe", "--always", "--dirty"], cwd=ROOT, capture_output=True,
                               text=True).stdout.strip() or "?"
-    print(f"command: {' '.join(sys.argv)} ({describe})")
+    print(f"command: {' '.join(sys.argv)} ({describe}; binary {EXE})")
     print(f"fuji.png, 30 m cells, max error {args.max_error} m, tile size {args.tile_size}; "
           f"{sum(1 for _ in os.walk(os.path.join(out, 'tiles')))} dirs\n")
     print(f"{'level':>5} {'kind':>6} {'items':>9} | {'ours B':>9} {'B/item':>7} | {'anchor':>14} {'B':>9} "
