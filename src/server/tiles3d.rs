@@ -165,12 +165,12 @@ async fn coded(app: &App, plain: &Entry, coding: Coding, key: Option<CacheKey>) 
             }
             (e, coding)
         }
-        Ok(Ok(None)) => (plain.clone(), Coding::Identity),
         Ok(Err(e)) => {
             tracing::error!(error = %e, ?coding, "compressing a 3D Tiles body failed; sending it plain");
             (plain.clone(), Coding::Identity)
         }
-        Err(_) => (plain.clone(), Coding::Identity),
+        // No coding (not reached: identity returned above), or the task was lost.
+        Ok(Ok(None)) | Err(_) => (plain.clone(), Coding::Identity),
     }
 }
 

@@ -1,7 +1,8 @@
 //! The glTF 2.0 binary (GLB) of a decoded blob ([`glb`]). Positions keep the blob's integer
 //! grid: each glTF axis stores `q` (or `Q − q` where the axis is reversed) and the node's
 //! `translation` and `scale` hold the grid's origin and step, so a position decodes to exactly
-//! what the blob decodes to.
+//! what the blob decodes to. Where that grid spans more than 16 bits (steep meshes at fine
+//! errors) a coarser one ([`CoarseGrid`]) keeps positions 16-bit within 1/8 of the measured error.
 
 use serde_json::{Value, json};
 
@@ -39,8 +40,10 @@ pub fn mesh_skirt_depth(own: f64) -> f64 {
 /// The glTF binary of a decoded blob: a mesh as indexed triangles (with skirts `skirt` deep
 /// below its borders, none on the dataset's outer border `outer`, when `skirt` is given), points
 /// as `POINTS` with normals. Positions are the blob's integer grid: `UNSIGNED_SHORT` with
-/// `KHR_mesh_quantization` when every axis fits 16 bits, else the same integers as `FLOAT`
-/// (exact below 2²⁴); normals are `BYTE` normalized.
+/// `KHR_mesh_quantization` when every axis fits 16 bits, else a mesh's go onto a coarser 16-bit
+/// grid if its step is at most [`COARSE_GRID_ERROR_FRACTION`] of the measured error, else the
+/// blob's integers as `FLOAT` (exact below 2²⁴); normals are `BYTE` normalized; indices 8, 16 or
+/// 32 bits, the least that holds the vertex count.
 ///
 /// On the Earth (`place.earth`), positions are `FLOAT` in the east-north-up frame at the node's
 /// centre, which the node's `matrix` holds ([`super::earth`]); fails only for a point outside
@@ -188,7 +191,7 @@ fn with_skirts(
 ) -> (Option<Skirted>, Positions) {
     let skirted = depth.map(|(d, outer)| add_skirts(mesh, (d / step[2]).ceil().max(1.0) * step[2], outer));
     let pos =
-        Positions::new(&skirted.as_ref().map_or(&mesh.positions, |s| &s.mesh.positions), origin, step, place);
+        Positions::new(skirted.as_ref().map_or(&mesh.positions, |s| &s.mesh.positions), origin, step, place);
     (skirted, pos)
 }
 
