@@ -10,7 +10,9 @@ Bakes fuji.png (terrain-RGB, 30 m cells) with terrastream, then for every tile:
 
 Then the same tileset goes through `terrastream export --format 3dtiles`, and each (tile, level)'s
 GLB (what `GET …/3dtiles/tiles/{z}/{x}/{y}/{level}.glb` serves: the very same bytes) is measured
-against its blob and its anchor: raw, and gzip -9 (what a CDN would send compressed). Bytes per
+against its blob and its anchor: raw, gzip -9 and zstd -19 (what `serve` sends when the request's
+`Accept-Encoding` allows: its gzip is level 6, within 0.1 % of -9 on GLBs; zstd needs the `zstd`
+command, else that column is skipped). Bytes per
 item always divide by the blob's vertices or points (a mesh GLB also holds its skirts' vertices,
 counted in the `GLB verts` column). If gltfpack (meshoptimizer's CLI; the npm package is a wasm
 build) is found — $GLTFPACK, `gltfpack` on the PATH, or /tmp/gltfpack/node_modules/.bin/gltfpack
@@ -38,11 +40,20 @@ import quantized_mesh_encoder
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DATA = os.environ.get("TERRASTREAM_DATA", os.path.join(ROOT, "..", "shared", "data"))
-EXE = os.path.join(ROOT, "target", "release", "terrastream")
+# $TERRASTREAM_BIN measures another build (say, main's, for a before/after in one sitting).
+EXE = os.environ.get("TERRASTREAM_BIN") or os.path.join(ROOT, "target", "release", "terrastream")
 # gltfpack flag sets measured on every GLB: (label, flags). -c / -cc: EXT_meshopt_compression
 # (normal / higher ratio); -vp 16: 16-bit positions (gltfpack's default is 14 bits, coarser
 # than our grid on large tiles).
 MESHOPT = [("-c -vp 16", ["-c", "-vp", "16"]), ("-cc -vp 16", ["-cc", "-vp", "16"]), ("-cc", ["-cc"])]
+
+
+def zstd19(data):
+    """zstd -19 of `data` by the `zstd` command (None without it): what `serve` sends for zstd."""
+    exe = shutil.which("zstd")
+    if not exe:
+        return None
+    return len(subprocess.run([exe, "-q", "-c", "-19"], input=data, capture_output=True, check=True).stdout)
 
 
 def find_gltfpack():
@@ -104,7 +115,8 @@ def main():
     ap.add_argument("--levels", default="4")
     ap.add_argument("--tile-size", default="256")
     args = ap.parse_args()
-    subprocess.run(["cargo", "build", "--release", "--quiet"], cwd=ROOT, check=True)
+    if not os.environ.get("TERRASTREAM_BIN"):
+        subprocess.run(["cargo", "build", "--release", "--quiet"], cwd=ROOT, check=True)
     tmp = tempfile.mkdtemp()
     out = os.path.join(tmp, "fuji")
     subprocess.run([EXE, "bake", "--quiet", os.path.join(DATA, "fuji.png"), "--encoding", "terrain-rgb",
@@ -123,6 +135,7 @@ def main():
     ours_gz = dict(ours)
     glb = dict(ours)
     glb_gz = dict(ours)
+    glb_zst = dict(ours)
     glb_verts = dict(ours)
     glb_types = {l: set() for l in ours}
     packed = {l: {label: 0 for label, _ in MESHOPT} for l in ours}
@@ -135,6 +148,8 @@ def main():
                 for spec, lv in zip(levels, node["levels"]):
                     level = spec["level"]
                     ply = os.path.join(tmp, "t.ply")
+                    if os.path.exists(ply):
+                        os.remove(ply)  # export refuses to overwrite a file
                     subprocess.run([EXE, "export", out, "--tile", f"{z}/{x}/{y}", "--level", str(level),
                                     "--format", "ply", "--out", ply], check=True, stdout=subprocess.DEVNULL)
                     verts, faces = read_ply(ply)
@@ -146,6 +161,8 @@ def main():
                     data = open(glb_path, "rb").read()
                     glb[level] += len(data)
                     glb_gz[level] += len(gzip.compress(data, 9))
+                    zb = zstd19(data)
+                    glb_zst[level] = None if zb is None or glb_zst[level] is None else glb_zst[level] + zb
                     count, ctype, itype = glb_info(data)
                     glb_verts[level] += count
                     glb_types[level].add(f"{ctype}/{itype}")
@@ -192,7 +209,7 @@ def main():
                         anchor[level] += len(buf.getvalue())
     describe = subprocess.run(["git", "describe", "--always", "--dirty"], cwd=ROOT, capture_output=True,
                               text=True).stdout.strip() or "?"
-    print(f"command: {' '.join(sys.argv)} ({describe})")
+    print(f"command: {' '.join(sys.argv)} ({describe}; binary {EXE})")
     print(f"fuji.png, 30 m cells, max error {args.max_error} m, tile size {args.tile_size}; "
           f"{sum(1 for _ in os.walk(os.path.join(out, 'tiles')))} dirs\n")
     print(f"{'level':>5} {'kind':>6} {'items':>9} | {'ours B':>9} {'B/item':>7} | {'anchor':>14} {'B':>9} "
@@ -211,20 +228,34 @@ def main():
     print("B/item = bytes / the blob's vertices (mesh) or points; gz = gzip -9 of each file; "
           "anchor = QM-1.0+gzip (mesh), LAZ+normals (points)\n")
     print(f"{'level':>5} {'kind':>6} {'items':>9} {'GLB verts':>9} {'pos/idx':>13} | {'blob':>6} {'blob gz':>7} "
-          f"{'anchor':>6} | {'GLB B':>9} {'B/item':>7} {'GLB gz B':>9} {'B/item':>7} | {'GLB/blob':>8} "
-          f"{'gz/blob':>7} {'gz/anchor':>9}")
-    tot = {k: 0 for k in ("glb", "gz", "blob", "blobgz")}
+          f"{'anchor':>6} | {'GLB B':>9} {'B/item':>7} {'GLB gz B':>9} {'B/item':>7} {'zstd B':>9} {'B/item':>7} | "
+          f"{'GLB/blob':>8} {'gz/blob':>7} {'gz/anchor':>9} {'zst/anchor':>10}")
+    tot = {k: 0 for k in ("glb", "gz", "zst", "blob", "blobgz", "anchor", "mesh_gz", "mesh_zst", "mesh_anchor")}
+    have_zst = all(v is not None for v in glb_zst.values())
+    zs = lambda v, n: f"{v:>9} {v / n:>7.2f}" if have_zst else f"{'-':>9} {'-':>7}"
     for spec in levels:
         l = spec["level"]
         n = items[l]
         tot["glb"] += glb[l]; tot["gz"] += glb_gz[l]; tot["blob"] += ours[l]; tot["blobgz"] += ours_gz[l]
+        tot["anchor"] += anchor[l]
+        if have_zst:
+            tot["zst"] += glb_zst[l]
+        if spec["kind"] == "mesh":
+            tot["mesh_gz"] += glb_gz[l]; tot["mesh_anchor"] += anchor[l]
+            tot["mesh_zst"] += glb_zst[l] if have_zst else 0
+        zst_ratio = f"{glb_zst[l] / anchor[l]:>10.2f}" if have_zst else f"{'-':>10}"
         print(f"{l:>5} {spec['kind']:>6} {n:>9} {glb_verts[l]:>9} {','.join(sorted(glb_types[l])):>13} | "
               f"{ours[l] / n:>6.2f} {ours_gz[l] / n:>7.2f} {anchor[l] / n:>6.2f} | {glb[l]:>9} {glb[l] / n:>7.2f} "
-              f"{glb_gz[l]:>9} {glb_gz[l] / n:>7.2f} | {glb[l] / ours[l]:>8.2f} {glb_gz[l] / ours[l]:>7.2f} "
-              f"{glb_gz[l] / anchor[l]:>9.2f}")
+              f"{glb_gz[l]:>9} {glb_gz[l] / n:>7.2f} {zs(glb_zst[l], n)} | {glb[l] / ours[l]:>8.2f} "
+              f"{glb_gz[l] / ours[l]:>7.2f} {glb_gz[l] / anchor[l]:>9.2f} {zst_ratio}")
     print(f"{'all':>5} {'':>6} {sum(items.values()):>9} {'':>9} {'':>13} | {'':>6} {'':>7} {'':>6} | "
-          f"{tot['glb']:>9} {'':>7} {tot['gz']:>9} {'':>7} | {tot['glb'] / tot['blob']:>8.2f} "
-          f"{tot['gz'] / tot['blob']:>7.2f}")
+          f"{tot['glb']:>9} {'':>7} {tot['gz']:>9} {'':>7} {(tot['zst'] if have_zst else '-'):>9} {'':>7} | "
+          f"{tot['glb'] / tot['blob']:>8.2f} {tot['gz'] / tot['blob']:>7.2f} {tot['gz'] / tot['anchor']:>9.2f} "
+          + (f"{tot['zst'] / tot['anchor']:>10.2f}" if have_zst else f"{'-':>10}"))
+    print(f"meshes: GLB gzip / QM+gzip {tot['mesh_gz'] / tot['mesh_anchor']:.2f}"
+          + (f", GLB zstd / QM+gzip {tot['mesh_zst'] / tot['mesh_anchor']:.2f}" if have_zst else "")
+          + f"; all levels on the wire: GLB gzip / blobs raw {tot['gz'] / tot['blob']:.2f}"
+          + (f", GLB zstd / blobs raw {tot['zst'] / tot['blob']:.2f}" if have_zst else ""))
     print(f"(blobs: {tot['blob']} B raw, {tot['blobgz']} B gzip -9 — gzip saves "
           f"{100 * (1 - tot['blobgz'] / tot['blob']):.1f} % on them)")
 

@@ -86,7 +86,7 @@ impl Glb {
         };
         let ct = a["componentType"].as_u64().unwrap();
         let size = match ct {
-            5120 => 1,
+            5120 | 5121 => 1,
             5123 => 2,
             5125 | 5126 => 4,
             c => panic!("component type {c}"),
@@ -102,6 +102,7 @@ impl Glb {
                         let s = &self.bin[o..o + size];
                         match ct {
                             5120 => f64::from(s[0] as i8) / 127.0,
+                            5121 => f64::from(s[0]),
                             5123 => f64::from(u16::from_le_bytes([s[0], s[1]])),
                             5125 => f64::from(u32::from_le_bytes(s.try_into().unwrap())),
                             _ => f64::from(f32::from_le_bytes(s.try_into().unwrap())),
@@ -205,6 +206,7 @@ fn export_writes_every_stored_level_as_a_tile_with_the_blobs_positions() {
     let info = export::tiles3d_info(&store, "t", None, String::new()).unwrap();
     assert_eq!(info.place.from, AnchorFrom::Option);
     let mut checked = 0;
+    let mut coarse = 0;
     for n in &nodes {
         for l in &n.levels {
             let Some(t) = tiles.get(&(n.key.to_string(), u64::from(l.level))) else { continue };
@@ -234,10 +236,23 @@ fn export_writes_every_stored_level_as_a_tile_with_the_blobs_positions() {
             let got = glb.positions();
             // Meshes carry skirts after their own vertices; those hang below the borders.
             assert!(got.len() >= world.len());
+            // On the blob's grid the positions are the blob's; where that grid does not fit 16
+            // bits (steep tiles) the GLB's is coarser and they lie within 1/8 of the measured error.
+            let q = blob.header.quant;
+            let scale = &glb.json["nodes"][0]["scale"];
+            let on_blob_grid = (0..3).all(|a| {
+                let s = scale[a].as_f64().unwrap();
+                s == q.xy_step || s == q.z_step
+            });
+            let tol = if on_blob_grid { 1e-6 } else { blob.header.errors.max / 8.0 + 1e-9 };
+            coarse += usize::from(!on_blob_grid);
+            if !on_blob_grid {
+                assert_eq!(glb.json["accessors"][0]["componentType"], 5123, "a coarser grid is 16-bit");
+            }
             for (w, g) in world.iter().zip(&got) {
                 let want = info.place.gltf_of(*w);
                 for a in 0..3 {
-                    assert!((want[a] - g[a]).abs() <= 1e-6, "{} level {}: {want:?} vs {g:?}", n.key, l.level);
+                    assert!((want[a] - g[a]).abs() <= tol, "{} level {}: {want:?} vs {g:?}", n.key, l.level);
                 }
             }
             if let Geometry::Mesh(m) = &blob.geometry {
@@ -257,6 +272,7 @@ fn export_writes_every_stored_level_as_a_tile_with_the_blobs_positions() {
         }
     }
     assert!(checked > 20);
+    assert!(coarse < checked, "most tiles keep the blob's grid ({coarse} of {checked} coarser)");
 
     // An export never writes into a folder that holds anything; the folder is left alone.
     let e = export::export_3dtiles(&store, &out, None, &|_, _| {}).unwrap_err();
@@ -477,6 +493,101 @@ async fn served_3d_tiles_are_the_exported_ones_with_blob_caching() {
     assert_eq!(s, 200);
     assert!(h["content-type"].starts_with("text/html"));
     assert!(String::from_utf8_lossy(&body).contains("3dtiles/tileset.json"));
+    let _ = tx.send(());
+    tokio::time::timeout(Duration::from_secs(30), task).await.unwrap().unwrap().unwrap();
+}
+
+/// A body in the named content coding, decoded.
+fn decoded(coding: Option<&str>, body: &[u8]) -> Vec<u8> {
+    use std::io::Read as _;
+    match coding {
+        None => body.to_vec(),
+        Some("gzip") => {
+            let mut out = Vec::new();
+            flate2::read::GzDecoder::new(body).read_to_end(&mut out).unwrap();
+            out
+        }
+        Some("zstd") => zstd::decode_all(body).unwrap(),
+        Some(other) => panic!("unexpected coding {other}"),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn glbs_and_tileset_json_are_sent_compressed_as_asked() {
+    let tmp = tempfile::tempdir().unwrap();
+    baked(tmp.path());
+    let cfg = PartialConfig {
+        store: Some(tmp.path().join("store")),
+        bind: Some("127.0.0.1:0".into()),
+        ..PartialConfig::default()
+    }
+    .resolve()
+    .unwrap();
+    let server = Server::bind(cfg).await.unwrap();
+    let a = server.local_addr().unwrap();
+    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(server.run(async move {
+        let _ = rx.await;
+    }));
+    let offers = [
+        ("gzip", Some("gzip")),
+        ("zstd", Some("zstd")),
+        ("gzip, deflate, br, zstd", Some("gzip")),
+        ("zstd;q=0.5, gzip", Some("gzip")),
+        ("gzip;q=0.5, zstd", Some("zstd")),
+        ("br, zstd", Some("zstd")),
+        ("x-gzip", Some("gzip")),
+        ("*", Some("gzip")),
+        ("*;q=0.1, gzip;q=0", Some("zstd")),
+        ("br, deflate", None),
+        ("gzip;q=0, zstd;q=0", None),
+        ("gzip;q=nonsense", None),
+        ("identity", None),
+        ("", None),
+    ];
+    let long = format!("{}, gzip", "x".repeat(2000));
+    for path in [
+        "/tilesets/t/3dtiles/tiles/0/0/0/0.glb",
+        "/tilesets/t/3dtiles/tiles/2/1/3/0.glb",
+        "/tilesets/t/3dtiles/index/4/3/5.json",
+        "/tilesets/t/3dtiles/tileset.json",
+    ] {
+        let (s, h, plain) = get(a, path, &[]).await;
+        assert_eq!(s, 200, "{path}");
+        assert!(!h.contains_key("content-encoding"), "{path}: compressed unasked");
+        assert!(h["vary"].to_ascii_lowercase().contains("accept-encoding"), "{path}: {:?}", h["vary"]);
+        let mut tags = vec![h["etag"].clone()];
+        for (accept, coding) in offers.iter().copied().chain([(long.as_str(), None)]) {
+            for round in 0..2 {
+                // The second round is served from the cache: the same bytes and tag.
+                let (s, h2, body) = get(a, path, &[("Accept-Encoding", accept)]).await;
+                assert_eq!(s, 200, "{path} {accept:?}");
+                assert_eq!(h2.get("content-encoding").map(String::as_str), coding, "{path} {accept:?}");
+                assert!(h2["vary"].to_ascii_lowercase().contains("accept-encoding"));
+                assert_eq!(decoded(coding, &body), plain, "{path} {accept:?} round {round}");
+                assert_eq!(h2["content-length"], body.len().to_string());
+                if coding.is_none() {
+                    assert_eq!(h2["etag"], h["etag"]);
+                    continue;
+                }
+                assert!(body.len() < plain.len(), "{path} {accept:?}: {} ≥ {}", body.len(), plain.len());
+                if !tags.contains(&h2["etag"]) {
+                    tags.push(h2["etag"].clone());
+                }
+                let (s, _, none) =
+                    get(a, path, &[("Accept-Encoding", accept), ("If-None-Match", &h2["etag"])]).await;
+                assert_eq!((s, none.len()), (304, 0), "{path} {accept:?}");
+                let (s, h3, part) =
+                    get(a, path, &[("Accept-Encoding", accept), ("Range", "bytes=0-9")]).await;
+                assert_eq!(s, 206);
+                assert_eq!(part, body[..10].to_vec());
+                assert_eq!(h3["content-range"], format!("bytes 0-9/{}", body.len()));
+                assert_eq!(h3.get("content-encoding").map(String::as_str), coding);
+            }
+        }
+        // One strong tag per coding: plain, gzip, zstd.
+        assert_eq!(tags.len(), 3, "{path}: {tags:?}");
+    }
     let _ = tx.send(());
     tokio::time::timeout(Duration::from_secs(30), task).await.unwrap().unwrap().unwrap();
 }

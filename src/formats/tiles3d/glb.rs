@@ -1,7 +1,8 @@
 //! The glTF 2.0 binary (GLB) of a decoded blob ([`glb`]). Positions keep the blob's integer
 //! grid: each glTF axis stores `q` (or `Q − q` where the axis is reversed) and the node's
 //! `translation` and `scale` hold the grid's origin and step, so a position decodes to exactly
-//! what the blob decodes to.
+//! what the blob decodes to. Where that grid spans more than 16 bits (steep meshes at fine
+//! errors) a coarser one ([`CoarseGrid`]) keeps positions 16-bit within 1/8 of the measured error.
 
 use serde_json::{Value, json};
 
@@ -9,7 +10,7 @@ use super::earth;
 use super::placement::{Axes, Placement};
 use crate::codec::{Blob, Geometry};
 use crate::crs::{Frame, PlaceError};
-use crate::geom::{Bounds, Mesh, add_skirts, skirt_depth};
+use crate::geom::{Bounds, Mesh, Skirted, add_skirts, skirt_depth};
 use crate::tiling::TileKey;
 
 /// Media type of a glTF binary.
@@ -18,11 +19,14 @@ pub const GLB_TYPE: &str = "model/gltf-binary";
 pub const GENERATOR: &str = concat!("terrastream ", env!("CARGO_PKG_VERSION"));
 
 pub(crate) const GLTF_FLOAT: u32 = 5126;
+pub(crate) const GLTF_U8: u32 = 5121;
 pub(crate) const GLTF_U16: u32 = 5123;
 pub(crate) const GLTF_U32: u32 = 5125;
 const GLTF_I8: u32 = 5120;
 pub(crate) const ARRAY_BUFFER: u32 = 34962;
 pub(crate) const ELEMENT_ARRAY_BUFFER: u32 = 34963;
+/// Largest vertex count drawn with 8-bit indices (255 is the restart index of `UNSIGNED_BYTE`).
+pub(crate) const MAX_U8_VERTICES: usize = 255;
 /// Largest vertex count drawn with 16-bit indices: 65535 is WebGL 2's primitive-restart index.
 pub(crate) const MAX_U16_VERTICES: usize = 65_535;
 
@@ -36,8 +40,10 @@ pub fn mesh_skirt_depth(own: f64) -> f64 {
 /// The glTF binary of a decoded blob: a mesh as indexed triangles (with skirts `skirt` deep
 /// below its borders, none on the dataset's outer border `outer`, when `skirt` is given), points
 /// as `POINTS` with normals. Positions are the blob's integer grid: `UNSIGNED_SHORT` with
-/// `KHR_mesh_quantization` when every axis fits 16 bits, else the same integers as `FLOAT`
-/// (exact below 2²⁴); normals are `BYTE` normalized.
+/// `KHR_mesh_quantization` when every axis fits 16 bits, else a mesh's go onto a coarser 16-bit
+/// grid if its step is at most [`COARSE_GRID_ERROR_FRACTION`] of the measured error, else the
+/// blob's integers as `FLOAT` (exact below 2²⁴); normals are `BYTE` normalized; indices 8, 16 or
+/// 32 bits, the least that holds the vertex count.
 ///
 /// On the Earth (`place.earth`), positions are `FLOAT` in the east-north-up frame at the node's
 /// centre, which the node's `matrix` holds ([`super::earth`]); fails only for a point outside
@@ -59,17 +65,31 @@ pub fn glb(
             // placement mirrors it); skirt walls are built facing outward in the world frame, so
             // they turn only where the placement mirrors.
             let flip_top = turns(mesh, place);
-            let skirted = match skirt {
-                Some((depth, outer)) if !mesh.triangles.is_empty() => {
-                    // A whole number of z steps, so skirt vertices stay on the grid.
-                    let depth = (depth / step[2]).ceil().max(1.0) * step[2];
-                    Some(add_skirts(mesh, depth, outer))
-                }
-                _ => None,
+            let depth = skirt.filter(|_| !mesh.triangles.is_empty());
+            // The blob's own grid when it fits 16 bits, else a coarser one within the error
+            // budget ([`CoarseGrid`]), else the blob's grid as `FLOAT`.
+            let exact = with_skirts(mesh, min, step, depth, place);
+            let coarse = if exact.1.fits_u16() {
+                None
+            } else {
+                let below = depth.map_or(0.0, |(d, _)| d);
+                let budget = h.errors.max * COARSE_GRID_ERROR_FRACTION;
+                CoarseGrid::fit(&mesh.positions, &h.bounds, step, below, budget).and_then(|grid| {
+                    let snapped = Mesh {
+                        positions: mesh.positions.iter().map(|p| grid.snap(*p)).collect(),
+                        triangles: mesh.triangles.clone(),
+                    };
+                    let (s, p) = with_skirts(&snapped, grid.origin, grid.step, depth, place);
+                    p.fits_u16().then_some((snapped, s, p))
+                })
             };
-            let (all, tops, first_wall): (&Mesh, &[u32], usize) = match &skirted {
+            let (base, skirted, pos) = match &coarse {
+                Some((m, s, p)) => (m, s, p),
+                None => (mesh, &exact.0, &exact.1),
+            };
+            let (all, tops, first_wall): (&Mesh, &[u32], usize) = match skirted {
                 Some(s) => (&s.mesh, &s.skirt_tops, s.first_skirt_triangle),
-                None => (mesh, &[], mesh.triangles.len()),
+                None => (base, &[], base.triangles.len()),
             };
             let mut tris = all.triangles.clone();
             for (i, t) in tris.iter_mut().enumerate() {
@@ -78,12 +98,11 @@ pub fn glb(
                     t.swap(1, 2);
                 }
             }
-            let pos = Positions::new(&all.positions, min, step, place);
             let g: Vec<glam::DVec3> =
                 all.positions.iter().map(|p| glam::DVec3::from_array(place.gltf_of(*p))).collect();
             let normals = mesh_normals(&g, &tris[..first_wall], tops);
             let mut gltf = Gltf::new(h.key, h.level);
-            let acc = gltf.positions(&pos);
+            let acc = gltf.positions(pos);
             Ok(gltf.mesh(acc, pos.ints.len(), &tris, &normals).finish())
         }
         Geometry::Points(points) => {
@@ -159,6 +178,146 @@ fn glb_on_earth(
             Ok(gltf.points(acc, &normals).finish())
         }
     }
+}
+
+/// A mesh's skirts (`depth` below its inner borders, rounded up to whole z steps of the grid so
+/// skirt vertices stay on it) and its positions on the grid at `origin` with steps `step`.
+fn with_skirts(
+    mesh: &Mesh,
+    origin: [f64; 3],
+    step: [f64; 3],
+    depth: Option<(f64, Option<&Bounds>)>,
+    place: &Placement,
+) -> (Option<Skirted>, Positions) {
+    let skirted = depth.map(|(d, outer)| add_skirts(mesh, (d / step[2]).ceil().max(1.0) * step[2], outer));
+    let pos =
+        Positions::new(skirted.as_ref().map_or(&mesh.positions, |s| &s.mesh.positions), origin, step, place);
+    (skirted, pos)
+}
+
+/// How far a GLB position may lie from its blob position, as a fraction of the blob's measured
+/// error, when the blob's grid is too fine for 16 bits: the coarse step's at most this, so a
+/// position moves by at most half a step (a step where it is clamped into the bounds).
+pub const COARSE_GRID_ERROR_FRACTION: f64 = 1.0 / 8.0;
+
+/// A grid `2^k` times coarser than the blob's on the axes whose span does not fit 16 bits, aligned
+/// with the blob's global grid where the blob's origin lies on it (so neighbours of one depth,
+/// whose z grids are one, round a shared border vertex alike): each integer `g` of the blob's
+/// grid goes to `round(g / 2^k)` (halves up), clamped into the blob's bounds.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct CoarseGrid {
+    /// The blob's grid: origin (`bounds.min`), steps, and the global index of the origin.
+    min: [f64; 3],
+    blob_step: [f64; 3],
+    base: [i64; 3],
+    /// `2^k` per axis, and the coarse indices the bounds allow.
+    factor: [i64; 3],
+    lo: [i64; 3],
+    hi: [i64; 3],
+    /// The coarse grid's origin (its index `lo`) and steps.
+    pub(crate) origin: [f64; 3],
+    pub(crate) step: [f64; 3],
+}
+
+impl CoarseGrid {
+    /// The least coarsening that fits `world` (with skirts `below` deep under it) in 16 bits per
+    /// axis, or `None` when a coarse step would exceed `budget` or nothing fits.
+    pub(crate) fn fit(
+        world: &[[f64; 3]],
+        bounds: &[[f64; 3]; 2],
+        step: [f64; 3],
+        below: f64,
+        budget: f64,
+    ) -> Option<Self> {
+        let [min, max] = *bounds;
+        let mut grid = Self {
+            min,
+            blob_step: step,
+            base: [0; 3],
+            factor: [1; 3],
+            lo: [0; 3],
+            hi: [0; 3],
+            origin: min,
+            step,
+        };
+        for a in 0..3 {
+            if !(step[a] > 0.0 && step[a].is_finite() && min[a].is_finite() && max[a].is_finite()) {
+                return None;
+            }
+            let ratio = min[a] / step[a];
+            let base = if ratio.abs() < 2f64.powi(50) && (ratio - ratio.round()).abs() < 1e-6 {
+                ratio.round() as i64
+            } else {
+                0
+            };
+            let q = |v: f64| ((v - min[a]) / step[a]).round();
+            let top = q(max[a]);
+            if !(0.0..=f64::from(u32::MAX)).contains(&top) {
+                return None;
+            }
+            let (mut glo, mut ghi) = (base, base + top as i64);
+            let (mut plo, mut phi) = (i64::MAX, i64::MIN);
+            for p in world {
+                let g = q(p[a]);
+                if !g.is_finite() || g.abs() > f64::from(u32::MAX) {
+                    return None;
+                }
+                let g = base + g as i64;
+                plo = plo.min(g);
+                phi = phi.max(g);
+            }
+            if world.is_empty() {
+                (plo, phi) = (glo, glo);
+            }
+            glo = glo.min(plo);
+            ghi = ghi.max(phi);
+            let mut k = 0u32;
+            loop {
+                let m = 1i64 << k;
+                let (lo, hi) = (div_ceil(glo, m), glo.max(ghi).div_euclid(m));
+                let c = |g: i64| (g + m / 2).div_euclid(m).clamp(lo, hi);
+                let extra = if a == 2 && below > 0.0 {
+                    (below / (step[a] * m as f64)).ceil().max(1.0) as i64
+                } else {
+                    0
+                };
+                if lo <= hi && c(phi) - c(plo) + extra <= i64::from(u16::MAX) {
+                    if k > 0 && step[a] * m as f64 > budget {
+                        return None;
+                    }
+                    grid.base[a] = base;
+                    grid.factor[a] = m;
+                    grid.lo[a] = lo;
+                    grid.hi[a] = hi;
+                    grid.step[a] = step[a] * m as f64;
+                    grid.origin[a] = min[a] + (lo * m - base) as f64 * step[a];
+                    break;
+                }
+                k += 1;
+                if k > 32 {
+                    return None;
+                }
+            }
+        }
+        Some(grid)
+    }
+
+    /// The point of the coarse grid a blob position goes to.
+    pub(crate) fn snap(&self, p: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|a| {
+            let m = self.factor[a];
+            if m == 1 {
+                return p[a];
+            }
+            let g = self.base[a] + ((p[a] - self.min[a]) / self.blob_step[a]).round() as i64;
+            let c = (g + m / 2).div_euclid(m).clamp(self.lo[a], self.hi[a]);
+            self.origin[a] + (c - self.lo[a]) as f64 * self.step[a]
+        })
+    }
+}
+
+fn div_ceil(a: i64, m: i64) -> i64 {
+    -((-a).div_euclid(m))
 }
 
 /// Whether a mesh's triangles must turn to face the way glTF expects (counter-clockwise seen from
@@ -400,7 +559,10 @@ impl Gltf {
     fn mesh(mut self, pos: usize, vertices: usize, tris: &[[u32; 3]], normals: &[[i8; 3]]) -> Self {
         let g = &mut self;
         let nrm = g.normals(normals);
-        let (view, component) = if vertices <= MAX_U16_VERTICES {
+        let (view, component) = if vertices <= MAX_U8_VERTICES {
+            let b: Vec<u8> = tris.iter().flatten().map(|&i| i as u8).collect();
+            (g.view(&b, None, ELEMENT_ARRAY_BUFFER), GLTF_U8)
+        } else if vertices <= MAX_U16_VERTICES {
             let b: Vec<u8> = tris.iter().flatten().flat_map(|&i| (i as u16).to_le_bytes()).collect();
             (g.view(&b, None, ELEMENT_ARRAY_BUFFER), GLTF_U16)
         } else {

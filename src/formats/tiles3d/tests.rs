@@ -111,6 +111,29 @@ fn read_positions(glb: &[u8]) -> (Value, Vec<[f64; 3]>) {
     (json, pos)
 }
 
+/// The triangle indices of a GLB's mesh, whatever their width (8, 16 or 32 bits).
+fn read_indices(glb: &[u8]) -> Vec<usize> {
+    let jl = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+    let json: Value = serde_json::from_slice(&glb[20..20 + jl]).unwrap();
+    let bin = &glb[28 + jl..];
+    let acc = &json["accessors"][json["meshes"][0]["primitives"][0]["indices"].as_u64().unwrap() as usize];
+    let off = json["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize]["byteOffset"]
+        .as_u64()
+        .unwrap() as usize;
+    let width = match acc["componentType"].as_u64().unwrap() {
+        5121 => 1,
+        5123 => 2,
+        5125 => 4,
+        other => panic!("index component type {other}"),
+    };
+    (0..acc["count"].as_u64().unwrap() as usize)
+        .map(|i| {
+            let b = &bin[off + width * i..off + width * (i + 1)];
+            b.iter().rev().fold(0usize, |v, &x| v << 8 | usize::from(x))
+        })
+        .collect()
+}
+
 #[test]
 fn glb_positions_are_the_blobs_grid_placed_and_triangles_face_up() {
     // North-up (dy < 0) and image rows (dy > 0); a small z range (16-bit) and a large one (float).
@@ -138,15 +161,7 @@ fn glb_positions_are_the_blobs_grid_placed_and_triangles_face_up() {
             }
         }
         // Indices follow the positions: triangles face up (east, north) = (x, −z) in glTF.
-        let prim = &json["meshes"][0]["primitives"][0];
-        let acc = &json["accessors"][prim["indices"].as_u64().unwrap() as usize];
-        let view = &json["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize];
-        let jl = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
-        let bin = &glb[28 + jl..];
-        let off = view["byteOffset"].as_u64().unwrap() as usize;
-        let idx: Vec<usize> = (0..acc["count"].as_u64().unwrap() as usize)
-            .map(|i| usize::from(u16::from_le_bytes([bin[off + 2 * i], bin[off + 2 * i + 1]])))
-            .collect();
+        let idx = read_indices(&glb);
         for t in idx.chunks(3) {
             let en = |i: usize| [got[i][0], -got[i][2]];
             let (a, b, c) = (en(t[0]), en(t[1]), en(t[2]));
@@ -191,17 +206,8 @@ fn skirts_hang_on_the_grid_below_inner_borders_only() {
         .unwrap();
         let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None).unwrap();
         let g = glb(&blob, &place, Some((0.3, None))).unwrap();
-        let (json, pos) = read_positions(&g);
-        let jl = u32::from_le_bytes(g[12..16].try_into().unwrap()) as usize;
-        let bin = &g[28 + jl..];
-        let acc =
-            &json["accessors"][json["meshes"][0]["primitives"][0]["indices"].as_u64().unwrap() as usize];
-        let off = json["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize]["byteOffset"]
-            .as_u64()
-            .unwrap() as usize;
-        let idx: Vec<usize> = (0..acc["count"].as_u64().unwrap() as usize)
-            .map(|i| usize::from(u16::from_le_bytes([bin[off + 2 * i], bin[off + 2 * i + 1]])))
-            .collect();
+        let (_, pos) = read_positions(&g);
+        let idx = read_indices(&g);
         let centre = pos[..25]
             .iter()
             .fold([0.0; 3], |a, p| [a[0] + p[0] / 25.0, a[1] + p[1] / 25.0, a[2] + p[2] / 25.0]);
@@ -320,4 +326,116 @@ fn error_chain_is_monotone_for_any_measured_errors() {
         walk_chain(&doc["root"], f64::INFINITY, &mut n);
         assert!(n >= nodes.len());
     }
+}
+
+#[test]
+fn steep_meshes_get_16_bit_positions_within_an_eighth_of_their_error() {
+    // 3,000 m of relief in steps of 1/64 m: 192,000 steps, too many for 16 bits. With a measured
+    // error of 1 m the GLB may use steps of 1/8 m at most: 4× the blob's (1/16 m) fits.
+    let frame = Georef { dx: 10.0, dy: -10.0, ..Georef::default() };
+    let mesh = grid_mesh([10.0, -10.0], |c, r| (c * r) as f64 * 3000.0 / 16.0 + 0.3 + (c as f64) / 64.0);
+    let bounds = Bounds::of_points(&mesh.positions);
+    let q = Quantization { xy_step: 10.0, z_step: 1.0 / 64.0 };
+    for (max_error, coarse) in [(1.0, true), (0.4, false), (0.0, false)] {
+        let errors = ErrorFigures { max: max_error, ..ErrorFigures::default() };
+        let blob =
+            decode(&encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, errors).unwrap()).unwrap();
+        let place = Placement::of(&manifest(frame.clone(), blob.header.bounds()), TilesetKind::Terrain, None)
+            .unwrap();
+        for skirt in [None, Some((0.7, None))] {
+            let glb = glb(&blob, &place, skirt).unwrap();
+            let (json, got) = read_positions(&glb);
+            assert_eq!(
+                json["accessors"][0]["componentType"],
+                if coarse { 5123 } else { 5126 },
+                "{max_error}"
+            );
+            let scale = json["nodes"][0]["scale"][1].as_f64().unwrap();
+            assert_eq!(scale, if coarse { 1.0 / 16.0 } else { 1.0 / 64.0 });
+            let Geometry::Mesh(world) = &blob.geometry else { panic!() };
+            let (lo, hi) = (place.gltf_of(blob.header.bounds[0]), place.gltf_of(blob.header.bounds[1]));
+            for (w, g) in world.positions.iter().zip(&got) {
+                let want = place.gltf_of(*w);
+                for a in 0..3 {
+                    let d = (want[a] - g[a]).abs();
+                    assert!(d <= max_error / 8.0 + 1e-9, "{want:?} vs {g:?}");
+                    if !coarse {
+                        assert!(d < 1e-9);
+                    }
+                    assert!(
+                        g[a] >= lo[a].min(hi[a]) - 1e-9 && g[a] <= lo[a].max(hi[a]) + 1e-9,
+                        "{g:?} outside"
+                    );
+                }
+            }
+            if let Some((depth, _)) = skirt {
+                // Skirt vertices hang whole coarse steps (0.7 → 0.75) below a surface vertex.
+                let n = world.positions.len();
+                assert!(got.len() > n);
+                for p in &got[n..] {
+                    let above = got[..n]
+                        .iter()
+                        .find(|t| (t[0] - p[0]).abs() < 1e-9 && (t[2] - p[2]).abs() < 1e-9)
+                        .unwrap();
+                    let d = above[1] - p[1];
+                    assert!(d >= depth && ((d / scale).round() * scale - d).abs() < 1e-9, "{d}");
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn coarse_grids_of_neighbours_agree_and_stay_in_bounds() {
+    use super::glb::CoarseGrid;
+    // Two blobs on one global z grid (steps of 1/64 from different origins) round a shared height
+    // to the same coarse height, whatever their own origins.
+    let step = [10.0, 10.0, 1.0 / 64.0];
+    let a = [[0.0, 0.0, 3.0 / 64.0], [100.0, 100.0, 3000.0]];
+    let b = [[100.0, 0.0, 7.0 / 64.0], [200.0, 100.0, 3000.0]];
+    let shared = [100.0, 50.0, 1234.0 + 5.0 / 64.0];
+    let ga = CoarseGrid::fit(&[a[0], a[1], shared], &a, step, 0.0, 1.0).unwrap();
+    let gb = CoarseGrid::fit(&[b[0], b[1], shared], &b, step, 0.0, 1.0).unwrap();
+    assert_eq!(ga.step, [10.0, 10.0, 1.0 / 16.0]);
+    assert_eq!(ga.snap(shared), gb.snap(shared));
+    // Seeded random grids: every snapped point in the bounds, within a coarse step, 16 bits.
+    let mut s = 0x2545_f491_4f6c_dd1du64;
+    let mut next = || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    for _ in 0..200 {
+        let st = 2f64.powi(-(next() * 10.0) as i32);
+        let min = [0.0, 0.0, (next() * 1e5).round() * st];
+        let max = [50.0, 50.0, min[2] + (next() * 300_000.0).round() * st];
+        let pts: Vec<[f64; 3]> = (0..50)
+            .map(|_| {
+                [
+                    (next() * 50.0).round(),
+                    (next() * 50.0).round(),
+                    min[2] + (next() * (max[2] - min[2]) / st).round() * st,
+                ]
+            })
+            .collect();
+        let Some(g) = CoarseGrid::fit(&pts, &[min, max], [1.0, 1.0, st], 3.0 * st, f64::INFINITY) else {
+            panic!()
+        };
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for p in &pts {
+            let c = g.snap(*p);
+            assert!((c[2] - p[2]).abs() <= g.step[2] + 1e-9 * max[2].abs().max(1.0));
+            assert!(c[2] >= min[2] - 1e-9 && c[2] <= max[2] + 1e-9, "{c:?} outside {min:?}..{max:?}");
+            lo = lo.min(c[2]);
+            hi = hi.max(c[2]);
+        }
+        assert!(((hi - lo) / g.step[2]).round() <= 65_535.0);
+    }
+    // Nonsense in, no grid out (and no panic).
+    for bad in [f64::NAN, f64::INFINITY, 0.0, -1.0] {
+        assert!(CoarseGrid::fit(&[[0.0; 3]], &[[0.0; 3], [1.0; 3]], [1.0, 1.0, bad], 0.0, 1.0).is_none());
+    }
+    assert!(CoarseGrid::fit(&[[f64::NAN; 3]], &[[0.0; 3], [1.0; 3]], [1.0; 3], 0.0, 1.0).is_none());
+    assert!(CoarseGrid::fit(&[[0.0; 3]], &[[0.0; 3], [1e300; 3]], [1e-300; 3], 0.0, 1.0).is_none());
 }

@@ -40,14 +40,14 @@ export function parseGlb(buf) {
   return { json, bin };
 }
 
-/** An accessor's values (FLOAT, UNSIGNED_SHORT, UNSIGNED_INT; tightly packed). */
+/** An accessor's values (FLOAT, UNSIGNED_BYTE, UNSIGNED_SHORT, UNSIGNED_INT; tightly packed). */
 export function accessorValues({ json, bin }, i) {
   const a = json.accessors[i];
   const v = json.bufferViews[a.bufferView];
   const off = (v.byteOffset ?? 0) + (a.byteOffset ?? 0);
   const per = { SCALAR: 1, VEC3: 3 }[a.type];
   const n = a.count * per;
-  const read = { 5126: (k) => bin.readFloatLE(off + 4 * k), 5125: (k) => bin.readUInt32LE(off + 4 * k), 5123: (k) => bin.readUInt16LE(off + 2 * k) }[a.componentType];
+  const read = { 5126: (k) => bin.readFloatLE(off + 4 * k), 5125: (k) => bin.readUInt32LE(off + 4 * k), 5123: (k) => bin.readUInt16LE(off + 2 * k), 5121: (k) => bin.readUInt8(off + k) }[a.componentType];
   if (!read || !per) throw new Error(`accessor ${i}: ${a.componentType} ${a.type} unexpected`);
   return Array.from({ length: n }, (_, k) => read(k));
 }
