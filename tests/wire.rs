@@ -6,7 +6,13 @@
 //! gets hyper's answer; its timeouts, graceful shutdown, metrics; random bytes never hang it;
 //! several serving threads and the bind check of their shared port.
 
-#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::float_cmp,
+    clippy::cast_precision_loss
+)]
 #![allow(clippy::large_futures, clippy::duration_suboptimal_units)]
 
 use std::net::SocketAddr;
@@ -117,7 +123,7 @@ impl Client {
 
     /// More bytes (within 20 s); false at EOF.
     async fn fill(&mut self) -> bool {
-        let mut b = [0u8; 65536];
+        let mut b = vec![0u8; 65536];
         let n = tokio::time::timeout(Duration::from_secs(20), self.s.read(&mut b))
             .await
             .expect("no bytes within 20 s")

@@ -491,7 +491,7 @@ impl Server {
                         let serve = async {
                             match tokio::net::TcpListener::from_std(l) {
                                 Ok(l) => {
-                                    listener::serve(l, fast::FastPath::new(app), limits, &shared, stop).await
+                                    listener::serve(l, fast::FastPath::new(app), limits, &shared, stop).await;
                                 }
                                 Err(e) => tracing::error!(error = %e, "cannot serve on a listening socket"),
                             }
