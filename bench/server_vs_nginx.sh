@@ -20,6 +20,11 @@
 # checked against `terrastream export --format 3dtiles` of the same tileset (all bytes counted,
 # every 7th file compared).
 #
+# BASELINE=PATH (another terrastream binary, e.g. main's release build) serves the same store on a
+# third port and runs in every round too, so a change is measured before/after in the same run
+# (it gets TOKIO_WORKER_THREADS=WORKERS as well, for builds from before `--threads`).
+# SKIP_GLB=1 leaves out every GLB pass and round (blobs only).
+#
 # Needs wrk, nginx (/usr/sbin/nginx), jq and curl >= 7.66 (-Z): apt-get install wrk nginx jq curl
 # Usage: bench/server_vs_nginx.sh [SIZE=2049] [DURATION_S=20] [WRK_THREADS=2] [WORKERS=2] [ROUNDS=3]
 set -euo pipefail
@@ -33,7 +38,10 @@ conns=50
 cold_passes=3
 port_ts=18081
 port_ng=18082
-bin=./target/release/terrastream
+port_bl=18083
+baseline="${BASELINE:-}"
+skip_glb="${SKIP_GLB:-}"
+bin="${BIN:-./target/release/terrastream}"
 [ -x "$bin" ] || cargo build --release --quiet
 
 source bench/lib.sh
@@ -41,7 +49,8 @@ bench_setup
 
 echo "load average before: $(cut -d' ' -f1-3 /proc/loadavg)"
 echo "command: $0 $size $duration $wrk_threads $workers $rounds ($(git describe --always --dirty 2>/dev/null || echo '?'))"
-echo "machine: $(nproc) cores, $(awk '/MemTotal/ {printf "%.0f GiB", $2/1048576}' /proc/meminfo); wrk -t$wrk_threads -c$conns -d${duration}s; server and nginx: $workers workers each"
+echo "machine: $(nproc) cores, $(awk '/MemTotal/ {printf "%.0f GiB", $2/1048576}' /proc/meminfo); wrk -t$wrk_threads -c$conns -d${duration}s; server and nginx: $workers workers each (terrastream --threads $workers)"
+[ -z "$baseline" ] || echo "baseline: $baseline (same store, same rounds)"
 "$bin" synth --width "$size" --cell-size 10 --out "$tmp/synth.tif"
 mkdir -p "$tmp/store"
 "$bin" bake --gpu off --tile-size 256 --levels 4 "$tmp/synth.tif" --out "$tmp/store/bench" >/dev/null
@@ -100,13 +109,20 @@ wait_up() { # PORT
     echo "nothing answers on port $1" >&2; exit 1
 }
 start_ts() {
-    TOKIO_WORKER_THREADS=$workers "$bin" serve --store "$tmp/store" --bind "127.0.0.1:$port_ts" --gpu off \
-        --log warn >>"$tmp/serve.log" 2>&1 &
+    TOKIO_WORKER_THREADS=$workers TERRASTREAM_THREADS=$workers "$bin" serve --store "$tmp/store" \
+        --bind "127.0.0.1:$port_ts" --gpu off --log warn >>"$tmp/serve.log" 2>&1 &
     ts_pid=$!
     pids+=($ts_pid)
     wait_up $port_ts
 }
 start_ts
+if [ -n "$baseline" ]; then
+    cp "$baseline" "$tmp/baseline"
+    TOKIO_WORKER_THREADS=$workers TERRASTREAM_THREADS=$workers "$tmp/baseline" serve --store "$tmp/store" \
+        --bind "127.0.0.1:$port_bl" --gpu off --log warn >>"$tmp/baseline.log" 2>&1 &
+    pids+=($!)
+    wait_up $port_bl
+fi
 /usr/sbin/nginx -c "$tmp/nginx.conf" -p "$tmp" >"$tmp/nginx.out" 2>&1 &
 pids+=($!)
 wait_up $port_ng
@@ -130,6 +146,7 @@ curl_pass() { # NAME → prints "req/s p99_ms wall_s"; keeps per-request "code s
 # $cold_passes cold passes, each on a freshly started server (nothing of the tileset in its
 # memory: every GLB request reads, verifies and decodes its blob, then makes the GLB), then one
 # warm pass with the same client. Cold figures: median requests/s and median p99 of the passes.
+if [ -z "$skip_glb" ]; then
 echo "GLB passes over all $(wc -l <"$tmp/glb-urls.txt") URLs (curl -Z --parallel-max $conns, keep-alive):"
 for ((i = 1; i <= cold_passes; i++)); do
     if ((i > 1)); then kill "$ts_pid"; wait "$ts_pid" 2>/dev/null || true; start_ts; fi
@@ -151,6 +168,7 @@ while read -r u; do
     cmp -s "$tmp/a" "$f" || { echo "GLB $u differs from the export's $f" >&2; exit 1; }
 done < <(awk 'NR % 7 == 1' "$tmp/glb-urls.txt")
 echo "checked: the server's GLBs total the export's bytes, and are its bytes for every 7th URL"
+fi
 
 # Both serve the very same bytes.
 while read -r u; do
@@ -164,32 +182,53 @@ run() { # NAME PORT [URL LIST]
     wrk -t"$wrk_threads" -c$conns -d"${duration}s" --latency -s "$tmp/${3:-urls}.lua" "http://127.0.0.1:$2" >"$tmp/$1.txt"
     wrk_report "$tmp/$1.txt" "$1" 16 "$tmp/$1.sum"
 }
-for port in $port_ng $port_ts; do
+for port in $port_ng $port_ts ${baseline:+$port_bl}; do
     wrk -t"$wrk_threads" -c$conns -d5s -s "$tmp/urls.lua" "http://127.0.0.1:$port" >/dev/null
 done
-wrk -t"$wrk_threads" -c$conns -d5s -s "$tmp/glb-urls.lua" "http://127.0.0.1:$port_ts" >/dev/null
+[ -n "$skip_glb" ] || wrk -t"$wrk_threads" -c$conns -d5s -s "$tmp/glb-urls.lua" "http://127.0.0.1:$port_ts" >/dev/null
 for ((r = 1; r <= rounds; r++)); do
     echo "round $r:"
-    if ((r % 2)); then
-        run nginx $port_ng; run terrastream $port_ts; run terrastream-glb $port_ts glb-urls
-    else
-        run terrastream-glb $port_ts glb-urls; run terrastream $port_ts; run nginx $port_ng
-    fi
+    order=(nginx terrastream)
+    [ -z "$baseline" ] || order+=(baseline)
+    [ -n "$skip_glb" ] || order+=(terrastream-glb)
+    if ! ((r % 2)); then order=($(printf '%s\n' "${order[@]}" | tac)); fi
+    for name in "${order[@]}"; do
+        case $name in
+            nginx) run nginx $port_ng ;;
+            terrastream) run terrastream $port_ts ;;
+            baseline) run baseline $port_bl ;;
+            terrastream-glb) run terrastream-glb $port_ts glb-urls ;;
+        esac
+    done
 done
 summary() { # FILE → "mean_rps median_p99_ms"
     sort -k2 -n "$1" | awk '{rps += $1; p[NR] = $2} END {printf "%.0f %.2f\n", rps / NR, (NR % 2) ? p[(NR + 1) / 2] : (p[NR / 2] + p[NR / 2 + 1]) / 2}'
 }
 read -r ng_rps ng_p99 < <(summary "$tmp/nginx.sum")
 read -r ts_rps ts_p99 < <(summary "$tmp/terrastream.sum")
-read -r glb_rps glb_p99 < <(summary "$tmp/terrastream-glb.sum")
 echo "over $rounds rounds of ${duration} s (mean requests/s, median p99):"
 printf '  nginx, blobs             %8d req/s   p99 %7.2f ms\n' "$ng_rps" "$ng_p99"
 printf '  terrastream, blobs       %8d req/s   p99 %7.2f ms\n' "$ts_rps" "$ts_p99"
-printf '  terrastream, GLB (warm)  %8d req/s   p99 %7.2f ms\n' "$glb_rps" "$glb_p99"
-printf '  terrastream, GLB (cold)  %8d req/s   p99 %7.2f ms   (median of %d curl passes on a fresh server; warm, same client: %d req/s, p99 %.2f ms)\n' "$cold_rps" "$cold_p99" "$cold_passes" "$cw_rps" "$cw_p99"
-awk -v a="$ts_rps" -v b="$ng_rps" -v c="$ts_p99" -v d="$ng_p99" -v g="$glb_rps" -v h="$glb_p99" 'BEGIN {
-    printf "requests/s: terrastream / nginx = %.2f   (target >= 0.80)\n", a / b
-    printf "p99:        terrastream / nginx = %.2f   (target <= 1.50)\n", c / d
+if [ -n "$baseline" ]; then
+    read -r bl_rps bl_p99 < <(summary "$tmp/baseline.sum")
+    printf '  baseline, blobs          %8d req/s   p99 %7.2f ms   (%s)\n' "$bl_rps" "$bl_p99" "$baseline"
+fi
+if [ -z "$skip_glb" ]; then
+    read -r glb_rps glb_p99 < <(summary "$tmp/terrastream-glb.sum")
+    printf '  terrastream, GLB (warm)  %8d req/s   p99 %7.2f ms\n' "$glb_rps" "$glb_p99"
+    printf '  terrastream, GLB (cold)  %8d req/s   p99 %7.2f ms   (median of %d curl passes on a fresh server; warm, same client: %d req/s, p99 %.2f ms)\n' "$cold_rps" "$cold_p99" "$cold_passes" "$cw_rps" "$cw_p99"
+fi
+# Issue 41's goals for the blobs: at least 1.1x nginx's requests/s, at most its p99.
+awk -v a="$ts_rps" -v b="$ng_rps" -v c="$ts_p99" -v d="$ng_p99" 'BEGIN {
+    r = a / b; p = c / d
+    printf "requests/s: terrastream / nginx = %.2f   (goal >= 1.10: %s)\n", r, (r >= 1.10) ? "met" : "NOT met"
+    printf "p99:        terrastream / nginx = %.2f   (goal <= 1.00: %s)\n", p, (p <= 1.00) ? "met" : "NOT met"
+}'
+[ -z "$baseline" ] || awk -v a="$ts_rps" -v b="$bl_rps" -v c="$ts_p99" -v d="$bl_p99" -v e="$ng_rps" -v f="$ng_p99" 'BEGIN {
+    printf "requests/s: terrastream / baseline = %.2f   (baseline / nginx = %.2f)\n", a / b, b / e
+    printf "p99:        terrastream / baseline = %.2f   (baseline / nginx = %.2f)\n", c / d, d / f
+}'
+[ -n "$skip_glb" ] || awk -v a="$ts_rps" -v c="$ts_p99" -v g="$glb_rps" -v h="$glb_p99" 'BEGIN {
     printf "requests/s: GLB (warm) / blobs  = %.2f\n", g / a
     printf "p99:        GLB (warm) / blobs  = %.2f\n", h / c
 }'

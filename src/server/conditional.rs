@@ -43,9 +43,17 @@ pub(super) fn etag_value(s: &str) -> HeaderValue {
 
 /// Does `If-None-Match` match `etag`? (weak comparison, as RFC 9110 specifies for it)
 fn none_match(if_none_match: Option<&HeaderValue>, etag: &HeaderValue) -> bool {
-    let Some(inm) = if_none_match.and_then(|v| v.to_str().ok()) else { return false };
-    let want = etag.as_bytes();
-    inm.split(',').map(str::trim).any(|t| t == "*" || t.trim_start_matches("W/").as_bytes() == want)
+    if_none_match.is_some_and(|v| none_match_bytes(v.as_bytes(), etag.as_bytes()))
+}
+
+/// [`none_match`] on the raw bytes of an `If-None-Match` value (the wire-level fast path's):
+/// a value that is not visible ASCII matches nothing, as `HeaderValue::to_str` fails on it.
+pub(super) fn none_match_bytes(if_none_match: &[u8], etag: &[u8]) -> bool {
+    let Ok(inm) = std::str::from_utf8(if_none_match) else { return false };
+    if !inm.bytes().all(|b| b == b'\t' || (32..127).contains(&b)) {
+        return false;
+    }
+    inm.split(',').map(str::trim).any(|t| t == "*" || t.trim_start_matches("W/").as_bytes() == etag)
 }
 
 enum RangeReq {

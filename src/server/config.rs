@@ -179,6 +179,9 @@ impl std::str::FromStr for SourceSpec {
     }
 }
 
+/// Most serving threads (`--threads`): each holds a runtime and a listening socket.
+pub const MAX_THREADS: usize = 256;
+
 /// Every setting optional: what one layer (flags + environment, or the TOML file) sets.
 /// With the `cli` feature this is also `serve`'s flags (each with its environment variable):
 /// the command line and the TOML file fill the same struct.
@@ -215,6 +218,15 @@ pub struct PartialConfig {
     pub request_timeout_s: Option<u64>,
     #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_MAX_BODY_BYTES", help = format!("Largest admin upload [default: {}]", DEFAULT_MAX_BODY_BYTES)))]
     pub max_body_bytes: Option<u64>,
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long,
+            env = "TERRASTREAM_THREADS",
+            help = "Threads serving connections, each with its own listening socket [default: the number of cores]"
+        )
+    )]
+    pub threads: Option<usize>,
     #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_BAKE_WORKERS", help = format!("On-demand bake threads [default: {}]", DEFAULT_BAKE_WORKERS)))]
     pub bake_workers: Option<usize>,
     #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_BAKE_QUEUE", help = format!("On-demand bakes that may wait; more get 503 + Retry-After [default: {}]", DEFAULT_BAKE_QUEUE)))]
@@ -307,6 +319,7 @@ impl PartialConfig {
             max_in_flight: self.max_in_flight.or(lower.max_in_flight),
             request_timeout_s: self.request_timeout_s.or(lower.request_timeout_s),
             max_body_bytes: self.max_body_bytes.or(lower.max_body_bytes),
+            threads: self.threads.or(lower.threads),
             bake_workers: self.bake_workers.or(lower.bake_workers),
             bake_queue: self.bake_queue.or(lower.bake_queue),
             cache_bytes: self.cache_bytes.or(lower.cache_bytes),
@@ -376,6 +389,14 @@ impl PartialConfig {
             max_in_flight: positive(self.max_in_flight, DEFAULT_MAX_IN_FLIGHT, "--max-in-flight")?,
             request_timeout: Duration::from_secs(request_timeout_s),
             max_body_bytes: self.max_body_bytes.unwrap_or(DEFAULT_MAX_BODY_BYTES),
+            threads: match positive(
+                self.threads,
+                std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get).min(MAX_THREADS),
+                "--threads",
+            )? {
+                n if n > MAX_THREADS => return bad(format!("--threads {n}: at most {MAX_THREADS}")),
+                n => n,
+            },
             bake_workers: positive(self.bake_workers, DEFAULT_BAKE_WORKERS, "--bake-workers")?,
             bake_queue: self.bake_queue.unwrap_or(DEFAULT_BAKE_QUEUE),
             cache_bytes: self.cache_bytes.unwrap_or(DEFAULT_CACHE_BYTES),
@@ -413,6 +434,8 @@ pub struct Config {
     pub max_in_flight: usize,
     pub request_timeout: Duration,
     pub max_body_bytes: u64,
+    /// Threads serving connections (one runtime and one listening socket each).
+    pub threads: usize,
     pub bake_workers: usize,
     pub bake_queue: usize,
     pub cache_bytes: u64,

@@ -158,19 +158,35 @@ async fn front(State(app): State<Arc<App>>, req: Request, next: Next) -> Respons
 /// `front`, or the fast path in front of it): the bytes of the body sent (none for `HEAD`), the
 /// request in the metrics by route and status, and its log line (a warning for a 5xx).
 pub(super) fn observe(app: &App, route: &str, method: &Method, path: &str, resp: &Response, start: Instant) {
-    if method != Method::HEAD
-        && let Some(len) =
-            resp.headers().get(header::CONTENT_LENGTH).and_then(|v| v.to_str().ok()?.parse::<u64>().ok())
-    {
+    let sent = if method == Method::HEAD {
+        None
+    } else {
+        resp.headers().get(header::CONTENT_LENGTH).and_then(|v| v.to_str().ok()?.parse::<u64>().ok())
+    };
+    observe_status(app, route, method, path, resp.status().as_u16(), sent, start);
+}
+
+/// [`observe`] from a response's status and the bytes of its body sent (the wire-level fast
+/// path's, which writes its responses itself).
+pub(super) fn observe_status(
+    app: &App,
+    route: &str,
+    method: &Method,
+    path: &str,
+    status: u16,
+    sent: Option<u64>,
+    start: Instant,
+) {
+    if let Some(len) = sent {
         app.metrics.bytes_sent.fetch_add(len, Ordering::Relaxed);
     }
-    let status = resp.status();
-    app.metrics.record(route, status.as_u16(), start.elapsed());
-    let ms = start.elapsed().as_secs_f64() * 1e3;
-    if status.is_server_error() {
-        tracing::warn!(%method, %path, status = status.as_u16(), ms, "request");
+    let elapsed = start.elapsed();
+    app.metrics.record(route, status, elapsed);
+    let ms = elapsed.as_secs_f64() * 1e3;
+    if status >= 500 {
+        tracing::warn!(%method, %path, status, ms, "request");
     } else {
-        tracing::debug!(%method, %path, status = status.as_u16(), ms, "request");
+        tracing::debug!(%method, %path, status, ms, "request");
     }
 }
 

@@ -19,9 +19,17 @@
 //! Connections are HTTP/1.1 with half-close support: a client that sends its requests and then
 //! shuts its write side (pipelining, then `shutdown(SHUT_WR)`) gets every response before the
 //! server closes.
+//!
+//! A connection starts on the wire-level fast path ([`wire`]), which answers `GET`s of
+//! in-memory blobs from the connection's bytes (`fast::FastPath::wire_step`) and keeps the same
+//! two timeouts itself; at the first request it does not answer, hyper takes the connection
+//! for the rest of its life, starting with the bytes already read.
+//!
+//! The server runs one `serve` per serving thread (`--threads`), each on its own
+//! single-threaded runtime with its own listening socket (`SO_REUSEPORT`: the kernel spreads
+//! new connections over them); the limits (`Shared`) are counted across all of them.
 
 use std::collections::HashMap;
-use std::convert::Infallible;
 use std::io;
 use std::net::{IpAddr, SocketAddr};
 use std::pin::Pin;
@@ -30,13 +38,15 @@ use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 use std::time::{Duration, Instant};
 
-use axum::extract::{ConnectInfo, Request};
+use axum::extract::ConnectInfo;
+use bytes::{Buf, Bytes, BytesMut};
 use hyper_util::rt::TokioIo;
-use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Notify, OwnedSemaphorePermit, Semaphore, watch};
 use tower::Service;
 
+use super::fast::{FastPath, Step};
 use super::metrics::Metrics;
 
 /// The peer address of a connection, as `ConnectInfo` in every request's extensions.
@@ -51,6 +61,23 @@ pub struct Limits {
     pub per_client: usize,
     pub header_timeout: Duration,
     pub idle_timeout: Duration,
+}
+
+/// What every serving thread's `serve` shares: the connection count under `max_connections`
+/// and the connections per client address.
+pub struct Shared {
+    permits: Arc<Semaphore>,
+    clients: Arc<Clients>,
+}
+
+impl Shared {
+    #[must_use]
+    pub fn new(limits: &Limits) -> Self {
+        Self {
+            permits: Arc::new(Semaphore::new(limits.max_connections)),
+            clients: Arc::new(Clients::default()),
+        }
+    }
 }
 
 /// Open connections per client address.
@@ -248,6 +275,159 @@ impl AsyncWrite for Conn {
     }
 }
 
+/// A connection handed to hyper: the bytes the wire-level fast path already read come first.
+struct Rewind {
+    pre: Bytes,
+    conn: Conn,
+}
+
+impl AsyncRead for Rewind {
+    fn poll_read(self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
+        let this = self.get_mut();
+        if this.pre.is_empty() {
+            return Pin::new(&mut this.conn).poll_read(cx, buf);
+        }
+        let n = this.pre.len().min(buf.remaining());
+        buf.put_slice(&this.pre[..n]);
+        this.pre.advance(n);
+        Poll::Ready(Ok(()))
+    }
+}
+
+impl AsyncWrite for Rewind {
+    fn poll_write(self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &[u8]) -> Poll<io::Result<usize>> {
+        Pin::new(&mut self.get_mut().conn).poll_write(cx, buf)
+    }
+    fn poll_flush(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.get_mut().conn).poll_flush(cx)
+    }
+    fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.get_mut().conn).poll_shutdown(cx)
+    }
+    fn poll_write_vectored(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        bufs: &[io::IoSlice<'_>],
+    ) -> Poll<io::Result<usize>> {
+        Pin::new(&mut self.get_mut().conn).poll_write_vectored(cx, bufs)
+    }
+    fn is_write_vectored(&self) -> bool {
+        self.conn.is_write_vectored()
+    }
+}
+
+/// Bytes a connection's read buffer grows by at a time on the wire-level fast path.
+const WIRE_READ: usize = 4096;
+
+/// The wire-level fast path of one connection: answers the requests `front` answers, in order
+/// (pipelined ones too), until the connection ends (`None`: closed by the client, by a timeout,
+/// after `Connection: close`, on an error or at shutdown, with no request in flight) or a
+/// request comes that `front` does not answer (`Some`: the bytes read and not answered, from
+/// that request's first byte, for hyper). Keeps the idle and header timeouts as the watchdog
+/// does for hyper, lazily: one timer per connection, moved only when it fires early.
+async fn wire(
+    stream: &mut TcpStream,
+    front: &FastPath,
+    limits: Limits,
+    stop: &mut watch::Receiver<bool>,
+) -> Option<BytesMut> {
+    let mut buf = BytesMut::with_capacity(WIRE_READ);
+    let mut out = Vec::with_capacity(512);
+    let mut last = Instant::now();
+    // When the first byte of the head being read arrived.
+    let mut head_since: Option<Instant> = None;
+    let timer = tokio::time::sleep(limits.idle_timeout);
+    let mut timer = std::pin::pin!(timer);
+    loop {
+        while !buf.is_empty() {
+            match front.wire_step(&buf, &mut out) {
+                Step::NeedMore => break,
+                Step::Handoff => return Some(buf),
+                Step::Answer { consumed, body, close } => {
+                    if write_two(stream, &out, &body, limits.idle_timeout).await.is_err() {
+                        return None;
+                    }
+                    buf.advance(consumed);
+                    last = Instant::now();
+                    head_since = None;
+                    if close {
+                        let _ = stream.shutdown().await;
+                        return None;
+                    }
+                }
+            }
+        }
+        if buf.is_empty() {
+            head_since = None;
+        } else if head_since.is_none() {
+            let now = Instant::now();
+            head_since = Some(now);
+            let deadline = tokio::time::Instant::from_std(now + limits.header_timeout);
+            if timer.deadline() > deadline {
+                timer.as_mut().reset(deadline);
+            }
+        }
+        // A partial head here is under `fast::WIRE_MAX_HEAD` (else `wire_step` handed it off), so the
+        // buffer stays under that plus WIRE_READ.
+        if buf.capacity() - buf.len() < WIRE_READ / 4 {
+            buf.reserve(WIRE_READ);
+        }
+        tokio::select! {
+            biased;
+            r = stream.read_buf(&mut buf) => match r {
+                // The client closed (a partial head is dropped, as hyper does) or the
+                // connection failed: every complete request before was answered.
+                Ok(0) | Err(_) => return None,
+                Ok(_) => last = Instant::now(),
+            },
+            () = timer.as_mut() => {
+                let now = Instant::now();
+                let (deadline, why) = match head_since {
+                    Some(t) => (t + limits.header_timeout, Expired::Header),
+                    None => (last + limits.idle_timeout, Expired::Idle),
+                };
+                if now >= deadline {
+                    let m = front.metrics();
+                    match why {
+                        Expired::Idle => m.connections_idle_closed.fetch_add(1, Ordering::Relaxed),
+                        Expired::Header => m.connections_header_timeouts.fetch_add(1, Ordering::Relaxed),
+                    };
+                    tracing::debug!(reason = ?why, "connection closed by timeout");
+                    return None;
+                }
+                timer.as_mut().reset(tokio::time::Instant::from_std(deadline));
+            }
+            // Shutting down: nothing is in flight here (a partly received head is not).
+            _ = stop.wait_for(|v| *v) => return None,
+        }
+    }
+}
+
+/// Writes `head` then `body` (one `writev` when the socket takes both, as it nearly always
+/// does for a tile); fails when the peer takes no byte for `limit`.
+async fn write_two(stream: &TcpStream, head: &[u8], body: &[u8], limit: Duration) -> io::Result<()> {
+    let (mut h, mut b) = (0, 0);
+    while h < head.len() || b < body.len() {
+        let bufs = [io::IoSlice::new(&head[h..]), io::IoSlice::new(&body[b..])];
+        match stream.try_write_vectored(&bufs) {
+            Ok(0) => return Err(io::ErrorKind::WriteZero.into()),
+            Ok(mut n) => {
+                let from_head = n.min(head.len() - h);
+                h += from_head;
+                n -= from_head;
+                b += n;
+            }
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
+                tokio::time::timeout(limit, stream.writable())
+                    .await
+                    .map_err(|_| io::ErrorKind::TimedOut)??;
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
+}
+
 /// Counts a request as in flight on its connection until dropped (answered or abandoned).
 struct Busy(Arc<Activity>);
 impl Drop for Busy {
@@ -259,21 +439,19 @@ impl Drop for Busy {
 /// What a client past its connection cap gets before the connection is closed.
 const TOO_MANY: &[u8] = b"HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/problem+json\r\ncache-control: no-store\r\nretry-after: 5\r\nconnection: close\r\ncontent-length: 165\r\n\r\n{\"type\":\"urn:terrastream:problem:too-many-connections\",\"title\":\"Service Unavailable\",\"status\":503,\"detail\":\"this client has too many connections open to the server\"}";
 
-/// Accepts connections until `stop` turns true, serving each with `service` under `limits`;
-/// then asks every connection to close once its request in flight is answered, and returns
-/// when all are closed (the caller bounds that wait).
-pub async fn serve<S>(
+/// Accepts connections until `stop` turns true, serving each with `service` under `limits`
+/// (counted in `shared` with the other serving threads'); then asks every connection to close
+/// once its request in flight is answered, and returns when all are closed (the caller bounds
+/// that wait).
+pub async fn serve(
     listener: TcpListener,
-    service: S,
+    service: FastPath,
     limits: Limits,
-    metrics: Arc<Metrics>,
+    shared: &Shared,
     mut stop: watch::Receiver<bool>,
-) where
-    S: Service<Request, Response = axum::response::Response, Error = Infallible> + Clone + Send + 'static,
-    S::Future: Send + 'static,
-{
-    let permits = Arc::new(Semaphore::new(limits.max_connections));
-    let clients = Arc::new(Clients::default());
+) {
+    let metrics = service.metrics().clone();
+    let wire_on = service.wire_enabled();
     // Every connection task holds a receiver; when all are dropped, every connection is closed.
     let (closed_tx, closed_rx) = watch::channel(());
     let mut builder = hyper::server::conn::http1::Builder::new();
@@ -281,7 +459,7 @@ pub async fn serve<S>(
     builder.half_close(true).keep_alive(true);
     loop {
         let permit = tokio::select! {
-            p = permits.clone().acquire_owned() => p,
+            p = shared.permits.clone().acquire_owned() => p,
             _ = stop.wait_for(|v| *v) => break,
         };
         let Ok(permit) = permit else { break };
@@ -308,7 +486,7 @@ pub async fn serve<S>(
             }
         };
         let ip = addr.ip().to_canonical();
-        let Some(client) = clients.admit(ip, limits.per_client) else {
+        let Some(client) = shared.clients.admit(ip, limits.per_client) else {
             metrics.connections_refused.fetch_add(1, Ordering::Relaxed);
             tracing::debug!(client = %ip, cap = limits.per_client, "connection refused: client at its connection cap");
             // Best effort, without waiting: a fresh socket's send buffer is empty.
@@ -320,32 +498,46 @@ pub async fn serve<S>(
         let _ = stream.set_nodelay(true);
         metrics.connections_open.fetch_add(1, Ordering::Relaxed);
         let activity = Arc::new(Activity::new());
-        let conn = Conn {
+        let mut conn = Conn {
             stream,
             activity: activity.clone(),
             _permit: permit,
             _client: client,
             _open: OpenGauge(metrics.clone()),
         };
-        let svc = {
-            let (service, activity) = (service.clone(), activity.clone());
-            hyper::service::service_fn(move |req: hyper::Request<hyper::body::Incoming>| {
-                activity.request_started();
-                let busy = Busy(activity.clone());
-                let mut req = req.map(axum::body::Body::new);
-                req.extensions_mut().insert(ConnectInfo(Peer(addr)));
-                let fut = service.clone().call(req);
-                async move {
-                    let r = fut.await;
-                    drop(busy);
-                    r
-                }
-            })
-        };
         let builder = builder.clone();
+        let service = service.clone();
         let (mut stop, closed_rx, metrics) = (stop.clone(), closed_rx.clone(), metrics.clone());
         tokio::spawn(async move {
-            let conn = builder.serve_connection(TokioIo::new(conn), svc);
+            let pre = if wire_on {
+                let Some(rest) = wire(&mut conn.stream, &service, limits, &mut stop).await else {
+                    drop(closed_rx);
+                    return;
+                };
+                rest.freeze()
+            } else {
+                Bytes::new()
+            };
+            if !pre.is_empty() {
+                // The head hyper reads next started arriving already.
+                activity.read();
+            }
+            let svc = {
+                let activity = activity.clone();
+                hyper::service::service_fn(move |req: hyper::Request<hyper::body::Incoming>| {
+                    activity.request_started();
+                    let busy = Busy(activity.clone());
+                    let mut req = req.map(axum::body::Body::new);
+                    req.extensions_mut().insert(ConnectInfo(Peer(addr)));
+                    let fut = service.clone().call(req);
+                    async move {
+                        let r = fut.await;
+                        drop(busy);
+                        r
+                    }
+                })
+            };
+            let conn = builder.serve_connection(TokioIo::new(Rewind { pre, conn }), svc);
             let mut conn = std::pin::pin!(conn);
             let expired = activity.expired(limits);
             let mut expired = std::pin::pin!(expired);

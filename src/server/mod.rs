@@ -291,17 +291,39 @@ const BLOCKING_SHUTDOWN_WAIT: std::time::Duration = std::time::Duration::from_se
 /// 1024 of a plain `bind` drops SYNs of a burst, which then wait seconds to be retried.
 const LISTEN_BACKLOG: u32 = 4096;
 
-fn listen(addr: SocketAddr) -> std::io::Result<tokio::net::TcpListener> {
-    let socket =
-        if addr.is_ipv4() { tokio::net::TcpSocket::new_v4()? } else { tokio::net::TcpSocket::new_v6()? };
-    socket.set_reuseaddr(true)?;
-    socket.bind(addr)?;
-    socket.listen(LISTEN_BACKLOG)
+/// `n` listening sockets on `addr`, one per serving thread. With more than one, each has
+/// `SO_REUSEPORT` (the kernel spreads new connections over them; port 0 picks one port for
+/// all). Such a bind would also join another process's `SO_REUSEPORT` sockets on the port, so
+/// a plain socket is bound to it first: if anything listens there, that fails as a plain bind
+/// does.
+fn listen(addr: SocketAddr, n: usize) -> std::io::Result<Vec<std::net::TcpListener>> {
+    let socket = |a: SocketAddr| {
+        let s = if a.is_ipv4() { tokio::net::TcpSocket::new_v4()? } else { tokio::net::TcpSocket::new_v6()? };
+        s.set_reuseaddr(true)?;
+        std::io::Result::Ok(s)
+    };
+    let probe = socket(addr)?;
+    probe.bind(addr)?;
+    if n <= 1 {
+        return Ok(vec![probe.listen(LISTEN_BACKLOG)?.into_std()?]);
+    }
+    let addr = probe.local_addr()?;
+    drop(probe);
+    let mut listeners = Vec::with_capacity(n);
+    for _ in 0..n {
+        let s = socket(addr)?;
+        #[cfg(unix)]
+        s.set_reuseport(true)?;
+        s.bind(addr)?;
+        listeners.push(s.listen(LISTEN_BACKLOG)?.into_std()?);
+    }
+    Ok(listeners)
 }
 
 /// A bound, not yet running server.
 pub struct Server {
-    listener: tokio::net::TcpListener,
+    /// One per serving thread (`Config::threads`).
+    listeners: Vec<std::net::TcpListener>,
     app: Arc<App>,
 }
 
@@ -382,13 +404,16 @@ impl Server {
                 );
             }
         }
-        let listener =
-            listen(app.config.bind).map_err(|source| ServerError::Bind { addr: app.config.bind, source })?;
-        Ok(Self { listener, app })
+        let listeners = listen(app.config.bind, app.config.threads)
+            .map_err(|source| ServerError::Bind { addr: app.config.bind, source })?;
+        Ok(Self { listeners, app })
     }
 
     pub fn local_addr(&self) -> Result<SocketAddr, ServerError> {
-        Ok(self.listener.local_addr()?)
+        match self.listeners.first() {
+            Some(l) => Ok(l.local_addr()?),
+            None => Err(ServerError::Config("no listening socket".into())),
+        }
     }
 
     #[must_use]
@@ -436,34 +461,89 @@ impl Server {
             })
         };
         let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+        let (abort_tx, abort_rx) = tokio::sync::watch::channel(false);
         let limits = listener::Limits {
             max_connections: app.config.max_connections,
             per_client: app.config.max_connections_per_client,
             header_timeout: app.config.header_timeout,
             idle_timeout: app.config.idle_timeout,
         };
-        let serve = listener::serve(
-            self.listener,
-            fast::FastPath::new(app.clone()),
-            limits,
-            app.metrics.clone(),
-            stop_rx,
-        );
-        let mut serve = std::pin::pin!(serve);
-        tokio::select! {
-            () = serve.as_mut() => {}
-            () = shutdown => {
-                tracing::info!("shutting down: no new connections; finishing in-flight requests");
-                let _ = stop_tx.send(true);
-                if tokio::time::timeout(app.config.shutdown_timeout, serve).await.is_err() {
-                    tracing::warn!(
-                        in_flight = app.in_flight.load(Ordering::Relaxed),
-                        "shutdown timeout reached; dropping the requests still in flight"
-                    );
+        let shared = Arc::new(listener::Shared::new(&limits));
+        // One single-threaded runtime per serving thread, each with its own listening socket:
+        // a connection stays on the thread that accepted it, with no work stealing and no
+        // wake-ups across threads (nginx's worker model).
+        let mut done = Vec::with_capacity(self.listeners.len());
+        let mut result = Ok(());
+        for (i, l) in self.listeners.into_iter().enumerate() {
+            let rt = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+                Ok(rt) => rt,
+                Err(e) => {
+                    result = Err(ServerError::Io(e));
+                    break;
+                }
+            };
+            let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+            let (app, shared, stop, mut abort) =
+                (app.clone(), shared.clone(), stop_rx.clone(), abort_rx.clone());
+            let spawned =
+                std::thread::Builder::new().name(format!("terrastream-serve-{i}")).spawn(move || {
+                    rt.block_on(async move {
+                        let serve = async {
+                            match tokio::net::TcpListener::from_std(l) {
+                                Ok(l) => {
+                                    listener::serve(l, fast::FastPath::new(app), limits, &shared, stop).await;
+                                }
+                                Err(e) => tracing::error!(error = %e, "cannot serve on a listening socket"),
+                            }
+                        };
+                        tokio::select! {
+                            () = serve => {}
+                            _ = abort.wait_for(|v| *v) => {}
+                        }
+                    });
+                    // Connections still open (past the shutdown timeout) are dropped here; blocking
+                    // work still running is left behind after a short wait.
+                    rt.shutdown_timeout(BLOCKING_SHUTDOWN_WAIT);
+                    drop(tx);
+                });
+            match spawned {
+                Ok(_) => done.push(rx),
+                Err(e) => {
+                    result = Err(ServerError::Io(e));
+                    break;
                 }
             }
         }
-        let result = Ok(());
+        let serve = async {
+            for rx in &mut done {
+                let _ = rx.await;
+            }
+        };
+        let mut serve = std::pin::pin!(serve);
+        let mut finished = false;
+        if result.is_ok() {
+            tokio::select! {
+                () = serve.as_mut() => finished = true,
+                () = shutdown => {
+                    tracing::info!("shutting down: no new connections; finishing in-flight requests");
+                    let _ = stop_tx.send(true);
+                    if tokio::time::timeout(app.config.shutdown_timeout, serve.as_mut()).await.is_ok() {
+                        finished = true;
+                    } else {
+                        tracing::warn!(
+                            in_flight = app.in_flight.load(Ordering::Relaxed),
+                            "shutdown timeout reached; dropping the requests still in flight"
+                        );
+                    }
+                }
+            }
+        }
+        if !finished {
+            // Whatever still runs (past the timeout, or after a failed start) stops now.
+            let _ = stop_tx.send(true);
+            let _ = abort_tx.send(true);
+            serve.await;
+        }
         poller.abort();
         app.bakery.close();
         result
@@ -494,10 +574,11 @@ pub async fn shutdown_signal() {
     }
 }
 
-/// Runs a server on its own multi-threaded runtime until Ctrl-C or SIGTERM; `on_ready` gets the
-/// bound address (print URLs there).
+/// Runs a server until Ctrl-C or SIGTERM; `on_ready` gets the bound address (print URLs there).
+/// Connections are served on `Config::threads` threads of their own (`Server::run`); this
+/// thread's runtime only waits for signals and re-scans the store.
 pub fn serve_blocking(config: Config, on_ready: impl FnOnce(SocketAddr, &App)) -> Result<(), ServerError> {
-    let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     let r = rt.block_on(async move {
         let server = Server::bind(config).await?;
         on_ready(server.local_addr()?, &server.app);

@@ -1,0 +1,513 @@
+//! The server's wire-level fast path (in-memory blobs answered from a connection's bytes, in
+//! front of hyper) end to end on `127.0.0.1:0`: its answers are byte for byte hyper's (but the
+//! date) for GET, HEAD, 304 and `Connection: close`; pipelined requests, heads split over many
+//! reads, and the hand-over to hyper in the middle of a connection; every request it does not
+//! answer (Range, a body, HTTP/1.0, bad or missing Host, oversized or malformed heads) still
+//! gets hyper's answer; its timeouts, graceful shutdown, metrics; random bytes never hang it;
+//! several serving threads and the bind check of their shared port.
+
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::float_cmp,
+    clippy::cast_precision_loss
+)]
+#![allow(clippy::large_futures, clippy::duration_suboptimal_units)]
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+
+use terrastream::bake::{BakeOptions, NoProgress, PointLevels};
+use terrastream::raster::{self, LoadOptions};
+use terrastream::server::{PartialConfig, Server, ServerError};
+use terrastream::store::Store;
+
+const OPTS: BakeOptions =
+    BakeOptions { tile_size: 64, max_error: 0.5, levels: 2, point_levels: PointLevels::All };
+
+/// A store with one baked tileset `t` (129² samples, depth 1).
+fn baked_store() -> (tempfile::TempDir, PathBuf) {
+    let tmp = tempfile::tempdir().unwrap();
+    let store = tmp.path().join("store");
+    std::fs::create_dir_all(&store).unwrap();
+    let tif = tmp.path().join("t.tif");
+    let heights = terrastream::raster::synth::terrain(129, 129, 3);
+    std::fs::write(&tif, raster::geotiff::encode_f32(129, 129, &heights, (0.0, 0.0), (10.0, -10.0)).unwrap())
+        .unwrap();
+    let r = raster::load(&tif, &LoadOptions::default()).unwrap();
+    terrastream::bake::bake_terrain(
+        &r,
+        "t.tif",
+        &OPTS,
+        &terrastream::lod::PointBaker::Cpu,
+        &Store::new(&store.join("t")),
+        &NoProgress,
+    )
+    .unwrap();
+    (tmp, store)
+}
+
+struct Running {
+    addr: SocketAddr,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    task: tokio::task::JoinHandle<Result<(), ServerError>>,
+}
+
+impl Running {
+    async fn start(store: &Path, f: impl FnOnce(PartialConfig) -> PartialConfig) -> Self {
+        let config = f(PartialConfig {
+            store: Some(store.to_owned()),
+            bind: Some("127.0.0.1:0".into()),
+            threads: Some(2),
+            ..PartialConfig::default()
+        })
+        .resolve()
+        .unwrap();
+        let server = Server::bind(config).await.unwrap();
+        let addr = server.local_addr().unwrap();
+        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+        let task = tokio::spawn(server.run(async move {
+            let _ = rx.await;
+        }));
+        Self { addr, stop: Some(tx), task }
+    }
+
+    async fn stop(mut self) {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+        tokio::time::timeout(Duration::from_secs(30), self.task).await.unwrap().unwrap().unwrap();
+    }
+}
+
+/// One response read off a connection: the status line, the header lines as sent (but `date`,
+/// whose value is checked and dropped), and the body.
+#[derive(Debug, PartialEq, Eq)]
+struct Resp {
+    status_line: String,
+    headers: Vec<String>,
+    body: Vec<u8>,
+}
+
+impl Resp {
+    fn status(&self) -> u16 {
+        self.status_line.split(' ').nth(1).unwrap().parse().unwrap()
+    }
+    fn header(&self, name: &str) -> Option<&str> {
+        self.headers.iter().find_map(|l| {
+            let (k, v) = l.split_once(':')?;
+            k.eq_ignore_ascii_case(name).then(|| v.trim())
+        })
+    }
+}
+
+/// A keep-alive connection with the bytes read and not yet parsed.
+struct Client {
+    s: TcpStream,
+    buf: Vec<u8>,
+}
+
+impl Client {
+    async fn connect(addr: SocketAddr) -> Self {
+        Self { s: TcpStream::connect(addr).await.unwrap(), buf: Vec::new() }
+    }
+
+    async fn send(&mut self, bytes: &[u8]) {
+        self.s.write_all(bytes).await.unwrap();
+    }
+
+    /// More bytes (within 20 s); false at EOF.
+    async fn fill(&mut self) -> bool {
+        let mut b = vec![0u8; 65536];
+        let n = tokio::time::timeout(Duration::from_secs(20), self.s.read(&mut b))
+            .await
+            .expect("no bytes within 20 s")
+            .unwrap_or(0);
+        self.buf.extend_from_slice(&b[..n]);
+        n > 0
+    }
+
+    /// The next response; `head` says it is the answer to a HEAD (no body whatever its length).
+    async fn response(&mut self, head: bool) -> Resp {
+        let end = loop {
+            if let Some(i) = self.buf.windows(4).position(|w| w == b"\r\n\r\n") {
+                break i;
+            }
+            assert!(
+                self.fill().await,
+                "EOF before a response head: {:?}",
+                String::from_utf8_lossy(&self.buf)
+            );
+        };
+        let text = String::from_utf8(self.buf[..end].to_vec()).unwrap();
+        self.buf.drain(..end + 4);
+        let mut lines = text.split("\r\n");
+        let status_line = lines.next().unwrap().to_owned();
+        let mut headers = Vec::new();
+        for l in lines {
+            if let Some(v) = l.strip_prefix("date: ") {
+                assert!(httpdate::parse_http_date(v).is_ok(), "date {v:?}");
+            } else {
+                headers.push(l.to_owned());
+            }
+        }
+        let mut r = Resp { status_line, headers, body: Vec::new() };
+        let len: usize = r.header("content-length").map_or(0, |v| v.parse().unwrap());
+        let len = if head || r.status() == 304 { 0 } else { len };
+        while self.buf.len() < len {
+            assert!(self.fill().await, "EOF inside a body");
+        }
+        r.body = self.buf.drain(..len).collect();
+        r
+    }
+
+    /// True when the server closes the connection (EOF) within 20 s, with nothing more sent.
+    async fn closed(&mut self) -> bool {
+        !self.fill().await && self.buf.is_empty()
+    }
+}
+
+fn get(path: &str, extra: &str) -> String {
+    format!("GET {path} HTTP/1.1\r\nHost: localhost:8080\r\n{extra}\r\n")
+}
+
+/// The URL of a blob, after one request that puts it in memory (the router reads it from disk).
+async fn warm(addr: SocketAddr) -> (String, Vec<u8>, String) {
+    let mut c = Client::connect(addr).await;
+    c.send(b"GET /tilesets/t HTTP/1.1\r\nHost: x\r\n\r\n").await;
+    let summary = c.response(false).await;
+    assert_eq!(summary.status(), 200, "{summary:?}");
+    let v: serde_json::Value = serde_json::from_slice(&summary.body).unwrap();
+    let version = v["content_version"].as_str().unwrap().to_owned();
+    let path = "/tilesets/t/tiles/1/1/0/0".to_owned();
+    c.send(get(&path, "").as_bytes()).await;
+    let r = c.response(false).await;
+    assert_eq!(r.status(), 200, "{r:?}");
+    (path, r.body, version)
+}
+
+async fn metrics(addr: SocketAddr) -> String {
+    let mut c = Client::connect(addr).await;
+    c.send(b"GET /metrics HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").await;
+    String::from_utf8(c.response(false).await.body).unwrap()
+}
+
+fn metric(text: &str, line_start: &str) -> f64 {
+    text.lines()
+        .find_map(|l| l.strip_prefix(line_start).and_then(|r| r.strip_prefix(' ')))
+        .unwrap_or_else(|| panic!("no metric {line_start} in\n{text}"))
+        .parse()
+        .unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn answers_are_hypers_byte_for_byte() {
+    let (_tmp, store) = baked_store();
+    let srv = Running::start(&store, |c| c).await;
+    let (path, body, version) = warm(srv.addr).await;
+    let etag = {
+        let mut c = Client::connect(srv.addr).await;
+        c.send(get(&path, "").as_bytes()).await;
+        c.response(false).await.header("etag").unwrap().to_owned()
+    };
+    let vpath = format!("{path}?v={version}");
+    let cases: Vec<(&str, String, String)> = vec![
+        ("GET", path.clone(), String::new()),
+        ("GET", vpath.clone(), String::new()),
+        ("GET", format!("{path}?v=stale&x=1"), String::new()),
+        ("GET", vpath.clone(), format!("If-None-Match: {etag}\r\n")),
+        ("GET", vpath.clone(), format!("If-None-Match: \"no\", W/{etag}\r\n")),
+        ("GET", vpath.clone(), "If-None-Match: \"no\"\r\n".into()),
+        ("GET", vpath.clone(), "Origin: https://viewer.example\r\nConnection: keep-alive\r\n".into()),
+        ("HEAD", vpath.clone(), String::new()),
+        ("HEAD", vpath.clone(), format!("If-None-Match: {etag}\r\n")),
+        ("GET", vpath.clone(), "Connection: close\r\n".into()),
+        ("HEAD", vpath.clone(), format!("If-None-Match: {etag}\r\nConnection: close\r\n")),
+        ("GET", vpath.clone(), format!("If-None-Match: {etag}\r\nConnection: Keep-Alive, close\r\n")),
+    ];
+    let before = metrics(srv.addr).await;
+    let (mut n200, mut n304, mut bytes) = (0, 0, 0);
+    let mut count = |r: &Resp, head: bool| {
+        match r.status() {
+            200 => n200 += 1,
+            304 => n304 += 1,
+            s => panic!("status {s}: {r:?}"),
+        }
+        if !head {
+            bytes += r.body.len();
+        }
+    };
+    for (method, p, extra) in &cases {
+        let head = *method == "HEAD";
+        let req = |more: &str| format!("{method} {p} HTTP/1.1\r\nHost: localhost\r\n{extra}{more}\r\n");
+        // The fast path answers on a fresh keep-alive connection …
+        let mut fast = Client::connect(srv.addr).await;
+        fast.send(req("").as_bytes()).await;
+        let a = fast.response(head).await;
+        // … and hyper when a `Content-Length: 0` (a body) takes the request its way.
+        let mut slow = Client::connect(srv.addr).await;
+        slow.send(req("Content-Length: 0\r\n").as_bytes()).await;
+        let b = slow.response(head).await;
+        assert_eq!(a, b, "{method} {p} {extra:?}");
+        count(&a, head);
+        count(&b, head);
+        if a.status() == 200 && !head {
+            assert_eq!(a.body, body);
+        }
+        if extra.contains("close") {
+            assert_eq!(a.header("connection"), Some("close"));
+            assert!(fast.closed().await, "Connection: close must close the connection");
+        } else {
+            // The connection stays open for the next request.
+            fast.send(get(&path, "").as_bytes()).await;
+            let r = fast.response(false).await;
+            assert_eq!(r.body, body);
+            count(&r, false);
+        }
+    }
+    // Both paths count their requests and body bytes the same way (/metrics counts none).
+    let after = metrics(srv.addr).await;
+    let route = |s: u16| {
+        format!(
+            "terrastream_http_requests_total{{route=\"/tilesets/{{name}}/tiles/{{z}}/{{x}}/{{y}}/{{level}}\",status=\"{s}\"}}"
+        )
+    };
+    let delta = |m: &str| {
+        metric(&after, m)
+            - before.lines().find_map(|l| l.strip_prefix(m)?.strip_prefix(' ')?.parse().ok()).unwrap_or(0.0)
+    };
+    assert_eq!(delta(&route(200)), f64::from(n200), "{after}");
+    assert_eq!(delta(&route(304)), f64::from(n304), "{after}");
+    assert_eq!(delta("terrastream_http_response_bytes_total"), bytes as f64);
+    srv.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn pipelining_split_heads_and_hand_over() {
+    let (_tmp, store) = baked_store();
+    let srv = Running::start(&store, |c| c).await;
+    let (path, body, _) = warm(srv.addr).await;
+    let other = "/tilesets/t/tiles/0/0/0/0";
+
+    // Three pipelined GETs in one write, then a request the fast path does not answer
+    // (the manifest), then blobs again: hyper answers from that request on, in order.
+    let mut c = Client::connect(srv.addr).await;
+    let mut bytes = String::new();
+    for _ in 0..3 {
+        bytes += &get(&path, "");
+    }
+    bytes += "GET /tilesets/t/tileset.json HTTP/1.1\r\nHost: x\r\n\r\n";
+    bytes += &get(&path, "");
+    bytes += &get(other, "");
+    c.send(bytes.as_bytes()).await;
+    for _ in 0..3 {
+        assert_eq!(c.response(false).await.body, body);
+    }
+    let m = c.response(false).await;
+    assert_eq!(m.status(), 200);
+    assert!(m.header("content-type").unwrap().contains("json"), "{m:?}");
+    assert_eq!(c.response(false).await.body, body);
+    assert_eq!(c.response(false).await.status(), 200);
+
+    // A head in single bytes, with pauses: read in many parts, answered once complete.
+    let mut c = Client::connect(srv.addr).await;
+    for b in get(&path, "X-Padding: 0123456789\r\n").bytes() {
+        c.send(&[b]).await;
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+    assert_eq!(c.response(false).await.body, body);
+    // Two requests with the boundary in the middle of the second's head.
+    let two = format!("{}{}", get(&path, ""), get(&path, ""));
+    let (a, b) = two.as_bytes().split_at(two.len() - 7);
+    c.send(a).await;
+    assert_eq!(c.response(false).await.body, body);
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    c.send(b).await;
+    assert_eq!(c.response(false).await.body, body);
+
+    // Half-close after pipelining: every response, then EOF.
+    let mut c = Client::connect(srv.addr).await;
+    c.send(format!("{}{}", get(&path, ""), get(&path, "")).as_bytes()).await;
+    c.s.shutdown().await.unwrap();
+    assert_eq!(c.response(false).await.body, body);
+    assert_eq!(c.response(false).await.body, body);
+    assert!(c.closed().await);
+    srv.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn requests_it_does_not_answer_get_hypers_answer() {
+    let (_tmp, store) = baked_store();
+    let srv = Running::start(&store, |c| c).await;
+    let (path, body, _) = warm(srv.addr).await;
+    let one = |raw: String| async move {
+        let mut c = Client::connect(srv.addr).await;
+        c.send(raw.as_bytes()).await;
+        c.response(raw.starts_with("HEAD")).await
+    };
+    // Range and If-Range: 206 from the router.
+    let r = one(get(&path, "Range: bytes=0-9\r\n")).await;
+    assert_eq!((r.status(), &r.body[..]), (206, &body[..10]));
+    let r = one(get(&path, "Range: bytes=0-9\r\nIf-Range: \"old\"\r\n")).await;
+    assert_eq!((r.status(), r.body.len()), (200, body.len()));
+    // A chunked (empty) body, and Expect.
+    let r = one(get(&path, "Transfer-Encoding: chunked\r\n") + "0\r\n\r\n").await;
+    assert_eq!((r.status(), &r.body), (200, &body));
+    let r = one(get(&path, "Content-Length: 0\r\nExpect: 100-continue\r\n")).await;
+    assert_eq!(r.status(), 200);
+    // HTTP/1.0: hyper answers as 1.0.
+    let r = one(format!("GET {path} HTTP/1.0\r\n\r\n")).await;
+    assert!(r.status_line.starts_with("HTTP/1.0 200"), "{r:?}");
+    // Host: missing, repeated, not a host[:port] → 400; an IPv6 literal is fine.
+    for extra in ["", "Host: a\r\nHost: b\r\n", "Host: a@b\r\n", "Host: a b\r\n"] {
+        let r = one(format!("GET {path} HTTP/1.1\r\n{extra}\r\n")).await;
+        assert_eq!(r.status(), 400, "{extra:?}: {r:?}");
+    }
+    let r = one(format!("GET {path} HTTP/1.1\r\nHost: [::1]:8080\r\n\r\n")).await;
+    assert_eq!((r.status(), &r.body), (200, &body));
+    // A percent-encoded path (the router decodes it), an absolute-form target, upgrade tokens.
+    let r = one(get(&path.replace("tiles/1", "tiles/%31"), "")).await;
+    assert_eq!((r.status(), &r.body), (200, &body));
+    let r = one(format!("GET http://localhost{path} HTTP/1.1\r\nHost: localhost\r\n\r\n")).await;
+    assert_eq!(r.status(), 200, "{r:?}");
+    let r = one(get(&path, "Connection: upgrade\r\nUpgrade: websocket\r\n")).await;
+    assert_eq!(r.status(), 200, "{r:?}");
+    // A head longer than the fast path reads (8 KiB), within hyper's limit: answered.
+    let r = one(get(&path, &format!("X-Long: {}\r\n", "a".repeat(20_000)))).await;
+    assert_eq!((r.status(), &r.body), (200, &body));
+    // Past hyper's limit: its 431, or a reset when the rest is still unread (no hang either way).
+    let mut c = Client::connect(srv.addr).await;
+    let _ = c.s.write_all(get(&path, &format!("X-Long: {}\r\n", "a".repeat(1 << 20))).as_bytes()).await;
+    if c.fill().await {
+        assert!(
+            c.buf.starts_with(b"HTTP/1.1 431"),
+            "{:?}",
+            String::from_utf8_lossy(&c.buf[..40.min(c.buf.len())])
+        );
+    }
+    // Malformed: 400; not a blob: the router's 404.
+    let r = one("GET /x HTTP/1.1\r\nHost: x\r\nBad Header\r\n\r\n".into()).await;
+    assert_eq!(r.status(), 400);
+    let r = one(get("/tilesets/t/tiles/1/1/0/9", "")).await;
+    assert_eq!(r.status(), 404);
+    // The server still answers on the fast path.
+    let r = one(get(&path, "")).await;
+    assert_eq!((r.status(), &r.body), (200, &body));
+    srv.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn timeouts_shutdown_and_random_bytes() {
+    let (_tmp, store) = baked_store();
+    let srv =
+        Running::start(&store, |c| PartialConfig { header_timeout_s: Some(1), idle_timeout_s: Some(2), ..c })
+            .await;
+    let (path, body, _) = warm(srv.addr).await;
+    let before = metrics(srv.addr).await;
+    // A head that never completes is closed after the header timeout, even while bytes trickle.
+    let mut slow = Client::connect(srv.addr).await;
+    slow.send(b"GET / HTTP/1.1\r\n").await;
+    let t0 = std::time::Instant::now();
+    for _ in 0..4 {
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        let _ = slow.s.write_all(b"X-A: b\r\n").await;
+    }
+    assert!(slow.closed().await);
+    assert!(t0.elapsed() < Duration::from_secs(3), "{:?}", t0.elapsed());
+    // An idle keep-alive connection after a fast-path answer is closed after the idle timeout.
+    let mut idle = Client::connect(srv.addr).await;
+    idle.send(get(&path, "").as_bytes()).await;
+    assert_eq!(idle.response(false).await.body, body);
+    let t0 = std::time::Instant::now();
+    assert!(idle.closed().await);
+    assert!(t0.elapsed() >= Duration::from_millis(1500), "{:?}", t0.elapsed());
+    let after = metrics(srv.addr).await;
+    for m in ["terrastream_connections_header_timeouts_total", "terrastream_connections_idle_closed_total"] {
+        assert!(metric(&after, m) > metric(&before, m), "{m}\n{after}");
+    }
+
+    // Random bytes, and random bytes after a valid head: an answer or a close, never a hang.
+    let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
+    let mut next = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed
+    };
+    for i in 0..40 {
+        let n = (next() % 3000) as usize;
+        let mut bytes: Vec<u8> = (0..n).map(|_| next() as u8).collect();
+        if i % 2 == 1 {
+            bytes.splice(0..0, get(&path, "").bytes());
+        }
+        bytes.extend_from_slice(b"\r\n\r\n");
+        let mut c = Client::connect(srv.addr).await;
+        let _ = c.s.write_all(&bytes).await;
+        tokio::time::timeout(Duration::from_secs(10), async {
+            while c.fill().await {
+                if c.buf.windows(4).any(|w| w == b"\r\n\r\n") {
+                    break;
+                }
+            }
+        })
+        .await
+        .expect("an answer or a close within 10 s");
+    }
+
+    // Shutdown closes an idle keep-alive connection on the fast path and returns promptly.
+    let mut open = Client::connect(srv.addr).await;
+    open.send(get(&path, "").as_bytes()).await;
+    assert_eq!(open.response(false).await.body, body);
+    let t0 = std::time::Instant::now();
+    srv.stop().await;
+    assert!(open.closed().await);
+    assert!(t0.elapsed() < Duration::from_secs(5), "{:?}", t0.elapsed());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn serving_threads_share_the_port_and_the_limits() {
+    let (_tmp, store) = baked_store();
+    let srv = Running::start(&store, |c| PartialConfig {
+        threads: Some(3),
+        max_connections_per_client: Some(4),
+        ..c
+    })
+    .await;
+    let (path, body, _) = warm(srv.addr).await;
+    // The cap counts connections over every thread: 4 open, the 5th is refused with 503.
+    let mut open = Vec::new();
+    for _ in 0..4 {
+        let mut c = Client::connect(srv.addr).await;
+        c.send(get(&path, "").as_bytes()).await;
+        assert_eq!(c.response(false).await.body, body);
+        open.push(c);
+    }
+    let mut c = Client::connect(srv.addr).await;
+    let r = c.response(false).await;
+    assert_eq!(r.status(), 503, "{r:?}");
+    drop(open);
+    // Another server on the same port fails to bind, as a plain bind does.
+    let config = PartialConfig {
+        store: Some(store.clone()),
+        bind: Some(srv.addr.to_string()),
+        threads: Some(2),
+        ..PartialConfig::default()
+    }
+    .resolve()
+    .unwrap();
+    let Err(e) = Server::bind(config).await else { panic!("a second server bound {}", srv.addr) };
+    assert!(e.to_string().contains("cannot listen"), "{e}");
+    srv.stop().await;
+    // --threads 0 and absurd counts are refused.
+    for n in [0, 100_000] {
+        let e = PartialConfig { store: Some(store.clone()), threads: Some(n), ..PartialConfig::default() }
+            .resolve()
+            .unwrap_err();
+        assert!(e.to_string().contains("--threads"), "{e}");
+    }
+}
