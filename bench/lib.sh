@@ -28,8 +28,11 @@ free_port() { python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1
 
 # $tmp/NAME.lua: a wrk script cycling through the URLs of $tmp/NAME.txt (one per line), each
 # thread starting at a random point of the list.
-wrk_url_script() {
+wrk_url_script() { # NAME [HEADER_NAME HEADER_VALUE]: requests of $tmp/NAME.txt, optionally with one header
+    local headers="nil"
+    [ $# -lt 3 ] || headers="{[\"$2\"] = \"$3\"}"
     cat >"$tmp/$1.lua" <<LUA
+local headers = $headers
 local urls = {}
 for line in io.lines("$tmp/$1.txt") do urls[#urls + 1] = line end
 local i = 0
@@ -39,7 +42,7 @@ function init(args)
 end
 function request()
     i = i % #urls + 1
-    return wrk.format("GET", urls[i])
+    return wrk.format("GET", urls[i], headers)
 end
 LUA
 }

@@ -68,7 +68,10 @@ sed -E "s#^/tilesets/bench/tiles/(.*)\?v=#/tilesets/bench/3dtiles/tiles/\1.glb?v
 glb_bytes=$(find "$tmp/3dtiles/tiles" -name '*.glb' -printf '%s\n' | awk '{s+=$1} END {print s}')
 echo "GLBs (3D Tiles) of the same tiles: $(wc -l <"$tmp/glb-urls.txt") URLs, $glb_bytes bytes (mean $((glb_bytes / blobs)) B/GLB, $(awk -v a="$glb_bytes" -v b="$bytes" 'BEGIN {printf "%.2f", a / b}')x the blobs)"
 
-for list in urls glb-urls; do wrk_url_script "$list"; done
+wrk_url_script urls
+# GLB rounds ask for gzip as browsers do (Chromium sends `gzip, deflate, br, zstd` and gets gzip):
+# the server sends the compressed form it keeps in memory.
+wrk_url_script glb-urls Accept-Encoding gzip
 
 # nginx started as root drops its workers to `nobody`: let them read the store.
 chmod -R a+rX "$tmp"
