@@ -118,6 +118,7 @@
 
 mod mesh;
 mod points;
+mod rangecoder;
 mod stream;
 #[cfg(test)]
 mod testdata;
