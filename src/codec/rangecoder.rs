@@ -196,7 +196,11 @@ impl<'a> Decoder<'a> {
             return bad;
         }
         let tail = &self.data[self.pos..];
-        if tail.is_empty() || (self.data.len() == min_len && tail.iter().all(|&b| b == 0)) { Ok(()) } else { bad }
+        if tail.is_empty() || (self.data.len() == min_len && tail.iter().all(|&b| b == 0)) {
+            Ok(())
+        } else {
+            bad
+        }
     }
 
     pub(crate) fn corrupt(&self) -> CodecError {
@@ -392,7 +396,7 @@ mod tests {
 
     #[test]
     fn skewed_bits_cost_little_and_extremes_round_trip() {
-        round_trip(&[0; 5000], &[false; 5000], 0);
+        round_trip(&vec![0; 5000], &vec![false; 5000], 0);
         round_trip(&[i64::from(i32::MAX) * 4, -(1 << 38), 1, -1], &[true; 100], 0);
         let mut e = Encoder::default();
         let mut b = Bit::default();

@@ -19,7 +19,7 @@ use crate::geom::PointCloud;
 
 /// The payload's mode byte.
 pub(in crate::codec) const MODE_CONTEXT: u8 = 1;
-const STREAMS: [&str; 1] = ["points coded"];
+pub(super) const STREAMS: [&str; 1] = ["points coded"];
 /// A context payload's coded bytes are at least one per this many points (the encoder pads
 /// with zeros), so a decoder checks the header's point count against the bytes before it
 /// allocates anything sized by it.
@@ -233,7 +233,11 @@ fn decode_cells(d: &mut Decoder, m: &mut Models, n: usize, limit: i64) -> Result
         for j in 0..len {
             if j > 0 {
                 let gap = nonneg(m.rows.code(d, CELL_GAP, 0)?)?;
-                cx = cx.checked_add(1).and_then(|v| v.checked_add(gap)).filter(|v| *v <= limit).ok_or_else(bad)?;
+                cx = cx
+                    .checked_add(1)
+                    .and_then(|v| v.checked_add(gap))
+                    .filter(|v| *v <= limit)
+                    .ok_or_else(bad)?;
             }
             cells.push(Cell { cx, cy, start: 0, count: 0 });
         }
@@ -321,7 +325,8 @@ fn code_positions<C: Coder>(
     for (ci, cell) in cells.iter().enumerate() {
         let first = |j: Option<usize>, pts: &[Pt]| j.map(|j| pts[cells[j].start]);
         let n = nb[ci];
-        let (l, u, ul, ur) = (first(n.left, pts), first(n.up, pts), first(n.up_left, pts), first(n.up_right, pts));
+        let (l, u, ul, ur) =
+            (first(n.left, pts), first(n.up, pts), first(n.up_left, pts), first(n.up_right, pts));
         let (pz, ctx) = match (l, u, ul) {
             (Some(a), Some(b), Some(d)) => {
                 let act = (a.z - d.z).abs() + (b.z - d.z).abs() + ur.map_or(0, |r| (r.z - b.z).abs());
@@ -350,7 +355,8 @@ fn code_positions<C: Coder>(
                 let (pa, pb) = if axis == 0 { (a.x, b.x) } else { (a.y, b.y) };
                 (pb > pa).then(|| (b.z - a.z, pb - pa))
             };
-            let slopes = [slope(l, Some(here), 0).or(slope(ul, ur, 0)), slope(u, Some(here), 1).or(slope(ul, l, 1))];
+            let slopes =
+                [slope(l, Some(here), 0).or(slope(ul, ur, 0)), slope(u, Some(here), 1).or(slope(ul, l, 1))];
             for (axis, sl) in slopes.into_iter().enumerate() {
                 // An X (Y) fragment moves the mean off centre by −(z − zc) / slope.
                 let pred = sl.and_then(|(dz, d)| {
@@ -406,7 +412,8 @@ fn oct_of(nx: i128, ny: i128, nz: i128) -> [u8; 2] {
     if l1 == 0 {
         return [127, 127];
     }
-    let (a, b) = if nz >= 0 { (nx, ny) } else { (nx.signum() * (l1 - ny.abs()), ny.signum() * (l1 - nx.abs())) };
+    let (a, b) =
+        if nz >= 0 { (nx, ny) } else { (nx.signum() * (l1 - ny.abs()), ny.signum() * (l1 - nx.abs())) };
     let byte = |t: i128| ((127 * l1 + 127 * t) * 2 + l1).div_euclid(2 * l1).clamp(0, 254) as u8;
     [byte(a), byte(b)]
 }
@@ -448,7 +455,8 @@ fn code_normals<C: Coder>(
         let near = |j: Option<usize>, k: usize| j.map_or(4, |j| res[j][k].abs());
         let act = [0, 1].map(|k| near(n.left, k) + near(n.up, k));
         let du = m.nu.code(c, class(act[0], 7), i64::from(here.oct[0]) - i64::from(pred[0]))?;
-        let dv = m.nv.code(c, class(act[1], 7) + 8 * class(du, 3), i64::from(here.oct[1]) - i64::from(pred[1]))?;
+        let dv =
+            m.nv.code(c, class(act[1], 7) + 8 * class(du, 3), i64::from(here.oct[1]) - i64::from(pred[1]))?;
         let byte = |p: u8, d: i64| u8::try_from(i64::from(p) + d).map_err(|_| bad());
         pts[i].oct = [byte(pred[0], du)?, byte(pred[1], dv)?];
         res.push([du, dv]);
