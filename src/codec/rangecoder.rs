@@ -22,6 +22,18 @@ const TOP: u32 = 1 << 24;
 /// Exp-Golomb classes of a magnitude: up to `2^MAX_CLASS` (far above any lattice delta).
 const MAX_CLASS: usize = 40;
 
+/// Adaptation shift after `uses` uses: `min(⌊log2(uses + 1)⌋ + 2, ADAPT_SHIFT)`.
+const SHIFTS: [u32; 16] = {
+    let mut t = [0; 16];
+    let mut i = 0;
+    while i < 16 {
+        let s = (i as u32 + 1).ilog2() + 2;
+        t[i] = if s < ADAPT_SHIFT { s } else { ADAPT_SHIFT };
+        i += 1;
+    }
+    t
+};
+
 /// One adaptive binary context: probability of a 0 in the low 12 bits, uses so far (capped at
 /// 15) in the top 4.
 #[derive(Debug, Clone, Copy)]
@@ -40,7 +52,7 @@ impl Bit {
 
     fn update(&mut self, bit: bool) {
         let uses = u32::from(self.0 >> 12);
-        let shift = (uses + 1).ilog2().saturating_add(2).min(ADAPT_SHIFT);
+        let shift = SHIFTS[uses as usize];
         let p = self.p();
         let p = if bit { p - (p >> shift) } else { p + (((1 << PROB_BITS) - p) >> shift) };
         // p stays in 1..=4095: the steps above never reach 0 or 4096.
@@ -253,58 +265,64 @@ impl Coder for Decoder<'_> {
 /// rest direct. Small residuals cost a few well-predicted bits; large ones stay bounded.
 #[derive(Debug, Clone)]
 pub(crate) struct IntModel {
-    zero: Vec<Bit>,
-    sign: Vec<Bit>,
-    class: Vec<[Bit; MAX_CLASS]>,
-    mantissa: Vec<[[Bit; 3]; MAX_CLASS]>,
+    contexts: Vec<IntContext>,
+}
+
+/// The adaptive bits of one context of an [`IntModel`], kept together for locality.
+#[derive(Debug, Clone, Copy)]
+struct IntContext {
+    zero: Bit,
+    sign: Bit,
+    class: [Bit; MAX_CLASS],
+    mantissa: [[Bit; 3]; MAX_CLASS],
+}
+
+impl Default for IntContext {
+    fn default() -> Self {
+        let b = Bit::default();
+        Self { zero: b, sign: b, class: [b; MAX_CLASS], mantissa: [[b; 3]; MAX_CLASS] }
+    }
 }
 
 impl IntModel {
     pub(crate) fn new(contexts: usize) -> Self {
-        Self {
-            zero: vec![Bit::default(); contexts],
-            sign: vec![Bit::default(); contexts],
-            class: vec![[Bit::default(); MAX_CLASS]; contexts],
-            mantissa: vec![[[Bit::default(); 3]; MAX_CLASS]; contexts],
-        }
+        Self { contexts: vec![IntContext::default(); contexts.max(1)] }
     }
 
-    /// Codes `v` in context `ctx` (taken modulo the context count); returns the value coded.
-    /// Errors: a decoded class beyond the largest (corruption).
+    /// Codes `v` in context `ctx` (the last context for any beyond it); returns the value
+    /// coded. Errors: a decoded class beyond the largest (corruption).
     pub(crate) fn code<C: Coder>(&mut self, c: &mut C, ctx: usize, v: i64) -> Result<i64, CodecError> {
-        let ctx = ctx % self.zero.len();
-        if !c.bit(&mut self.zero[ctx], v != 0) {
+        let last = self.contexts.len() - 1;
+        let m = &mut self.contexts[ctx.min(last)];
+        if !c.bit(&mut m.zero, v != 0) {
             return Ok(0);
         }
-        let negative = c.bit(&mut self.sign[ctx], v < 0);
-        // |v| ≥ 1 as m1 = |v| in 2^k..2^(k+1).
+        let negative = c.bit(&mut m.sign, v < 0);
+        // |v| ≥ 1 lies in 2^k..2^(k+1).
         let m1 = v.unsigned_abs();
         let k_true = if m1 == 0 { 0 } else { m1.ilog2() as usize };
         let mut k = 0;
-        loop {
+        while c.bit(&mut m.class[k], k < k_true) {
+            k += 1;
             if k + 1 >= MAX_CLASS {
                 return Err(c.corrupt());
             }
-            if !c.bit(&mut self.class[ctx][k], k < k_true) {
-                break;
-            }
-            k += 1;
         }
-        let mut m = 1u64;
+        let mut mag = 1u64;
         if k >= 1 {
             let rest = m1.wrapping_sub(1 << k);
-            let b1 = c.bit(&mut self.mantissa[ctx][k][0], (rest >> (k - 1)) & 1 == 1);
-            m = (m << 1) | u64::from(b1);
+            let b1 = c.bit(&mut m.mantissa[k][0], (rest >> (k - 1)) & 1 == 1);
+            mag = (mag << 1) | u64::from(b1);
             if k >= 2 {
-                let b2 = c.bit(&mut self.mantissa[ctx][k][1 + usize::from(b1)], (rest >> (k - 2)) & 1 == 1);
-                m = (m << 1) | u64::from(b2);
+                let b2 = c.bit(&mut m.mantissa[k][1 + usize::from(b1)], (rest >> (k - 2)) & 1 == 1);
+                mag = (mag << 1) | u64::from(b2);
                 let n = (k - 2) as u32;
-                m = (m << n) | c.direct(rest & ((1u64 << n) - 1), n);
+                mag = (mag << n) | c.direct(rest & ((1u64 << n) - 1), n);
             }
         }
-        // k < MAX_CLASS − 1 keeps m below 2^39: no overflow.
-        let m = m as i64;
-        Ok(if negative { -m } else { m })
+        // k < MAX_CLASS − 1 keeps the magnitude below 2^39: no overflow.
+        let mag = mag as i64;
+        Ok(if negative { -mag } else { mag })
     }
 }
 

@@ -272,26 +272,33 @@ fn neighbours(cells: &[Cell]) -> Vec<Nb> {
             _ => rows.push((c.cy, i, i + 1)),
         }
     }
-    let find = |row: Option<&(i64, usize, usize)>, cy: i64, cx: i64| {
-        let &(y, a, b) = row?;
-        if y != cy {
-            return None;
-        }
-        cells[a..b].binary_search_by_key(&cx, |c| c.cx).ok().map(|j| a + j)
-    };
     let mut out = Vec::with_capacity(cells.len());
     for (r, &(cy, a, b)) in rows.iter().enumerate() {
-        let above = r.checked_sub(1).and_then(|r| rows.get(r));
-        let below = rows.get(r + 1);
+        // Cursors walk the adjacent rows alongside this one (all sorted by column).
+        let adjacent = |row: Option<&(i64, usize, usize)>, y: i64| {
+            row.filter(|row| row.0 == y).map_or((0, 0), |row| (row.1, row.2))
+        };
+        let (mut ja, ea) = adjacent(r.checked_sub(1).and_then(|r| rows.get(r)), cy - 1);
+        let (mut jb, eb) = adjacent(rows.get(r + 1), cy + 1);
+        let at = |j: usize, end: usize, x: i64| (j < end && cells[j].cx == x).then_some(j);
         for i in a..b {
             let cx = cells[i].cx;
+            while ja < ea && cells[ja].cx < cx - 1 {
+                ja += 1;
+            }
+            while jb < eb && cells[jb].cx < cx {
+                jb += 1;
+            }
+            let up_left = at(ja, ea, cx - 1);
+            let k = ja + usize::from(up_left.is_some());
+            let up = at(k, ea, cx);
             out.push(Nb {
                 left: (i > a && cells[i - 1].cx + 1 == cx).then(|| i - 1),
                 right: (i + 1 < b && cells[i + 1].cx == cx + 1).then_some(i + 1),
-                up: find(above, cy - 1, cx),
-                up_left: find(above, cy - 1, cx - 1),
-                up_right: find(above, cy - 1, cx + 1),
-                down: find(below, cy + 1, cx),
+                up,
+                up_left,
+                up_right: at(k + usize::from(up.is_some()), ea, cx + 1),
+                down: at(jb, eb, cx),
             });
         }
     }
