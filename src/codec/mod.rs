@@ -102,22 +102,53 @@
 //! the last rise seen between stacked points). Stacked points get their own streams because
 //! their residuals are mostly zero, which zstd codes far better apart.
 //!
+//! **Points, mode 1 ("context").** One stored stream, `points coded`: varints `base[3]`,
+//! `stride[3]` (as in mode 0), the cell shift `s ≤ 8`, `phase[3]` (each `< 2^s`) and
+//! `scale[2]` (`≤ 2^24`), then the bytes of an adaptive binary range coder
+//! (`rangecoder`: LZMA's coder without its always-zero first byte, 12-bit probabilities whose
+//! adaptation shift grows from 2 to 5 over a context's first 15 uses, integer arithmetic only),
+//! zero-padded to at least `⌈count / 16⌉` bytes so a decoder can check the header's point count
+//! against them before allocating. `s` is the largest shift that leaves at least `count / 2`
+//! occupied cells; adding `phase` to the lattice x, y puts each axis's most common offset at a
+//! cell's centre `2^(s−1)` (voxel points then fall one to a cell), and `phase[2]` does the same
+//! for z, marking the slice centres. `scale` is `stride_z · z_step / (stride_a · xy_step)` in
+//! units of 2^−12 for a = x, y. Points are sorted by (cell y, cell x, z, fine y, fine x, normal)
+//! and coded in three passes: occupancy (per row: rows skipped, first column against the
+//! previous row's, cell count against the previous row's, column gaps, then points − 1 per
+//! cell); positions (per cell: the first point's z from the median edge detector of the left,
+//! above and above-left cells' first points, in 16 contexts of their activity; then per axis a
+//! flag "fine offset = centre" and otherwise the offset's residual from the prediction
+//! `centre + (z_c − z) · d / dz`, `z_c` the slice centre and `dz / d` the slope towards the left
+//! (above) neighbour; the cell's other points: fine offsets as symbols and z as the rise over
+//! the point below); normals (per cell: the first point's octahedral pair against the pair of
+//! the gradient normal `(−dz_x · scale_x · d_y, −dz_y · scale_y · d_x, d_x · d_y · 2^12)` from
+//! the left/right and above/below cells' first points, in contexts of those neighbours'
+//! residuals; the other points against the point below). Signed values are a zero flag, a
+//! sign, the Exp-Golomb class in unary and two mantissa bits adaptive, the rest direct. The
+//! models, their contexts and the predictions are part of the format
+//! (`points::context`).
+//!
 //! # Order
 //!
 //! Decoding returns the same geometry, not the same order: mesh vertices come back sorted as
 //! described above and triangles may be reordered and cyclically rotated (winding is always
 //! kept); points come back sorted. Normals come back as their 8+8-bit octahedral values
 //! ([`quantize_normals`]). Encoding is deterministic: equal inputs give byte-identical blobs.
+//! A points encoder writes whichever of modes 0 and 1 is smaller (mode 1 on terrain levels);
+//! both modes decode to the same quantized values, mode 1's points sorted by its phased cells.
 //!
 //! # Errors
 //!
 //! Every function returns [`CodecError`]; decoding any byte string returns `Ok` or `Err`, never
 //! panics, and allocates in proportion to the bytes actually present (counts are capped by
-//! [`MAX_ELEMENTS`] and checked against stream sizes; each zstd frame is decompressed
-//! incrementally up to its declared size; `raw_len` ≤ [`MAX_RAW_LEN`]).
+//! [`MAX_ELEMENTS`] and checked against stream sizes — a mode 1 points payload holds a byte per
+//! 16 points at least; each zstd frame is decompressed incrementally up to its declared size;
+//! `raw_len` ≤ [`MAX_RAW_LEN`]). The range decoder reads zeros past its bytes and then fails;
+//! every loop it runs is bounded by the point count or a constant.
 
 mod mesh;
 mod points;
+mod rangecoder;
 mod stream;
 #[cfg(test)]
 mod testdata;

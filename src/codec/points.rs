@@ -110,7 +110,16 @@ struct Key {
     oct: [u8; 2],
 }
 
-pub(super) fn encode(frame: &QuantGrid, pc: &PointCloud) -> Result<Packed, CodecError> {
+/// A cloud on its lattice, ready for either mode.
+struct Prepared {
+    lattice: Vec<[i64; 3]>,
+    oct: Vec<[u8; 2]>,
+    base: [i64; 3],
+    stride: [i64; 3],
+    shift: u32,
+}
+
+fn prepare(frame: &QuantGrid, pc: &PointCloud) -> Result<Prepared, CodecError> {
     let n = pc.positions.len();
     if pc.normals.len() != n {
         return Err(CodecError::NormalCountMismatch { points: n, normals: pc.normals.len() });
@@ -135,10 +144,34 @@ pub(super) fn encode(frame: &QuantGrid, pc: &PointCloud) -> Result<Packed, Codec
     let lattice: Vec<[i64; 3]> =
         q.iter().map(|p| std::array::from_fn(|a| (p[a] - base[a]) / stride[a])).collect();
     let shift = choose_shift(&lattice);
+    Ok(Prepared { lattice, oct, base, stride, shift })
+}
+
+pub(super) fn encode(frame: &QuantGrid, pc: &PointCloud) -> Result<Packed, CodecError> {
+    let p = prepare(frame, pc)?;
+    let grid = encode_grid(&p)?;
+    let context = context::encode(frame, &p)?;
+    // The context mode is the smaller on every terrain level measured; the grid mode stays
+    // the fallback for clouds it models worse, so no blob grows.
+    Ok(if context.payload.len() < grid.payload.len() { context } else { grid })
+}
+
+/// The payload of one mode (`MODE_GRID` or `context::MODE_CONTEXT`), for tests and figures.
+#[cfg(test)]
+pub(super) fn encode_mode(frame: &QuantGrid, pc: &PointCloud, mode: u8) -> Result<Packed, CodecError> {
+    let p = prepare(frame, pc)?;
+    if mode == MODE_GRID { encode_grid(&p) } else { context::encode(frame, &p) }
+}
+
+/// Mode 0: the sorted lattice in zstd'ed residual streams.
+fn encode_grid(p: &Prepared) -> Result<Packed, CodecError> {
+    let Prepared { lattice, oct, base, stride, shift } = p;
+    let (base, stride, shift) = (*base, *stride, *shift);
+    let n = lattice.len();
     let mask = (1i64 << shift) - 1;
     let mut keys: Vec<Key> = lattice
         .iter()
-        .zip(&oct)
+        .zip(oct)
         .map(|(l, &oct)| Key {
             cy: l[1] >> shift,
             cx: l[0] >> shift,
@@ -315,6 +348,9 @@ pub(super) fn decode(
     payload: &[u8],
     raw_len: usize,
 ) -> Result<PointCloud, CodecError> {
+    if payload.first() == Some(&context::MODE_CONTEXT) {
+        return context::decode(frame, n, payload, raw_len);
+    }
     let u = unpack(payload, raw_len, &STREAMS)?;
     let mut s = u.readers();
     if u.mode != MODE_GRID {
@@ -436,5 +472,6 @@ fn lattice_xy(cell: i64, fine: i64, shift: u32) -> Result<i64, CodecError> {
         .ok_or(CodecError::Corrupt("points cells"))
 }
 
+mod context;
 #[cfg(test)]
 mod tests;

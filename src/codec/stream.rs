@@ -82,6 +82,11 @@ impl<'a> Reader<'a> {
         Ok(unzigzag(self.varint()?))
     }
 
+    /// The bytes not read yet.
+    pub(crate) fn rest(&self) -> &'a [u8] {
+        self.bytes.get(self.pos..).unwrap_or_default()
+    }
+
     /// A varint that must fit `usize` and be at most `max`.
     pub(crate) fn count(&mut self, max: usize) -> Result<usize, CodecError> {
         let v = self.varint()?;
@@ -271,6 +276,32 @@ pub(crate) fn pack(mode: u8, streams: &[&Writer]) -> Result<Packed, CodecError> 
         return Err(too_large(raw_len));
     }
     table.extend_from_slice(&data);
+    Ok(Packed { payload: table, raw_len })
+}
+
+/// As [`pack`], but every stream stored as is: for streams that are already entropy coded
+/// (zstd would only cost time to find it cannot shrink them).
+pub(crate) fn pack_stored(mode: u8, streams: &[&Writer]) -> Result<Packed, CodecError> {
+    let too_large = |count: usize| CodecError::TooLarge {
+        what: "payload bytes",
+        count,
+        max: super::MAX_RAW_LEN as usize,
+    };
+    let mut table = vec![mode, u8::try_from(streams.len()).map_err(|_| CodecError::Corrupt("stream table"))?];
+    let mut raw_len = 0usize;
+    for s in streams {
+        let len = u32::try_from(s.bytes.len()).map_err(|_| too_large(s.bytes.len()))?.to_le_bytes();
+        raw_len += s.bytes.len();
+        table.push(STORED);
+        table.extend_from_slice(&len);
+        table.extend_from_slice(&len);
+    }
+    if raw_len > super::MAX_RAW_LEN as usize {
+        return Err(too_large(raw_len));
+    }
+    for s in streams {
+        table.extend_from_slice(&s.bytes);
+    }
     Ok(Packed { payload: table, raw_len })
 }
 
