@@ -17,6 +17,7 @@
 
 pub mod earth;
 pub mod glb;
+pub mod meshopt;
 pub mod placement;
 pub mod tileset;
 
