@@ -30,6 +30,48 @@ const TAIL_MIN: usize = 32;
 /// bytes must be 0 and no nibble may be 0xf.
 const CODEAUX: [u8; 16] = [0x00, 0x76, 0x87, 0x56, 0x67, 0x78, 0xa9, 0x86, 0x65, 0x89, 0x68, 0x98, 0x01, 0x69, 0, 0];
 
+/// How the 3D Tiles GLBs are compressed: `none` (plain buffers, the default) or `meshopt`
+/// (`EXT_meshopt_compression`, which the reader must support: CesiumJS does natively, three.js
+/// with `GLTFLoader.setMeshoptDecoder`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum GlbCompression {
+    #[default]
+    None,
+    Meshopt,
+}
+
+impl GlbCompression {
+    /// The option's name (`none`, `meshopt`), as `--glb-compression` and `?glb=` take it.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Meshopt => "meshopt",
+        }
+    }
+
+    /// The option named `s`, if it is one.
+    #[must_use]
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "none" => Some(Self::None),
+            "meshopt" => Some(Self::Meshopt),
+            _ => None,
+        }
+    }
+
+    /// A GLB of [`super::glb()`] in this compression.
+    ///
+    /// # Errors
+    /// As [`compress_glb`].
+    pub fn apply(self, glb: Vec<u8>) -> Result<Vec<u8>, MeshoptError> {
+        match self {
+            Self::None => Ok(glb),
+            Self::Meshopt => compress_glb(&glb),
+        }
+    }
+}
+
 /// Errors of the meshopt codecs and of [`compress_glb`].
 #[derive(Debug, Clone, thiserror::Error, PartialEq, Eq)]
 pub enum MeshoptError {
@@ -333,7 +375,7 @@ pub fn encode_index_buffer(indices: &[u32]) -> Result<(Vec<u8>, Vec<u32>), Mesho
         let starts_next = a == f.next;
         // Sources of b and c after a: 0 = next (then incremented), k = FIFO entry k − 1, 15 = explicit.
         let mut next = f.next.wrapping_add(u32::from(starts_next));
-        let mut src = |v: u32, next: &mut u32| -> u8 {
+        let src = |v: u32, next: &mut u32| -> u8 {
             if v == *next {
                 *next = next.wrapping_add(1);
                 0
