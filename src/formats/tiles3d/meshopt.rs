@@ -344,7 +344,7 @@ pub fn encode_index_buffer(indices: &[u32]) -> Result<(Vec<u8>, Vec<u32>), Mesho
     let mut decoded = Vec::with_capacity(indices.len());
     for t in indices.chunks_exact(3) {
         let rots = [[t[0], t[1], t[2]], [t[1], t[2], t[0]], [t[2], t[0], t[1]]];
-        let hit = (0..16).find_map(|i| {
+        let hit = (0..15).find_map(|i| {
             let e = f.edge(i);
             rots.iter().find(|r| r[0] == e[0] && r[1] == e[1]).map(|r| (i, *r))
         });
@@ -551,6 +551,134 @@ pub fn decode_index_buffer(src: &[u8], count: usize) -> Result<Vec<u32>, Meshopt
     Ok(out)
 }
 
+/// Post-transform cache size [`optimize_order`] aims at: the triangle codec's FIFOs hold 16.
+const CACHE: usize = 16;
+
+/// A triangle order with locality (Tipsify, Sander, Nehab and Barczak 2007: fans around
+/// vertices still in a `CACHE`-entry FIFO), so consecutive triangles share edges and recent
+/// vertices, which the triangle codec codes in about a byte each. Returns the triangles, in
+/// their new order, as indices into `tris`. Linear time; vertices at or past `vertices` are
+/// refused by the caller.
+fn tipsify(tris: &[[u32; 3]], vertices: usize) -> Vec<usize> {
+    // Triangles of each vertex (compressed adjacency).
+    let mut start = vec![0usize; vertices + 1];
+    for t in tris {
+        for &v in t {
+            start[v as usize + 1] += 1;
+        }
+    }
+    for i in 0..vertices {
+        start[i + 1] += start[i];
+    }
+    let mut fill = start.clone();
+    let mut adj = vec![0usize; tris.len() * 3];
+    for (i, t) in tris.iter().enumerate() {
+        for &v in t {
+            adj[fill[v as usize]] = i;
+            fill[v as usize] += 1;
+        }
+    }
+    let mut live: Vec<usize> = (0..vertices).map(|v| start[v + 1] - start[v]).collect();
+    let mut stamp = vec![0usize; vertices];
+    let mut emitted = vec![false; tris.len()];
+    let mut dead_end: Vec<u32> = Vec::new();
+    let mut order = Vec::with_capacity(tris.len());
+    let mut time = CACHE + 1;
+    let mut cursor = 0usize;
+    let mut fan = (0..vertices).find(|&v| live[v] > 0);
+    let mut near: Vec<u32> = Vec::new();
+    while let Some(f) = fan {
+        near.clear();
+        for &t in &adj[start[f]..start[f + 1]] {
+            if emitted[t] {
+                continue;
+            }
+            emitted[t] = true;
+            order.push(t);
+            for &v in &tris[t] {
+                let vi = v as usize;
+                dead_end.push(v);
+                near.push(v);
+                live[vi] -= 1;
+                if time - stamp[vi] > CACHE {
+                    stamp[vi] = time;
+                    time += 1;
+                }
+            }
+        }
+        // The next fan: a vertex of this one still in the cache with live triangles (the
+        // oldest that stays in for its fan), else the latest dead end, else the next in order.
+        let mut best: Option<(usize, usize)> = None;
+        for &v in &near {
+            let vi = v as usize;
+            if live[vi] == 0 {
+                continue;
+            }
+            let age = time - stamp[vi];
+            let p = if age + 2 * live[vi] <= CACHE { age } else { 0 };
+            if best.is_none_or(|(bp, _)| p > bp) {
+                best = Some((p, vi));
+            }
+        }
+        fan = best.map(|(_, v)| v).or_else(|| {
+            while let Some(d) = dead_end.pop() {
+                if live[d as usize] > 0 {
+                    return Some(d as usize);
+                }
+            }
+            while cursor < vertices {
+                if live[cursor] > 0 {
+                    return Some(cursor);
+                }
+                cursor += 1;
+            }
+            None
+        });
+    }
+    order
+}
+
+/// Orders a triangle list for the triangle codec: triangles by [`tipsify`], then vertices in the
+/// order the triangles first use them (unused vertices last, in their order). Returns the new
+/// indices and, per new vertex, its old index. The mesh is the same: the same triangles (same
+/// winding) over the same vertices, listed in another order.
+///
+/// # Errors
+/// An index count that is not a multiple of 3, an index at or past `vertices`.
+pub fn optimize_order(indices: &[u32], vertices: usize) -> Result<(Vec<u32>, Vec<u32>), MeshoptError> {
+    if !indices.len().is_multiple_of(3) {
+        return Err(MeshoptError::NotTriangles(indices.len()));
+    }
+    if vertices > MAX_COUNT || indices.len() > MAX_COUNT {
+        return Err(MeshoptError::TooMany { what: "vertices or indices", count: vertices.max(indices.len()), limit: MAX_COUNT });
+    }
+    if indices.iter().any(|&i| i as usize >= vertices) {
+        return Err(MeshoptError::Index("an index past the vertex count"));
+    }
+    let tris: Vec<[u32; 3]> = indices.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
+    let order = tipsify(&tris, vertices);
+    let mut new_of = vec![u32::MAX; vertices];
+    let mut old_of = Vec::with_capacity(vertices);
+    let mut out = Vec::with_capacity(indices.len());
+    for &t in &order {
+        for &v in &tris[t] {
+            let n = &mut new_of[v as usize];
+            if *n == u32::MAX {
+                *n = old_of.len() as u32;
+                old_of.push(v);
+            }
+            out.push(*n);
+        }
+    }
+    for v in 0..vertices {
+        if new_of[v] == u32::MAX {
+            new_of[v] = old_of.len() as u32;
+            old_of.push(v as u32);
+        }
+    }
+    Ok((out, old_of))
+}
+
 /// The JSON and BIN chunks of a GLB.
 ///
 /// # Errors
@@ -613,7 +741,8 @@ fn as_usize(v: &Value) -> Option<usize> {
 }
 
 /// The `EXT_meshopt_compression` form of a plain GLB with one buffer (as [`super::glb()`] writes):
-/// every strided vertex view in the attribute codec, every index view in the triangle codec (8-bit
+/// a mesh's triangles and vertices first put in an order with locality ([`optimize_order`]: the
+/// same mesh, listed in another order), then every strided vertex view in the attribute codec, every index view in the triangle codec (8-bit
 /// indices widened to 16 bits, which the codec needs), any other view stored as is. Buffer 0 is
 /// the BIN chunk with the compressed data; buffer 1 the fallback, with no data.
 ///
@@ -628,6 +757,7 @@ pub fn compress_glb(glb: &[u8]) -> Result<Vec<u8>, MeshoptError> {
     }
     let views = json["bufferViews"].as_array().cloned().unwrap_or_default();
     let mut accessors = json["accessors"].as_array().cloned().unwrap_or_default();
+    let reorder = reorder_mesh(&json, &views, &accessors, &bin)?;
     let mut packed = Vec::new();
     let mut fallback = 0usize;
     let mut new_views = Vec::with_capacity(views.len());
@@ -635,12 +765,24 @@ pub fn compress_glb(glb: &[u8]) -> Result<Vec<u8>, MeshoptError> {
         let offset = as_usize(&view["byteOffset"]).unwrap_or(0);
         let len = as_usize(&view["byteLength"]).ok_or_else(|| bad("bufferView without byteLength"))?;
         let bytes = bin.get(offset..offset.saturating_add(len)).ok_or_else(|| bad("bufferView outside the BIN chunk"))?;
+        let permuted;
+        let bytes = match &reorder {
+            Some(r) if r.vertex_views.contains(&i) => {
+                let s = as_usize(&view["byteStride"]).unwrap_or(1);
+                permuted = r.old_of.iter().flat_map(|&o| &bytes[o as usize * s..(o as usize + 1) * s]).copied().collect::<Vec<u8>>();
+                &permuted[..]
+            }
+            _ => bytes,
+        };
         let users: Vec<usize> = (0..accessors.len()).filter(|&a| as_usize(&accessors[a]["bufferView"]) == Some(i)).collect();
         let target = view["target"].as_u64();
         let stride = as_usize(&view["byteStride"]);
         let (mode, stride, raw) = if target == Some(u64::from(ELEMENT_ARRAY_BUFFER)) {
             let component = users.first().and_then(|&a| accessors[a]["componentType"].as_u64()).unwrap_or(0);
             let indices: Vec<u32> = match u32::try_from(component).unwrap_or(0) {
+                _ if reorder.as_ref().is_some_and(|r| r.index_view == i) => {
+                    reorder.as_ref().map(|r| r.indices.clone()).unwrap_or_default()
+                }
                 GLTF_U8 => bytes.iter().map(|&b| u32::from(b)).collect(),
                 GLTF_U16 => bytes.chunks_exact(2).map(|b| u32::from(u16::from_le_bytes([b[0], b[1]]))).collect(),
                 GLTF_U32 => bytes.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect(),
@@ -705,6 +847,62 @@ pub fn compress_glb(glb: &[u8]) -> Result<Vec<u8>, MeshoptError> {
         json[list] = Value::Array(names);
     }
     Ok(write_glb(&json, packed))
+}
+
+/// A mesh's new order ([`optimize_order`]): its index view and indices, and the vertex views
+/// permuted (new vertex `k` is old vertex `old_of[k]`).
+struct Reorder {
+    index_view: usize,
+    indices: Vec<u32>,
+    vertex_views: Vec<usize>,
+    old_of: Vec<u32>,
+}
+
+/// The new order of the GLB's one indexed primitive, when it has one whose attribute views hold
+/// exactly its vertices (as [`super::glb()`] writes them: one view per attribute).
+fn reorder_mesh(json: &Value, views: &[Value], accessors: &[Value], bin: &[u8]) -> Result<Option<Reorder>, MeshoptError> {
+    let bad = |m: &str| MeshoptError::Glb(m.to_owned());
+    let prims = json["meshes"].as_array().map(|m| m.iter().flat_map(|m| m["primitives"].as_array().cloned().unwrap_or_default()).collect::<Vec<_>>()).unwrap_or_default();
+    let [prim] = &prims[..] else { return Ok(None) };
+    let Some(ia) = as_usize(&prim["indices"]) else { return Ok(None) };
+    if prim["mode"].as_u64().unwrap_or(4) != 4 {
+        return Ok(None);
+    }
+    let acc = |a: usize| accessors.get(a).ok_or_else(|| bad("accessor index out of range"));
+    let index_view = as_usize(&acc(ia)?["bufferView"]).ok_or_else(|| bad("index accessor without bufferView"))?;
+    let attrs: Vec<usize> = prim["attributes"].as_object().map(|o| o.values().filter_map(as_usize).collect()).unwrap_or_default();
+    let Some(&first) = attrs.first() else { return Ok(None) };
+    let vertices = as_usize(&acc(first)?["count"]).unwrap_or(0);
+    let mut vertex_views = Vec::new();
+    for &a in &attrs {
+        let a = acc(a)?;
+        let Some(v) = as_usize(&a["bufferView"]) else { return Ok(None) };
+        let view = views.get(v).ok_or_else(|| bad("bufferView index out of range"))?;
+        let stride = as_usize(&view["byteStride"]).unwrap_or(0);
+        let shared = accessors.iter().filter(|x| as_usize(&x["bufferView"]) == Some(v)).count();
+        if as_usize(&a["count"]) != Some(vertices)
+            || as_usize(&a["byteOffset"]).unwrap_or(0) != 0
+            || stride == 0
+            || as_usize(&view["byteLength"]) != Some(stride * vertices)
+            || shared != 1
+            || v == index_view
+        {
+            return Ok(None);
+        }
+        vertex_views.push(v);
+    }
+    let view = &views[index_view];
+    let offset = as_usize(&view["byteOffset"]).unwrap_or(0);
+    let len = as_usize(&view["byteLength"]).unwrap_or(0);
+    let bytes = bin.get(offset..offset.saturating_add(len)).ok_or_else(|| bad("bufferView outside the BIN chunk"))?;
+    let indices: Vec<u32> = match acc(ia)?["componentType"].as_u64().and_then(|c| u32::try_from(c).ok()) {
+        Some(GLTF_U8) => bytes.iter().map(|&b| u32::from(b)).collect(),
+        Some(GLTF_U16) => bytes.chunks_exact(2).map(|b| u32::from(u16::from_le_bytes([b[0], b[1]]))).collect(),
+        Some(GLTF_U32) => bytes.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect(),
+        _ => return Err(bad("index accessor of unknown component type")),
+    };
+    let (indices, old_of) = optimize_order(&indices, vertices)?;
+    Ok(Some(Reorder { index_view, indices, vertex_views, old_of }))
 }
 
 /// The plain form of a GLB of [`compress_glb`]: every compressed view decoded into one buffer
@@ -823,6 +1021,59 @@ mod tests {
                 assert!(rots.iter().any(|x| x == r), "{t:?} -> {r:?}");
             }
         }
+    }
+
+    #[test]
+    fn index_round_trip_small_vertex_range() {
+        // Few vertices: edges recur at every FIFO depth, including 15 (which the codec cannot
+        // name: code 0xf? is the table's).
+        let mut s = 5u64;
+        for range in [4u64, 8, 20, 40] {
+            let idx: Vec<u32> = (0..6000)
+                .map(|_| (rng(&mut s) % range) as u32)
+                .collect::<Vec<_>>()
+                .chunks(3)
+                .filter(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2])
+                .flatten()
+                .copied()
+                .collect();
+            let (enc, rotated) = encode_index_buffer(&idx).unwrap();
+            assert_eq!(decode_index_buffer(&enc, idx.len()).unwrap(), rotated, "range {range}");
+        }
+    }
+
+    #[test]
+    fn optimized_order_is_the_same_mesh() {
+        let mut grid = Vec::new();
+        for y in 0..30u32 {
+            for x in 0..30u32 {
+                let v = y * 31 + x;
+                grid.extend_from_slice(&[v, v + 1, v + 31, v + 1, v + 32, v + 31]);
+            }
+        }
+        // Triangles in a random order, as a greedy TIN's insertion leaves them.
+        let mut s = 9u64;
+        let mut tris: Vec<[u32; 3]> = grid.chunks(3).map(|t| [t[0], t[1], t[2]]).collect();
+        for i in (1..tris.len()).rev() {
+            tris.swap(i, (rng(&mut s) % (i as u64 + 1)) as usize);
+        }
+        let grid: Vec<u32> = tris.into_iter().flatten().collect();
+        let n = 31 * 31 + 5; // five unused vertices
+        let (idx, old_of) = optimize_order(&grid, n).unwrap();
+        let mut seen = old_of.clone();
+        seen.sort_unstable();
+        assert_eq!(seen, (0..n as u32).collect::<Vec<_>>());
+        let canon = |t: [u32; 3]| *[[t[0], t[1], t[2]], [t[1], t[2], t[0]], [t[2], t[0], t[1]]].iter().min().unwrap();
+        let mut a: Vec<_> = grid.chunks(3).map(|t| canon([t[0], t[1], t[2]])).collect();
+        let mut b: Vec<_> =
+            idx.chunks(3).map(|t| canon([old_of[t[0] as usize], old_of[t[1] as usize], old_of[t[2] as usize]])).collect();
+        a.sort_unstable();
+        b.sort_unstable();
+        assert_eq!(a, b);
+        let (plain, _) = encode_index_buffer(&grid).unwrap();
+        let (ordered, _) = encode_index_buffer(&idx).unwrap();
+        assert!(ordered.len() < plain.len(), "{} vs {}", ordered.len(), plain.len());
+        assert!(optimize_order(&[0, 1, 9], 9).is_err());
     }
 
     #[test]

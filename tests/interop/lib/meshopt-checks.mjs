@@ -62,33 +62,48 @@ function accessorValues(json, viewBytes, i) {
   return { vals, raw };
 }
 
-// Compares one meshopt GLB with its plain GLB; throws naming the first difference.
+// Compares one meshopt GLB with its plain GLB; throws naming the first difference. Vertex
+// attributes are compared byte for byte per vertex; the encoder may list the vertices and the
+// triangles in another order (for locality) and rotate a triangle, so the check is that both list
+// the same vertices (multiset of attribute tuples) and the same triangles over them (multiset of
+// triangles as vertex tuples, each rotated to a canonical start: the winding must match).
 export async function compareGlbs(plainBytes, meshoptBytes, name) {
   const p = await views(plainBytes);
   const m = await views(meshoptBytes);
   for (const list of ['extensionsUsed', 'extensionsRequired']) {
     if (!(m.json[list] ?? []).includes(EXT)) throw new Error(`${name}: ${list} lacks ${EXT}`);
   }
-  const prim = (j) => j.meshes[0].primitives[0];
-  const pp = prim(p.json);
-  const mp = prim(m.json);
-  for (const attr of Object.keys(pp.attributes)) {
-    const a = accessorValues(p.json, p.out, pp.attributes[attr]);
-    const b = accessorValues(m.json, m.out, mp.attributes[attr]);
-    if (a.raw.length !== b.raw.length || a.raw.some((x, k) => x !== b.raw[k])) throw new Error(`${name}: ${attr} differs`);
-  }
-  if (pp.indices !== undefined) {
-    const a = accessorValues(p.json, p.out, pp.indices).vals;
-    const b = accessorValues(m.json, m.out, mp.indices).vals;
-    if (a.length !== b.length) throw new Error(`${name}: ${a.length} indices, decoded ${b.length}`);
-    for (let t = 0; t < a.length; t += 3) {
-      const [x, y, z] = [a[t], a[t + 1], a[t + 2]];
-      const r = [b[t], b[t + 1], b[t + 2]].join();
-      if (r !== [x, y, z].join() && r !== [y, z, x].join() && r !== [z, x, y].join()) {
-        throw new Error(`${name}: triangle ${t / 3} is ${x},${y},${z}, decoded ${r}`);
+  const side = (g) => {
+    const prim = g.json.meshes[0].primitives[0];
+    const names = Object.keys(prim.attributes).sort();
+    const attrs = names.map((a) => {
+      const acc = g.json.accessors[prim.attributes[a]];
+      const { raw } = accessorValues(g.json, g.out, prim.attributes[a]);
+      const w = raw.length / acc.count;
+      return (k) => raw.slice(k * w, (k + 1) * w).join(',');
+    });
+    const count = g.json.accessors[prim.attributes[names[0]]].count;
+    const vertex = (k) => attrs.map((f) => f(k)).join('|');
+    const vertices = Array.from({ length: count }, (_, k) => vertex(k)).sort();
+    let triangles = [];
+    if (prim.indices !== undefined) {
+      const idx = accessorValues(g.json, g.out, prim.indices).vals;
+      for (let t = 0; t < idx.length; t += 3) {
+        if (idx[t] >= count || idx[t + 1] >= count || idx[t + 2] >= count) throw new Error(`${name}: index past the vertices`);
+        const v = [vertex(idx[t]), vertex(idx[t + 1]), vertex(idx[t + 2])];
+        const r = [v, [v[1], v[2], v[0]], [v[2], v[0], v[1]]].map((x) => x.join(' ')).sort()[0];
+        triangles.push(r);
       }
+      triangles = triangles.sort();
     }
-  }
+    return { names: names.join(), vertices, triangles, mode: prim.mode ?? 4 };
+  };
+  const a = side(p);
+  const b = side(m);
+  if (a.names !== b.names || a.mode !== b.mode) throw new Error(`${name}: attributes ${a.names} mode ${a.mode}, meshopt ${b.names} mode ${b.mode}`);
+  const same = (x, y) => x.length === y.length && x.every((v, k) => v === y[k]);
+  if (!same(a.vertices, b.vertices)) throw new Error(`${name}: the vertices differ`);
+  if (!same(a.triangles, b.triangles)) throw new Error(`${name}: the triangles differ (${a.triangles.length} vs ${b.triangles.length})`);
   return { plain: plainBytes.length, meshopt: meshoptBytes.length };
 }
 
