@@ -28,7 +28,8 @@ const TAIL_MIN: usize = 32;
 /// The triangle codec's table of (b, c) sources for a triangle that starts at `next`, stored in
 /// the stream's tail: nibble 0 is `next`, `k` the vertex FIFO's entry `k − 1`. The last two
 /// bytes must be 0 and no nibble may be 0xf.
-const CODEAUX: [u8; 16] = [0x00, 0x76, 0x87, 0x56, 0x67, 0x78, 0xa9, 0x86, 0x65, 0x89, 0x68, 0x98, 0x01, 0x69, 0, 0];
+const CODEAUX: [u8; 16] =
+    [0x00, 0x76, 0x87, 0x56, 0x67, 0x78, 0xa9, 0x86, 0x65, 0x89, 0x68, 0x98, 0x01, 0x69, 0, 0];
 
 /// How the 3D Tiles GLBs are compressed: `none` (plain buffers, the default) or `meshopt`
 /// (`EXT_meshopt_compression`, which the reader must support: CesiumJS does natively, three.js
@@ -246,13 +247,16 @@ fn decode_bytes(src: &[u8], mut pos: usize, end: usize, deltas: &mut [u8]) -> Re
         match (header[g / 4] >> ((g % 4) * 2)) & 3 {
             0 => group.fill(0),
             3 => {
-                group.copy_from_slice(src.get(pos..pos + GROUP).filter(|_| pos + GROUP <= end).ok_or(short.clone())?);
+                group.copy_from_slice(
+                    src.get(pos..pos + GROUP).filter(|_| pos + GROUP <= end).ok_or(short.clone())?,
+                );
                 pos += GROUP;
             }
             code => {
                 let bits = if code == 1 { 2 } else { 4 };
                 let packed = GROUP * bits / 8;
-                let bytes = src.get(pos..pos + packed).filter(|_| pos + packed <= end).ok_or(short.clone())?;
+                let bytes =
+                    src.get(pos..pos + packed).filter(|_| pos + packed <= end).ok_or(short.clone())?;
                 let mut extra = pos + packed;
                 let sentinel = (1u8 << bits) - 1;
                 for (i, d) in group.iter_mut().enumerate() {
@@ -386,7 +390,8 @@ pub fn encode_index_buffer(indices: &[u32]) -> Result<(Vec<u8>, Vec<u32>), Mesho
         let zb = src(b, &mut next);
         let zc = src(c, &mut next);
         let aux = (zb << 4) | zc;
-        let table = CODEAUX[..14].iter().position(|&x| x == aux).filter(|_| starts_next && zb != 15 && zc != 15);
+        let table =
+            CODEAUX[..14].iter().position(|&x| x == aux).filter(|_| starts_next && zb != 15 && zc != 15);
         let (zb, zc) = if let Some(y) = table {
             codes.push(0xf0 | y as u8);
             (zb, zc)
@@ -458,7 +463,8 @@ pub fn decode_index_buffer(src: &[u8], count: usize) -> Result<Vec<u32>, Meshopt
     let read = |pos: &mut usize, f: &mut Fifos| -> Result<u32, MeshoptError> {
         let mut v = 0u32;
         for shift in (0..35).step_by(7) {
-            let b = *src.get(*pos).filter(|_| *pos < data_end).ok_or(MeshoptError::Index("truncated data"))?;
+            let b =
+                *src.get(*pos).filter(|_| *pos < data_end).ok_or(MeshoptError::Index("truncated data"))?;
             *pos += 1;
             v |= u32::from(b & 0x7f).wrapping_shl(shift);
             if b & 0x80 == 0 {
@@ -650,7 +656,11 @@ pub fn optimize_order(indices: &[u32], vertices: usize) -> Result<(Vec<u32>, Vec
         return Err(MeshoptError::NotTriangles(indices.len()));
     }
     if vertices > MAX_COUNT || indices.len() > MAX_COUNT {
-        return Err(MeshoptError::TooMany { what: "vertices or indices", count: vertices.max(indices.len()), limit: MAX_COUNT });
+        return Err(MeshoptError::TooMany {
+            what: "vertices or indices",
+            count: vertices.max(indices.len()),
+            limit: MAX_COUNT,
+        });
     }
     if indices.iter().any(|&i| i as usize >= vertices) {
         return Err(MeshoptError::Index("an index past the vertex count"));
@@ -699,7 +709,8 @@ pub fn read_glb(glb: &[u8]) -> Result<(Value, Vec<u8>), MeshoptError> {
         return Err(bad("first chunk is not JSON"));
     }
     let text = glb.get(20..20 + jlen).ok_or_else(|| bad("JSON chunk runs past the end"))?;
-    let json: Value = serde_json::from_slice(text).map_err(|e| MeshoptError::Glb(format!("JSON chunk: {e}")))?;
+    let json: Value =
+        serde_json::from_slice(text).map_err(|e| MeshoptError::Glb(format!("JSON chunk: {e}")))?;
     let at = 20 + jlen;
     if at == glb.len() {
         return Ok((json, Vec::new()));
@@ -764,17 +775,25 @@ pub fn compress_glb(glb: &[u8]) -> Result<Vec<u8>, MeshoptError> {
     for (i, view) in views.iter().enumerate() {
         let offset = as_usize(&view["byteOffset"]).unwrap_or(0);
         let len = as_usize(&view["byteLength"]).ok_or_else(|| bad("bufferView without byteLength"))?;
-        let bytes = bin.get(offset..offset.saturating_add(len)).ok_or_else(|| bad("bufferView outside the BIN chunk"))?;
+        let bytes = bin
+            .get(offset..offset.saturating_add(len))
+            .ok_or_else(|| bad("bufferView outside the BIN chunk"))?;
         let permuted;
         let bytes = match &reorder {
             Some(r) if r.vertex_views.contains(&i) => {
                 let s = as_usize(&view["byteStride"]).unwrap_or(1);
-                permuted = r.old_of.iter().flat_map(|&o| &bytes[o as usize * s..(o as usize + 1) * s]).copied().collect::<Vec<u8>>();
+                permuted = r
+                    .old_of
+                    .iter()
+                    .flat_map(|&o| &bytes[o as usize * s..(o as usize + 1) * s])
+                    .copied()
+                    .collect::<Vec<u8>>();
                 &permuted[..]
             }
             _ => bytes,
         };
-        let users: Vec<usize> = (0..accessors.len()).filter(|&a| as_usize(&accessors[a]["bufferView"]) == Some(i)).collect();
+        let users: Vec<usize> =
+            (0..accessors.len()).filter(|&a| as_usize(&accessors[a]["bufferView"]) == Some(i)).collect();
         let target = view["target"].as_u64();
         let stride = as_usize(&view["byteStride"]);
         let (mode, stride, raw) = if target == Some(u64::from(ELEMENT_ARRAY_BUFFER)) {
@@ -784,8 +803,12 @@ pub fn compress_glb(glb: &[u8]) -> Result<Vec<u8>, MeshoptError> {
                     reorder.as_ref().map(|r| r.indices.clone()).unwrap_or_default()
                 }
                 GLTF_U8 => bytes.iter().map(|&b| u32::from(b)).collect(),
-                GLTF_U16 => bytes.chunks_exact(2).map(|b| u32::from(u16::from_le_bytes([b[0], b[1]]))).collect(),
-                GLTF_U32 => bytes.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect(),
+                GLTF_U16 => {
+                    bytes.chunks_exact(2).map(|b| u32::from(u16::from_le_bytes([b[0], b[1]]))).collect()
+                }
+                GLTF_U32 => {
+                    bytes.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()
+                }
                 _ => return Err(bad("index accessor of unknown component type")),
             };
             let wide = component == u64::from(GLTF_U32);
@@ -860,17 +883,29 @@ struct Reorder {
 
 /// The new order of the GLB's one indexed primitive, when it has one whose attribute views hold
 /// exactly its vertices (as [`super::glb()`] writes them: one view per attribute).
-fn reorder_mesh(json: &Value, views: &[Value], accessors: &[Value], bin: &[u8]) -> Result<Option<Reorder>, MeshoptError> {
+fn reorder_mesh(
+    json: &Value,
+    views: &[Value],
+    accessors: &[Value],
+    bin: &[u8],
+) -> Result<Option<Reorder>, MeshoptError> {
     let bad = |m: &str| MeshoptError::Glb(m.to_owned());
-    let prims = json["meshes"].as_array().map(|m| m.iter().flat_map(|m| m["primitives"].as_array().cloned().unwrap_or_default()).collect::<Vec<_>>()).unwrap_or_default();
+    let prims = json["meshes"]
+        .as_array()
+        .map(|m| {
+            m.iter().flat_map(|m| m["primitives"].as_array().cloned().unwrap_or_default()).collect::<Vec<_>>()
+        })
+        .unwrap_or_default();
     let [prim] = &prims[..] else { return Ok(None) };
     let Some(ia) = as_usize(&prim["indices"]) else { return Ok(None) };
     if prim["mode"].as_u64().unwrap_or(4) != 4 {
         return Ok(None);
     }
     let acc = |a: usize| accessors.get(a).ok_or_else(|| bad("accessor index out of range"));
-    let index_view = as_usize(&acc(ia)?["bufferView"]).ok_or_else(|| bad("index accessor without bufferView"))?;
-    let attrs: Vec<usize> = prim["attributes"].as_object().map(|o| o.values().filter_map(as_usize).collect()).unwrap_or_default();
+    let index_view =
+        as_usize(&acc(ia)?["bufferView"]).ok_or_else(|| bad("index accessor without bufferView"))?;
+    let attrs: Vec<usize> =
+        prim["attributes"].as_object().map(|o| o.values().filter_map(as_usize).collect()).unwrap_or_default();
     let Some(&first) = attrs.first() else { return Ok(None) };
     let vertices = as_usize(&acc(first)?["count"]).unwrap_or(0);
     let mut vertex_views = Vec::new();
@@ -894,11 +929,16 @@ fn reorder_mesh(json: &Value, views: &[Value], accessors: &[Value], bin: &[u8]) 
     let view = &views[index_view];
     let offset = as_usize(&view["byteOffset"]).unwrap_or(0);
     let len = as_usize(&view["byteLength"]).unwrap_or(0);
-    let bytes = bin.get(offset..offset.saturating_add(len)).ok_or_else(|| bad("bufferView outside the BIN chunk"))?;
+    let bytes =
+        bin.get(offset..offset.saturating_add(len)).ok_or_else(|| bad("bufferView outside the BIN chunk"))?;
     let indices: Vec<u32> = match acc(ia)?["componentType"].as_u64().and_then(|c| u32::try_from(c).ok()) {
         Some(GLTF_U8) => bytes.iter().map(|&b| u32::from(b)).collect(),
-        Some(GLTF_U16) => bytes.chunks_exact(2).map(|b| u32::from(u16::from_le_bytes([b[0], b[1]]))).collect(),
-        Some(GLTF_U32) => bytes.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect(),
+        Some(GLTF_U16) => {
+            bytes.chunks_exact(2).map(|b| u32::from(u16::from_le_bytes([b[0], b[1]]))).collect()
+        }
+        Some(GLTF_U32) => {
+            bytes.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()
+        }
         _ => return Err(bad("index accessor of unknown component type")),
     };
     let (indices, old_of) = optimize_order(&indices, vertices)?;
@@ -924,14 +964,20 @@ pub fn decompress_glb(glb: &[u8]) -> Result<(Value, Vec<u8>), MeshoptError> {
         let mut v = view.clone();
         if let Some(x) = view["extensions"].get(EXT) {
             let (o, l) = (as_usize(&x["byteOffset"]).unwrap_or(0), as_usize(&x["byteLength"]).unwrap_or(0));
-            let (stride, count) = (as_usize(&x["byteStride"]).unwrap_or(0), as_usize(&x["count"]).unwrap_or(0));
-            let src = bin.get(o..o.saturating_add(l)).ok_or_else(|| bad("compressed view outside the BIN chunk"))?;
+            let (stride, count) =
+                (as_usize(&x["byteStride"]).unwrap_or(0), as_usize(&x["count"]).unwrap_or(0));
+            let src = bin
+                .get(o..o.saturating_add(l))
+                .ok_or_else(|| bad("compressed view outside the BIN chunk"))?;
             let bytes = match x["mode"].as_str() {
                 Some("ATTRIBUTES") => decode_vertex_buffer(src, count, stride)?,
                 Some("TRIANGLES") => {
                     let idx = decode_index_buffer(src, count)?;
                     match stride {
-                        2 => idx.iter().flat_map(|&i| u16::try_from(i).unwrap_or(u16::MAX).to_le_bytes()).collect(),
+                        2 => idx
+                            .iter()
+                            .flat_map(|&i| u16::try_from(i).unwrap_or(u16::MAX).to_le_bytes())
+                            .collect(),
                         4 => idx.iter().flat_map(|&i| i.to_le_bytes()).collect(),
                         _ => return Err(bad("TRIANGLES byteStride is not 2 or 4")),
                     }
@@ -946,7 +992,8 @@ pub fn decompress_glb(glb: &[u8]) -> Result<(Value, Vec<u8>), MeshoptError> {
                 o.remove("extensions");
             }
         } else {
-            let (o, l) = (as_usize(&view["byteOffset"]).unwrap_or(0), as_usize(&view["byteLength"]).unwrap_or(0));
+            let (o, l) =
+                (as_usize(&view["byteOffset"]).unwrap_or(0), as_usize(&view["byteLength"]).unwrap_or(0));
             let src = bin.get(o..o.saturating_add(l)).ok_or_else(|| bad("view outside the BIN chunk"))?;
             let at = out.len();
             out.extend_from_slice(src);
@@ -987,7 +1034,11 @@ mod tests {
                     };
                 }
                 let enc = encode_vertex_buffer(&data, stride).unwrap();
-                assert_eq!(decode_vertex_buffer(&enc, count, stride).unwrap(), data, "stride {stride} count {count}");
+                assert_eq!(
+                    decode_vertex_buffer(&enc, count, stride).unwrap(),
+                    data,
+                    "stride {stride} count {count}"
+                );
             }
         }
     }
@@ -1063,10 +1114,13 @@ mod tests {
         let mut seen = old_of.clone();
         seen.sort_unstable();
         assert_eq!(seen, (0..n as u32).collect::<Vec<_>>());
-        let canon = |t: [u32; 3]| *[[t[0], t[1], t[2]], [t[1], t[2], t[0]], [t[2], t[0], t[1]]].iter().min().unwrap();
+        let canon =
+            |t: [u32; 3]| *[[t[0], t[1], t[2]], [t[1], t[2], t[0]], [t[2], t[0], t[1]]].iter().min().unwrap();
         let mut a: Vec<_> = grid.chunks(3).map(|t| canon([t[0], t[1], t[2]])).collect();
-        let mut b: Vec<_> =
-            idx.chunks(3).map(|t| canon([old_of[t[0] as usize], old_of[t[1] as usize], old_of[t[2] as usize]])).collect();
+        let mut b: Vec<_> = idx
+            .chunks(3)
+            .map(|t| canon([old_of[t[0] as usize], old_of[t[1] as usize], old_of[t[2] as usize]]))
+            .collect();
         a.sort_unstable();
         b.sort_unstable();
         assert_eq!(a, b);
