@@ -243,7 +243,7 @@ async fn info(ts: &Arc<Tileset>, with_anchor: bool, glb: GlbCompression) -> Resu
     };
     let query = match glb {
         GlbCompression::None => format!("?v={}", ts.content_version),
-        _ => format!("?v={}&glb={}", ts.content_version, glb.name()),
+        GlbCompression::Meshopt => format!("?v={}&glb={}", ts.content_version, glb.name()),
     };
     let mut info =
         TilesetInfo::from_manifest_json(&ts.name, &ts.manifest_json, anchor, query).map_err(|e| {

@@ -680,9 +680,9 @@ pub fn optimize_order(indices: &[u32], vertices: usize) -> Result<(Vec<u32>, Vec
             out.push(*n);
         }
     }
-    for v in 0..vertices {
-        if new_of[v] == u32::MAX {
-            new_of[v] = old_of.len() as u32;
+    for (v, n) in new_of.iter_mut().enumerate() {
+        if *n == u32::MAX {
+            *n = old_of.len() as u32;
             old_of.push(v as u32);
         }
     }
