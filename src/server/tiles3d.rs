@@ -434,8 +434,12 @@ pub(super) async fn glb(
 }
 
 /// A tileset that cannot be placed on the Earth (its geoid grid unreadable, a point outside
-/// its CRS's domain): a server-side fault, logged and named.
+/// its CRS's domain), or a GLB the meshopt encoder refuses: a server-side fault, logged and named.
 fn placement_problem(name: &str, e: &crate::formats::tiles3d::Tiles3dError) -> Problem {
+    if let crate::formats::tiles3d::Tiles3dError::Meshopt(m) = e {
+        tracing::error!(tileset = %name, error = %m, "cannot compress a GLB with EXT_meshopt_compression");
+        return Problem::internal("glb", format!("a GLB of tileset {name:?} cannot be compressed: {m}"));
+    }
     tracing::error!(tileset = %name, error = %e, "cannot place the tileset on the Earth");
     Problem::internal("placement", format!("tileset {name:?} cannot be placed on the Earth: {e}"))
 }
