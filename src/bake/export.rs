@@ -9,7 +9,7 @@ use std::io;
 
 use crate::formats::interchange::{self, Format};
 use crate::formats::tiles3d::{
-    Anchor, AnchorRangeError, Tiles3dError, TilesetInfo, chunk_tileset, path_cap, tile_glb,
+    Anchor, AnchorRangeError, GlbCompression, Tiles3dError, TilesetInfo, chunk_tileset, path_cap, tile_glb,
 };
 
 /// Errors of the export driver.
@@ -147,6 +147,18 @@ pub fn export_3dtiles(
     anchor: Option<Anchor>,
     progress: &(dyn Fn(u64, u64) + Sync),
 ) -> Result<Tiles3dExport, ExportError> {
+    export_3dtiles_with(store, out, anchor, GlbCompression::None, progress)
+}
+
+/// [`export_3dtiles`] with the GLBs compressed as `glb` says (`EXT_meshopt_compression` for
+/// [`GlbCompression::Meshopt`]: the bytes the server gives at `…/tileset.json?glb=meshopt`).
+pub fn export_3dtiles_with(
+    store: &crate::store::Store,
+    out: &std::path::Path,
+    anchor: Option<Anchor>,
+    glb: GlbCompression,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<Tiles3dExport, ExportError> {
     use rayon::prelude::*;
     use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -165,7 +177,8 @@ pub fn export_3dtiles(
     }
     check_out_free(out)?;
     let name = store.name().unwrap_or_else(|| "tileset".to_owned());
-    let info = tiles3d_info(store, &name, anchor, String::new())?;
+    let mut info = tiles3d_info(store, &name, anchor, String::new())?;
+    info.glb = glb;
     // The chunks, from the root down (each read once; bounded by the pyramid).
     let mut chunks = Vec::new();
     let mut roots = vec![crate::tiling::TileKey::new(0, 0, 0)];

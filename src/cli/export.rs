@@ -9,7 +9,7 @@ use anyhow::{Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use terrastream::bake::export;
 use terrastream::formats::interchange::Format;
-use terrastream::formats::tiles3d::Anchor;
+use terrastream::formats::tiles3d::{Anchor, GlbCompression};
 use terrastream::store::Store;
 use terrastream::tiling::TileKey;
 
@@ -56,6 +56,11 @@ pub struct ExportArgs {
     /// 3dtiles: place the tileset at LON,LAT[,HEIGHT] (overrides the tileset's own anchor).
     #[arg(long, value_parser = super::bake::parse_anchor, allow_hyphen_values = true)]
     pub anchor: Option<Anchor>,
+    /// 3dtiles: how the GLBs are compressed: none (plain glTF buffers, any reader) or meshopt
+    /// (EXT_meshopt_compression: far fewer bytes; the reader must support it: CesiumJS does,
+    /// three.js with GLTFLoader.setMeshoptDecoder).
+    #[arg(long, default_value = "none", value_parser = parse_glb_compression)]
+    pub glb_compression: GlbCompression,
     /// heightmap: the zooms to write, A:B (default: 0 to where the tiles' pixels match the
     /// source's cells).
     #[arg(long, value_parser = parse_zooms)]
@@ -66,6 +71,10 @@ pub struct ExportArgs {
     /// No progress bar.
     #[arg(long, short)]
     pub quiet: bool,
+}
+
+fn parse_glb_compression(s: &str) -> Result<GlbCompression, String> {
+    GlbCompression::parse(s).ok_or_else(|| format!("{s:?}: give none or meshopt"))
 }
 
 fn parse_zooms(s: &str) -> Result<(u8, u8), String> {
@@ -109,6 +118,9 @@ fn format_of(a: &ExportArgs) -> Result<ExportFormat> {
 pub fn run(a: &ExportArgs) -> Result<()> {
     let chosen = format_of(a)?;
     let store = Store::at(&a.dir)?;
+    if chosen != ExportFormat::Tiles3d && a.glb_compression != GlbCompression::None {
+        bail!("export: --glb-compression applies to 3D Tiles only (--format 3dtiles)");
+    }
     let format = match chosen {
         ExportFormat::Ply => Format::Ply,
         ExportFormat::Obj => Format::Obj,
@@ -179,7 +191,7 @@ fn run_3dtiles(a: &ExportArgs, store: &Store) -> Result<()> {
     );
     bar.enable_steady_tick(Duration::from_millis(200));
     let t0 = Instant::now();
-    let r = export::export_3dtiles(store, &a.out, a.anchor, &|done, total| {
+    let r = export::export_3dtiles_with(store, &a.out, a.anchor, a.glb_compression, &|done, total| {
         bar.set_length(total);
         bar.set_position(done);
     });

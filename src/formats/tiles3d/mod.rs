@@ -13,14 +13,16 @@
 //! decodes to exactly what the blob decodes to.
 //!
 //! One file per part: [`placement`] (anchor, axes, the east-north-up frame), [`mod@glb`] (the
-//! glTF binary of a blob), [`tileset`] (tileset JSON, and the GLB of a stored tile as it lists it).
+//! glTF binary of a blob), [`meshopt`] (its `EXT_meshopt_compression` form, an option), [`tileset`] (tileset JSON, and the GLB of a stored tile as it lists it).
 
 pub mod earth;
 pub mod glb;
+pub mod meshopt;
 pub mod placement;
 pub mod tileset;
 
 pub use glb::{GENERATOR, GLB_TYPE, glb, mesh_skirt_depth};
+pub use meshopt::{GlbCompression, MeshoptError};
 pub use placement::{
     Anchor, AnchorError, AnchorFrom, AnchorRangeError, Axes, DEFAULT_ANCHOR, MAX_ANCHOR_HEIGHT, Placement,
 };
@@ -44,6 +46,9 @@ pub enum Tiles3dError {
     /// A point of the tileset cannot be placed (outside its CRS's or geoid's domain).
     #[error("placement: {0}")]
     Place(#[from] crate::crs::PlaceError),
+    /// The GLB could not be put into `EXT_meshopt_compression` form.
+    #[error(transparent)]
+    Meshopt(#[from] MeshoptError),
 }
 
 #[cfg(test)]

@@ -7,6 +7,7 @@ use serde_json::{Value, json};
 
 use super::Tiles3dError;
 use super::glb::{GENERATOR, glb, mesh_skirt_depth};
+use super::meshopt::GlbCompression;
 use super::placement::{Anchor, Placement};
 use crate::codec::{Blob, Kind};
 use crate::geom::{Bounds, ErrorFigures};
@@ -31,6 +32,8 @@ pub struct TilesetInfo {
     /// An on-demand tileset not fully baked: nodes not baked yet are listed with their mesh
     /// level only and its error bound as the error (`extras.terrastream.provisional`).
     pub provisional: bool,
+    /// How the GLBs are compressed ([`tile_glb`]); `none` unless asked for.
+    pub glb: GlbCompression,
 }
 
 impl TilesetInfo {
@@ -53,6 +56,7 @@ impl TilesetInfo {
             pyramid,
             query,
             provisional: false,
+            glb: GlbCompression::None,
         }
     }
 
@@ -360,5 +364,5 @@ fn reference_tile(
 pub fn tile_glb(info: &TilesetInfo, blob: &Blob) -> Result<Vec<u8>, Tiles3dError> {
     let skirt = (info.kind == TilesetKind::Terrain && blob.header.kind == Kind::Mesh)
         .then(|| (mesh_skirt_depth(blob.header.errors.max), Some(&info.manifest.bounds)));
-    Ok(glb(blob, &info.place, skirt)?)
+    Ok(info.glb.apply(glb(blob, &info.place, skirt)?)?)
 }
