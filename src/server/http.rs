@@ -21,6 +21,11 @@ use super::native::{self, BLOB_ROUTE};
 use super::problem::{self, PROBLEM_JSON, Problem};
 use super::{App, admin, heightmap, heights, terrain, tiles3d};
 
+/// The peer address of a connection, as `ConnectInfo` in every request's extensions (the
+/// listener puts it there; the middleware reads it for the per-client limits and logs).
+#[derive(Clone, Copy, Debug)]
+pub struct Peer(pub std::net::SocketAddr);
+
 /// Seconds a client is asked to wait when the server sheds load.
 pub const SHED_RETRY_AFTER_S: u32 = 1;
 /// `Access-Control-Expose-Headers` exactly as the CORS layer writes it from its list in `router`
@@ -100,7 +105,7 @@ async fn front(State(app): State<Arc<App>>, req: Request, next: Next) -> Respons
     let method = req.method().clone();
     let uri = req.uri().clone();
     let probe = matches!(route, "/healthz" | "/readyz");
-    let ip = req.extensions().get::<ConnectInfo<super::listener::Peer>>().map(|c| c.0.0.ip());
+    let ip = req.extensions().get::<ConnectInfo<Peer>>().map(|c| c.0.0.ip());
     // Height queries are reads that happen to carry a body.
     let admin_route = (matches!(method, Method::POST | Method::DELETE)
         && route != "/tilesets/{name}/heights")

@@ -31,7 +31,7 @@
 
 use std::collections::HashMap;
 use std::io;
-use std::net::{IpAddr, SocketAddr};
+use std::net::IpAddr;
 use std::pin::Pin;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
@@ -47,11 +47,8 @@ use tokio::sync::{Notify, OwnedSemaphorePermit, Semaphore, watch};
 use tower::Service;
 
 use super::fast::{FastPath, Step};
+use super::http::Peer;
 use super::metrics::Metrics;
-
-/// The peer address of a connection, as `ConnectInfo` in every request's extensions.
-#[derive(Clone, Copy, Debug)]
-pub struct Peer(pub SocketAddr);
 
 /// The connection limits (from `Config`).
 #[derive(Debug, Clone, Copy)]
