@@ -63,6 +63,10 @@ pub struct TerrainSource<'a> {
     height: u32,
     sea: Arc<Geoid>,
     pub coverage: Coverage,
+    /// Where a WGS 84 point can fall on the source at all (the coverage, widened by a margin),
+    /// for a projected source: outside it a sample is no data without being transformed.
+    /// `None` where the test would not be safe (a geographic source, the antimeridian, a pole).
+    near: Option<Vec<Rect>>,
     pub options: TerrainOptions,
 }
 
@@ -70,12 +74,35 @@ pub struct TerrainSource<'a> {
 /// bilinear weights.
 type Corners = (u32, u32, u32, u32, f64, f64);
 
-/// Samples of a tile whose CRS position is interpolated from a lattice rather than transformed
-/// one by one: every 8th sample (the edges, their neighbours and the border are always exact).
+/// The smallest cell (samples a side) or line segment over which sample positions in the source
+/// CRS are interpolated rather than transformed one by one (see `TerrainSource::pixels`).
 const LATTICE: i64 = 8;
-/// The largest error (source pixels) an interpolated CRS position may have; above it the tile's
-/// positions are all transformed exactly.
+/// The largest error (source pixels) an interpolated CRS position may have where it is checked;
+/// a cell or segment over it is halved, and below [`LATTICE`] transformed exactly.
 const LATTICE_TOLERANCE_PX: f64 = 0.01;
+
+/// The coverage of a projected source widened by a tenth of its larger side (at least 0.01°,
+/// about 1 km), far more than the outline's sampling can miss between its points; `None` for a
+/// geographic source (its transform is cheap, and 0…360° rasters wrap) or where a widened
+/// rectangle would cross the antimeridian or come within a degree of a pole.
+fn near_rects(rects: &[Rect], geographic: bool) -> Option<Vec<Rect>> {
+    if geographic || rects.is_empty() {
+        return None;
+    }
+    rects
+        .iter()
+        .map(|r| {
+            let m = ((r.east - r.west).max(r.north - r.south) * 0.1).max(0.01);
+            let w = Rect { west: r.west - m, south: r.south - m, east: r.east + m, north: r.north + m };
+            (w.west > -180.0 && w.east < 180.0 && w.south > -89.0 && w.north < 89.0).then_some(w)
+        })
+        .collect()
+}
+
+/// Whether an interpolated pixel position `q` is within [`LATTICE_TOLERANCE_PX`] of the exact `p`.
+fn close(p: (f64, f64), q: (f64, f64)) -> bool {
+    (p.0 - q.0).abs().max((p.1 - q.1).abs()) <= LATTICE_TOLERANCE_PX
+}
 
 impl<'a> TerrainSource<'a> {
     /// The terrain of `reader`'s heights on `georef`'s frame.
@@ -98,9 +125,11 @@ impl<'a> TerrainSource<'a> {
             height,
             sea,
             coverage: Coverage { rects: Vec::new(), max_zoom: 0 },
+            near: None,
             options,
         };
         s.coverage = s.find_coverage()?;
+        s.near = near_rects(&s.coverage.rects, s.frame.grid.crs.is_geographic());
         Ok(s)
     }
 
@@ -199,8 +228,19 @@ impl<'a> TerrainSource<'a> {
         Ok(Coverage { rects, max_zoom })
     }
 
-    /// The CRS position of a WGS 84 point, as fractional source (column, row).
+    /// The CRS position of a WGS 84 point, as fractional source (column, row); `None` where it
+    /// has none, or is certainly off the source (see `near`).
     fn pixel(&self, lon: f64, lat: f64) -> Option<(f64, f64)> {
+        if let Some(near) = &self.near
+            && !near.iter().any(|r| (r.west..=r.east).contains(&lon) && (r.south..=r.north).contains(&lat))
+        {
+            return None;
+        }
+        self.pixel_exact(lon, lat)
+    }
+
+    /// [`Self::pixel`] without the `near` test.
+    fn pixel_exact(&self, lon: f64, lat: f64) -> Option<(f64, f64)> {
         let g = &self.frame.grid;
         let (e, n) = g.crs.from_wgs84(lon, lat).ok()?;
         let (c, r) = ((e - g.e0) / g.de, (n - g.n0) / g.dn);
@@ -221,57 +261,95 @@ impl<'a> TerrainSource<'a> {
     }
 
     /// The source pixel of every sample of tile `id` (with its border), `SIDE²` row-major.
+    ///
+    /// Positions are interpolated between exactly transformed ones wherever that is within
+    /// [`LATTICE_TOLERANCE_PX`] of exact, checked where interpolation errs most, and cells or
+    /// segments that fail are halved down to [`LATTICE`] samples, below which every position is
+    /// exact. Inside (more than one sample from an edge): a quadtree of cells over the tile,
+    /// bilinear from each cell's corners, checked at its centre and its edges' midpoints. The
+    /// three rows and columns at each edge are samples a neighbour has too (its edge, and the
+    /// samples beyond it that its normals see): they are interpolated along their line, linearly
+    /// over segments of the *global* sample grid (aligned to tile edges, halved the same way
+    /// wherever they fail their checks at ¼, ½ and ¾), so both tiles compute every such
+    /// position from the same exact points, bit for bit (rows first: a sample on an edge row and
+    /// an edge column is a row sample in every tile that has it).
     fn pixels(&self, id: TileId) -> Vec<Option<(f64, f64)>> {
+        type Px = Option<(f64, f64)>;
         let n = i64::from(CELLS);
-        let at = |i: i64, j: i64| {
-            let (lon, lat) = id.sample(i, j);
-            self.pixel(canonical_lon(lon), lat)
-        };
-        let idx = |i: i64, j: i64| ((j + 1) as usize) * SIDE + (i + 1) as usize;
-        let mut out = vec![None; SIDE * SIDE];
-        let exact = |i: i64, j: i64| i <= 1 || j <= 1 || i >= n - 1 || j >= n - 1;
-        // The lattice, then the check at its cells' centres.
-        let mut lattice_ok = true;
-        let mut lattice = vec![None; ((n / LATTICE + 1) * (n / LATTICE + 1)) as usize];
-        let lk = |a: i64, b: i64| (b * (n / LATTICE + 1) + a) as usize;
-        for b in 0..=n / LATTICE {
-            for a in 0..=n / LATTICE {
-                lattice[lk(a, b)] = at(a * LATTICE, b * LATTICE);
-                lattice_ok &= lattice[lk(a, b)].is_some();
+        let memo = std::cell::RefCell::new(std::collections::HashMap::<(i64, i64), Px>::new());
+        let exact = |i: i64, j: i64| -> Px {
+            if let Some(&p) = memo.borrow().get(&(i, j)) {
+                return p;
             }
-        }
-        let interp = |i: i64, j: i64| -> Option<(f64, f64)> {
-            let (a, b) = ((i / LATTICE).min(n / LATTICE - 1), (j / LATTICE).min(n / LATTICE - 1));
-            let (fx, fy) =
-                ((i - a * LATTICE) as f64 / LATTICE as f64, (j - b * LATTICE) as f64 / LATTICE as f64);
-            let p00 = lattice[lk(a, b)]?;
-            let p10 = lattice[lk(a + 1, b)]?;
-            let p01 = lattice[lk(a, b + 1)]?;
-            let p11 = lattice[lk(a + 1, b + 1)]?;
-            let mix = |u: f64, v: f64, w: f64, x: f64| {
-                (u * (1.0 - fx) + v * fx) * (1.0 - fy) + (w * (1.0 - fx) + x * fx) * fy
-            };
-            Some((mix(p00.0, p10.0, p01.0, p11.0), mix(p00.1, p10.1, p01.1, p11.1)))
+            let (lon, lat) = id.sample(i, j);
+            let p = self.pixel(canonical_lon(lon), lat);
+            memo.borrow_mut().insert((i, j), p);
+            p
         };
-        if lattice_ok {
-            'check: for b in 0..n / LATTICE {
-                for a in 0..n / LATTICE {
-                    let (i, j) = (a * LATTICE + LATTICE / 2, b * LATTICE + LATTICE / 2);
-                    match (at(i, j), interp(i, j)) {
-                        (Some(p), Some(q))
-                            if (p.0 - q.0).abs().max((p.1 - q.1).abs()) <= LATTICE_TOLERANCE_PX => {}
-                        _ => {
-                            lattice_ok = false;
-                            break 'check;
-                        }
-                    }
+        let lerp = |p: (f64, f64), q: (f64, f64), f: f64| (p.0 + (q.0 - p.0) * f, p.1 + (q.1 - p.1) * f);
+        let idx = |i: i64, j: i64| ((j + 1) as usize) * SIDE + (i + 1) as usize;
+        let mut out: Vec<Px> = vec![None; SIDE * SIDE];
+
+        // Inside: cells [i0, i0 + s] × [j0, j0 + s], filling samples 2..=n−2 of both axes.
+        let mut cells = vec![(0, 0, n)];
+        while let Some((i0, j0, s)) = cells.pop() {
+            let c = [exact(i0, j0), exact(i0 + s, j0), exact(i0, j0 + s), exact(i0 + s, j0 + s)];
+            let bilinear = |i: i64, j: i64| -> Px {
+                let (fx, fy) = ((i - i0) as f64 / s as f64, (j - j0) as f64 / s as f64);
+                let (a, b) = (lerp(c[0]?, c[1]?, fx), lerp(c[2]?, c[3]?, fx));
+                Some(lerp(a, b, fy))
+            };
+            let h = s / 2;
+            let ok = s > 1
+                && [(h, h), (h, 0), (0, h), (s, h), (h, s)].into_iter().all(|(di, dj)| {
+                    matches!((exact(i0 + di, j0 + dj), bilinear(i0 + di, j0 + dj)),
+                        (Some(p), Some(q)) if close(p, q))
+                });
+            if !ok && s > LATTICE {
+                cells.extend([(i0, j0, h), (i0 + h, j0, h), (i0, j0 + h, h), (i0 + h, j0 + h, h)]);
+                continue;
+            }
+            for j in j0.max(2)..=(j0 + s).min(n - 2) {
+                for i in i0.max(2)..=(i0 + s).min(n - 2) {
+                    out[idx(i, j)] = if ok { bilinear(i, j) } else { exact(i, j) };
                 }
             }
         }
-        for j in -1..=n + 1 {
-            for i in -1..=n + 1 {
-                out[idx(i, j)] = if exact(i, j) || !lattice_ok { at(i, j) } else { interp(i, j) };
+
+        // The edge lines: samples `t0..=t1` of row (or column) `k`, from segments aligned to
+        // the tile's edges (so to every tile's: tiles are `n` samples wide).
+        let mut line = |k: i64, row: bool, t0: i64, t1: i64| {
+            let at = |t: i64| if row { exact(t, k) } else { exact(k, t) };
+            let mut segs: Vec<(i64, i64)> =
+                (t0.div_euclid(n)..=t1.div_euclid(n)).map(|q| (q * n, n)).collect();
+            while let Some((a, s)) = segs.pop() {
+                let (pa, pb) = (at(a), at(a + s));
+                let ok = s > 1
+                    && [1, 2, 3].into_iter().all(|q| {
+                        let f = f64::from(q) / 4.0;
+                        matches!((at(a + s * i64::from(q) / 4), pa.zip(pb)),
+                            (Some(e), Some((p, r))) if close(e, lerp(p, r, f)))
+                    });
+                if !ok && s > LATTICE {
+                    let h = s / 2;
+                    segs.extend([(a, h), (a + h, h)].into_iter().filter(|&(b, hs)| b <= t1 && b + hs >= t0));
+                    continue;
+                }
+                for t in a.max(t0)..=(a + s).min(t1) {
+                    let v = match (ok, pa.zip(pb)) {
+                        (true, Some((p, r))) if t != a && t != a + s => {
+                            Some(lerp(p, r, (t - a) as f64 / s as f64))
+                        }
+                        _ => at(t),
+                    };
+                    let (i, j) = if row { (t, k) } else { (k, t) };
+                    out[idx(i, j)] = v;
+                }
             }
+        };
+        for k in [-1, 0, 1, n - 1, n, n + 1] {
+            line(k, true, -1, n + 1);
+            line(k, false, 2, n - 2);
         }
         out
     }
@@ -495,4 +573,107 @@ pub fn bake_terrain_tiles(
         &serde_json::to_vec_pretty(&stats).unwrap_or_default(),
     )?;
     Ok(stats)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+    use super::*;
+    use crate::crs::{Crs, CrsGrid, VerticalDatum};
+    use crate::formats::qmesh::grid::cell_degrees;
+    use crate::raster::Heightfield;
+
+    /// A UTM 32N raster far off the zone's central meridian (where the projection bends most),
+    /// 30 m cells.
+    fn source() -> (Heightfield, Georef) {
+        let (w, h, d) = (700u32, 500u32, 30.0);
+        let data = (0..w * h).map(|k| (k % w) as f32 * 0.5 + (k / w) as f32 * 0.25).collect();
+        let (e0, n0) = (780_000.0, 5_300_000.0);
+        let grid = CrsGrid { crs: Crs::from_epsg(32632).unwrap(), e0, n0, de: d, dn: -d };
+        let g = Georef {
+            crs: Some(grid),
+            vertical: VerticalDatum::Egm96,
+            dx: d,
+            dy: -d,
+            x0: e0,
+            y0: n0,
+            ..Georef::default()
+        };
+        (Heightfield { width: w, height: h, data }, g)
+    }
+
+    fn tiles_near_centre(src: &TerrainSource, z: u8) -> Vec<TileId> {
+        let r = &src.coverage.rects[0];
+        let (lon, lat) = ((r.west + r.east) / 2.0, (r.south + r.north) / 2.0);
+        let d = cell_degrees(z) * f64::from(CELLS);
+        let (x, y) = (((lon + 180.0) / d) as u32, ((lat + 90.0) / d) as u32);
+        let mut out = Vec::new();
+        for dy in 0..3 {
+            for dx in 0..3 {
+                out.push(TileId::new(z, x + dx - 1, y + dy - 1).unwrap());
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn interpolated_positions_stay_near_exact_and_neighbours_share_their_edge_lines_bit_for_bit() {
+        let (hf, g) = source();
+        let src = TerrainSource::new(&hf, &g, TerrainOptions::default()).unwrap();
+        let n = i64::from(CELLS);
+        let idx = |i: i64, j: i64| ((j + 1) as usize) * SIDE + (i + 1) as usize;
+        let mut worst = 0.0f64;
+        for z in [src.coverage.max_zoom, src.coverage.max_zoom - 2, 6] {
+            let ids = tiles_near_centre(&src, z);
+            let px: Vec<_> = ids.iter().map(|&id| src.pixels(id)).collect();
+            for (id, p) in ids.iter().zip(&px) {
+                for j in -1..=n + 1 {
+                    for i in -1..=n + 1 {
+                        let (lon, lat) = id.sample(i, j);
+                        let exact = src.pixel_exact(canonical_lon(lon), lat);
+                        match (p[idx(i, j)], exact) {
+                            (Some(a), Some(b)) => worst = worst.max((a.0 - b.0).abs().max((a.1 - b.1).abs())),
+                            // Only far off the source may a sample have no position.
+                            (None, Some(b)) => assert!(!src.inside(b.0, b.1), "{id} ({i}, {j}) {b:?}"),
+                            (a, b) => assert_eq!(a.is_some(), b.is_some(), "{id} ({i}, {j})"),
+                        }
+                    }
+                }
+            }
+            // Tiles 3 wide, row-major from the south-west: (k, k + 1) and (k, k + 3) neighbour.
+            for k in 0..9 {
+                for (other, east) in [(k + 1, true), (k + 3, false)] {
+                    if other >= 9 || (east && k % 3 == 2) {
+                        continue;
+                    }
+                    for t in -1..=n + 1 {
+                        for o in -1..=1 {
+                            let (a, b) =
+                                if east { (idx(n + o, t), idx(o, t)) } else { (idx(t, n + o), idx(t, o)) };
+                            let bits = |p: Option<(f64, f64)>| p.map(|(x, y)| (x.to_bits(), y.to_bits()));
+                            assert_eq!(
+                                bits(px[k][a]),
+                                bits(px[other][b]),
+                                "z{z} tiles {k}/{other} t {t} o {o}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        assert!(worst <= 2.0 * LATTICE_TOLERANCE_PX, "interpolated positions off by {worst} px");
+        eprintln!("largest interpolation error {worst:.5} px");
+    }
+
+    #[test]
+    fn near_rects_skip_only_what_is_off_the_source() {
+        let r = Rect { west: 10.0, south: 45.0, east: 11.0, north: 45.5 };
+        let near = near_rects(&[r], false).unwrap();
+        assert!((near[0].west - 9.9).abs() < 1e-12 && (near[0].north - 45.6).abs() < 1e-12);
+        assert!(near_rects(&[r], true).is_none(), "geographic sources are never skipped");
+        let edge = Rect { west: 179.5, south: 0.0, east: 180.0, north: 1.0 };
+        assert!(near_rects(&[edge], false).is_none(), "across the antimeridian");
+        let pole = Rect { west: 0.0, south: 88.5, east: 10.0, north: 89.5 };
+        assert!(near_rects(&[pole], false).is_none(), "near a pole");
+    }
 }
