@@ -604,7 +604,7 @@ mod tests {
 
     fn tiles_near_centre(src: &TerrainSource, z: u8) -> Vec<TileId> {
         let r = &src.coverage.rects[0];
-        let (lon, lat) = ((r.west + r.east) / 2.0, (r.south + r.north) / 2.0);
+        let (lon, lat) = (f64::midpoint(r.west, r.east), f64::midpoint(r.south, r.north));
         let d = cell_degrees(z) * f64::from(CELLS);
         let (x, y) = (((lon + 180.0) / d) as u32, ((lat + 90.0) / d) as u32);
         let mut out = Vec::new();
