@@ -376,15 +376,7 @@ async fn answer(
             body.extend_from_slice(&json_chunk(&first, true));
             body.extend_from_slice(b"]}");
         }
-        let mut r = Response::new(Body::from(body));
-        let h = r.headers_mut();
-        h.insert(
-            header::CONTENT_TYPE,
-            HeaderValue::from_static(if binary { "application/octet-stream" } else { "application/json" }),
-        );
-        h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
-        h.insert("x-points", HeaderValue::from(n));
-        return Ok(r);
+        return Ok(heights_response(Body::from(body), binary, n));
     }
     let (tx, rx) = tokio::sync::mpsc::channel::<Result<Bytes, std::io::Error>>(2);
     let encode = move |hs: &[Height], first_chunk: bool| -> Bytes {
@@ -425,7 +417,16 @@ async fn answer(
     });
     let mut rx = rx;
     let stream = futures_util::stream::poll_fn(move |cx| rx.poll_recv(cx));
-    let mut r = Response::new(Body::from_stream(stream));
+    let mut r = heights_response(Body::from_stream(stream), binary, n);
+    if binary {
+        r.headers_mut().insert(header::CONTENT_LENGTH, HeaderValue::from(n * 16));
+    }
+    Ok(r)
+}
+
+/// A heights answer of `n` points: binary or JSON, never cached, with `X-Points`.
+fn heights_response(body: Body, binary: bool, n: usize) -> Response {
+    let mut r = Response::new(body);
     let h = r.headers_mut();
     h.insert(
         header::CONTENT_TYPE,
@@ -433,10 +434,7 @@ async fn answer(
     );
     h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
     h.insert("x-points", HeaderValue::from(n));
-    if binary {
-        h.insert(header::CONTENT_LENGTH, HeaderValue::from(n * 16));
-    }
-    Ok(r)
+    r
 }
 
 fn check_all(points: &[[f64; 2]], q: Query) -> Result<(), HeightsError> {
