@@ -8,7 +8,7 @@ mod common;
 
 use std::path::Path;
 
-use common::{assert_same_responses, bin, fails, ok, serve, tileset_urls, tree};
+use common::{assert_same_responses, bin, fails, ok, serve_store, tileset_urls, tree};
 
 const BAKE: [&str; 6] = ["--tile-size", "32", "--levels", "3", "--max-error", "0.5"];
 
@@ -48,12 +48,8 @@ fn a_packed_tileset_serves_byte_identical_to_its_directory() {
     let files = tree(&ts);
     let urls = tileset_urls("ts", files.keys());
     assert!(urls.len() > 100, "{}", urls.len());
-    let mut c = bin();
-    c.arg("serve").arg("--store").arg(ts.parent().unwrap());
-    let dir_srv = serve(c);
-    let mut c = bin();
-    c.arg("serve").arg("--store").arg(&packed);
-    let tsa_srv = serve(c);
+    let dir_srv = serve_store(ts.parent().unwrap(), &[]);
+    let tsa_srv = serve_store(&packed, &[]);
     assert_same_responses(&[("directory", dir_srv.addr), ("archive", tsa_srv.addr)], &urls);
 }
 

@@ -153,9 +153,7 @@ fn collision_region_holds_while_the_camera_is_far_above() {
     let all = leaves(&store);
     assert_eq!(all.len(), 64, "8×8 leaves expected");
     let (flight, ego0, ego1) = flight(&store);
-    let mut serve = common::bin();
-    serve.arg("serve").arg("--store").arg(&root);
-    let server = common::serve(serve);
+    let server = common::serve_store(&root, &[]);
     let url = format!("http://{}", server.addr);
 
     // With the region.
@@ -236,9 +234,7 @@ fn cli_writes_collision_stats_and_checks_the_flag() {
     let (flight, _, _) = flight(&store);
     let flight_path = tmp.path().join("flight.json");
     std::fs::write(&flight_path, flight.to_json().unwrap()).unwrap();
-    let mut serve = common::bin();
-    serve.arg("serve").arg("--store").arg(&root);
-    let server = common::serve(serve);
+    let server = common::serve_store(&root, &[]);
     let url = format!("http://{}", server.addr);
     let client = |out: &Path| {
         let mut c = common::bin();

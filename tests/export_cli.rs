@@ -9,30 +9,16 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use common::{bin, fails, ok};
+use terrastream::bake::BakeOptions;
 use terrastream::bake::PointLevels;
-use terrastream::bake::{BakeOptions, NoProgress};
-use terrastream::raster::{self, LoadOptions};
-use terrastream::store::Store;
 
 /// A small terrain tileset (65² samples, 16-cell leaves), baked on the CPU.
 fn baked(dir: &Path) -> PathBuf {
     let tif = dir.join("t.tif");
-    let heights = raster::synth::terrain(65, 65, 4);
-    let bytes =
-        raster::geotiff::encode_f32(65, 65, &heights, (500_000.0, 4_000_000.0), (10.0, -10.0)).unwrap();
-    std::fs::write(&tif, bytes).unwrap();
-    let r = raster::load(&tif, &LoadOptions::default()).unwrap();
+    common::write_synth_geotiff(&tif, (65, 65), 4, (500_000.0, 4_000_000.0));
     let out = dir.join("store/t");
     let opts = BakeOptions { tile_size: 16, max_error: 0.5, levels: 2, point_levels: PointLevels::Auto };
-    terrastream::bake::bake_terrain(
-        &r,
-        "t.tif",
-        &opts,
-        &terrastream::lod::PointBaker::Cpu,
-        &Store::new(&out),
-        &NoProgress,
-    )
-    .unwrap();
+    common::bake_file(&tif, &opts, &out);
     out
 }
 

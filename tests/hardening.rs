@@ -85,13 +85,7 @@ fn d1_flat_rasters_and_lakes_bake() {
     ok(bin().args(["bake", "--quiet", "--tile-size", "32", "--gpu", "off", "--out"]).arg(&out).arg(&tif));
     assert_positions_inside_bounds(&out);
 
-    let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
-    let mut next = move || {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        seed
-    };
+    let mut next = common::xorshift(0x9e37_79b9_7f4a_7c15);
     for case in 0..12 {
         let z = (next() % 2_000_000) as f32 / 1000.0 - 500.0 + (next() % 1000) as f32 / 4096.0;
         let (w, h) = (17 + (next() % 40) as u32, 17 + (next() % 40) as u32);

@@ -8,11 +8,9 @@
 
 mod common;
 
-use std::collections::BTreeMap;
-use std::io::{Read, Write};
 use std::path::Path;
 
-use common::{bin, ok, serve};
+use common::{bin, ok, request, serve_store};
 use serde_json::Value;
 
 const SIDE: usize = 1201;
@@ -26,6 +24,19 @@ fn hgt(dir: &Path) -> (std::path::PathBuf, Vec<f32>) {
     (p, heights.iter().map(|h| f32::from(*h as i16)).collect())
 }
 
+/// Bakes the tile `src` as one 256-sample level-0 mesh per node into `out`.
+fn bake_mesh(src: &Path, out: &Path) {
+    ok(bin()
+        .args(["bake", "--levels", "1", "--tile-size", "256", "--gpu", "off", "-q", "--out"])
+        .arg(out)
+        .arg(src));
+}
+
+/// The `--source` of an on-demand tileset `od` of `src`, baked as [`bake_mesh`] does.
+fn on_demand(src: &Path) -> String {
+    format!("od={},tile_size=256,levels=1", src.display())
+}
+
 /// The raster's bilinear height at (lon, lat): rows from the north, 1/1200° cells.
 fn bilinear(h: &[f32], lon: f64, lat: f64) -> f64 {
     let (c, r) = ((lon - 10.0) * 1200.0, (47.0 - lat) * 1200.0);
@@ -34,53 +45,6 @@ fn bilinear(h: &[f32], lon: f64, lat: f64) -> f64 {
     let v = |c: usize, r: usize| f64::from(h[r * SIDE + c]);
     (v(c0, r0) * (1.0 - fx) + v(c0 + 1, r0) * fx) * (1.0 - fy)
         + (v(c0, r0 + 1) * (1.0 - fx) + v(c0 + 1, r0 + 1) * fx) * fy
-}
-
-/// One request on its own connection: status, headers, body (chunked bodies decoded).
-fn request(
-    addr: std::net::SocketAddr,
-    method: &str,
-    path: &str,
-    headers: &[(&str, &str)],
-    body: &[u8],
-) -> (u16, BTreeMap<String, String>, Vec<u8>) {
-    let mut s = std::net::TcpStream::connect(addr).unwrap();
-    let mut req = format!("{method} {path} HTTP/1.1\r\nHost: t\r\nConnection: close\r\n");
-    for (k, v) in headers {
-        req.extend([*k, ": ", *v, "\r\n"]);
-    }
-    if method == "POST" {
-        req.extend(["Content-Length: ", &body.len().to_string(), "\r\n"]);
-    }
-    req.push_str("\r\n");
-    s.write_all(req.as_bytes()).unwrap();
-    s.write_all(body).unwrap();
-    let mut buf = Vec::new();
-    s.read_to_end(&mut buf).unwrap();
-    let end = buf.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
-    let head = String::from_utf8_lossy(&buf[..end]).into_owned();
-    let mut lines = head.lines();
-    let status = lines.next().unwrap().split(' ').nth(1).unwrap().parse().unwrap();
-    let h: BTreeMap<String, String> = lines
-        .filter_map(|l| l.split_once(':'))
-        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_owned()))
-        .collect();
-    let mut body = buf[end + 4..].to_vec();
-    if h.get("transfer-encoding").is_some_and(|v| v.contains("chunked")) {
-        let mut out = Vec::new();
-        let mut rest = &body[..];
-        loop {
-            let eol = rest.windows(2).position(|w| w == b"\r\n").unwrap();
-            let n = usize::from_str_radix(std::str::from_utf8(&rest[..eol]).unwrap().trim(), 16).unwrap();
-            if n == 0 {
-                break;
-            }
-            out.extend_from_slice(&rest[eol + 2..eol + 2 + n]);
-            rest = &rest[eol + 2 + n + 2..];
-        }
-        body = out;
-    }
-    (status, h, body)
 }
 
 fn post_json(addr: std::net::SocketAddr, path: &str, points: &[[f64; 2]]) -> Value {
@@ -114,19 +78,9 @@ fn heights_from_the_source_and_the_mesh_agree_with_the_raster() {
     let tmp = tempfile::tempdir().unwrap();
     let (src, h) = hgt(tmp.path());
     let store = tmp.path().join("store");
-    ok(bin()
-        .args(["bake", "--levels", "1", "--tile-size", "256", "--gpu", "off", "-q", "--out"])
-        .arg(store.join("baked"))
-        .arg(&src));
+    bake_mesh(&src, &store.join("baked"));
     ok(bin().arg("pack").arg(store.join("baked")).arg("--out").arg(store.join("packed.tsa")));
-    let server = serve({
-        let mut c = bin();
-        c.args(["serve", "--store"])
-            .arg(&store)
-            .arg("--source")
-            .arg(format!("od={},tile_size=256,levels=1", src.display()));
-        c
-    });
+    let server = serve_store(&store, &[on_demand(&src)]);
     let a = server.addr;
     // Points: pseudo-random inside the tile, every 7th on a raster sample, one outside.
     let mut pts: Vec<[f64; 2]> = (0..200u32)
@@ -217,19 +171,12 @@ fn bad_points_bodies_and_options_are_refused_clearly() {
     let tmp = tempfile::tempdir().unwrap();
     let (src, _) = hgt(tmp.path());
     let store = tmp.path().join("store");
-    ok(bin()
-        .args(["bake", "--levels", "1", "--tile-size", "256", "--gpu", "off", "-q", "--out"])
-        .arg(store.join("t"))
-        .arg(&src));
+    bake_mesh(&src, &store.join("t"));
     // A model tileset: heights do not apply.
     let obj = tmp.path().join("quad.obj");
     std::fs::write(&obj, "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0.5\nf 1 2 3\nf 1 3 4\n").unwrap();
     ok(bin().args(["bake-model", "--gpu", "off", "-q", "--out"]).arg(store.join("mdl")).arg(&obj));
-    let server = serve({
-        let mut c = bin();
-        c.args(["serve", "--store"]).arg(&store);
-        c
-    });
+    let server = serve_store(&store, &[]);
     let a = server.addr;
     let url = "/tilesets/t/heights";
     let json = "application/json";
@@ -288,18 +235,8 @@ fn heightmap_tiles_carry_the_source_heights_in_web_mercator() {
     let tmp = tempfile::tempdir().unwrap();
     let (src, h) = hgt(tmp.path());
     let store = tmp.path().join("store");
-    ok(bin()
-        .args(["bake", "--levels", "1", "--tile-size", "256", "--gpu", "off", "-q", "--out"])
-        .arg(store.join("baked"))
-        .arg(&src));
-    let server = serve({
-        let mut c = bin();
-        c.args(["serve", "--store"])
-            .arg(&store)
-            .arg("--source")
-            .arg(format!("od={},tile_size=256,levels=1", src.display()));
-        c
-    });
+    bake_mesh(&src, &store.join("baked"));
+    let server = serve_store(&store, &[on_demand(&src)]);
     let a = server.addr;
     let (s, _, b) = request(a, "GET", "/tilesets/od/heightmap/tiles.json", &[], &[]);
     assert_eq!(s, 200, "{}", String::from_utf8_lossy(&b));
@@ -396,11 +333,7 @@ fn the_mesh_surface_is_the_decoded_level_0_tin() {
         .args(["bake", "--tile-size", "32", "--levels", "1", "--gpu", "off", "-q", "--out"])
         .arg(store.join("t"))
         .arg(&tif));
-    let server = serve({
-        let mut c = bin();
-        c.args(["serve", "--store"]).arg(&store);
-        c
-    });
+    let server = serve_store(&store, &[]);
     let m: Value = serde_json::from_slice(&std::fs::read(store.join("t/tileset.json")).unwrap()).unwrap();
     let depth = m["depth"].as_u64().unwrap();
     let mut pts = Vec::new();

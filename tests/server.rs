@@ -17,10 +17,11 @@ use std::time::Duration;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
+use common::Running;
+
+use terrastream::bake::BakeOptions;
 use terrastream::bake::PointLevels;
-use terrastream::bake::{BakeOptions, NoProgress};
-use terrastream::raster::{self, LoadOptions};
-use terrastream::server::{PartialConfig, Server};
+use terrastream::server::PartialConfig;
 use terrastream::store::Store;
 
 /// The small test raster: 4×3 leaves of 64 cells (depth 2), so row 3 at z = 2 is in the
@@ -139,61 +140,14 @@ async fn get(addr: SocketAddr, path: &str) -> Resp {
     request(addr, "GET", path, &[], &[]).await
 }
 
-/// Writes the deterministic synthetic raster as a GeoTIFF (10 m cells).
-fn write_raster(path: &Path, (w, h): (u32, u32), seed: u64) {
-    let heights = terrastream::raster::synth::terrain(w, h, seed);
-    let bytes = raster::geotiff::encode_f32(w, h, &heights, (0.0, 0.0), (10.0, -10.0)).unwrap();
-    std::fs::write(path, bytes).unwrap();
-}
-
-/// Bakes the test raster into `store/name`.
-fn bake_into(store: &Path, name: &str, raster_path: &Path) {
-    let r = raster::load(raster_path, &LoadOptions::default()).unwrap();
-    terrastream::bake::bake_terrain(
-        &r,
-        "t.tif",
-        &OPTS,
-        &terrastream::lod::PointBaker::Cpu,
-        &Store::new(&store.join(name)),
-        &NoProgress,
-    )
-    .unwrap();
-}
-
-struct Running {
-    addr: SocketAddr,
-    stop: Option<tokio::sync::oneshot::Sender<()>>,
-    task: tokio::task::JoinHandle<Result<(), terrastream::server::ServerError>>,
-}
-
-impl Running {
-    async fn start(config: PartialConfig) -> Self {
-        let config = PartialConfig { bind: Some("127.0.0.1:0".into()), ..config }.resolve().unwrap();
-        let server = Server::bind(config).await.unwrap();
-        let addr = server.local_addr().unwrap();
-        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
-        let task = tokio::spawn(server.run(async move {
-            let _ = rx.await;
-        }));
-        Self { addr, stop: Some(tx), task }
-    }
-
-    async fn stop(mut self) {
-        if let Some(tx) = self.stop.take() {
-            let _ = tx.send(());
-        }
-        tokio::time::timeout(Duration::from_secs(30), self.task).await.unwrap().unwrap().unwrap();
-    }
-}
-
 /// A store with one baked tileset `t`; also returns the raster's path (for `--source`).
 fn baked_store() -> (tempfile::TempDir, PathBuf, PathBuf) {
     let tmp = tempfile::tempdir().unwrap();
     let store = tmp.path().join("store");
     std::fs::create_dir_all(&store).unwrap();
     let tif = tmp.path().join("t.tif");
-    write_raster(&tif, (WIDTH, HEIGHT), 7);
-    bake_into(&store, "t", &tif);
+    common::write_synth_geotiff(&tif, (WIDTH, HEIGHT), 7, (0.0, 0.0));
+    common::bake_file(&tif, &OPTS, &store.join("t"));
     (tmp, store, tif)
 }
 
@@ -475,7 +429,7 @@ async fn every_error_status_is_a_problem() {
     // 503 from the in-flight limit, with Retry-After: one slow on-demand bake holds the only slot.
     let tmp = tempfile::tempdir().unwrap();
     let tif = tmp.path().join("big.tif");
-    write_raster(&tif, (1025, 1025), 3);
+    common::write_synth_geotiff(&tif, (1025, 1025), 3, (0.0, 0.0));
     let store2 = tmp.path().join("store");
     std::fs::create_dir_all(&store2).unwrap();
     let src = format!("big={},tile_size=256,levels=1", tif.display());
@@ -675,7 +629,7 @@ fn random_paths_and_headers_never_fail_the_server() {
 fn on_demand_store(side: u32) -> (tempfile::TempDir, PathBuf, String) {
     let tmp = tempfile::tempdir().unwrap();
     let tif = tmp.path().join("src.tif");
-    write_raster(&tif, (side, side), 11);
+    common::write_synth_geotiff(&tif, (side, side), 11, (0.0, 0.0));
     let store = tmp.path().join("store");
     std::fs::create_dir_all(&store).unwrap();
     let spec = format!("od={},tile_size=256,max_error=0,levels=2,point_levels=all", tif.display());
@@ -794,7 +748,7 @@ async fn graceful_shutdown_finishes_requests_in_flight() {
     tokio::time::sleep(Duration::from_millis(150)).await;
     // The test means something only if some of them are still waiting for their bake.
     assert!(tasks.iter().any(|t| !t.is_finished()), "every request finished before shutdown began");
-    let _ = srv.stop.take().unwrap().send(());
+    srv.begin_stop();
     tokio::time::sleep(Duration::from_millis(150)).await;
     // No new connections once shutting down.
     let refused = tokio::time::timeout(Duration::from_secs(5), TcpStream::connect(a)).await;
@@ -804,7 +758,7 @@ async fn graceful_shutdown_finishes_requests_in_flight() {
         assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
         assert!(r.body.starts_with(b"TSB1"));
     }
-    tokio::time::timeout(Duration::from_secs(60), srv.task).await.unwrap().unwrap().unwrap();
+    srv.stop_within(Duration::from_secs(60)).await;
     // Nothing half-written: no temporary files, and every blob verifies.
     let mut files = Vec::new();
     walk(&store.join("od"), &mut files);
@@ -870,7 +824,7 @@ async fn tilesets_added_and_removed_while_serving_are_picked_up() {
     // Baked elsewhere, moved in (as a deploy would).
     let staging = tmp.path().join("staging");
     std::fs::create_dir_all(&staging).unwrap();
-    bake_into(&staging, "late", &tif);
+    common::bake_file(&tif, &OPTS, &staging.join("late"));
     std::fs::rename(staging.join("late"), store.join("late")).unwrap();
     let mut found = false;
     for _ in 0..50 {
@@ -1203,7 +1157,7 @@ fn no_staging(store: &Path) {
 async fn admin_jobs_can_be_cancelled_and_expire() {
     let (tmp, store, tif) = baked_store();
     let big = tmp.path().join("big.tif");
-    write_raster(&big, (1025, 1025), 5);
+    common::write_synth_geotiff(&big, (1025, 1025), 5, (0.0, 0.0));
     let cfg = PartialConfig {
         admin_token: Some("admin-secret-1".into()),
         job_ttl_s: Some(2),
@@ -1260,7 +1214,7 @@ async fn admin_jobs_can_be_cancelled_and_expire() {
 async fn a_job_past_its_timeout_is_stopped_and_failed() {
     let (tmp, store, tif) = baked_store();
     let big = tmp.path().join("big.tif");
-    write_raster(&big, (1025, 1025), 5);
+    common::write_synth_geotiff(&big, (1025, 1025), 5, (0.0, 0.0));
     let cfg = PartialConfig {
         admin_token: Some("admin-secret-1".into()),
         job_timeout_s: Some(1),
@@ -1327,19 +1281,9 @@ async fn point_levels_that_do_not_pay_are_404() {
     // The same raster with a 2 m TIN: level 1 costs more than the mesh nearly everywhere.
     let tmp = tempfile::tempdir().unwrap();
     let tif = tmp.path().join("t.tif");
-    write_raster(&tif, (WIDTH, HEIGHT), 7);
+    common::write_synth_geotiff(&tif, (WIDTH, HEIGHT), 7, (0.0, 0.0));
     let s2 = tmp.path().join("store");
-    let r = raster::load(&tif, &LoadOptions::default()).unwrap();
-    let opts = BakeOptions { max_error: 2.0, ..OPTS };
-    terrastream::bake::bake_terrain(
-        &r,
-        "t.tif",
-        &opts,
-        &terrastream::lod::PointBaker::Cpu,
-        &Store::new(&s2.join("t")),
-        &NoProgress,
-    )
-    .unwrap();
+    common::bake_file(&tif, &BakeOptions { max_error: 2.0, ..OPTS }, &s2.join("t"));
     let (_, _, left_out) = common::assert_levels_pay(&s2.join("t"));
     assert!(left_out > 0);
     let srv = Running::start(store_config(&s2)).await;

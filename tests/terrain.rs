@@ -12,7 +12,7 @@ use std::collections::BTreeMap;
 use std::io::Read;
 use std::path::Path;
 
-use common::{bin, fails, get_with as get, ok, serve};
+use common::{bin, fails, get_with as get, ok, serve_store};
 use serde_json::Value;
 use terrastream::formats::qmesh::codec::{QmTile, decode};
 use terrastream::formats::qmesh::grid::{TileId, cell_degrees, zoom_error};
@@ -323,14 +323,8 @@ fn served_terrain_is_the_baked_one_and_on_demand_builds_the_same_bytes() {
         ])
         .arg(store.join("baked"))
         .arg(&src));
-    let server = serve({
-        let mut c = bin();
-        c.args(["serve", "--store"])
-            .arg(&store)
-            .arg("--source")
-            .arg(format!("od={},tile_size=256,levels=1,terrain_max_zoom=8", src.display()));
-        c
-    });
+    let server =
+        serve_store(&store, &[format!("od={},tile_size=256,levels=1,terrain_max_zoom=8", src.display())]);
     let a = server.addr;
     let baked = tiles(&store.join("baked"));
     assert!(baked.len() > 10, "{} tiles", baked.len());

@@ -13,7 +13,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::io::Read;
 use std::path::Path;
 
-use common::{bin, get_with as get, ok, serve};
+use common::{bin, get_with as get, ok, serve_store};
 use serde_json::Value;
 use terrastream::formats::qmesh::codec::decode;
 
@@ -103,14 +103,8 @@ fn baked_3d_tiles_terrain_is_what_the_server_sends_baked_or_on_demand() {
     let version = layer["tiles"][0].as_str().unwrap().split_once("?v=").unwrap().1.to_owned();
     assert_eq!(tileset["asset"]["tilesetVersion"], version.as_str());
 
-    let server = serve({
-        let mut c = bin();
-        c.args(["serve", "--store"])
-            .arg(&store)
-            .arg("--source")
-            .arg(format!("od={},tile_size=256,levels=1,terrain_max_zoom=9", src.display()));
-        c
-    });
+    let server =
+        serve_store(&store, &[format!("od={},tile_size=256,levels=1,terrain_max_zoom=9", src.display())]);
     let a = server.addr;
     for (rel, bytes) in &t3 {
         let (s, h, body) = get(a, &format!("/tilesets/baked/terrain/3dtiles/{rel}"), &[]);

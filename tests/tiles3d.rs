@@ -16,18 +16,17 @@ mod common;
 use std::collections::{BTreeSet, HashMap};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
-use std::time::Duration;
 
+use common::Running;
 use serde_json::Value;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
+use terrastream::bake::BakeOptions;
 use terrastream::bake::PointLevels;
 use terrastream::bake::export;
-use terrastream::bake::{BakeOptions, NoProgress};
 use terrastream::codec::{self, Geometry};
 use terrastream::formats::tiles3d::{Anchor, AnchorFrom};
 use terrastream::raster::{self, LoadOptions};
-use terrastream::server::{PartialConfig, Server};
+use terrastream::server::PartialConfig;
 use terrastream::store::Store;
 use terrastream::tiling::TileKey;
 
@@ -36,23 +35,12 @@ const SIDE: u32 = 257;
 const OPTS: BakeOptions =
     BakeOptions { tile_size: 16, max_error: 0.5, levels: 2, point_levels: PointLevels::All };
 
+/// The synthetic terrain (UTM-like coordinates) baked into `dir/store/t`.
 fn baked(dir: &Path) -> PathBuf {
     let tif = dir.join("t.tif");
-    let heights = raster::synth::terrain(SIDE, SIDE, 3);
-    let bytes =
-        raster::geotiff::encode_f32(SIDE, SIDE, &heights, (500_000.0, 4_000_000.0), (10.0, -10.0)).unwrap();
-    std::fs::write(&tif, bytes).unwrap();
-    let r = raster::load(&tif, &LoadOptions::default()).unwrap();
+    common::write_synth_geotiff(&tif, (SIDE, SIDE), 3, (500_000.0, 4_000_000.0));
     let out = dir.join("store/t");
-    terrastream::bake::bake_terrain(
-        &r,
-        "t.tif",
-        &OPTS,
-        &terrastream::lod::PointBaker::Cpu,
-        &Store::new(&out),
-        &NoProgress,
-    )
-    .unwrap();
+    common::bake_file(&tif, &OPTS, &out);
     out
 }
 
@@ -303,15 +291,7 @@ fn export_places_geographic_and_unreferenced_sources() {
     .unwrap();
     let dir = tmp.path().join("fuji");
     let o = BakeOptions { tile_size: 256, max_error: 4.0, levels: 1, point_levels: PointLevels::All };
-    terrastream::bake::bake_terrain(
-        &r,
-        "fuji.png",
-        &o,
-        &terrastream::lod::PointBaker::Cpu,
-        &Store::new(&dir),
-        &NoProgress,
-    )
-    .unwrap();
+    common::bake_cpu(&r, "fuji.png", &o, &dir);
     let info = export::tiles3d_info(&Store::new(&dir), "fuji", None, String::new()).unwrap();
     assert_eq!(info.place.from, AnchorFrom::Default);
     assert_eq!(info.place.anchor, terrastream::formats::tiles3d::DEFAULT_ANCHOR);
@@ -347,18 +327,9 @@ fn export_places_geographic_and_unreferenced_sources() {
     )
     .unwrap();
     drop(f);
-    let r = raster::load(&geo, &LoadOptions::default()).unwrap();
     let dir = tmp.path().join("geo");
     let o = BakeOptions { tile_size: 32, max_error: 1.0, levels: 1, point_levels: PointLevels::All };
-    terrastream::bake::bake_terrain(
-        &r,
-        "geo.tif",
-        &o,
-        &terrastream::lod::PointBaker::Cpu,
-        &Store::new(&dir),
-        &NoProgress,
-    )
-    .unwrap();
+    common::bake_file(&geo, &o, &dir);
     let info = export::tiles3d_info(&Store::new(&dir), "geo", None, String::new()).unwrap();
     assert_eq!(info.place.from, AnchorFrom::Source);
     // Sample (0, 0) at 138.5° E, 35.5° N (PixelIsPoint), 64 cells across: the centre is 32 in
@@ -367,31 +338,11 @@ fn export_places_geographic_and_unreferenced_sources() {
     assert!((info.place.anchor.lat - (35.5 - 32.0 / 1200.0)).abs() < 1e-7, "{:?}", info.place.anchor);
 }
 
-async fn get(
-    addr: SocketAddr,
-    path: &str,
-    headers: &[(&str, &str)],
-) -> (u16, HashMap<String, String>, Vec<u8>) {
-    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
-    let mut req = format!("GET {path} HTTP/1.1\r\nHost: t\r\nConnection: close\r\n");
-    for (k, v) in headers {
-        req.push_str(&format!("{k}: {v}\r\n"));
-    }
-    req.push_str("\r\n");
-    s.write_all(req.as_bytes()).await.unwrap();
-    let mut buf = Vec::new();
-    tokio::time::timeout(Duration::from_mins(1), s.read_to_end(&mut buf)).await.unwrap().unwrap();
-    let end = buf.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
-    let head = String::from_utf8_lossy(&buf[..end]).into_owned();
-    let mut lines = head.lines();
-    let status = lines.next().unwrap().split(' ').nth(1).unwrap().parse().unwrap();
-    let h: HashMap<String, String> = lines
-        .filter_map(|l| l.split_once(':'))
-        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_owned()))
-        .collect();
-    let body = buf[end + 4..].to_vec();
-    assert!(!h.contains_key("transfer-encoding"), "chunked answers are not expected here");
-    (status, h, body)
+/// One GET ([`common::get_async`]); these routes never answer chunked.
+async fn get(addr: SocketAddr, path: &str, headers: &[(&str, &str)]) -> common::Answer {
+    let r = common::get_async(addr, path, headers).await;
+    assert!(!r.1.contains_key("transfer-encoding"), "chunked answers are not expected here");
+    r
 }
 
 /// The JSON with every `?v=…` query taken off its URIs (the served documents carry them).
@@ -415,19 +366,10 @@ async fn served_3d_tiles_are_the_exported_ones_with_blob_caching() {
     let out = tmp.path().join("3d");
     export::export_3dtiles(&Store::new(&dir), &out, None, &|_, _| {}).unwrap();
     let cv = Store::new(&dir).manifest().unwrap().content_version;
-    let cfg = PartialConfig {
-        store: Some(tmp.path().join("store")),
-        bind: Some("127.0.0.1:0".into()),
-        ..PartialConfig::default()
-    }
-    .resolve()
-    .unwrap();
-    let server = Server::bind(cfg).await.unwrap();
-    let a = server.local_addr().unwrap();
-    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
-    let task = tokio::spawn(server.run(async move {
-        let _ = rx.await;
-    }));
+    let srv =
+        Running::start(PartialConfig { store: Some(tmp.path().join("store")), ..PartialConfig::default() })
+            .await;
+    let a = srv.addr;
 
     let (s, h, body) = get(a, "/tilesets/t/3dtiles/tileset.json", &[]).await;
     assert_eq!(s, 200);
@@ -493,8 +435,7 @@ async fn served_3d_tiles_are_the_exported_ones_with_blob_caching() {
     assert_eq!(s, 200);
     assert!(h["content-type"].starts_with("text/html"));
     assert!(String::from_utf8_lossy(&body).contains("3dtiles/tileset.json"));
-    let _ = tx.send(());
-    tokio::time::timeout(Duration::from_secs(30), task).await.unwrap().unwrap().unwrap();
+    srv.stop().await;
 }
 
 /// A GLB's mesh as sets: its vertices (every attribute's bytes) and its triangles over them (each
@@ -574,19 +515,10 @@ async fn meshopt_3d_tiles_served_and_exported_alike_and_decode_to_the_plain_mesh
     );
 
     let cv = Store::new(&dir).manifest().unwrap().content_version;
-    let cfg = PartialConfig {
-        store: Some(tmp.path().join("store")),
-        bind: Some("127.0.0.1:0".into()),
-        ..PartialConfig::default()
-    }
-    .resolve()
-    .unwrap();
-    let server = Server::bind(cfg).await.unwrap();
-    let a = server.local_addr().unwrap();
-    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
-    let task = tokio::spawn(server.run(async move {
-        let _ = rx.await;
-    }));
+    let srv =
+        Running::start(PartialConfig { store: Some(tmp.path().join("store")), ..PartialConfig::default() })
+            .await;
+    let a = srv.addr;
     // The root and an external tileset: every URI carries the option; otherwise the export's.
     for (path, file) in [("tileset.json", "tileset.json"), ("index/4/3/5.json", "index/4/3/5.json")] {
         let (s, _, body) = get(a, &format!("/tilesets/t/3dtiles/{path}?v={cv}&glb=meshopt"), &[]).await;
@@ -626,8 +558,7 @@ async fn meshopt_3d_tiles_served_and_exported_alike_and_decode_to_the_plain_mesh
         assert_eq!(s, 400, "{path}");
         assert!(String::from_utf8_lossy(&body).contains("glb=meshopt"), "{path}");
     }
-    let _ = tx.send(());
-    tokio::time::timeout(Duration::from_secs(30), task).await.unwrap().unwrap().unwrap();
+    srv.stop().await;
 }
 
 /// A body in the named content coding, decoded.
@@ -649,19 +580,10 @@ fn decoded(coding: Option<&str>, body: &[u8]) -> Vec<u8> {
 async fn glbs_and_tileset_json_are_sent_compressed_as_asked() {
     let tmp = tempfile::tempdir().unwrap();
     baked(tmp.path());
-    let cfg = PartialConfig {
-        store: Some(tmp.path().join("store")),
-        bind: Some("127.0.0.1:0".into()),
-        ..PartialConfig::default()
-    }
-    .resolve()
-    .unwrap();
-    let server = Server::bind(cfg).await.unwrap();
-    let a = server.local_addr().unwrap();
-    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
-    let task = tokio::spawn(server.run(async move {
-        let _ = rx.await;
-    }));
+    let srv =
+        Running::start(PartialConfig { store: Some(tmp.path().join("store")), ..PartialConfig::default() })
+            .await;
+    let a = srv.addr;
     let offers = [
         ("gzip", Some("gzip")),
         ("zstd", Some("zstd")),
@@ -721,34 +643,24 @@ async fn glbs_and_tileset_json_are_sent_compressed_as_asked() {
         // One strong tag per coding: plain, gzip, zstd.
         assert_eq!(tags.len(), 3, "{path}: {tags:?}");
     }
-    let _ = tx.send(());
-    tokio::time::timeout(Duration::from_secs(30), task).await.unwrap().unwrap().unwrap();
+    srv.stop().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn on_demand_3d_tiles_list_unbaked_nodes_and_bake_them_when_asked() {
     let tmp = tempfile::tempdir().unwrap();
     let tif = tmp.path().join("src.tif");
-    let heights = raster::synth::terrain(SIDE, SIDE, 9);
-    let bytes = raster::geotiff::encode_f32(SIDE, SIDE, &heights, (0.0, 0.0), (10.0, -10.0)).unwrap();
-    std::fs::write(&tif, bytes).unwrap();
+    common::write_synth_geotiff(&tif, (SIDE, SIDE), 9, (0.0, 0.0));
     let store = tmp.path().join("store");
     std::fs::create_dir_all(&store).unwrap();
     let spec = format!("od={},tile_size=64,max_error=1,levels=1", tif.display());
-    let cfg = PartialConfig {
+    let srv = Running::start(PartialConfig {
         store: Some(store.clone()),
-        bind: Some("127.0.0.1:0".into()),
         sources: vec![spec.parse().unwrap()],
         ..PartialConfig::default()
-    }
-    .resolve()
-    .unwrap();
-    let server = Server::bind(cfg).await.unwrap();
-    let a = server.local_addr().unwrap();
-    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
-    let task = tokio::spawn(server.run(async move {
-        let _ = rx.await;
-    }));
+    })
+    .await;
+    let a = srv.addr;
     let (s, _, body) = get(a, "/tilesets/od/3dtiles/tileset.json", &[]).await;
     assert_eq!(s, 200);
     let doc: Value = serde_json::from_slice(&body).unwrap();
@@ -765,8 +677,7 @@ async fn on_demand_3d_tiles_list_unbaked_nodes_and_bake_them_when_asked() {
     assert_eq!(h["cache-control"], "no-cache", "it changes as nodes bake");
     // The baked node now has its measured levels.
     assert_eq!(String::from_utf8_lossy(&body).matches("\"provisional\":true").count(), 20);
-    let _ = tx.send(());
-    tokio::time::timeout(Duration::from_secs(30), task).await.unwrap().unwrap().unwrap();
+    srv.stop().await;
     let _ = TileKey::new(0, 0, 0);
 }
 
@@ -775,9 +686,7 @@ fn cli_anchor_and_export_3dtiles() {
     use common::{bin, fails, ok};
     let tmp = tempfile::tempdir().unwrap();
     let tif = tmp.path().join("t.tif");
-    let heights = raster::synth::terrain(65, 65, 4);
-    std::fs::write(&tif, raster::geotiff::encode_f32(65, 65, &heights, (0.0, 0.0), (10.0, -10.0)).unwrap())
-        .unwrap();
+    common::write_synth_geotiff(&tif, (65, 65), 4, (0.0, 0.0));
     let dir = tmp.path().join("t");
     // A bad anchor is refused before anything is baked, naming the value and the range.
     let e = fails(

@@ -15,6 +15,8 @@
 )]
 #![allow(clippy::large_futures, clippy::duration_suboptimal_units)]
 
+mod common;
+
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -22,10 +24,9 @@ use std::time::Duration;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
-use terrastream::bake::{BakeOptions, NoProgress, PointLevels};
-use terrastream::raster::{self, LoadOptions};
-use terrastream::server::{PartialConfig, Server, ServerError};
-use terrastream::store::Store;
+use common::Running;
+use terrastream::bake::{BakeOptions, PointLevels};
+use terrastream::server::{PartialConfig, Server};
 
 const OPTS: BakeOptions =
     BakeOptions { tile_size: 64, max_error: 0.5, levels: 2, point_levels: PointLevels::All };
@@ -34,55 +35,20 @@ const OPTS: BakeOptions =
 fn baked_store() -> (tempfile::TempDir, PathBuf) {
     let tmp = tempfile::tempdir().unwrap();
     let store = tmp.path().join("store");
-    std::fs::create_dir_all(&store).unwrap();
     let tif = tmp.path().join("t.tif");
-    let heights = terrastream::raster::synth::terrain(129, 129, 3);
-    std::fs::write(&tif, raster::geotiff::encode_f32(129, 129, &heights, (0.0, 0.0), (10.0, -10.0)).unwrap())
-        .unwrap();
-    let r = raster::load(&tif, &LoadOptions::default()).unwrap();
-    terrastream::bake::bake_terrain(
-        &r,
-        "t.tif",
-        &OPTS,
-        &terrastream::lod::PointBaker::Cpu,
-        &Store::new(&store.join("t")),
-        &NoProgress,
-    )
-    .unwrap();
+    common::write_synth_geotiff(&tif, (129, 129), 3, (0.0, 0.0));
+    common::bake_file(&tif, &OPTS, &store.join("t"));
     (tmp, store)
 }
 
-struct Running {
-    addr: SocketAddr,
-    stop: Option<tokio::sync::oneshot::Sender<()>>,
-    task: tokio::task::JoinHandle<Result<(), ServerError>>,
-}
-
-impl Running {
-    async fn start(store: &Path, f: impl FnOnce(PartialConfig) -> PartialConfig) -> Self {
-        let config = f(PartialConfig {
-            store: Some(store.to_owned()),
-            bind: Some("127.0.0.1:0".into()),
-            threads: Some(2),
-            ..PartialConfig::default()
-        })
-        .resolve()
-        .unwrap();
-        let server = Server::bind(config).await.unwrap();
-        let addr = server.local_addr().unwrap();
-        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
-        let task = tokio::spawn(server.run(async move {
-            let _ = rx.await;
-        }));
-        Self { addr, stop: Some(tx), task }
-    }
-
-    async fn stop(mut self) {
-        if let Some(tx) = self.stop.take() {
-            let _ = tx.send(());
-        }
-        tokio::time::timeout(Duration::from_secs(30), self.task).await.unwrap().unwrap().unwrap();
-    }
+/// The library's server on `store` with two serving threads, then what `f` changes.
+async fn start(store: &Path, f: impl FnOnce(PartialConfig) -> PartialConfig) -> Running {
+    Running::start(f(PartialConfig {
+        store: Some(store.to_owned()),
+        threads: Some(2),
+        ..PartialConfig::default()
+    }))
+    .await
 }
 
 /// One response read off a connection: the status line, the header lines as sent (but `date`,
@@ -208,7 +174,7 @@ fn metric(text: &str, line_start: &str) -> f64 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn answers_are_hypers_byte_for_byte() {
     let (_tmp, store) = baked_store();
-    let srv = Running::start(&store, |c| c).await;
+    let srv = start(&store, |c| c).await;
     let (path, body, version) = warm(srv.addr).await;
     let etag = {
         let mut c = Client::connect(srv.addr).await;
@@ -290,7 +256,7 @@ async fn answers_are_hypers_byte_for_byte() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn pipelining_split_heads_and_hand_over() {
     let (_tmp, store) = baked_store();
-    let srv = Running::start(&store, |c| c).await;
+    let srv = start(&store, |c| c).await;
     let (path, body, _) = warm(srv.addr).await;
     let other = "/tilesets/t/tiles/0/0/0/0";
 
@@ -343,7 +309,7 @@ async fn pipelining_split_heads_and_hand_over() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn requests_it_does_not_answer_get_hypers_answer() {
     let (_tmp, store) = baked_store();
-    let srv = Running::start(&store, |c| c).await;
+    let srv = start(&store, |c| c).await;
     let (path, body, _) = warm(srv.addr).await;
     let one = |raw: String| async move {
         let mut c = Client::connect(srv.addr).await;
@@ -405,8 +371,7 @@ async fn requests_it_does_not_answer_get_hypers_answer() {
 async fn timeouts_shutdown_and_random_bytes() {
     let (_tmp, store) = baked_store();
     let srv =
-        Running::start(&store, |c| PartialConfig { header_timeout_s: Some(1), idle_timeout_s: Some(2), ..c })
-            .await;
+        start(&store, |c| PartialConfig { header_timeout_s: Some(1), idle_timeout_s: Some(2), ..c }).await;
     let (path, body, _) = warm(srv.addr).await;
     let before = metrics(srv.addr).await;
     // A head that never completes is closed after the header timeout, even while bytes trickle.
@@ -432,13 +397,7 @@ async fn timeouts_shutdown_and_random_bytes() {
     }
 
     // Random bytes, and random bytes after a valid head: an answer or a close, never a hang.
-    let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
-    let mut next = move || {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        seed
-    };
+    let mut next = common::xorshift(0x9e37_79b9_7f4a_7c15);
     for i in 0..40 {
         let n = (next() % 3000) as usize;
         let mut bytes: Vec<u8> = (0..n).map(|_| next() as u8).collect();
@@ -472,12 +431,8 @@ async fn timeouts_shutdown_and_random_bytes() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn serving_threads_share_the_port_and_the_limits() {
     let (_tmp, store) = baked_store();
-    let srv = Running::start(&store, |c| PartialConfig {
-        threads: Some(3),
-        max_connections_per_client: Some(4),
-        ..c
-    })
-    .await;
+    let srv =
+        start(&store, |c| PartialConfig { threads: Some(3), max_connections_per_client: Some(4), ..c }).await;
     let (path, body, _) = warm(srv.addr).await;
     // The cap counts connections over every thread: 4 open, the 5th is refused with 503.
     let mut open = Vec::new();

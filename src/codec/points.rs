@@ -6,7 +6,7 @@
 //! the occupancy as runs, and predicts each z and normal from the cells to the left, above and
 //! above-left (LOCO-I's median edge detector), leaving zstd small residuals.
 
-use super::stream::{BucketReader, BucketWriter, Packed, Writer, pack, unpack};
+use super::stream::{BucketReader, BucketWriter, Packed, Reader, Writer, pack, unpack};
 use super::{CodecError, MAX_QUANT, QuantGrid};
 use crate::geom::PointCloud;
 
@@ -114,9 +114,59 @@ struct Key {
 struct Prepared {
     lattice: Vec<[i64; 3]>,
     oct: Vec<[u8; 2]>,
+    /// The grid mode's lattice and cell shift (the context mode picks its own shift).
+    grid: LatticeParams,
+}
+
+/// The parameters both modes store first: lattice point `l` is quantized position
+/// `base + l·stride` on each axis, and cells are `2^shift` lattice steps wide.
+#[derive(Debug, Clone, Copy)]
+struct LatticeParams {
     base: [i64; 3],
     stride: [i64; 3],
     shift: u32,
+}
+
+impl LatticeParams {
+    /// Base, stride and shift as varints, in that order.
+    fn write(&self, w: &mut Writer) {
+        for v in self.base.iter().chain(&self.stride) {
+            w.varint(*v as u64);
+        }
+        w.varint(u64::from(self.shift));
+    }
+
+    /// What [`Self::write`] wrote, each value checked: a base within the frame, a stride of
+    /// 1..=`MAX_QUANT + 1`, a shift of at most `MAX_SHIFT`.
+    fn read(r: &mut Reader, frame: &QuantGrid) -> Result<Self, CodecError> {
+        let mut base = [0i64; 3];
+        let mut stride = [1i64; 3];
+        for (a, b) in base.iter_mut().enumerate() {
+            *b = r.count(frame.qmax[a] as usize)? as i64;
+        }
+        for s in &mut stride {
+            *s = r.count(MAX_QUANT as usize + 1)? as i64;
+            if *s == 0 {
+                return Err(CodecError::Corrupt("points params"));
+            }
+        }
+        let shift = r.count(MAX_SHIFT as usize)? as u32;
+        Ok(Self { base, stride, shift })
+    }
+
+    /// The position of lattice point `l`; an error where it overflows or leaves the frame.
+    fn position(&self, frame: &QuantGrid, l: [i64; 3]) -> Result<[f64; 3], CodecError> {
+        let bad = || CodecError::Corrupt("points positions");
+        let mut qp = [0i64; 3];
+        for a in 0..3 {
+            qp[a] =
+                l[a].checked_mul(self.stride[a]).and_then(|v| v.checked_add(self.base[a])).ok_or_else(bad)?;
+        }
+        if !frame.contains(qp) {
+            return Err(bad());
+        }
+        Ok(frame.position(qp))
+    }
 }
 
 fn prepare(frame: &QuantGrid, pc: &PointCloud) -> Result<Prepared, CodecError> {
@@ -144,7 +194,7 @@ fn prepare(frame: &QuantGrid, pc: &PointCloud) -> Result<Prepared, CodecError> {
     let lattice: Vec<[i64; 3]> =
         q.iter().map(|p| std::array::from_fn(|a| (p[a] - base[a]) / stride[a])).collect();
     let shift = choose_shift(&lattice);
-    Ok(Prepared { lattice, oct, base, stride, shift })
+    Ok(Prepared { lattice, oct, grid: LatticeParams { base, stride, shift } })
 }
 
 pub(super) fn encode(frame: &QuantGrid, pc: &PointCloud) -> Result<Packed, CodecError> {
@@ -165,8 +215,8 @@ pub(super) fn encode_mode(frame: &QuantGrid, pc: &PointCloud, mode: u8) -> Resul
 
 /// Mode 0: the sorted lattice in zstd'ed residual streams.
 fn encode_grid(p: &Prepared) -> Result<Packed, CodecError> {
-    let Prepared { lattice, oct, base, stride, shift } = p;
-    let (base, stride, shift) = (*base, *stride, *shift);
+    let Prepared { lattice, oct, grid } = p;
+    let shift = grid.shift;
     let n = lattice.len();
     let mask = (1i64 << shift) - 1;
     let mut keys: Vec<Key> = lattice
@@ -184,10 +234,7 @@ fn encode_grid(p: &Prepared) -> Result<Packed, CodecError> {
     keys.sort_unstable();
 
     let mut params = Writer::default();
-    for v in base.iter().chain(&stride) {
-        params.varint(*v as u64);
-    }
-    params.varint(u64::from(shift));
+    grid.write(&mut params);
     let [mut rows, mut cells_w, mut counts, mut fxs, mut fys] = std::array::from_fn(|_| Writer::default());
     let cells = group_cells(&keys);
     let mut prev_cy = 0i64;
@@ -331,7 +378,7 @@ fn walk(
     Ok(())
 }
 
-/// LOCO-I median edge detector: the median of a, b and a + b − c.
+/// LOCO-I median edge detector: the median of a, b and a + b − c (both modes' z predictor).
 fn med(a: i64, b: i64, c: i64) -> i64 {
     if c >= a.max(b) {
         a.min(b)
@@ -366,18 +413,8 @@ pub(super) fn decode(
         return Err(CodecError::Corrupt("point count does not match the streams"));
     }
     let bad = CodecError::Corrupt;
-    let mut base = [0i64; 3];
-    let mut stride = [1i64; 3];
-    for (a, b) in base.iter_mut().enumerate() {
-        *b = params.count(frame.qmax[a] as usize)? as i64;
-    }
-    for s in &mut stride {
-        *s = params.count(MAX_QUANT as usize + 1)? as i64;
-        if *s == 0 {
-            return Err(bad("points params"));
-        }
-    }
-    let shift = params.count(MAX_SHIFT as usize)? as u32;
+    let lp = LatticeParams::read(params, frame)?;
+    let shift = lp.shift;
     params.finish()?;
 
     let mut cells = Vec::new();
@@ -446,17 +483,7 @@ pub(super) fn decode(
         let oct = [pn[0].wrapping_add(du), pn[1].wrapping_add(dv)];
         let c = cells[cell_of[i]];
         let lattice = [lattice_xy(c.cx, fine[i][0], shift)?, lattice_xy(c.cy, fine[i][1], shift)?, z];
-        let mut qp = [0i64; 3];
-        for a in 0..3 {
-            qp[a] = lattice[a]
-                .checked_mul(stride[a])
-                .and_then(|v| v.checked_add(base[a]))
-                .ok_or(bad("points positions"))?;
-        }
-        if !frame.contains(qp) {
-            return Err(bad("points positions"));
-        }
-        positions[i] = frame.position(qp);
+        positions[i] = lp.position(frame, lattice)?;
         normals[i] = oct_decode(oct);
         Ok((z, oct))
     })?;

@@ -67,35 +67,21 @@ fn parse_options(raw: Option<&str>) -> Result<(Options, Option<String>), Problem
         let bad = |what: &str| Problem::bad_request(format!("query parameter {k}={v:?}: {what}"));
         match k {
             "coords" => {
-                query.coords = match v.as_str() {
-                    "wgs84" => Coords::Wgs84,
-                    "crs" => Coords::Crs,
-                    "local" => Coords::Local,
-                    _ => return Err(bad("use wgs84, crs or local")),
-                };
+                let choices = [("wgs84", Coords::Wgs84), ("crs", Coords::Crs), ("local", Coords::Local)];
+                query.coords = one_of(&v, &choices).map_err(|w| bad(&w))?;
             }
             "datum" => {
-                query.datum = match v.as_str() {
-                    "ellipsoid" => Datum::Ellipsoid,
-                    "geoid" => Datum::Geoid,
-                    "native" => Datum::Native,
-                    _ => return Err(bad("use ellipsoid, geoid or native")),
-                };
+                let choices =
+                    [("ellipsoid", Datum::Ellipsoid), ("geoid", Datum::Geoid), ("native", Datum::Native)];
+                query.datum = one_of(&v, &choices).map_err(|w| bad(&w))?;
             }
             "surface" => {
-                surface = Some(match v.as_str() {
-                    "mesh" => false,
-                    "source" => true,
-                    _ => return Err(bad("use mesh or source")),
-                });
+                surface = Some(one_of(&v, &[("mesh", false), ("source", true)]).map_err(|w| bad(&w))?);
             }
             "interpolation" => {
-                interp = Some(match v.as_str() {
-                    "nearest" => Interp::Nearest,
-                    "bilinear" => Interp::Bilinear,
-                    "cubic" => Interp::Cubic,
-                    _ => return Err(bad("use nearest, bilinear or cubic")),
-                });
+                let choices =
+                    [("nearest", Interp::Nearest), ("bilinear", Interp::Bilinear), ("cubic", Interp::Cubic)];
+                interp = Some(one_of(&v, &choices).map_err(|w| bad(&w))?);
             }
             "depth" => depth = Some(v.parse::<u8>().map_err(|_| bad("a node depth, 0 to 24"))?),
             "points" => points = Some(v),
@@ -116,6 +102,19 @@ fn parse_options(raw: Option<&str>) -> Result<(Options, Option<String>), Problem
         Surface::Mesh { depth }
     };
     Ok((Options { query, surface }, points))
+}
+
+/// The value `v` names among `choices`; otherwise what to use instead ("use a, b or c").
+fn one_of<T: Copy>(v: &str, choices: &[(&str, T)]) -> Result<T, String> {
+    if let Some(&(_, t)) = choices.iter().find(|(name, _)| *name == v) {
+        return Ok(t);
+    }
+    let names: Vec<&str> = choices.iter().map(|(name, _)| *name).collect();
+    match names.split_last() {
+        Some((last, [])) => Err(format!("use {last}")),
+        Some((last, rest)) => Err(format!("use {} or {last}", rest.join(", "))),
+        None => Err("no value is accepted".to_owned()),
+    }
 }
 
 fn percent_decode(s: &str) -> String {
@@ -377,15 +376,7 @@ async fn answer(
             body.extend_from_slice(&json_chunk(&first, true));
             body.extend_from_slice(b"]}");
         }
-        let mut r = Response::new(Body::from(body));
-        let h = r.headers_mut();
-        h.insert(
-            header::CONTENT_TYPE,
-            HeaderValue::from_static(if binary { "application/octet-stream" } else { "application/json" }),
-        );
-        h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
-        h.insert("x-points", HeaderValue::from(n));
-        return Ok(r);
+        return Ok(heights_response(Body::from(body), binary, n));
     }
     let (tx, rx) = tokio::sync::mpsc::channel::<Result<Bytes, std::io::Error>>(2);
     let encode = move |hs: &[Height], first_chunk: bool| -> Bytes {
@@ -426,7 +417,16 @@ async fn answer(
     });
     let mut rx = rx;
     let stream = futures_util::stream::poll_fn(move |cx| rx.poll_recv(cx));
-    let mut r = Response::new(Body::from_stream(stream));
+    let mut r = heights_response(Body::from_stream(stream), binary, n);
+    if binary {
+        r.headers_mut().insert(header::CONTENT_LENGTH, HeaderValue::from(n * 16));
+    }
+    Ok(r)
+}
+
+/// A heights answer of `n` points: binary or JSON, never cached, with `X-Points`.
+fn heights_response(body: Body, binary: bool, n: usize) -> Response {
+    let mut r = Response::new(body);
     let h = r.headers_mut();
     h.insert(
         header::CONTENT_TYPE,
@@ -434,10 +434,7 @@ async fn answer(
     );
     h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
     h.insert("x-points", HeaderValue::from(n));
-    if binary {
-        h.insert(header::CONTENT_LENGTH, HeaderValue::from(n * 16));
-    }
-    Ok(r)
+    r
 }
 
 fn check_all(points: &[[f64; 2]], q: Query) -> Result<(), HeightsError> {
@@ -560,4 +557,40 @@ fn binary_chunk(hs: &[Height]) -> Vec<u8> {
         out.extend_from_slice(&u32::from(h.nodata).to_le_bytes());
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+
+    #[test]
+    fn named_options_parse_and_bad_ones_say_what_to_use() {
+        let (o, points) =
+            parse_options(Some("coords=crs&datum=geoid&surface=source&interpolation=cubic&points=1,2"))
+                .unwrap();
+        assert_eq!(
+            (o.query.coords, o.query.datum, o.query.interp),
+            (Coords::Crs, Datum::Geoid, Interp::Cubic)
+        );
+        assert_eq!((o.surface, points.as_deref()), (Surface::Source, Some("1,2")));
+        let (o, _) = parse_options(Some("surface=mesh&depth=3")).unwrap();
+        assert_eq!(o.surface, Surface::Mesh { depth: Some(3) });
+        for (q, says) in [
+            ("coords=x", r#"query parameter coords="x": use wgs84, crs or local"#),
+            ("datum=", r#"query parameter datum="": use ellipsoid, geoid or native"#),
+            ("surface=MESH", r#"query parameter surface="MESH": use mesh or source"#),
+            (
+                "interpolation=linear",
+                r#"query parameter interpolation="linear": use nearest, bilinear or cubic"#,
+            ),
+        ] {
+            let e = parse_options(Some(q)).unwrap_err();
+            assert_eq!((e.status, e.detail.as_str()), (axum::http::StatusCode::BAD_REQUEST, says), "{q}");
+        }
+        assert_eq!(one_of("b", &[("a", 1), ("b", 2)]), Ok(2));
+        assert_eq!(one_of("c", &[("a", 1)]), Err("use a".to_owned()));
+        assert_eq!(one_of::<u8>("c", &[]), Err("no value is accepted".to_owned()));
+    }
 }

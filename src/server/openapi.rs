@@ -42,6 +42,30 @@ fn v_param() -> Value {
         "description": "The tileset's content_version. When it matches, the response is `Cache-Control: public, max-age=31536000, immutable`; otherwise it is revalidated after 60 s."})
 }
 
+/// `glb=` of the 3D Tiles routes (`server::tiles3d`): how the GLBs are compressed, carried into
+/// every URI a tileset JSON lists.
+fn glb_param() -> Value {
+    use crate::formats::tiles3d::GlbCompression;
+    let (none, meshopt) = (GlbCompression::None.name(), GlbCompression::Meshopt.name());
+    json!({"name": "glb", "in": "query", "required": false,
+        "schema": {"type": "string", "enum": [none, meshopt], "default": none},
+        "description": format!("`{meshopt}`: GLBs with EXT_meshopt_compression (the reader must support it), and a tileset JSON whose every URI carries `glb={meshopt}`; each form is cached apart. `{none}` or absent: plain glTF. Any other value: 400.")})
+}
+
+/// `params` (a JSON array) with [`glb_param`] added.
+fn with_glb(mut params: Value) -> Value {
+    if let Some(a) = params.as_array_mut() {
+        a.push(glb_param());
+    }
+    params
+}
+
+/// The 400 of a 3D Tiles route, which also refuses a bad `glb=`.
+const GLB_400: (&str, &str) = (
+    "400",
+    "Malformed name, key or level (not a non-negative integer of at most 2^32 − 1), or a glb= other than none or meshopt",
+);
+
 /// The error answers every read route can give, plus `extra`.
 fn errors(extra: &[(&str, &str)]) -> Map<String, Value> {
     let mut m = Map::new();
@@ -171,14 +195,14 @@ pub fn document() -> Value {
                 &key_params(true), "blob", "application/vnd.terrastream.blob", &json!({"type": "string", "format": "binary"}),
                 &[("500", "Stored blob failed its checksum (never sent) or the bake failed")]),
             "/tilesets/{name}/3dtiles/tileset.json": cached_get("OGC 3D Tiles 1.1 root tileset, made from the stored index (the root transform places it at the anchor; asset.extras.terrastream says where and why)",
-                &json!([name_param()]), "3D Tiles tileset", "application/json", &any,
-                &[("500", "The manifest, index or placement cannot be read")]),
+                &with_glb(json!([name_param()])), "3D Tiles tileset", "application/json", &any,
+                &[GLB_400, ("500", "The manifest, index or placement cannot be read")]),
             "/tilesets/{name}/3dtiles/index/{z}/{x}/{y}.json": cached_get("3D Tiles external tileset of the index chunk rooted at z/x/y (z a multiple of 4, not 0)",
-                &key_params(false), "3D Tiles tileset", "application/json", &any,
-                &[("500", "The manifest or index cannot be read")]),
+                &with_glb(key_params(false)), "3D Tiles tileset", "application/json", &any,
+                &[GLB_400, ("500", "The manifest or index cannot be read")]),
             "/tilesets/{name}/3dtiles/tiles/{z}/{x}/{y}/{level}.glb": cached_get("One (tile, level) as glTF 2.0 binary (made from its verified blob; baked on first request for --source tilesets)",
-                &key_params(true), "GLB", crate::formats::tiles3d::GLB_TYPE, &json!({"type": "string", "format": "binary"}),
-                &[("500", "Stored blob failed its checksum (never sent) or the bake failed")]),
+                &with_glb(key_params(true)), "GLB", crate::formats::tiles3d::GLB_TYPE, &json!({"type": "string", "format": "binary"}),
+                &[GLB_400, ("500", "Stored blob failed its checksum (never sent), the bake failed, or the GLB could not be compressed")]),
             "/tilesets/{name}/terrain/layer.json": cached_get("Cesium quantized-mesh-1.0 globe terrain: layer.json (TileJSON; available tiles per zoom, metadataAvailability, extensions). From a tileset baked with --terrain, or made from its --source",
                 &json!([name_param()]), "layer document", "application/json", &any,
                 &[("500", "The stored layer cannot be read, or the source cannot be placed on the Earth")]),
@@ -318,4 +342,40 @@ fn heightmap_params(tile: bool, png: bool) -> Value {
         p.push(v_param());
     }
     Value::Array(p)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::panic)]
+
+    use crate::formats::tiles3d::GlbCompression;
+
+    /// Every 3D Tiles content route of the tileset (not the globe terrain's) documents `glb=`
+    /// with exactly the values the server takes; no other route does.
+    #[test]
+    fn glb_is_documented_on_the_3d_tiles_routes_only() {
+        let doc = super::document();
+        let mut with = Vec::new();
+        for (path, item) in doc["paths"].as_object().unwrap() {
+            let glb = item["parameters"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .find(|p| p["name"] == "glb" && p["in"] == "query");
+            if path.starts_with("/tilesets/{name}/3dtiles/") {
+                let glb = glb.unwrap_or_else(|| panic!("{path}: no glb parameter"));
+                let values: Vec<&str> =
+                    glb["schema"]["enum"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+                assert_eq!(values, ["none", "meshopt"], "{path}");
+                assert!(values.iter().all(|v| GlbCompression::parse(v).is_some()));
+                assert_eq!(glb["schema"]["default"], GlbCompression::default().name());
+                let bad = item["get"]["responses"]["400"]["description"].as_str().unwrap();
+                assert!(bad.contains("glb="), "{path}: {bad}");
+                with.push(path.clone());
+            } else {
+                assert!(glb.is_none(), "{path} documents glb=");
+            }
+        }
+        assert_eq!(with.len(), 3, "{with:?}");
+    }
 }

@@ -325,30 +325,182 @@ pub fn assert_same_responses(servers: &[(&str, std::net::SocketAddr)], urls: &[S
     }
 }
 
-/// One GET with request headers, on its own connection, over a plain socket (the bytes as sent:
-/// no decompression): status, headers (lower-case names), body.
-pub fn get_with(
-    addr: std::net::SocketAddr,
-    path: &str,
-    headers: &[(&str, &str)],
-) -> (u16, BTreeMap<String, String>, Vec<u8>) {
-    use std::io::{Read, Write};
-    let mut s = std::net::TcpStream::connect(addr).unwrap();
-    let mut req = format!("GET {path} HTTP/1.1\r\nHost: t\r\nConnection: close\r\n");
+/// An answer read off a socket: status, headers (lower-case names), body.
+pub type Answer = (u16, BTreeMap<String, String>, Vec<u8>);
+
+/// The bytes of a one-shot request: `Connection: close`, the given headers, and a
+/// `Content-Length` where there is a body (or the method is POST).
+fn request_head(method: &str, path: &str, headers: &[(&str, &str)], body: &[u8]) -> String {
+    let mut req = format!("{method} {path} HTTP/1.1\r\nHost: t\r\nConnection: close\r\n");
     for (k, v) in headers {
         req.extend([*k, ": ", *v, "\r\n"]);
     }
+    if method == "POST" || !body.is_empty() {
+        req.extend(["Content-Length: ", &body.len().to_string(), "\r\n"]);
+    }
     req.push_str("\r\n");
-    s.write_all(req.as_bytes()).unwrap();
-    let mut buf = Vec::new();
-    s.read_to_end(&mut buf).unwrap();
+    req
+}
+
+/// A whole response as read until the server closed: status, headers, and the body with any
+/// chunked transfer coding taken off (content codings stay: the bytes are as sent).
+fn parse_answer(buf: &[u8]) -> Answer {
     let end = buf.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
     let head = String::from_utf8_lossy(&buf[..end]).into_owned();
     let mut lines = head.lines();
     let status = lines.next().unwrap().split(' ').nth(1).unwrap().parse().unwrap();
-    let h = lines
+    let h: BTreeMap<String, String> = lines
         .filter_map(|l| l.split_once(':'))
         .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_owned()))
         .collect();
-    (status, h, buf[end + 4..].to_vec())
+    let mut body = buf[end + 4..].to_vec();
+    if h.get("transfer-encoding").is_some_and(|v| v.contains("chunked")) {
+        let mut out = Vec::new();
+        let mut rest = &body[..];
+        loop {
+            let eol = rest.windows(2).position(|w| w == b"\r\n").unwrap();
+            let n = usize::from_str_radix(std::str::from_utf8(&rest[..eol]).unwrap().trim(), 16).unwrap();
+            if n == 0 {
+                break;
+            }
+            out.extend_from_slice(&rest[eol + 2..eol + 2 + n]);
+            rest = &rest[eol + 2 + n + 2..];
+        }
+        body = out;
+    }
+    (status, h, body)
+}
+
+/// One request on its own connection over a plain socket (paths reach the server as given):
+/// [`Answer`], a chunked body decoded, a compressed one not. A server that sends nothing for a
+/// minute fails the test.
+pub fn request(
+    addr: std::net::SocketAddr,
+    method: &str,
+    path: &str,
+    headers: &[(&str, &str)],
+    body: &[u8],
+) -> Answer {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_mins(1))).unwrap();
+    s.write_all(request_head(method, path, headers, body).as_bytes()).unwrap();
+    s.write_all(body).unwrap();
+    let mut buf = Vec::new();
+    s.read_to_end(&mut buf).unwrap();
+    parse_answer(&buf)
+}
+
+/// One GET with request headers ([`request`]).
+pub fn get_with(addr: std::net::SocketAddr, path: &str, headers: &[(&str, &str)]) -> Answer {
+    request(addr, "GET", path, headers, &[])
+}
+
+/// [`get_with`] from async tests (a server in the same process): the same bytes on a tokio
+/// socket, the whole exchange within a minute.
+pub async fn get_async(addr: std::net::SocketAddr, path: &str, headers: &[(&str, &str)]) -> Answer {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let exchange = async {
+        let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+        s.write_all(request_head("GET", path, headers, &[]).as_bytes()).await.unwrap();
+        let mut buf = Vec::new();
+        s.read_to_end(&mut buf).await.unwrap();
+        buf
+    };
+    let buf = tokio::time::timeout(Duration::from_mins(1), exchange)
+        .await
+        .unwrap_or_else(|_| panic!("GET {path}: no answer within a minute"));
+    parse_answer(&buf)
+}
+
+/// [`serve`] of `terrastream serve --store STORE`, with a `--source` for each of `sources`.
+pub fn serve_store(store: &Path, sources: &[String]) -> Served {
+    let mut c = bin();
+    c.args(["serve", "--store"]).arg(store);
+    for s in sources {
+        c.arg("--source").arg(s);
+    }
+    serve(c)
+}
+
+/// A server of the library's own (`Server::bind` + `run`) in the test's process, on a free
+/// 127.0.0.1 port, until [`Running::stop`].
+#[cfg(feature = "server")]
+pub struct Running {
+    pub addr: std::net::SocketAddr,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    task: tokio::task::JoinHandle<Result<(), terrastream::server::ServerError>>,
+}
+
+#[cfg(feature = "server")]
+impl Running {
+    /// Binds `config` on 127.0.0.1:0 (whatever `bind` it names) and runs it on the current
+    /// tokio runtime.
+    pub async fn start(config: terrastream::server::PartialConfig) -> Self {
+        let config = terrastream::server::PartialConfig { bind: Some("127.0.0.1:0".into()), ..config };
+        let server = terrastream::server::Server::bind(config.resolve().unwrap()).await.unwrap();
+        let addr = server.local_addr().unwrap();
+        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+        let task = tokio::spawn(server.run(async move {
+            let _ = rx.await;
+        }));
+        Self { addr, stop: Some(tx), task }
+    }
+
+    /// Starts the graceful shutdown without waiting for it.
+    pub fn begin_stop(&mut self) {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+    }
+
+    /// Shuts down and asserts the server ended cleanly within `limit`.
+    pub async fn stop_within(mut self, limit: Duration) {
+        self.begin_stop();
+        tokio::time::timeout(limit, self.task).await.unwrap().unwrap().unwrap();
+    }
+
+    /// [`Running::stop_within`] 30 s.
+    pub async fn stop(self) {
+        self.stop_within(Duration::from_secs(30)).await;
+    }
+}
+
+/// `raster::synth::terrain(w, h, seed)` as a float GeoTIFF at `path`: 10 m cells, sample (0, 0)
+/// at `origin`, rows going south.
+pub fn write_synth_geotiff(path: &Path, (w, h): (u32, u32), seed: u64, origin: (f64, f64)) {
+    let heights = terrastream::raster::synth::terrain(w, h, seed);
+    let bytes = terrastream::raster::geotiff::encode_f32(w, h, &heights, origin, (10.0, -10.0)).unwrap();
+    std::fs::write(path, bytes).unwrap();
+}
+
+/// Bakes `raster` (read from a file named `source`) into the tileset folder `out`: the CPU
+/// point baker, no progress output.
+pub fn bake_cpu(
+    raster: &terrastream::raster::LoadedRaster,
+    source: &str,
+    opts: &terrastream::bake::BakeOptions,
+    out: &Path,
+) {
+    let store = terrastream::store::Store::new(out);
+    let cpu = terrastream::lod::PointBaker::Cpu;
+    terrastream::bake::bake_terrain(raster, source, opts, &cpu, &store, &terrastream::bake::NoProgress)
+        .unwrap();
+}
+
+/// Loads the raster file `src` with the default options and bakes it ([`bake_cpu`]) into `out`,
+/// its file name as the source's name.
+pub fn bake_file(src: &Path, opts: &terrastream::bake::BakeOptions, out: &Path) {
+    let r = terrastream::raster::load(src, &terrastream::raster::LoadOptions::default()).unwrap();
+    bake_cpu(&r, &src.file_name().unwrap().to_string_lossy(), opts, out);
+}
+
+/// A xorshift64 generator from `seed` (not 0): deterministic noise for hostile-input tests.
+pub fn xorshift(mut seed: u64) -> impl FnMut() -> u64 {
+    move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed
+    }
 }

@@ -14,7 +14,7 @@
 use super::super::rangecoder::{Bit, Coder, Decoder, Encoder, IntModel, TreeModel};
 use super::super::stream::{Packed, Reader, Writer, pack_stored, unpack};
 use super::super::{CodecError, MAX_QUANT, QuantGrid};
-use super::{Cell, Key, MAX_SHIFT, Prepared, group_cells, oct_decode};
+use super::{Cell, Key, LatticeParams, MAX_SHIFT, Prepared, group_cells, med, oct_decode};
 use crate::geom::PointCloud;
 
 /// The payload's mode byte.
@@ -141,9 +141,10 @@ fn phase(values: impl Iterator<Item = i64>, shift: u32) -> i64 {
 }
 
 pub(in crate::codec) fn encode(frame: &QuantGrid, prepared: &Prepared) -> Result<Packed, CodecError> {
-    let Prepared { lattice, oct, base, stride, .. } = prepared;
-    let (base, stride) = (*base, *stride);
+    let Prepared { lattice, oct, grid } = prepared;
     let shift = cell_shift(lattice);
+    let lp = LatticeParams { shift, ..*grid };
+    let stride = lp.stride;
     let n = lattice.len();
     let phase = [0, 1, 2].map(|a| phase(lattice.iter().map(|l| l[a]), shift));
     let scale = [0, 1].map(|a| {
@@ -169,19 +170,14 @@ pub(in crate::codec) fn encode(frame: &QuantGrid, prepared: &Prepared) -> Result
         .collect();
 
     let mut params = Writer::default();
-    for v in base.iter().chain(&stride) {
-        params.varint(*v as u64);
-    }
-    params.varint(u64::from(shift));
+    lp.write(&mut params);
     for v in phase.iter().chain(&scale) {
         params.varint(*v as u64);
     }
     let mut e = Encoder::default();
     let mut m = Models::new(shift);
     encode_cells(&mut e, &mut m, &cells)?;
-    let nb = neighbours(&cells);
-    code_positions(&mut e, &mut m, &p, &cells, &nb, &mut pts)?;
-    code_normals(&mut e, &mut m, &p, &cells, &nb, &mut pts)?;
+    code_points(&mut e, &mut m, &Layout { p, cells: &cells, nb: neighbours(&cells) }, &mut pts)?;
     params.bytes.extend_from_slice(&e.finish(n.div_ceil(POINTS_PER_BYTE)));
     pack_stored(MODE_CONTEXT, &[&params])
 }
@@ -305,27 +301,25 @@ fn neighbours(cells: &[Cell]) -> Vec<Nb> {
     out
 }
 
-/// LOCO-I median edge detector.
-fn med(a: i64, b: i64, c: i64) -> i64 {
-    if c >= a.max(b) {
-        a.min(b)
-    } else if c <= a.min(b) {
-        a.max(b)
-    } else {
-        a + b - c
-    }
+/// What the position and normal coders read: the blob's parameters, its cells in order and
+/// each cell's neighbours.
+struct Layout<'a> {
+    p: Params,
+    cells: &'a [Cell],
+    nb: Vec<Nb>,
+}
+
+/// Every point after the occupancy: all positions, then all normals (predicted from the
+/// positions). The encoder and the decoder run the same code with their own [`Coder`].
+fn code_points<C: Coder>(c: &mut C, m: &mut Models, g: &Layout, pts: &mut [Pt]) -> Result<(), CodecError> {
+    code_positions(c, m, g, pts)?;
+    code_normals(c, m, g, pts)
 }
 
 /// Positions, cell by cell: the first point's z, then its fine x and y; then the cell's other
 /// points (fine offsets as symbols, z as the rise over the point below).
-fn code_positions<C: Coder>(
-    c: &mut C,
-    m: &mut Models,
-    p: &Params,
-    cells: &[Cell],
-    nb: &[Nb],
-    pts: &mut [Pt],
-) -> Result<(), CodecError> {
+fn code_positions<C: Coder>(c: &mut C, m: &mut Models, g: &Layout, pts: &mut [Pt]) -> Result<(), CodecError> {
+    let Layout { p, cells, nb } = g;
     let s = p.shift;
     let bad_z = || CodecError::Corrupt("points z");
     let mut stack_step = 0i64;
@@ -428,14 +422,8 @@ fn oct_of(nx: i128, ny: i128, nz: i128) -> [u8; 2] {
 /// Normals: a cell's first point from the surface gradient over its left/right and up/down
 /// neighbours (central differences where both exist, one-sided where one does, flat where
 /// none), the others from the point below them.
-fn code_normals<C: Coder>(
-    c: &mut C,
-    m: &mut Models,
-    p: &Params,
-    cells: &[Cell],
-    nb: &[Nb],
-    pts: &mut [Pt],
-) -> Result<(), CodecError> {
+fn code_normals<C: Coder>(c: &mut C, m: &mut Models, g: &Layout, pts: &mut [Pt]) -> Result<(), CodecError> {
+    let Layout { p, cells, nb } = g;
     let bad = || CodecError::Corrupt("points normals");
     // The residual of each cell's first point, for its right and lower neighbours' contexts.
     let mut res: Vec<[i64; 2]> = Vec::with_capacity(cells.len());
@@ -491,18 +479,8 @@ pub(in crate::codec) fn decode(
     let [r] = &readers[..] else { return Err(CodecError::Corrupt("stream table")) };
     let mut r: Reader = r.clone();
     let bad = CodecError::Corrupt;
-    let mut base = [0i64; 3];
-    let mut stride = [1i64; 3];
-    for (a, b) in base.iter_mut().enumerate() {
-        *b = r.count(frame.qmax[a] as usize)? as i64;
-    }
-    for s in &mut stride {
-        *s = r.count(MAX_QUANT as usize + 1)? as i64;
-        if *s == 0 {
-            return Err(bad("points params"));
-        }
-    }
-    let shift = r.count(MAX_SHIFT as usize)? as u32;
+    let lp = LatticeParams::read(&mut r, frame)?;
+    let shift = lp.shift;
     let mut phase = [0i64; 3];
     for ph in &mut phase {
         *ph = r.count((1usize << shift) - 1)? as i64;
@@ -522,28 +500,18 @@ pub(in crate::codec) fn decode(
     let mut m = Models::new(shift);
     let limit = (MAX_QUANT + (1 << shift)) >> shift;
     let cells = decode_cells(&mut d, &mut m, n, limit)?;
-    let nb = neighbours(&cells);
     let mut pts = vec![Pt::default(); n];
-    code_positions(&mut d, &mut m, &p, &cells, &nb, &mut pts)?;
-    code_normals(&mut d, &mut m, &p, &cells, &nb, &mut pts)?;
+    code_points(&mut d, &mut m, &Layout { p, cells: &cells, nb: neighbours(&cells) }, &mut pts)?;
     d.finish(min_len)?;
 
     let mut positions = Vec::with_capacity(n);
     let mut normals = Vec::with_capacity(n);
     for pt in &pts {
         let lattice = [pt.x - phase[0], pt.y - phase[1], pt.z];
-        let mut qp = [0i64; 3];
-        for a in 0..3 {
-            qp[a] = lattice[a]
-                .checked_mul(stride[a])
-                .and_then(|v| v.checked_add(base[a]))
-                .filter(|_| lattice[a] >= 0)
-                .ok_or(bad("points positions"))?;
-        }
-        if !frame.contains(qp) {
+        if lattice.iter().any(|&l| l < 0) {
             return Err(bad("points positions"));
         }
-        positions.push(frame.position(qp));
+        positions.push(lp.position(frame, lattice)?);
         normals.push(oct_decode(pt.oct));
     }
     Ok(PointCloud { positions, normals })

@@ -353,3 +353,39 @@ fn stacked_and_sparse_clouds_round_trip_in_context_mode() {
     };
     both_modes_agree(&column, 0.5);
 }
+
+#[test]
+fn lattice_params_round_trip_and_are_range_checked() {
+    let frame = QuantGrid::new(&Bounds::new([0.0; 3], [10.0; 3]), Quantization { xy_step: 1.0, z_step: 1.0 })
+        .unwrap();
+    let lp = LatticeParams { base: [1, 2, 3], stride: [1, 2, 5], shift: MAX_SHIFT };
+    let mut w = Writer::default();
+    lp.write(&mut w);
+    let mut r = Reader::new(&w.bytes, "points params");
+    let back = LatticeParams::read(&mut r, &frame).unwrap();
+    r.finish().unwrap();
+    assert_eq!((back.base, back.stride, back.shift), (lp.base, lp.stride, lp.shift));
+    assert_eq!(back.position(&frame, [0, 0, 0]).unwrap(), frame.position([1, 2, 3]));
+    assert_eq!(back.position(&frame, [1, 2, 1]).unwrap(), frame.position([2, 6, 8]));
+    // Off the frame, and overflowing: errors, not wrapped positions.
+    assert!(back.position(&frame, [0, 0, 2]).is_err());
+    assert!(back.position(&frame, [i64::MAX, 0, 0]).is_err());
+
+    let bad = |base: [i64; 3], stride: [i64; 3], shift: u32| {
+        let mut w = Writer::default();
+        LatticeParams { base, stride, shift }.write(&mut w);
+        LatticeParams::read(&mut Reader::new(&w.bytes, "points params"), &frame).unwrap_err().to_string()
+    };
+    assert!(bad([1, 2, 3], [1, 0, 1], 0).contains("points params"), "a zero stride");
+    let beyond = frame.qmax[0] + 1;
+    assert!(bad([beyond, 0, 0], [1; 3], 0).contains("points params"), "a base past the frame");
+    assert!(bad([0; 3], [MAX_QUANT + 2, 1, 1], 0).contains("points params"), "a stride past the lattice");
+    assert!(bad([0; 3], [1; 3], MAX_SHIFT + 1).contains("points params"), "a shift past MAX_SHIFT");
+    // Truncated: every prefix is an error.
+    for cut in 0..w.bytes.len() {
+        assert!(
+            LatticeParams::read(&mut Reader::new(&w.bytes[..cut], "points params"), &frame).is_err(),
+            "{cut}"
+        );
+    }
+}

@@ -585,29 +585,40 @@ impl Gltf {
         self
     }
 
-    /// The GLB container: header, JSON chunk (space-padded), BIN chunk (zero-padded).
+    /// The GLB of this document ([`write_glb`]), its one buffer the BIN chunk.
     pub(crate) fn finish(mut self) -> Vec<u8> {
         while !self.bin.len().is_multiple_of(4) {
             self.bin.push(0);
         }
         self.json["buffers"] = json!([{ "byteLength": self.bin.len() }]);
-        let mut text = serde_json::to_vec(&self.json).unwrap_or_default();
-        while !text.len().is_multiple_of(4) {
-            text.push(b' ');
-        }
-        let total = 12 + 8 + text.len() + 8 + self.bin.len();
-        let mut out = Vec::with_capacity(total);
-        out.extend_from_slice(b"glTF");
-        out.extend_from_slice(&2u32.to_le_bytes());
-        out.extend_from_slice(&(total as u32).to_le_bytes());
-        out.extend_from_slice(&(text.len() as u32).to_le_bytes());
-        out.extend_from_slice(&0x4E4F_534Au32.to_le_bytes());
-        out.extend_from_slice(&text);
-        out.extend_from_slice(&(self.bin.len() as u32).to_le_bytes());
-        out.extend_from_slice(&0x004E_4942u32.to_le_bytes());
-        out.extend_from_slice(&self.bin);
-        out
+        write_glb(&self.json, self.bin)
     }
+}
+
+/// A GLB container of `json` and `bin`: the 12-byte header, the JSON chunk (space-padded) and
+/// the BIN chunk (zero-padded to 4 bytes). The one writer of every GLB in 3D Tiles: the plain
+/// ones ([`glb()`]) and their `EXT_meshopt_compression` form ([`super::meshopt::compress_glb`]).
+#[must_use]
+pub fn write_glb(json: &Value, mut bin: Vec<u8>) -> Vec<u8> {
+    while !bin.len().is_multiple_of(4) {
+        bin.push(0);
+    }
+    let mut text = serde_json::to_vec(json).unwrap_or_default();
+    while !text.len().is_multiple_of(4) {
+        text.push(b' ');
+    }
+    let total = 12 + 8 + text.len() + 8 + bin.len();
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&(total as u32).to_le_bytes());
+    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
+    out.extend_from_slice(&0x4E4F_534Au32.to_le_bytes());
+    out.extend_from_slice(&text);
+    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    out.extend_from_slice(&0x004E_4942u32.to_le_bytes());
+    out.extend_from_slice(&bin);
+    out
 }
 
 fn push(doc: &mut Value, array: &str, v: Value) -> usize {

@@ -10,6 +10,7 @@
 
 use serde_json::{Value, json};
 
+pub use super::glb::write_glb;
 use super::glb::{ELEMENT_ARRAY_BUFFER, GLTF_U8, GLTF_U16, GLTF_U32};
 
 /// The extension's name, in `extensionsUsed`/`extensionsRequired` and on buffer views.
@@ -721,30 +722,6 @@ pub fn read_glb(glb: &[u8]) -> Result<(Value, Vec<u8>), MeshoptError> {
     }
     let bin = glb.get(at + 8..at + 8 + blen).ok_or_else(|| bad("BIN chunk runs past the end"))?;
     Ok((json, bin.to_vec()))
-}
-
-/// A GLB container of `json` and `bin` (JSON space-padded, BIN zero-padded to 4 bytes).
-#[must_use]
-pub fn write_glb(json: &Value, mut bin: Vec<u8>) -> Vec<u8> {
-    while !bin.len().is_multiple_of(4) {
-        bin.push(0);
-    }
-    let mut text = serde_json::to_vec(json).unwrap_or_default();
-    while !text.len().is_multiple_of(4) {
-        text.push(b' ');
-    }
-    let total = 12 + 8 + text.len() + 8 + bin.len();
-    let mut out = Vec::with_capacity(total);
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&(total as u32).to_le_bytes());
-    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
-    out.extend_from_slice(&0x4E4F_534Au32.to_le_bytes());
-    out.extend_from_slice(&text);
-    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-    out.extend_from_slice(&0x004E_4942u32.to_le_bytes());
-    out.extend_from_slice(&bin);
-    out
 }
 
 fn as_usize(v: &Value) -> Option<usize> {

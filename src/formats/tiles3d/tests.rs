@@ -439,3 +439,24 @@ fn coarse_grids_of_neighbours_agree_and_stay_in_bounds() {
     assert!(CoarseGrid::fit(&[[f64::NAN; 3]], &[[0.0; 3], [1.0; 3]], [1.0; 3], 0.0, 1.0).is_none());
     assert!(CoarseGrid::fit(&[[0.0; 3]], &[[0.0; 3], [1e300; 3]], [1e-300; 3], 0.0, 1.0).is_none());
 }
+
+#[test]
+fn glb_container_pads_both_chunks_and_reads_back() {
+    for bin_len in 0..9usize {
+        let doc = json!({ "asset": { "version": "2.0" }, "n": bin_len });
+        let bin: Vec<u8> = (1..=bin_len as u8).collect();
+        let out = glb::write_glb(&doc, bin.clone());
+        assert_eq!(&out[..4], b"glTF");
+        assert_eq!(u32::from_le_bytes(out[8..12].try_into().unwrap()) as usize, out.len());
+        let jlen = u32::from_le_bytes(out[12..16].try_into().unwrap()) as usize;
+        assert_eq!(jlen % 4, 0);
+        let blen = u32::from_le_bytes(out[20 + jlen..24 + jlen].try_into().unwrap()) as usize;
+        assert_eq!(blen, bin_len.next_multiple_of(4));
+        assert_eq!(out.len(), 28 + jlen + blen);
+        let (j, b) = meshopt::read_glb(&out).unwrap();
+        assert_eq!(j, doc);
+        assert_eq!(&b[..bin_len], &bin[..]);
+        assert!(b[bin_len..].iter().all(|&z| z == 0), "BIN is zero-padded");
+        assert!(out[20..20 + jlen].ends_with(b"}") || out[20..20 + jlen].ends_with(b" "));
+    }
+}
