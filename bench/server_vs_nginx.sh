@@ -24,6 +24,8 @@
 # third port and runs in every round too, so a change is measured before/after in the same run
 # (it gets TOKIO_WORKER_THREADS=WORKERS as well, for builds from before `--threads`).
 # SKIP_GLB=1 leaves out every GLB pass and round (blobs only).
+# GLB_COMPRESSION=meshopt asks for the GLBs with `?glb=meshopt` (EXT_meshopt_compression) and
+# checks them against `export --glb-compression meshopt`.
 #
 # Needs wrk, nginx (/usr/sbin/nginx), jq and curl >= 7.66 (-Z): apt-get install wrk nginx jq curl
 # Usage: bench/server_vs_nginx.sh [SIZE=2049] [DURATION_S=20] [WRK_THREADS=2] [WORKERS=2] [ROUNDS=3]
@@ -41,6 +43,12 @@ port_ng=18082
 port_bl=18083
 baseline="${BASELINE:-}"
 skip_glb="${SKIP_GLB:-}"
+glb_compression="${GLB_COMPRESSION:-none}"
+case "$glb_compression" in
+    none) glb_query="" ;;
+    meshopt) glb_query="\&glb=meshopt" ;;
+    *) echo "GLB_COMPRESSION: none or meshopt, not $glb_compression" >&2; exit 2 ;;
+esac
 bin="${BIN:-./target/release/terrastream}"
 [ -x "$bin" ] || cargo build --release --quiet
 
@@ -63,8 +71,8 @@ echo "tileset: ${size}x${size} samples, $blobs blobs, $bytes bytes (mean $((byte
 find "$tmp/store/bench/tiles" -name '*.tsb' -printf '%s\n' | sort -n \
     | awk '{a[NR]=$1} END {printf "blob sizes: min %d, median %d, max %d bytes\n", a[1], a[int((NR+1)/2)], a[NR]}'
 
-sed -E "s#^/tilesets/bench/tiles/(.*)\?v=#/tilesets/bench/3dtiles/tiles/\1.glb?v=#" "$tmp/urls.txt" >"$tmp/glb-urls.txt"
-"$bin" export "$tmp/store/bench" --format 3dtiles --out "$tmp/3dtiles" --quiet >/dev/null
+sed -E "s#^/tilesets/bench/tiles/(.*)\?v=(.*)\$#/tilesets/bench/3dtiles/tiles/\1.glb?v=\2${glb_query}#" "$tmp/urls.txt" >"$tmp/glb-urls.txt"
+"$bin" export "$tmp/store/bench" --format 3dtiles --glb-compression "$glb_compression" --out "$tmp/3dtiles" --quiet >/dev/null
 glb_bytes=$(find "$tmp/3dtiles/tiles" -name '*.glb' -printf '%s\n' | awk '{s+=$1} END {print s}')
 echo "GLBs (3D Tiles) of the same tiles: $(wc -l <"$tmp/glb-urls.txt") URLs, $glb_bytes bytes (mean $((glb_bytes / blobs)) B/GLB, $(awk -v a="$glb_bytes" -v b="$bytes" 'BEGIN {printf "%.2f", a / b}')x the blobs)"
 

@@ -73,12 +73,12 @@ proptest! {
 #[test]
 fn a_grid_square_is_cocircular_and_its_sides_collinear() {
     let sq = [(0, 0), (1, 0), (1, 1), (0, 1)];
-    assert_eq!(incircle(c(sq[0]), c(sq[1]), c(sq[2]), c(sq[3])), 0.0);
-    assert_eq!(orient2d(c((0, 0)), c((2, 0)), c((5, 0))), 0.0);
+    assert_eq!(sign(incircle(c(sq[0]), c(sq[1]), c(sq[2]), c(sq[3]))), 0);
+    assert_eq!(sign(orient2d(c((0, 0)), c((2, 0)), c((5, 0)))), 0);
     // Fractional coordinates are never taken for exact: a nearly cocircular quadruple off the
     // grid still gets its exact (adaptive) sign.
     let f = |x: f64, y: f64| Coord { x, y };
     let eps = f64::EPSILON;
     let v = incircle(f(0.5, 0.5), f(1.5, 0.5), f(1.5, 1.5), f(0.5, 1.5 + eps));
-    assert!(v < 0.0 || v > 0.0, "a point off the circle is not on it: {v}");
+    assert_ne!(sign(v), 0, "a point off the circle is not on it: {v}");
 }
