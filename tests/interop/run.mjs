@@ -398,6 +398,26 @@ async function main() {
     if (session.page) await session.page.close().catch(() => {});
   }
 
+  // The fuji tileset with EXT_meshopt_compression GLBs: `?glb=meshopt` on the tileset JSON is
+  // carried into every URI it lists, and CesiumJS decodes the extension itself.
+  {
+    const session = {};
+    await checks.run('d. cesium fuji ?glb=meshopt', async (log) => {
+      needs(served, 'the server is not running');
+      needs(browser, `no browser: ${browserError}`);
+      const said = await cesiumLoadCheck({
+        browser, pageUrl: `${pageBase}/index.html`, tilesetUrl: `${base}/tilesets/fuji/3dtiles/tileset.json?glb=meshopt`,
+        screenshot: path.join(cfg.out, 'cesium-fuji-meshopt.png'), timeoutMs: 120_000, log, session,
+      });
+      const glbs = session.result.loaded.filter((u) => new URL(u, base).pathname.endsWith('.glb'));
+      const plain = glbs.filter((u) => new URL(u, base).searchParams.get('glb') !== 'meshopt');
+      if (plain.length) throw new CheckFailure(`${plain.length} of ${glbs.length} GLBs loaded without glb=meshopt, e.g. ${plain[0]}`);
+      const got = session.rec.requests.filter((u) => u.includes('.glb') && u.includes('glb=meshopt')).length;
+      return `${said}; all ${glbs.length} GLBs with glb=meshopt (${got} such requests)`;
+    });
+    if (session.page) await session.page.close().catch(() => {});
+  }
+
   for (const name of Object.keys(MIN_SHARE)) {
     await checks.run(`f. viewer ${name}`, async (log) => {
       needs(served, 'the server is not running');
