@@ -482,6 +482,7 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
     };
     // `corners`: the face's vertex handles; the one nearest the chosen sample becomes the
     // candidate's hint, where spade's point location starts (its walk then ends at once).
+    let regular = ax.uniform() && ay.uniform();
     let scan = |p: [[f64; 3]; 3], ij: [[u32; 2]; 3], corners: [u32; 3]| {
         // A face within one grid cell (most faces of a dense mesh) holds no sample but its own
         // corners, which the mesh passes through: nothing to scan.
@@ -495,7 +496,7 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
         #[allow(clippy::float_cmp)]
         let is_corner = |x: f64, y: f64| chord > 0.0 && p.iter().any(|c| c[0] == x && c[1] == y);
         let (mut worst, mut sample) = (max_error - sag_p, u32::MAX);
-        scan_spans_in(p, Some(ij), &ax, &ay, true, SMALL_BOX_SAMPLES, 0..usize::MAX, |s| {
+        let mut row_scan = |s: RowSpan| {
             let base = (r.j0 + s.j) * node.nc + r.i0;
             // Sample positions are integers (u32 grid coordinates), so stepping x by `step` is
             // exact: the same x, and so the same plane height, as `start + i·step`.
@@ -503,14 +504,13 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
             let first = s.j * nc + s.i0;
             let mut x = ax.start + s.i0 as i64 as f64 * ax.step;
             // Four samples at a time without branches; a block with an error over the current
-            // worst is redone one by one, so the winner is the same as a plain sequential scan
-            // (`max` skips NaN, so the block test is exactly "some error > worst").
+            // worst is redone one by one, so the winner is the same as a plain sequential scan.
             let mut blocks = row.chunks_exact(4);
             let mut k = 0;
             for b in &mut blocks {
                 let xq = [x, x + ax.step, x + 2.0 * ax.step, x + 3.0 * ax.step];
                 let e: [f64; 4] = std::array::from_fn(|q| (f64::from(b[q]) - s.z(xq[q])).abs());
-                if e[0].max(e[1]).max(e[2].max(e[3])) > worst {
+                if (e[0] > worst) | (e[1] > worst) | (e[2] > worst) | (e[3] > worst) {
                     for (q, &eq) in e.iter().enumerate() {
                         if eq > worst && !is_corner(xq[q], ys[s.j]) {
                             worst = eq;
@@ -530,7 +530,17 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
                 x += ax.step;
                 k += 1;
             }
-        });
+        };
+        if regular {
+            // The rows straight from the integer edge walk, in this loop (no callback).
+            if let Some(plane) = Plane::of(p) {
+                for (j, s0, s1) in IntSpans::new(ij, [1, nc - 1], 1..nr - 1) {
+                    row_scan(plane.span(j, ay.at(j), s0, s1));
+                }
+            }
+        } else {
+            scan_spans_in(p, Some(ij), &ax, &ay, true, SMALL_BOX_SAMPLES, 0..usize::MAX, row_scan);
+        }
         (sample != u32::MAX).then(|| {
             let (si, sj) = (sample % nc as u32, sample / nc as u32);
             let d2 = |c: [u32; 2]| u64::from(c[0].abs_diff(si)).pow(2) + u64::from(c[1].abs_diff(sj)).pow(2);
@@ -651,6 +661,16 @@ impl Axis {
         self.n
     }
 
+    /// Every position is `start + k·step`, the last one too, with small integer indices.
+    #[allow(clippy::float_cmp)]
+    fn uniform(&self) -> bool {
+        // Positions are integers (u32), so the comparison is exact.
+        self.n > 0
+            && self.n < (1 << 24)
+            && self.step > 0.0
+            && self.last == self.start + (self.n - 1) as i64 as f64 * self.step
+    }
+
     #[must_use]
     pub fn is_empty(&self) -> bool {
         self.n == 0
@@ -725,6 +745,36 @@ impl RowSpan {
     }
 }
 
+/// A triangle's plane `z = a.z + gx·(x − a.x) + gy·(y − a.y)`, and its corners' orientation.
+#[derive(Debug, Clone, Copy)]
+struct Plane {
+    a: [f64; 3],
+    gx: f64,
+    gy: f64,
+    /// Twice the signed area in (x, y).
+    det: f64,
+}
+
+impl Plane {
+    /// `None` for a degenerate (or non-finite) triangle.
+    #[inline]
+    fn of([a, b, c]: [[f64; 3]; 3]) -> Option<Self> {
+        let det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+        if det == 0.0 || !det.is_finite() {
+            return None;
+        }
+        let gx = ((b[2] - a[2]) * (c[1] - a[1]) - (c[2] - a[2]) * (b[1] - a[1])) / det;
+        let gy = ((c[2] - a[2]) * (b[0] - a[0]) - (b[2] - a[2]) * (c[0] - a[0])) / det;
+        Some(Self { a, gx, gy, det })
+    }
+
+    /// Row `j` (at `y`), columns `i0..i1`.
+    #[inline]
+    fn span(&self, j: usize, y: f64, i0: usize, i1: usize) -> RowSpan {
+        RowSpan { j, i0, i1, zrow: self.a[2] + self.gy * (y - self.a[1]), gx: self.gx, x0: self.a[0] }
+    }
+}
+
 /// Calls `f(i, j, z)` for every grid sample `(xs.at(i), ys.at(j))` inside or on triangle `p`
 /// (x, y, z), with `z` the triangle's plane at that sample. With `inner`, samples on the first
 /// and last row and column are skipped.
@@ -738,6 +788,25 @@ pub fn scan_triangle(
     scan_spans(p, xs, ys, inner, SMALL_BOX_SAMPLES, 0..usize::MAX, |s| {
         for i in s.i0..s.i1 {
             f(i, s.j, s.z(xs.at(i)));
+        }
+    });
+}
+
+/// [`scan_triangle`] of a triangle whose corners are the samples `ij` (column, row indices):
+/// the same samples and heights, found faster on regular axes.
+pub fn scan_triangle_ij(
+    p: [[f64; 3]; 3],
+    ij: [[u32; 2]; 3],
+    xs: &Axis,
+    ys: &Axis,
+    inner: bool,
+    mut f: impl FnMut(usize, usize, f64),
+) {
+    scan_spans_in(p, Some(ij), xs, ys, inner, SMALL_BOX_SAMPLES, 0..usize::MAX, |s| {
+        let mut x = xs.at(s.i0);
+        for i in s.i0..s.i1 {
+            f(i, s.j, s.z(if i + 1 == xs.n { xs.last } else { x }));
+            x += xs.step;
         }
     });
 }
@@ -792,36 +861,25 @@ fn scan_spans_in(
 ) {
     const EPS: f64 = 1e-9;
     let [a, b, c] = p;
-    let det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
-    if det == 0.0 || !det.is_finite() {
+    let Some(plane) = Plane::of(p) else {
         return;
-    }
-    // z = a.z + gx·(x − a.x) + gy·(y − a.y)
-    let gx = ((b[2] - a[2]) * (c[1] - a[1]) - (c[2] - a[2]) * (b[1] - a[1])) / det;
-    let gy = ((c[2] - a[2]) * (b[0] - a[0]) - (b[2] - a[2]) * (c[0] - a[0])) / det;
-    let span = |j: usize, y: f64, i0: usize, i1: usize| RowSpan {
-        j,
-        i0,
-        i1,
-        zrow: a[2] + gy * (y - a[1]),
-        gx,
-        x0: a[0],
     };
+    let det = plane.det;
+    let span = |j: usize, y: f64, i0: usize, i1: usize| plane.span(j, y, i0, i1);
     let (lo, hi) = (usize::from(inner), |n: usize| if inner { n.saturating_sub(1) } else { n });
     let iend = hi(xs.len());
-    let ([i0, i1], [j0, j1]) = match ij {
-        Some(ij) => [0, 1]
-            .map(|k| {
-                let (lo_k, hi_k) =
-                    (ij[0][k].min(ij[1][k]).min(ij[2][k]), ij[0][k].max(ij[1][k]).max(ij[2][k]));
-                [lo_k as usize, hi_k as usize + 1]
-            })
-            .into(),
-        None => (
-            [xs.first_ge(a[0].min(b[0]).min(c[0]) - EPS), xs.count_le(a[0].max(b[0]).max(c[0]) + EPS)],
-            [ys.first_ge(a[1].min(b[1]).min(c[1]) - EPS), ys.count_le(a[1].max(b[1]).max(c[1]) + EPS)],
-        ),
-    };
+    if let Some(ij) = ij.filter(|_| xs.uniform() && ys.uniform()) {
+        // Corners on regular axes: the same samples, from exact integer edge walks.
+        let rows = rows.start.max(lo)..rows.end.min(hi(ys.len()));
+        for (j, s0, s1) in IntSpans::new(ij, [lo, iend], rows) {
+            f(span(j, ys.at(j), s0, s1));
+        }
+        return;
+    }
+    let ([i0, i1], [j0, j1]) = (
+        [xs.first_ge(a[0].min(b[0]).min(c[0]) - EPS), xs.count_le(a[0].max(b[0]).max(c[0]) + EPS)],
+        [ys.first_ge(a[1].min(b[1]).min(c[1]) - EPS), ys.count_le(a[1].max(b[1]).max(c[1]) + EPS)],
+    );
     let (j0, j1) = (j0.max(lo), j1.min(hi(ys.len())));
     if j1 <= j0 {
         return;
@@ -887,6 +945,82 @@ fn scan_spans_in(
         if s0 < s1 {
             f(span(j, y, s0, s1));
         }
+    }
+}
+
+/// The rows of the closed triangle whose corners are the sample indices `ij`, as `(j, i0, i1)`:
+/// row `j` in `rows` holds columns `i0..i1` (within `cols`, half-open; empty rows are skipped).
+/// On a regular grid these are exactly the samples within [`scan_spans`]'s EPS of the triangle:
+/// a sample off an edge is at least 1/|Δ| grid steps from it, far more than EPS. Integer
+/// arithmetic: each edge's bound on a row is a floor division of `ex·(j − uy)` by `|ey|`,
+/// stepped from row to row by its quotient and remainder (no division in the loop). Nothing for
+/// a degenerate triangle. An iterator, not a callback, so that a scan's row loop is one body.
+struct IntSpans {
+    /// Per edge: quotient, remainder, their steps per row, divisor, side (+1 right bound,
+    /// −1 left bound, 0 flat), ux.
+    edges: [[i64; 7]; 3],
+    j: usize,
+    end: usize,
+    lo: i64,
+    hi: i64,
+}
+
+impl IntSpans {
+    fn new(ij: [[u32; 2]; 3], [c0, c1]: [usize; 2], rows: std::ops::Range<usize>) -> Self {
+        let [a, mut b, mut c] = ij.map(|v| [i64::from(v[0]), i64::from(v[1])]);
+        let det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+        let (r0, r1) = (
+            rows.start.max(a[1].min(b[1]).min(c[1]) as usize),
+            rows.end.min(a[1].max(b[1]).max(c[1]) as usize + 1),
+        );
+        let empty = Self { edges: [[0; 7]; 3], j: 0, end: 0, lo: 0, hi: 0 };
+        if det == 0 || r1 <= r0 || c1 <= c0 {
+            return empty;
+        }
+        if det < 0 {
+            std::mem::swap(&mut b, &mut c);
+        }
+        // Counter-clockwise now: p is inside edge u→v iff ey·(px − ux) ≤ ex·(py − uy). With
+        // d = |ey| and q = ⌊ex·(py − uy) / d⌋, that is px ≤ ux + q (ey > 0: a right bound) or
+        // px ≥ ux − q (ey < 0: a left bound); a flat edge bounds rows only, and the rows are
+        // the triangle's. |ex·(py − uy)| < 2⁴⁸: indices are below 2²⁴ (`Axis::uniform`).
+        let j_start = r0 as i64;
+        let edges = [(a, b), (b, c), (c, a)].map(|(u, v)| {
+            let (ex, ey) = (v[0] - u[0], v[1] - u[1]);
+            let d = ey.abs().max(1);
+            let num = ex * (j_start - u[1]);
+            [num.div_euclid(d), num.rem_euclid(d), ex.div_euclid(d), ex.rem_euclid(d), d, ey.signum(), u[0]]
+        });
+        Self { edges, j: r0, end: r1, lo: c0 as i64, hi: c1 as i64 - 1 }
+    }
+}
+
+impl Iterator for IntSpans {
+    type Item = (usize, usize, usize);
+
+    #[inline]
+    fn next(&mut self) -> Option<(usize, usize, usize)> {
+        while self.j < self.end {
+            let j = self.j;
+            self.j += 1;
+            let (mut l, mut r) = (self.lo, self.hi);
+            for e in &mut self.edges {
+                let [q, rem, qs, rs, d, side, ux] = *e;
+                if side > 0 {
+                    r = r.min(ux + q);
+                } else if side < 0 {
+                    l = l.max(ux - q);
+                }
+                let rem = rem + rs;
+                let carry = i64::from(rem >= d);
+                e[0] = q + qs + carry;
+                e[1] = rem - carry * d;
+            }
+            if l <= r {
+                return Some((j, l as usize, r as usize + 1));
+            }
+        }
+        None
     }
 }
 

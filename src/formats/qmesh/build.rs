@@ -132,7 +132,8 @@ pub fn build_tile(
     for t in &tin.triangles {
         let p = t.map(|k| positions[k as usize]);
         let mut worst = 0.0f64;
-        crate::tin::scan_triangle(p, &axis, &axis, false, |i, j, z| {
+        let ij = t.map(|k| tin.vertices[k as usize]);
+        crate::tin::scan_triangle_ij(p, ij, &axis, &axis, false, |i, j, z| {
             worst = worst.max((s.at(i as i64, j as i64) - z).abs());
         });
         let d2 = |a: [f64; 3], b: [f64; 3]| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2);
