@@ -510,7 +510,9 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
             for b in &mut blocks {
                 let xq = [x, x + ax.step, x + 2.0 * ax.step, x + 3.0 * ax.step];
                 let e: [f64; 4] = std::array::from_fn(|q| (f64::from(b[q]) - s.z(xq[q])).abs());
-                if (e[0] > worst) | (e[1] > worst) | (e[2] > worst) | (e[3] > worst) {
+                // The largest error, NaN skipped like `f64::max` does, in plain comparisons.
+                let top = e.iter().fold(f64::NEG_INFINITY, |m, &v| if v > m { v } else { m });
+                if top > worst {
                     for (q, &eq) in e.iter().enumerate() {
                         if eq > worst && !is_corner(xq[q], ys[s.j]) {
                             worst = eq;
