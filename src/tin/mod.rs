@@ -794,23 +794,19 @@ pub fn scan_triangle(
     });
 }
 
-/// [`scan_triangle`] of a triangle whose corners are the samples `ij` (column, row indices):
-/// the same samples and heights, found faster on regular axes.
-pub fn scan_triangle_ij(
+/// The rows of [`scan_triangle`] of a triangle whose corners are the samples `ij` (column, row
+/// indices): `f` gets each row's span, whose [`RowSpan::z`] at `xs.at(i)` is the height that
+/// [`scan_triangle`] gives sample `i`. Found faster on regular axes, and the caller's loop over
+/// a row's samples is its own.
+pub fn scan_triangle_rows_ij(
     p: [[f64; 3]; 3],
     ij: [[u32; 2]; 3],
     xs: &Axis,
     ys: &Axis,
     inner: bool,
-    mut f: impl FnMut(usize, usize, f64),
+    f: impl FnMut(RowSpan),
 ) {
-    scan_spans_in(p, Some(ij), xs, ys, inner, SMALL_BOX_SAMPLES, 0..usize::MAX, |s| {
-        let mut x = xs.at(s.i0);
-        for i in s.i0..s.i1 {
-            f(i, s.j, s.z(if i + 1 == xs.n { xs.last } else { x }));
-            x += xs.step;
-        }
-    });
+    scan_spans_in(p, Some(ij), xs, ys, inner, SMALL_BOX_SAMPLES, 0..usize::MAX, f);
 }
 
 /// [`scan_triangle`] restricted to the rows `rows` of `ys`: the same samples with the same

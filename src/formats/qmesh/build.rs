@@ -133,8 +133,14 @@ pub fn build_tile(
         let p = t.map(|k| positions[k as usize]);
         let mut worst = 0.0f64;
         let ij = t.map(|k| tin.vertices[k as usize]);
-        crate::tin::scan_triangle_ij(p, ij, &axis, &axis, false, |i, j, z| {
-            worst = worst.max((s.at(i as i64, j as i64) - z).abs());
+        crate::tin::scan_triangle_rows_ij(p, ij, &axis, &axis, false, |r| {
+            // Sample (i, j) of the tile is (i + 1, j + 1) of the samples with their margin.
+            let row = &s.heights[(r.j + 1) * SIDE + 1..][r.i0..r.i1];
+            for (i, &v) in (r.i0..).zip(row) {
+                // Unit axis from 0: sample i is at x = i.
+                let e = (v - r.z(i as f64)).abs();
+                worst = if e > worst { e } else { worst };
+            }
         });
         let d2 = |a: [f64; 3], b: [f64; 3]| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2);
         measured = measured.max(worst + chord * d2(p[0], p[1]).max(d2(p[1], p[2])).max(d2(p[2], p[0])));
