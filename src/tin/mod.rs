@@ -533,7 +533,42 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
                 k += 1;
             }
         };
-        if regular {
+        let (bi, bj) = (
+            [(i_lo as usize).max(1), (i_hi as usize + 1).min(nc - 1)],
+            [(j_lo as usize).max(1), (j_hi as usize + 1).min(nr - 1)],
+        );
+        if regular && bi[1] > bi[0] && bj[1] > bj[0] && (bi[1] - bi[0]) * (bj[1] - bj[0]) <= TINY_BOX_SAMPLES
+        {
+            // A few samples (most faces of a dense mesh): each tested against the three edges
+            // in integers, the plane only once one is inside; the same samples, the same
+            // heights and the same order as the rows below.
+            let [a, mut b, mut c] = ij.map(|v| [i64::from(v[0]), i64::from(v[1])]);
+            let det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+            if det < 0 {
+                std::mem::swap(&mut b, &mut c);
+            }
+            let edges = [(a, b), (b, c), (c, a)].map(|(u, v)| (u[0], u[1], v[0] - u[0], v[1] - u[1]));
+            let mut plane = None;
+            for (j, &y) in ys.iter().enumerate().take(bj[1]).skip(bj[0]) {
+                let mut zrow = None;
+                for i in bi[0]..bi[1] {
+                    let (ii, jj) = (i as i64, j as i64);
+                    if det == 0 || !edges.iter().all(|&(ux, uy, ex, ey)| ey * (ii - ux) <= ex * (jj - uy)) {
+                        continue;
+                    }
+                    let Some(pl) = *plane.get_or_insert_with(|| Plane::of(p)) else {
+                        break;
+                    };
+                    let s = *zrow.get_or_insert_with(|| pl.span(j, y, i, i + 1));
+                    let x = ax.start + i as i64 as f64 * ax.step;
+                    let e = (h(i, j) - s.z(x)).abs();
+                    if e > worst && !is_corner(x, y) {
+                        worst = e;
+                        sample = (j * nc + i) as u32;
+                    }
+                }
+            }
+        } else if regular {
             // The rows straight from the integer edge walk, in this loop (no callback).
             if let Some(plane) = Plane::of(p) {
                 for (j, s0, s1) in IntSpans::new(ij, [1, nc - 1], 1..nr - 1) {
@@ -722,6 +757,10 @@ impl Axis {
         k.min(self.n - 1)
     }
 }
+
+/// Faces of the greedy insertion whose bounding box (inner samples) holds at most this many
+/// samples are tested sample by sample in integers.
+const TINY_BOX_SAMPLES: usize = 12;
 
 /// Triangles whose bounding box holds at most this many samples are scanned sample by sample.
 const SMALL_BOX_SAMPLES: usize = 48;
