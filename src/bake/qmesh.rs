@@ -276,7 +276,8 @@ impl<'a> TerrainSource<'a> {
     fn pixels(&self, id: TileId) -> Vec<Option<(f64, f64)>> {
         type Px = Option<(f64, f64)>;
         let n = i64::from(CELLS);
-        let memo = std::cell::RefCell::new(std::collections::HashMap::<(i64, i64), Px>::new());
+        // About 90 exact points a tile, each asked for several times: FxHash, not SipHash.
+        let memo = std::cell::RefCell::new(rustc_hash::FxHashMap::<(i64, i64), Px>::default());
         let exact = |i: i64, j: i64| -> Px {
             if let Some(&p) = memo.borrow().get(&(i, j)) {
                 return p;
@@ -363,7 +364,8 @@ impl<'a> TerrainSource<'a> {
         let corners = |c: f64, r: f64| {
             let c = c.clamp(0.0, f64::from(w - 1));
             let r = r.clamp(0.0, f64::from(h - 1));
-            let (c0, r0) = (c.floor() as u32, r.floor() as u32);
+            // Clamped to ≥ 0, so truncation is the floor (and needs no libm call).
+            let (c0, r0) = (c as u32, r as u32);
             (c0, (c0 + 1).min(w - 1), r0, (r0 + 1).min(h - 1), c - f64::from(c0), r - f64::from(r0))
         };
         // The columns and rows the bilinear reads need, once each: marked in a window over their
