@@ -206,7 +206,7 @@ pub const REGION_SPLIT_SAMPLES: usize = 1 << 17;
 /// Builds the TIN of `heights` (row-major over `grid.rows × grid.cols`) so that every sample is
 /// within `max_error` (vertical, in height units) of the mesh.
 pub fn build(grid: &NodeGrid, heights: &[f32], max_error: f64) -> Result<Tin, TinError> {
-    build_split(grid, heights, max_error, [REGION_SPLIT_SAMPLES, LOCAL_SPLIT_SAMPLES], 0.0)
+    build_split(grid, heights, max_error, [REGION_SPLIT_SAMPLES, LOCAL_SPLIT_SAMPLES], 0.0, true)
 }
 
 /// [`build`] for a surface that a client draws curved away below flat triangles: a triangle
@@ -224,17 +224,20 @@ pub fn build_with_chord(
     if !chord.is_finite() || chord < 0.0 {
         return Err(TinError::BadMaxError(chord));
     }
-    build_split(grid, heights, max_error, [REGION_SPLIT_SAMPLES, LOCAL_SPLIT_SAMPLES], chord)
+    build_split(grid, heights, max_error, [REGION_SPLIT_SAMPLES, LOCAL_SPLIT_SAMPLES], chord, true)
 }
 
 /// [`build`], splitting regions of more than `split[0]` samples, and of more than `split[1]`
-/// where the seam is dense.
+/// where the seam is dense. `int_scans`: faces with corners on a regular grid are scanned by
+/// integer edge walks (always in a build; off only in tests, which check that the float scan
+/// finds the very same meshes).
 fn build_split(
     grid: &NodeGrid,
     heights: &[f32],
     max_error: f64,
     [split_samples, local_split_samples]: [usize; 2],
     chord: f64,
+    int_scans: bool,
 ) -> Result<Tin, TinError> {
     let (nc, nr) = (grid.cols.len(), grid.rows.len());
     if nc < 2 || nr < 2 {
@@ -250,7 +253,7 @@ fn build_split(
         return Err(TinError::NonFinite { col: grid.cols[k % nc], row: grid.rows[k / nc] });
     }
     let local_split_samples = local_split_samples.min(split_samples);
-    let node = Node { grid, heights, nc, max_error, split_samples, local_split_samples, chord };
+    let node = Node { grid, heights, nc, max_error, split_samples, local_split_samples, chord, int_scans };
     let whole = Region { i0: 0, i1: nc - 1, j0: 0, j1: nr - 1 };
     let borders = Borders {
         bottom: node.row_border(0, 0, nc - 1),
@@ -272,6 +275,8 @@ struct Node<'a> {
     local_split_samples: usize,
     /// Sag of a chord per squared grid unit of its length (0: a flat surface).
     chord: f64,
+    /// Integer scans where the grid is regular (see [`build_split`]).
+    int_scans: bool,
 }
 
 impl Node<'_> {
@@ -482,7 +487,7 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
     };
     // `corners`: the face's vertex handles; the one nearest the chosen sample becomes the
     // candidate's hint, where spade's point location starts (its walk then ends at once).
-    let regular = ax.uniform() && ay.uniform();
+    let regular = node.int_scans && ax.uniform() && ay.uniform();
     let scan = |p: [[f64; 3]; 3], ij: [[u32; 2]; 3], corners: [u32; 3]| {
         // A face within one grid cell (most faces of a dense mesh) holds no sample but its own
         // corners, which the mesh passes through: nothing to scan.
@@ -1257,8 +1262,8 @@ mod tests {
         let hs = terrain(w, h, 11);
         let g = grid(w, h);
         let span = Span { col0: 0, col1: w - 1, row0: 0, row1: h - 1 };
-        let whole = build_split(&g, &hs, e, [usize::MAX; 2], 0.0).unwrap();
-        let split = build_split(&g, &hs, e, [2_000, usize::MAX], 0.0).unwrap();
+        let whole = build_split(&g, &hs, e, [usize::MAX; 2], 0.0, true).unwrap();
+        let split = build_split(&g, &hs, e, [2_000, usize::MAX], 0.0, true).unwrap();
         assert_ne!(whole, split, "the small threshold must split the node");
         for tin in [&whole, &split] {
             let pos = positions(&g, &hs, tin);
@@ -1291,7 +1296,7 @@ mod tests {
         let hs = terrain(w, h, 5);
         let g = grid(w, h);
         let span = Span { col0: 0, col1: w - 1, row0: 0, row1: h - 1 };
-        let whole = build_split(&g, &hs, e, [usize::MAX; 2], 0.0).unwrap();
+        let whole = build_split(&g, &hs, e, [usize::MAX; 2], 0.0, true).unwrap();
         let local = build(&g, &hs, e).unwrap();
         assert_ne!(whole, local, "dense data must be split locally");
         let err = measure_vertical(&positions(&g, &hs, &local), &local.triangles, span, &hs).unwrap();
@@ -1404,7 +1409,69 @@ mod tests {
         assert!(matches!(err, TinError::Uncovered { missing: 10, total: 25 }));
     }
 
+    /// Integer scans (edge walks and the per-sample test of tiny faces) find the very same
+    /// meshes as the float scan, on flat and curved surfaces, regular grids of unit and wider
+    /// steps, tie-heavy (rounded) heights and coarse to fine bounds.
+    #[test]
+    fn integer_scans_build_the_float_scans_meshes() {
+        for (w, h, step, seed) in [(65, 65, 1, 1), (100, 37, 1, 2), (33, 129, 3, 3), (80, 80, 2, 4)] {
+            let g = NodeGrid {
+                cols: (0..w).map(|k| 7 + k * step).collect(),
+                rows: (0..h).map(|k| k * step).collect(),
+            };
+            for rounded in [false, true] {
+                let mut hs = terrain(w, h, seed);
+                if rounded {
+                    for v in &mut hs {
+                        *v = (*v / 4.0).round() * 4.0;
+                    }
+                }
+                for (e, chord) in [(0.2, 0.0), (2.0, 0.0), (8.0, 0.0), (2.0, 1e-3), (0.5, 0.05)] {
+                    let split = [REGION_SPLIT_SAMPLES, LOCAL_SPLIT_SAMPLES];
+                    let int = build_split(&g, &hs, e, split, chord, true).unwrap();
+                    let float = build_split(&g, &hs, e, split, chord, false).unwrap();
+                    assert!(int.vertices.len() > 4, "{w}×{h} at {e}: too coarse to test anything");
+                    assert_eq!(
+                        int, float,
+                        "{w}×{h} step {step}, rounded {rounded}, error {e}, chord {chord}"
+                    );
+                }
+            }
+        }
+    }
+
     proptest::proptest! {
+        /// On regular axes (any start, any step), a triangle whose corners are samples gets
+        /// exactly the float scan's rows from the integer edge walk: the same samples and the
+        /// same plane heights bit for bit, whole or restricted to some rows; thin, flat and
+        /// degenerate triangles included.
+        #[test]
+        fn integer_and_float_spans_agree(
+            v in proptest::collection::vec((0u32..30, 0u32..30, -50.0f64..50.0), 3),
+            start in 0u32..1000,
+            (sx, sy) in (1u32..4, 1u32..4),
+            inner: bool,
+            limit in proptest::sample::select(vec![0usize, 48, usize::MAX]),
+            (r0, r1) in (0usize..30, 0usize..31),
+        ) {
+            let cols: Vec<u32> = (0..30).map(|k| start + k * sx).collect();
+            let rows: Vec<u32> = (0..30).map(|k| start / 2 + k * sy).collect();
+            let (xs, ys) = (Axis::of(&cols), Axis::of(&rows));
+            proptest::prop_assert!(xs.uniform() && ys.uniform());
+            let ij: [[u32; 2]; 3] = std::array::from_fn(|k| [v[k].0, v[k].1]);
+            let p: [[f64; 3]; 3] = std::array::from_fn(|k| [xs.at(v[k].0 as usize), ys.at(v[k].1 as usize), v[k].2]);
+            for rows in [0..usize::MAX, r0..r1] {
+                let collect = |ij| {
+                    let mut out = Vec::new();
+                    scan_spans_in(p, ij, &xs, &ys, inner, limit, rows.clone(), |s| {
+                        out.extend((s.i0..s.i1).map(|i| (i, s.j, s.z(xs.at(i)).to_bits())));
+                    });
+                    out
+                };
+                proptest::prop_assert_eq!(collect(Some(ij)), collect(None));
+            }
+        }
+
         /// The per-sample box test and the row-span walk visit the same samples with the same
         /// plane heights, for triangles on and off the sample grid and a clipped last column.
         #[test]
