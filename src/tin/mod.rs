@@ -581,7 +581,10 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
                 }
             }
         } else {
-            scan_spans_in(p, Some(ij), &ax, &ay, true, SMALL_BOX_SAMPLES, 0..usize::MAX, row_scan);
+            // Irregular axes (a node clipped at the raster's edge): float spans. Without integer
+            // scans (tests) the box comes from positions too, so nothing integer is left.
+            let ij = node.int_scans.then_some(ij);
+            scan_spans_in(p, ij, &ax, &ay, true, SMALL_BOX_SAMPLES, 0..usize::MAX, row_scan);
         }
         (sample != u32::MAX).then(|| {
             let (si, sj) = (sample % nc as u32, sample / nc as u32);
