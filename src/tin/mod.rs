@@ -28,6 +28,8 @@ pub enum TinError {
     Insertion(InsertionError),
     #[error("tin: the mesh leaves {missing} of {total} raster samples uncovered")]
     Uncovered { missing: u64, total: u64 },
+    #[error("tin: greedy insertion stalled: sample ({col}, {row}) is already a vertex")]
+    Stalled { col: u32, row: u32 },
 }
 
 /// A TIN over a node grid: vertices are (column, row) indices into the `NodeGrid` (so every
@@ -574,11 +576,9 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
                 }
             }
         } else if regular {
-            // The rows straight from the integer edge walk, in this loop (no callback).
+            // The rows from the integer edge walk.
             if let Some(plane) = Plane::of(p) {
-                for (j, s0, s1) in IntSpans::new(ij, [1, nc - 1], 1..nr - 1) {
-                    row_scan(plane.span(j, ay.at(j), s0, s1));
-                }
+                int_spans(ij, [1, nc - 1], 1..nr - 1, |j, s0, s1| row_scan(plane.span(j, ay.at(j), s0, s1)));
             }
         } else {
             // Irregular axes (a node clipped at the raster's edge): float spans. Without integer
@@ -603,6 +603,7 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
     while let Some(c) = heap.peek() {
         let hint = FixedVertexHandle::from_index(c.hint as usize);
         let (ci, cj) = (c.sample() % nc as u32, c.sample() / nc as u32);
+        let before = tri.num_vertices();
         let v = tri
             .insert_with_hint(
                 Vertex {
@@ -614,6 +615,15 @@ fn greedy_region(node: &Node, r: Region, b: &Borders) -> Result<Tin, TinError> {
                 hint,
             )
             .map_err(TinError::Insertion)?;
+        // Each round adds a vertex, so the loop ends within the region's sample count; a
+        // candidate that is already a vertex would repeat forever, so it is an error instead
+        // (a scan that strays outside its face; never seen).
+        if tri.num_vertices() == before {
+            return Err(TinError::Stalled {
+                col: node.grid.cols[r.i0 + ci as usize],
+                row: node.grid.rows[r.j0 + cj as usize],
+            });
+        }
         // Every face an insertion creates (by splitting or by the flips that follow) is incident
         // to the new vertex, so its star is all that needs a new scan. The face left of the
         // out-edge v→w is (v, w, next(w)).
@@ -916,9 +926,7 @@ fn scan_spans_in(
     if let Some(ij) = ij.filter(|_| xs.uniform() && ys.uniform()) {
         // Corners on regular axes: the same samples, from exact integer edge walks.
         let rows = rows.start.max(lo)..rows.end.min(hi(ys.len()));
-        for (j, s0, s1) in IntSpans::new(ij, [lo, iend], rows) {
-            f(span(j, ys.at(j), s0, s1));
-        }
+        int_spans(ij, [lo, iend], rows, |j, s0, s1| f(span(j, ys.at(j), s0, s1)));
         return;
     }
     let ([i0, i1], [j0, j1]) = (
@@ -993,79 +1001,96 @@ fn scan_spans_in(
     }
 }
 
-/// The rows of the closed triangle whose corners are the sample indices `ij`, as `(j, i0, i1)`:
-/// row `j` in `rows` holds columns `i0..i1` (within `cols`, half-open; empty rows are skipped).
-/// On a regular grid these are exactly the samples within [`scan_spans`]'s EPS of the triangle:
-/// a sample off an edge is at least 1/|Δ| grid steps from it, far more than EPS. Integer
-/// arithmetic: each edge's bound on a row is a floor division of `ex·(j − uy)` by `|ey|`,
-/// stepped from row to row by its quotient and remainder (no division in the loop). Nothing for
-/// a degenerate triangle. An iterator, not a callback, so that a scan's row loop is one body.
-struct IntSpans {
-    /// Per edge: quotient, remainder, their steps per row, divisor, side (+1 right bound,
-    /// −1 left bound, 0 flat), ux.
-    edges: [[i64; 7]; 3],
-    j: usize,
-    end: usize,
-    lo: i64,
-    hi: i64,
-}
-
-impl IntSpans {
-    fn new(ij: [[u32; 2]; 3], [c0, c1]: [usize; 2], rows: std::ops::Range<usize>) -> Self {
-        let [a, mut b, mut c] = ij.map(|v| [i64::from(v[0]), i64::from(v[1])]);
-        let det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
-        let (r0, r1) = (
-            rows.start.max(a[1].min(b[1]).min(c[1]) as usize),
-            rows.end.min(a[1].max(b[1]).max(c[1]) as usize + 1),
-        );
-        let empty = Self { edges: [[0; 7]; 3], j: 0, end: 0, lo: 0, hi: 0 };
-        if det == 0 || r1 <= r0 || c1 <= c0 {
-            return empty;
+/// Calls `f(j, i0, i1)` for each row `j` in `rows` of the closed triangle whose corners are the
+/// sample indices `ij`, with its columns `i0..i1` (within `cols`, half-open; empty rows are
+/// skipped), top row first. On a regular grid these are exactly the samples within
+/// [`scan_spans`]'s EPS of the triangle: a sample off an edge is at least 1/|Δ| grid steps from
+/// it, far more than EPS. A scanline walk in integers: the long edge (top to bottom corner)
+/// bounds one side of every row, the two short edges the other side of theirs, each edge's
+/// column on a row being `ux + ⌊ex·(j − uy) / ey⌋` (or its ceiling), stepped from row to row by
+/// quotient and remainder (a division per edge to set up, none in the loop). Nothing for a
+/// degenerate triangle.
+fn int_spans(
+    ij: [[u32; 2]; 3],
+    [c0, c1]: [usize; 2],
+    rows: std::ops::Range<usize>,
+    mut f: impl FnMut(usize, usize, usize),
+) {
+    let mut v = ij.map(|p| [i64::from(p[0]), i64::from(p[1])]);
+    v.sort_unstable_by_key(|p| p[1]);
+    let [t, m, b] = v;
+    // > 0: the middle corner lies left of the long edge, so the short edges bound the left.
+    let cross = (b[0] - t[0]) * (m[1] - t[1]) - (m[0] - t[0]) * (b[1] - t[1]);
+    let (lo, hi) = (c0 as i64, c1 as i64 - 1);
+    let (r0, r1) = (rows.start.max(t[1] as usize), rows.end.min(b[1] as usize + 1));
+    if cross == 0 || r0 >= r1 || lo > hi {
+        return;
+    }
+    let short_left = cross > 0;
+    let long = Edge::new(t, b, r0 as i64);
+    // Rows of the first short edge: to the middle row, or through it when the bottom edge is
+    // flat (then the middle row's other bound is the bottom corner, on the long edge).
+    let split = if m[1] == b[1] { m[1] + 1 } else { m[1] } as usize;
+    let mut long = long;
+    let mut run = |short: &mut Edge, from: usize, to: usize, long: &mut Edge| {
+        for j in from..to {
+            let (l, r) = if short_left { (short.ceil(), long.floor()) } else { (long.ceil(), short.floor()) };
+            let (l, r) = (l.max(lo), r.min(hi));
+            if l <= r {
+                f(j, l as usize, r as usize + 1);
+            }
+            short.step();
+            long.step();
         }
-        if det < 0 {
-            std::mem::swap(&mut b, &mut c);
-        }
-        // Counter-clockwise now: p is inside edge u→v iff ey·(px − ux) ≤ ex·(py − uy). With
-        // d = |ey| and q = ⌊ex·(py − uy) / d⌋, that is px ≤ ux + q (ey > 0: a right bound) or
-        // px ≥ ux − q (ey < 0: a left bound); a flat edge bounds rows only, and the rows are
-        // the triangle's. |ex·(py − uy)| < 2⁴⁸: indices are below 2²⁴ (`Axis::uniform`).
-        let j_start = r0 as i64;
-        let edges = [(a, b), (b, c), (c, a)].map(|(u, v)| {
-            let (ex, ey) = (v[0] - u[0], v[1] - u[1]);
-            let d = ey.abs().max(1);
-            let num = ex * (j_start - u[1]);
-            [num.div_euclid(d), num.rem_euclid(d), ex.div_euclid(d), ex.rem_euclid(d), d, ey.signum(), u[0]]
-        });
-        Self { edges, j: r0, end: r1, lo: c0 as i64, hi: c1 as i64 - 1 }
+    };
+    if m[1] > t[1] && r0 < split {
+        let to = split.min(r1);
+        run(&mut Edge::new(t, m, r0 as i64), r0, to, &mut long);
+    }
+    if b[1] > m[1] && split.max(r0) < r1 {
+        let from = split.max(r0);
+        run(&mut Edge::new(m, b, from as i64), from, r1, &mut long);
     }
 }
 
-impl Iterator for IntSpans {
-    type Item = (usize, usize, usize);
+/// A triangle edge from `u` to `v` (`v` on a later row) as the column `ux + q + r / d` where it
+/// crosses the current row, with `0 ≤ r < d`, and the per-row steps of `q` and `r`.
+struct Edge {
+    x: i64,
+    q: i64,
+    r: i64,
+    qs: i64,
+    rs: i64,
+    d: i64,
+}
+
+impl Edge {
+    /// At row `y` (`u`'s row or later). Values stay below 2⁴⁸: indices are below 2²⁴
+    /// (`Axis::uniform`).
+    #[inline]
+    fn new(u: [i64; 2], v: [i64; 2], y: i64) -> Self {
+        let (ex, d) = (v[0] - u[0], v[1] - u[1]);
+        let num = ex * (y - u[1]);
+        let (q, r) = if num == 0 { (0, 0) } else { (num.div_euclid(d), num.rem_euclid(d)) };
+        Self { x: u[0], q, r, qs: ex.div_euclid(d), rs: ex.rem_euclid(d), d }
+    }
 
     #[inline]
-    fn next(&mut self) -> Option<(usize, usize, usize)> {
-        while self.j < self.end {
-            let j = self.j;
-            self.j += 1;
-            let (mut l, mut r) = (self.lo, self.hi);
-            for e in &mut self.edges {
-                let [q, rem, qs, rs, d, side, ux] = *e;
-                if side > 0 {
-                    r = r.min(ux + q);
-                } else if side < 0 {
-                    l = l.max(ux - q);
-                }
-                let rem = rem + rs;
-                let carry = i64::from(rem >= d);
-                e[0] = q + qs + carry;
-                e[1] = rem - carry * d;
-            }
-            if l <= r {
-                return Some((j, l as usize, r as usize + 1));
-            }
-        }
-        None
+    fn floor(&self) -> i64 {
+        self.x + self.q
+    }
+
+    #[inline]
+    fn ceil(&self) -> i64 {
+        self.x + self.q + i64::from(self.r > 0)
+    }
+
+    #[inline]
+    fn step(&mut self) {
+        self.r += self.rs;
+        let carry = i64::from(self.r >= self.d);
+        self.q += self.qs + carry;
+        self.r -= carry * self.d;
     }
 }
 
