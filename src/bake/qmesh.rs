@@ -581,7 +581,6 @@ pub fn bake_terrain_tiles(
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
     use super::*;
-    use crate::crs::{Crs, CrsGrid, VerticalDatum};
     use crate::formats::qmesh::grid::cell_degrees;
     use crate::raster::Heightfield;
 
@@ -590,17 +589,7 @@ mod tests {
     fn source() -> (Heightfield, Georef) {
         let (w, h, d) = (700u32, 500u32, 30.0);
         let data = (0..w * h).map(|k| (k % w) as f32 * 0.5 + (k / w) as f32 * 0.25).collect();
-        let (e0, n0) = (780_000.0, 5_300_000.0);
-        let grid = CrsGrid { crs: Crs::from_epsg(32632).unwrap(), e0, n0, de: d, dn: -d };
-        let g = Georef {
-            crs: Some(grid),
-            vertical: VerticalDatum::Egm96,
-            dx: d,
-            dy: -d,
-            x0: e0,
-            y0: n0,
-            ..Georef::default()
-        };
+        let g = Georef::projected_egm96(32632, 780_000.0, 5_300_000.0, d);
         (Heightfield { width: w, height: h, data }, g)
     }
 

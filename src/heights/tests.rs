@@ -84,16 +84,7 @@ fn an_unplaced_dataset_answers_local_native_only() {
 fn utm() -> (Heightfield, Georef) {
     let (e0, n0, d) = (600_000.0, 5_200_000.0, 30.0);
     let hf = raster(40, 40, |c, r| 0.01 * (c * d) + 0.02 * (n0 - r * d - 5_199_000.0));
-    let grid = CrsGrid { crs: Crs::from_epsg(32632).unwrap(), e0, n0, de: d, dn: -d };
-    let g = Georef {
-        crs: Some(grid),
-        vertical: VerticalDatum::Egm96,
-        dx: d,
-        dy: -d,
-        x0: e0,
-        y0: n0,
-        ..Georef::default()
-    };
+    let g = Georef::projected_egm96(32632, e0, n0, d);
     (hf, g)
 }
 

@@ -150,6 +150,24 @@ pub enum FrameError {
     NoGrid(&'static str),
 }
 
+#[cfg(test)]
+impl Georef {
+    /// A test frame: the grid of EPSG `epsg` from `(e0, n0)` (metres), square cells of `d`
+    /// going south, heights above EGM96; world coordinates are the CRS's own.
+    pub(crate) fn projected_egm96(epsg: u32, e0: f64, n0: f64, d: f64) -> Self {
+        let grid = CrsGrid { crs: Crs::from_epsg(epsg).expect("a known EPSG code"), e0, n0, de: d, dn: -d };
+        Self {
+            crs: Some(grid),
+            vertical: VerticalDatum::Egm96,
+            dx: d,
+            dy: -d,
+            x0: e0,
+            y0: n0,
+            ..Self::default()
+        }
+    }
+}
+
 impl Georef {
     /// The exact way from this world frame to the Earth; `None` for a local frame.
     pub fn frame(&self) -> Result<Option<Frame>, FrameError> {
