@@ -466,3 +466,107 @@ async fn serving_threads_share_the_port_and_the_limits() {
         assert!(e.to_string().contains("--threads"), "{e}");
     }
 }
+
+/// With one serving thread per CPU (`--cpu-affinity auto`, the default), each thread's socket
+/// takes the connections its CPU receives: a client that connects from one CPU reaches one
+/// thread with all of its connections. That thread, busy while the other idles, hands idle
+/// connections over: `terrastream_connections_moved_total` counts them, and every request is
+/// still answered once, in order, with the right bytes. Needs two CPUs and Linux 6.1 or later
+/// (where the kernel steers by CPU); elsewhere it says why it skips.
+#[cfg(target_os = "linux")]
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connections_from_one_cpu_are_spread_over_the_serving_threads() {
+    use std::io::{Read, Write};
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+
+    let allowed = rustix::thread::sched_getaffinity(None).unwrap();
+    let cpus: Vec<usize> = (0..rustix::thread::CpuSet::MAX_CPU).filter(|&c| allowed.is_set(c)).collect();
+    let release = std::fs::read_to_string("/proc/sys/kernel/osrelease").unwrap_or_default();
+    let mut v = release.trim().split(['.', '-']).map(|p| p.parse::<u32>().unwrap_or(0));
+    let (major, minor) = (v.next().unwrap_or(0), v.next().unwrap_or(0));
+    if cpus.len() < 2 || (major, minor) < (6, 1) {
+        eprintln!("skipped: needs 2 CPUs and Linux 6.1+ (CPUs {cpus:?}, kernel {})", release.trim());
+        return;
+    }
+    let (_tmp, store) = baked_store();
+    let srv = start(&store, |c| PartialConfig { threads: Some(cpus.len()), ..c }).await;
+    let (path, body, _) = warm(srv.addr).await;
+    let moved_before = metric(&metrics(srv.addr).await, "terrastream_connections_moved_total");
+    let stop = Arc::new(AtomicBool::new(false));
+    let answered = Arc::new(AtomicU64::new(0));
+    // A client pinned to the first CPU: 8 connections, each sending 16 pipelined GETs at a time
+    // and checking the 16 answers, until told to stop.
+    let client = {
+        let (stop, answered, addr, cpu) = (stop.clone(), answered.clone(), srv.addr, cpus[0]);
+        let (request, body) = (get(&path, "").into_bytes(), body.clone());
+        std::thread::spawn(move || {
+            let mut set = rustix::thread::CpuSet::new();
+            set.set(cpu);
+            rustix::thread::sched_setaffinity(None, &set).unwrap();
+            let connect = || {
+                let s = std::net::TcpStream::connect(addr).unwrap();
+                s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+                (s, Vec::new())
+            };
+            let mut conns: Vec<_> = (0..8).map(|_| connect()).collect();
+            let batch: Vec<u8> = request.repeat(16);
+            let mut chunk = vec![0u8; 1 << 16];
+            while !stop.load(Ordering::Relaxed) {
+                for (s, buf) in &mut conns {
+                    s.write_all(&batch).unwrap();
+                    let mut got = 0;
+                    while got < 16 {
+                        // One whole response at the front of `buf`?
+                        if let Some(end) = buf.windows(4).position(|w| w == b"\r\n\r\n") {
+                            let head = String::from_utf8_lossy(&buf[..end]).to_lowercase();
+                            assert!(head.starts_with("http/1.1 200 "), "{head}");
+                            let len: usize = head
+                                .lines()
+                                .find_map(|l| l.strip_prefix("content-length: "))
+                                .unwrap()
+                                .parse()
+                                .unwrap();
+                            if buf.len() >= end + 4 + len {
+                                assert_eq!(&buf[end + 4..end + 4 + len], &body[..]);
+                                buf.drain(..end + 4 + len);
+                                got += 1;
+                                continue;
+                            }
+                        }
+                        let n = s.read(&mut chunk).unwrap();
+                        assert!(n > 0, "the server closed a connection");
+                        buf.extend_from_slice(&chunk[..n]);
+                    }
+                    assert!(buf.is_empty(), "more bytes than 16 answers");
+                    answered.fetch_add(16, Ordering::Relaxed);
+                }
+            }
+        })
+    };
+    // Within 20 s the busy thread hands connections to the idle one.
+    let mut moved = 0.0;
+    for _ in 0..100 {
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        moved = metric(&metrics(srv.addr).await, "terrastream_connections_moved_total") - moved_before;
+        if moved >= 1.0 || client.is_finished() {
+            break;
+        }
+    }
+    // Then every connection, moved or not, is answered twice more (the client goes round them).
+    let at_move = answered.load(Ordering::Relaxed);
+    for _ in 0..100 {
+        if answered.load(Ordering::Relaxed) >= at_move + 2 * 8 * 16 || client.is_finished() {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    stop.store(true, Ordering::Relaxed);
+    client.join().expect("the client failed");
+    assert!(moved >= 1.0, "no connection moved after {at_move} requests");
+    assert!(
+        answered.load(Ordering::Relaxed) >= at_move + 2 * 8 * 16,
+        "the connections stopped being answered"
+    );
+    srv.stop().await;
+}

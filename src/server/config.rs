@@ -64,6 +64,21 @@ pub enum LogFormat {
     Json,
 }
 
+/// Whether serving threads are pinned to CPUs (`--cpu-affinity`).
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CpuAffinity {
+    /// On Linux, when there is one serving thread for each CPU the process may run on: thread
+    /// `i` runs on the `i`-th of those CPUs only, and its listening socket takes the
+    /// connections whose packets that CPU receives (`SO_INCOMING_CPU`). Otherwise as `off`.
+    #[default]
+    Auto,
+    /// Threads go wherever the kernel's scheduler puts them; new connections are spread over
+    /// the listening sockets by the kernel's hash.
+    Off,
+}
+
 /// One on-demand source: tiles of tileset `name` missing from the store are baked from `raster`
 /// with these options (the `bake` command's defaults where unset).
 #[derive(Debug, Clone, PartialEq, Default, Deserialize)]
@@ -227,6 +242,16 @@ pub struct PartialConfig {
         )
     )]
     pub threads: Option<usize>,
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long,
+            env = "TERRASTREAM_CPU_AFFINITY",
+            value_enum,
+            help = "Pin each serving thread to a CPU and steer connections to the thread on the CPU that receives them (auto: on Linux, when --threads equals the CPUs this process may use) [default: auto]"
+        )
+    )]
+    pub cpu_affinity: Option<CpuAffinity>,
     #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_BAKE_WORKERS", help = format!("On-demand bake threads [default: {}]", DEFAULT_BAKE_WORKERS)))]
     pub bake_workers: Option<usize>,
     #[cfg_attr(feature = "cli", arg(long, env = "TERRASTREAM_BAKE_QUEUE", help = format!("On-demand bakes that may wait; more get 503 + Retry-After [default: {}]", DEFAULT_BAKE_QUEUE)))]
@@ -320,6 +345,7 @@ impl PartialConfig {
             request_timeout_s: self.request_timeout_s.or(lower.request_timeout_s),
             max_body_bytes: self.max_body_bytes.or(lower.max_body_bytes),
             threads: self.threads.or(lower.threads),
+            cpu_affinity: self.cpu_affinity.or(lower.cpu_affinity),
             bake_workers: self.bake_workers.or(lower.bake_workers),
             bake_queue: self.bake_queue.or(lower.bake_queue),
             cache_bytes: self.cache_bytes.or(lower.cache_bytes),
@@ -397,6 +423,7 @@ impl PartialConfig {
                 n if n > MAX_THREADS => return bad(format!("--threads {n}: at most {MAX_THREADS}")),
                 n => n,
             },
+            cpu_affinity: self.cpu_affinity.unwrap_or_default(),
             bake_workers: positive(self.bake_workers, DEFAULT_BAKE_WORKERS, "--bake-workers")?,
             bake_queue: self.bake_queue.unwrap_or(DEFAULT_BAKE_QUEUE),
             cache_bytes: self.cache_bytes.unwrap_or(DEFAULT_CACHE_BYTES),
@@ -436,6 +463,7 @@ pub struct Config {
     pub max_body_bytes: u64,
     /// Threads serving connections (one runtime and one listening socket each).
     pub threads: usize,
+    pub cpu_affinity: CpuAffinity,
     pub bake_workers: usize,
     pub bake_queue: usize,
     pub cache_bytes: u64,

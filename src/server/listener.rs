@@ -31,7 +31,7 @@
 
 use std::collections::HashMap;
 use std::io;
-use std::net::IpAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::pin::Pin;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
@@ -60,19 +60,176 @@ pub struct Limits {
     pub idle_timeout: Duration,
 }
 
-/// What every serving thread's `serve` shares: the connection count under `max_connections`
-/// and the connections per client address.
+/// What every serving thread's `serve` shares: the connection count under `max_connections`,
+/// the connections per client address and, where connections are steered to the thread of
+/// their CPU, each thread's open connections and inbox (`Balance`).
 pub struct Shared {
     permits: Arc<Semaphore>,
     clients: Arc<Clients>,
+    balance: Option<Balance>,
 }
 
 impl Shared {
+    /// Limits only: each thread keeps what it accepts (the kernel's hash spreads connections).
     #[must_use]
     pub fn new(limits: &Limits) -> Self {
         Self {
             permits: Arc::new(Semaphore::new(limits.max_connections)),
             clients: Arc::new(Clients::default()),
+            balance: None,
+        }
+    }
+
+    /// For `threads` serving threads whose sockets take the connections of their own CPU
+    /// (`affinity`): all of one CPU's new connections reach one thread (a network card with
+    /// one queue delivers every connection on one CPU; on loopback, a client connects from
+    /// the CPU it runs on), and a connection never changes threads by itself. So each thread
+    /// watches the requests every thread answered in the last `BALANCE_PERIOD`: one that
+    /// answered more than twice the least busy one's (and at least `BALANCE_MIN_REQUESTS`)
+    /// while holding at least two connections more hands half the difference to it, each
+    /// connection at its next idle moment (no request in flight, no byte of the next read).
+    /// Returns the threads' inboxes, one for each `serve`.
+    #[must_use]
+    pub fn balanced(limits: &Limits, threads: usize) -> (Self, Vec<Inbox>) {
+        let (senders, inboxes): (Vec<_>, Vec<_>) =
+            (0..threads).map(|_| tokio::sync::mpsc::unbounded_channel()).unzip();
+        let balance = Balance { threads: (0..threads).map(|_| ThreadLoad::default()).collect(), senders };
+        (Self { balance: Some(balance), ..Self::new(limits) }, inboxes.into_iter().map(Inbox).collect())
+    }
+}
+
+/// How often a thread compares its load with the others' (`Shared::balanced`).
+const BALANCE_PERIOD: Duration = Duration::from_millis(100);
+/// Requests a thread must have answered in a `BALANCE_PERIOD` before it hands connections on.
+const BALANCE_MIN_REQUESTS: u64 = 500;
+
+/// A serving thread's connections handed over by other threads.
+pub struct Inbox(tokio::sync::mpsc::UnboundedReceiver<Handed>);
+
+/// A connection admitted by one thread, to be served by another.
+struct Handed {
+    stream: std::net::TcpStream,
+    addr: SocketAddr,
+    slots: Slots,
+}
+
+/// What a connection holds while it lives: its place under `max_connections`, under its
+/// client's cap, in `terrastream_connections_open` and (with `Shared::balanced`) in its
+/// thread's count.
+struct Slots {
+    _permit: OwnedSemaphorePermit,
+    _client: ClientSlot,
+    open: OpenGauge,
+    thread: Option<ThreadGauge>,
+}
+
+/// The serving threads' loads and inboxes.
+struct Balance {
+    threads: Box<[ThreadLoad]>,
+    senders: Vec<tokio::sync::mpsc::UnboundedSender<Handed>>,
+}
+
+/// One serving thread's counters, on a cache line of its own (each is written by its thread
+/// on every request).
+#[derive(Default)]
+#[repr(align(128))]
+struct ThreadLoad {
+    /// Connections it serves.
+    open: AtomicUsize,
+    /// Requests it answered on the wire-level fast path.
+    answered: AtomicU64,
+    /// Connections it should hand to thread `shed_to` at their next idle moment.
+    shed: AtomicUsize,
+    shed_to: AtomicUsize,
+}
+
+/// A connection's place in its serving thread's `ThreadLoad`, given back when dropped.
+struct ThreadGauge {
+    shared: Arc<Shared>,
+    thread: usize,
+}
+
+impl ThreadGauge {
+    fn new(shared: &Arc<Shared>, thread: usize) -> Option<Self> {
+        shared.balance.as_ref()?.threads.get(thread)?.open.fetch_add(1, Ordering::Relaxed);
+        Some(Self { shared: shared.clone(), thread })
+    }
+
+    fn load(&self) -> Option<&ThreadLoad> {
+        self.shared.balance.as_ref()?.threads.get(self.thread)
+    }
+
+    /// Counts a request answered.
+    fn answered(&self) {
+        if let Some(l) = self.load() {
+            l.answered.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// The thread an idle connection of this one should move to now, if any (taking one from
+    /// the thread's `shed`).
+    fn take_move(&self) -> Option<usize> {
+        let l = self.load()?;
+        if l.shed.load(Ordering::Relaxed) == 0 {
+            return None;
+        }
+        l.shed.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |n| n.checked_sub(1)).ok()?;
+        Some(l.shed_to.load(Ordering::Relaxed))
+    }
+}
+
+impl Drop for ThreadGauge {
+    fn drop(&mut self) {
+        if let Some(l) = self.load() {
+            l.open.fetch_sub(1, Ordering::Relaxed);
+        }
+    }
+}
+
+/// What thread `me` should shed, from each thread's requests answered in the last period and
+/// open connections: `(count, to)` toward the thread that answered fewest (the first of
+/// equals), when `me` answered at least `min` and more than twice as many and holds at least
+/// two connections more; else nothing.
+fn shed_plan(me: usize, answered: &[u64], open: &[usize], min: u64) -> Option<(usize, usize)> {
+    let (&mine, &mine_open) = (answered.get(me)?, open.get(me)?);
+    let (j, &least) = answered.iter().enumerate().filter(|&(i, _)| i != me).min_by_key(|&(i, &n)| (n, i))?;
+    let theirs = *open.get(j)?;
+    (mine >= min && mine > least.saturating_mul(2) && mine_open >= theirs + 2)
+        .then(|| ((mine_open - theirs) / 2, j))
+}
+
+/// Thread `me`'s balancing loop (`Shared::balanced`): every `BALANCE_PERIOD`, sets how many of
+/// its connections move, and where (`shed_plan`).
+async fn balance_loop(shared: Arc<Shared>, me: usize, mut stop: watch::Receiver<bool>) {
+    let Some(b) = shared.balance.as_ref() else { return };
+    let snapshot = || b.threads.iter().map(|t| t.answered.load(Ordering::Relaxed)).collect::<Vec<_>>();
+    let mut before = snapshot();
+    let mut tick = tokio::time::interval(BALANCE_PERIOD);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            _ = stop.wait_for(|v| *v) => return,
+        }
+        let now = snapshot();
+        let answered: Vec<u64> = now.iter().zip(&before).map(|(a, b)| a.wrapping_sub(*b)).collect();
+        before = now;
+        let open: Vec<usize> = b.threads.iter().map(|t| t.open.load(Ordering::Relaxed)).collect();
+        let Some(mine) = b.threads.get(me) else { return };
+        match shed_plan(me, &answered, &open, BALANCE_MIN_REQUESTS) {
+            Some((n, to)) => {
+                tracing::debug!(
+                    thread = me,
+                    to,
+                    connections = n,
+                    ?answered,
+                    ?open,
+                    "moving idle connections to a less busy thread"
+                );
+                mine.shed_to.store(to, Ordering::Relaxed);
+                mine.shed.store(n, Ordering::Relaxed);
+            }
+            None => mine.shed.store(0, Ordering::Relaxed),
         }
     }
 }
@@ -215,9 +372,7 @@ impl Activity {
 struct Conn {
     stream: TcpStream,
     activity: Arc<Activity>,
-    _permit: OwnedSemaphorePermit,
-    _client: ClientSlot,
-    _open: OpenGauge,
+    slots: Slots,
 }
 
 /// Counts a connection in `terrastream_connections_open` while it lives.
@@ -317,17 +472,19 @@ impl AsyncWrite for Rewind {
 const WIRE_READ: usize = 4096;
 
 /// The wire-level fast path of one connection: answers the requests `front` answers, in order
-/// (pipelined ones too), until the connection ends (`None`: closed by the client, by a timeout,
-/// after `Connection: close`, on an error or at shutdown, with no request in flight) or a
-/// request comes that `front` does not answer (`Some`: the bytes read and not answered, from
-/// that request's first byte, for hyper). Keeps the idle and header timeouts as the watchdog
-/// does for hyper, lazily: one timer per connection, moved only when it fires early.
+/// (pipelined ones too), until the connection ends (`Closed`: by the client, by a timeout,
+/// after `Connection: close`, on an error or at shutdown, with no request in flight), a
+/// request comes that `front` does not answer (`Hyper`: the bytes read and not answered, from
+/// that request's first byte), or, idle, it is to move to another serving thread (`Move`:
+/// `thread` says so, `ThreadGauge::take_move`). Keeps the idle and header timeouts as the
+/// watchdog does for hyper, lazily: one timer per connection, moved only when it fires early.
 async fn wire(
     stream: &mut TcpStream,
     front: &FastPath,
     limits: Limits,
+    thread: Option<&ThreadGauge>,
     stop: &mut watch::Receiver<bool>,
-) -> Option<BytesMut> {
+) -> WireEnd {
     let mut buf = BytesMut::with_capacity(WIRE_READ);
     let mut out = Vec::with_capacity(512);
     let mut last = Instant::now();
@@ -339,23 +496,29 @@ async fn wire(
         while !buf.is_empty() {
             match front.wire_step(&buf, &mut out) {
                 Step::NeedMore => break,
-                Step::Handoff => return Some(buf),
+                Step::Handoff => return WireEnd::Hyper(buf),
                 Step::Answer { consumed, body, close } => {
                     if write_two(stream, &out, &body, limits.idle_timeout).await.is_err() {
-                        return None;
+                        return WireEnd::Closed;
+                    }
+                    if let Some(t) = thread {
+                        t.answered();
                     }
                     buf.advance(consumed);
                     last = Instant::now();
                     head_since = None;
                     if close {
                         let _ = stream.shutdown().await;
-                        return None;
+                        return WireEnd::Closed;
                     }
                 }
             }
         }
         if buf.is_empty() {
             head_since = None;
+            if let Some(to) = thread.and_then(ThreadGauge::take_move) {
+                return WireEnd::Move(to);
+            }
         } else if head_since.is_none() {
             let now = Instant::now();
             head_since = Some(now);
@@ -374,7 +537,7 @@ async fn wire(
             r = stream.read_buf(&mut buf) => match r {
                 // The client closed (a partial head is dropped, as hyper does) or the
                 // connection failed: every complete request before was answered.
-                Ok(0) | Err(_) => return None,
+                Ok(0) | Err(_) => return WireEnd::Closed,
                 Ok(_) => last = Instant::now(),
             },
             () = timer.as_mut() => {
@@ -390,14 +553,22 @@ async fn wire(
                         Expired::Header => m.connections_header_timeouts.fetch_add(1, Ordering::Relaxed),
                     };
                     tracing::debug!(reason = ?why, "connection closed by timeout");
-                    return None;
+                    return WireEnd::Closed;
                 }
                 timer.as_mut().reset(tokio::time::Instant::from_std(deadline));
             }
             // Shutting down: nothing is in flight here (a partly received head is not).
-            _ = stop.wait_for(|v| *v) => return None,
+            _ = stop.wait_for(|v| *v) => return WireEnd::Closed,
         }
     }
+}
+
+/// How a connection leaves the wire-level fast path (`wire`).
+enum WireEnd {
+    Closed,
+    Hyper(BytesMut),
+    /// Idle, with nothing read of a next request: to be served by this thread from now on.
+    Move(usize),
 }
 
 /// Writes `head` then `body` (one `writev` when the socket takes both, as it nearly always
@@ -437,32 +608,70 @@ impl Drop for Busy {
 const TOO_MANY: &[u8] = b"HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/problem+json\r\ncache-control: no-store\r\nretry-after: 5\r\nconnection: close\r\ncontent-length: 165\r\n\r\n{\"type\":\"urn:terrastream:problem:too-many-connections\",\"title\":\"Service Unavailable\",\"status\":503,\"detail\":\"this client has too many connections open to the server\"}";
 
 /// Accepts connections until `stop` turns true, serving each with `service` under `limits`
-/// (counted in `shared` with the other serving threads'); then asks every connection to close
-/// once its request in flight is answered, and returns when all are closed (the caller bounds
-/// that wait).
+/// (counted in `shared` with the other serving threads'; with `Shared::balanced`, this is
+/// thread `me` of them, taking handed-over connections from `inbox` too); then asks every
+/// connection to close once its request in flight is answered, and returns when all are
+/// closed (the caller bounds that wait).
 pub async fn serve(
     listener: TcpListener,
     service: FastPath,
     limits: Limits,
-    shared: &Shared,
+    shared: &Arc<Shared>,
+    me: usize,
+    mut inbox: Option<Inbox>,
     mut stop: watch::Receiver<bool>,
 ) {
     let metrics = service.metrics().clone();
-    let wire_on = service.wire_enabled();
     // Every connection task holds a receiver; when all are dropped, every connection is closed.
     let (closed_tx, closed_rx) = watch::channel(());
     let mut builder = hyper::server::conn::http1::Builder::new();
     // Answer every request a client sent before shutting its write side (pipelining).
     builder.half_close(true).keep_alive(true);
-    loop {
+    let for_conns = stop.clone();
+    let spawn = |stream: TcpStream, addr: SocketAddr, slots: Slots| {
+        let conn = Conn { stream, activity: Arc::new(Activity::new()), slots };
+        let task = connection(
+            conn,
+            addr,
+            service.clone(),
+            builder.clone(),
+            limits,
+            for_conns.clone(),
+            closed_rx.clone(),
+        );
+        tokio::spawn(task);
+    };
+    // A connection another thread accepted or served before.
+    let start = |h: Handed| match TcpStream::from_std(h.stream) {
+        Ok(stream) => spawn(stream, h.addr, h.slots),
+        Err(e) => {
+            tracing::warn!(client = %h.addr, error = %e, "cannot serve a connection handed over by another thread");
+        }
+    };
+    // A handed-over connection; never, when this thread has no inbox.
+    let handed = async |inbox: &mut Option<Inbox>| match inbox {
+        Some(Inbox(rx)) => rx.recv().await,
+        None => std::future::pending().await,
+    };
+    if shared.balance.is_some() {
+        tokio::spawn(balance_loop(shared.clone(), me, stop.clone()));
+    }
+    'accept: loop {
         let permit = tokio::select! {
+            Some(h) = handed(&mut inbox) => {
+                start(h);
+                continue;
+            }
             p = shared.permits.clone().acquire_owned() => p,
             _ = stop.wait_for(|v| *v) => break,
         };
         let Ok(permit) = permit else { break };
-        let accepted = tokio::select! {
-            a = listener.accept() => a,
-            _ = stop.wait_for(|v| *v) => break,
+        let accepted = loop {
+            tokio::select! {
+                Some(h) = handed(&mut inbox) => start(h),
+                a = listener.accept() => break a,
+                _ = stop.wait_for(|v| *v) => break 'accept,
+            }
         };
         let (stream, addr) = match accepted {
             Ok(a) => a,
@@ -494,85 +703,139 @@ pub async fn serve(
         // Tiles are small responses: send them without Nagle's delay.
         let _ = stream.set_nodelay(true);
         metrics.connections_open.fetch_add(1, Ordering::Relaxed);
-        let activity = Arc::new(Activity::new());
-        let mut conn = Conn {
-            stream,
-            activity: activity.clone(),
+        let slots = Slots {
             _permit: permit,
             _client: client,
-            _open: OpenGauge(metrics.clone()),
+            open: OpenGauge(metrics.clone()),
+            thread: ThreadGauge::new(shared, me),
         };
-        let builder = builder.clone();
-        let service = service.clone();
-        let (mut stop, closed_rx, metrics) = (stop.clone(), closed_rx.clone(), metrics.clone());
-        tokio::spawn(async move {
-            let pre = if wire_on {
-                let Some(rest) = wire(&mut conn.stream, &service, limits, &mut stop).await else {
-                    drop(closed_rx);
-                    return;
-                };
-                rest.freeze()
-            } else {
-                Bytes::new()
-            };
-            if !pre.is_empty() {
-                // The head hyper reads next started arriving already.
-                activity.read();
-            }
-            let svc = {
-                let activity = activity.clone();
-                hyper::service::service_fn(move |req: hyper::Request<hyper::body::Incoming>| {
-                    activity.request_started();
-                    let busy = Busy(activity.clone());
-                    let mut req = req.map(axum::body::Body::new);
-                    req.extensions_mut().insert(ConnectInfo(Peer(addr)));
-                    let fut = service.clone().call(req);
-                    async move {
-                        let r = fut.await;
-                        drop(busy);
-                        r
-                    }
-                })
-            };
-            let conn = builder.serve_connection(TokioIo::new(Rewind { pre, conn }), svc);
-            let mut conn = std::pin::pin!(conn);
-            let expired = activity.expired(limits);
-            let mut expired = std::pin::pin!(expired);
-            let mut stopping = false;
-            loop {
-                tokio::select! {
-                    r = conn.as_mut() => {
-                        if let Err(e) = r {
-                            tracing::trace!(error = %e, "connection ended with an error");
-                        }
-                        break;
-                    }
-                    why = expired.as_mut() => {
-                        match why {
-                            Expired::Idle => metrics.connections_idle_closed.fetch_add(1, Ordering::Relaxed),
-                            Expired::Header => metrics.connections_header_timeouts.fetch_add(1, Ordering::Relaxed),
-                        };
-                        tracing::debug!(client = %addr, reason = ?why, "connection closed by timeout");
-                        // Nothing is in flight: dropping the connection closes the socket.
-                        break;
-                    }
-                    _ = stop.wait_for(|v| *v), if !stopping => {
-                        stopping = true;
-                        conn.as_mut().graceful_shutdown();
-                    }
-                }
-            }
-            drop(closed_rx);
-        });
+        spawn(stream, addr, slots);
     }
+    // Connections handed over and not yet started are closed here (nothing of them was read).
+    drop(inbox);
     drop(listener);
     drop(closed_rx);
     closed_tx.closed().await;
 }
 
+/// Hands an idle connection (nothing of a next request read) to serving thread `to`; where
+/// that fails (the thread has stopped: shutting down), the connection is closed.
+fn hand_over(stream: TcpStream, addr: SocketAddr, mut slots: Slots, to: usize) {
+    let Some(shared) = slots.thread.as_ref().map(|g| g.shared.clone()) else { return };
+    let (Some(b), Some(gauge)) = (shared.balance.as_ref(), ThreadGauge::new(&shared, to)) else { return };
+    let Some(sender) = b.senders.get(to) else { return };
+    slots.thread = Some(gauge);
+    match stream.into_std() {
+        Ok(stream) => {
+            let metrics = slots.open.0.clone();
+            if sender.send(Handed { stream, addr, slots }).is_err() {
+                tracing::debug!(client = %addr, "connection closed: its new serving thread has stopped");
+            } else {
+                metrics.connections_moved.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        Err(e) => tracing::warn!(client = %addr, error = %e, "cannot hand a connection to another thread"),
+    }
+}
+
+/// Serves one accepted connection: the wire-level fast path, then hyper for the rest of its
+/// life; drops `closed_rx` when the connection is closed.
+async fn connection(
+    mut conn: Conn,
+    addr: SocketAddr,
+    service: FastPath,
+    builder: hyper::server::conn::http1::Builder,
+    limits: Limits,
+    mut stop: watch::Receiver<bool>,
+    closed_rx: watch::Receiver<()>,
+) {
+    let metrics = service.metrics().clone();
+    let activity = conn.activity.clone();
+    let pre = if service.wire_enabled() {
+        match wire(&mut conn.stream, &service, limits, conn.slots.thread.as_ref(), &mut stop).await {
+            WireEnd::Hyper(rest) => rest.freeze(),
+            WireEnd::Closed => return,
+            WireEnd::Move(to) => {
+                let Conn { stream, slots, .. } = conn;
+                hand_over(stream, addr, slots, to);
+                return;
+            }
+        }
+    } else {
+        Bytes::new()
+    };
+    if !pre.is_empty() {
+        // The head hyper reads next started arriving already.
+        activity.read();
+    }
+    let svc = {
+        let activity = activity.clone();
+        hyper::service::service_fn(move |req: hyper::Request<hyper::body::Incoming>| {
+            activity.request_started();
+            let busy = Busy(activity.clone());
+            let mut req = req.map(axum::body::Body::new);
+            req.extensions_mut().insert(ConnectInfo(Peer(addr)));
+            let fut = service.clone().call(req);
+            async move {
+                let r = fut.await;
+                drop(busy);
+                r
+            }
+        })
+    };
+    let conn = builder.serve_connection(TokioIo::new(Rewind { pre, conn }), svc);
+    let mut conn = std::pin::pin!(conn);
+    let expired = activity.expired(limits);
+    let mut expired = std::pin::pin!(expired);
+    let mut stopping = false;
+    loop {
+        tokio::select! {
+            r = conn.as_mut() => {
+                if let Err(e) = r {
+                    tracing::trace!(error = %e, "connection ended with an error");
+                }
+                break;
+            }
+            why = expired.as_mut() => {
+                match why {
+                    Expired::Idle => metrics.connections_idle_closed.fetch_add(1, Ordering::Relaxed),
+                    Expired::Header => metrics.connections_header_timeouts.fetch_add(1, Ordering::Relaxed),
+                };
+                tracing::debug!(client = %addr, reason = ?why, "connection closed by timeout");
+                // Nothing is in flight: dropping the connection closes the socket.
+                break;
+            }
+            _ = stop.wait_for(|v| *v), if !stopping => {
+                stopping = true;
+                conn.as_mut().graceful_shutdown();
+            }
+        }
+    }
+    drop(closed_rx);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_thread_sheds_only_when_busier_by_half_and_holding_more() {
+        // All connections on thread 0, thread 1 idle: half of them move to 1.
+        assert_eq!(shed_plan(0, &[5000, 0], &[50, 0], 500), Some((25, 1)));
+        // The idle thread itself sheds nothing.
+        assert_eq!(shed_plan(1, &[5000, 0], &[50, 0], 500), None);
+        // Evenly loaded, or too little traffic to matter, or no connection to spare: nothing.
+        assert_eq!(shed_plan(0, &[5000, 4000], &[25, 25], 500), None);
+        assert_eq!(shed_plan(0, &[400, 0], &[50, 0], 500), None);
+        assert_eq!(shed_plan(0, &[5000, 0], &[1, 0], 500), None);
+        assert_eq!(shed_plan(0, &[5000, 100], &[26, 25], 500), None);
+        // Busier by more than twice but with fewer connections (heavier ones): nothing.
+        assert_eq!(shed_plan(0, &[5000, 100], &[10, 30], 500), None);
+        // Toward the least busy of several (the first of equals); never toward itself.
+        assert_eq!(shed_plan(2, &[100, 50, 6000, 50], &[10, 10, 30, 4], 500), Some((10, 1)));
+        assert_eq!(shed_plan(0, &[6000], &[30], 500), None);
+        assert_eq!(shed_plan(3, &[6000, 0], &[30, 0], 500), None);
+    }
 
     #[test]
     fn per_client_cap_counts_and_releases() {

@@ -48,6 +48,8 @@ pub struct Metrics {
     pub connections_idle_closed: AtomicU64,
     /// Connections closed because a request head took longer than `--header-timeout`.
     pub connections_header_timeouts: AtomicU64,
+    /// Idle connections a busy serving thread handed to a less busy one (`--cpu-affinity`).
+    pub connections_moved: AtomicU64,
 }
 
 impl Metrics {
@@ -195,6 +197,12 @@ impl Metrics {
             "counter",
             "Connections closed because a request head was not complete within --header-timeout.",
             get(&self.connections_header_timeouts),
+        );
+        scalar(
+            "terrastream_connections_moved_total",
+            "counter",
+            "Idle connections a busy serving thread handed to a less busy one (serving threads pinned to CPUs, --cpu-affinity).",
+            get(&self.connections_moved),
         );
         out
     }

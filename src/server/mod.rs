@@ -9,6 +9,7 @@
 //! path or header makes a handler panic (the router is property-tested with random paths).
 
 mod admin;
+mod affinity;
 mod auth;
 mod bakery;
 mod cache;
@@ -296,7 +297,10 @@ const LISTEN_BACKLOG: u32 = 4096;
 /// all). Such a bind would also join another process's `SO_REUSEPORT` sockets on the port, so
 /// a plain socket is bound to it first: if anything listens there, that fails as a plain bind
 /// does.
-fn listen(addr: SocketAddr, n: usize) -> std::io::Result<Vec<std::net::TcpListener>> {
+///
+/// With `cpus` (one per socket, `affinity::plan`), socket `i` asks for the connections CPU
+/// `cpus[i]` receives; a refusal is logged and leaves the kernel's hash to spread them.
+fn listen(addr: SocketAddr, n: usize, cpus: Option<&[usize]>) -> std::io::Result<Vec<std::net::TcpListener>> {
     let socket = |a: SocketAddr| {
         let s = if a.is_ipv4() { tokio::net::TcpSocket::new_v4()? } else { tokio::net::TcpSocket::new_v6()? };
         s.set_reuseaddr(true)?;
@@ -310,10 +314,15 @@ fn listen(addr: SocketAddr, n: usize) -> std::io::Result<Vec<std::net::TcpListen
     let addr = probe.local_addr()?;
     drop(probe);
     let mut listeners = Vec::with_capacity(n);
-    for _ in 0..n {
+    for i in 0..n {
         let s = socket(addr)?;
         #[cfg(unix)]
         s.set_reuseport(true)?;
+        if let Some(&cpu) = cpus.and_then(|c| c.get(i))
+            && let Err(e) = affinity::steer(&s, cpu)
+        {
+            tracing::warn!(cpu, error = %e, "cannot steer connections to the serving thread of their CPU (SO_INCOMING_CPU)");
+        }
         s.bind(addr)?;
         listeners.push(s.listen(LISTEN_BACKLOG)?.into_std()?);
     }
@@ -324,6 +333,8 @@ fn listen(addr: SocketAddr, n: usize) -> std::io::Result<Vec<std::net::TcpListen
 pub struct Server {
     /// One per serving thread (`Config::threads`).
     listeners: Vec<std::net::TcpListener>,
+    /// The CPU each serving thread is pinned to (`--cpu-affinity`), or none.
+    cpus: Option<Vec<usize>>,
     app: Arc<App>,
 }
 
@@ -404,9 +415,13 @@ impl Server {
                 );
             }
         }
-        let listeners = listen(app.config.bind, app.config.threads)
+        let cpus = affinity::plan(app.config.cpu_affinity, app.config.threads, &affinity::allowed_cpus());
+        let listeners = listen(app.config.bind, app.config.threads, cpus.as_deref())
             .map_err(|source| ServerError::Bind { addr: app.config.bind, source })?;
-        Ok(Self { listeners, app })
+        if let Some(c) = &cpus {
+            tracing::info!(cpus = ?c, "serving threads pinned one to a CPU; connections go to the thread on the CPU that receives them");
+        }
+        Ok(Self { listeners, cpus, app })
     }
 
     pub fn local_addr(&self) -> Result<SocketAddr, ServerError> {
@@ -468,7 +483,14 @@ impl Server {
             header_timeout: app.config.header_timeout,
             idle_timeout: app.config.idle_timeout,
         };
-        let shared = Arc::new(listener::Shared::new(&limits));
+        // Sockets steered by CPU take all of one CPU's connections: threads then even out
+        // their counts (`Shared::balanced`); the kernel's hash needs no help.
+        let (shared, inboxes) = match &self.cpus {
+            Some(_) => listener::Shared::balanced(&limits, self.listeners.len()),
+            None => (listener::Shared::new(&limits), Vec::new()),
+        };
+        let shared = Arc::new(shared);
+        let mut inboxes = inboxes.into_iter().map(Some).collect::<Vec<_>>();
         // One single-threaded runtime per serving thread, each with its own listening socket:
         // a connection stays on the thread that accepted it, with no work stealing and no
         // wake-ups across threads (nginx's worker model).
@@ -485,13 +507,21 @@ impl Server {
             let (tx, rx) = tokio::sync::oneshot::channel::<()>();
             let (app, shared, stop, mut abort) =
                 (app.clone(), shared.clone(), stop_rx.clone(), abort_rx.clone());
+            let cpu = self.cpus.as_ref().and_then(|c| c.get(i).copied());
+            let inbox = inboxes.get_mut(i).and_then(Option::take);
             let spawned =
                 std::thread::Builder::new().name(format!("terrastream-serve-{i}")).spawn(move || {
+                    if let Some(cpu) = cpu
+                        && let Err(e) = affinity::pin_current_thread(cpu)
+                    {
+                        tracing::warn!(cpu, error = %e, "cannot pin a serving thread to its CPU; it runs unpinned");
+                    }
                     rt.block_on(async move {
                         let serve = async {
                             match tokio::net::TcpListener::from_std(l) {
                                 Ok(l) => {
-                                    listener::serve(l, fast::FastPath::new(app), limits, &shared, stop).await;
+                                    listener::serve(l, fast::FastPath::new(app), limits, &shared, i, inbox, stop)
+                                        .await;
                                 }
                                 Err(e) => tracing::error!(error = %e, "cannot serve on a listening socket"),
                             }
