@@ -88,7 +88,11 @@ impl Shared {
     /// answered more than twice the least busy one's (and at least `BALANCE_MIN_REQUESTS`)
     /// while holding at least two connections more hands half the difference to it, each
     /// connection at its next idle moment (no request in flight, no byte of the next read).
-    /// Returns the threads' inboxes, one for each `serve`.
+    /// Only connections on the wire-level fast path can move that way (hyper keeps the ones it
+    /// serves), so at accept too a thread holding `ACCEPT_SLACK` connections more than twice
+    /// the least loaded thread's passes the new one to it: a burst from one CPU (a client's
+    /// connections, opened together) stays together, a lasting skew (a network card with one
+    /// queue) stays within about 2:1. Returns the threads' inboxes, one for each `serve`.
     #[must_use]
     pub fn balanced(limits: &Limits, threads: usize) -> (Self, Vec<Inbox>) {
         let (senders, inboxes): (Vec<_>, Vec<_>) =
@@ -102,6 +106,9 @@ impl Shared {
 const BALANCE_PERIOD: Duration = Duration::from_millis(100);
 /// Requests a thread must have answered in a `BALANCE_PERIOD` before it hands connections on.
 const BALANCE_MIN_REQUESTS: u64 = 500;
+/// Connections a thread may hold beyond twice the least loaded thread's before it passes new
+/// ones on at accept.
+const ACCEPT_SLACK: usize = 64;
 
 /// A serving thread's connections handed over by other threads.
 pub struct Inbox(tokio::sync::mpsc::UnboundedReceiver<Handed>);
@@ -183,6 +190,17 @@ impl Drop for ThreadGauge {
         if let Some(l) = self.load() {
             l.open.fetch_sub(1, Ordering::Relaxed);
         }
+    }
+}
+
+/// The thread that serves a connection thread `me` accepts, given each thread's open
+/// connections: `me`, unless it holds at least `slack` more than twice the least loaded
+/// thread's (the first of equals), which then gets it.
+fn accept_target(me: usize, open: &[usize], slack: usize) -> usize {
+    let Some(&mine) = open.get(me) else { return me };
+    match open.iter().enumerate().min_by_key(|&(i, &n)| (n, i)) {
+        Some((j, &n)) if j != me && mine >= n.saturating_mul(2).saturating_add(slack) => j,
+        _ => me,
     }
 }
 
@@ -703,13 +721,21 @@ pub async fn serve(
         // Tiles are small responses: send them without Nagle's delay.
         let _ = stream.set_nodelay(true);
         metrics.connections_open.fetch_add(1, Ordering::Relaxed);
+        let to = shared.balance.as_ref().map_or(me, |b| {
+            let open: Vec<usize> = b.threads.iter().map(|t| t.open.load(Ordering::Relaxed)).collect();
+            accept_target(me, &open, ACCEPT_SLACK)
+        });
         let slots = Slots {
             _permit: permit,
             _client: client,
             open: OpenGauge(metrics.clone()),
-            thread: ThreadGauge::new(shared, me),
+            thread: ThreadGauge::new(shared, to),
         };
-        spawn(stream, addr, slots);
+        if to == me {
+            spawn(stream, addr, slots);
+        } else {
+            hand_over(stream, addr, slots, to);
+        }
     }
     // Connections handed over and not yet started are closed here (nothing of them was read).
     drop(inbox);
@@ -722,9 +748,12 @@ pub async fn serve(
 /// that fails (the thread has stopped: shutting down), the connection is closed.
 fn hand_over(stream: TcpStream, addr: SocketAddr, mut slots: Slots, to: usize) {
     let Some(shared) = slots.thread.as_ref().map(|g| g.shared.clone()) else { return };
-    let (Some(b), Some(gauge)) = (shared.balance.as_ref(), ThreadGauge::new(&shared, to)) else { return };
+    let Some(b) = shared.balance.as_ref() else { return };
     let Some(sender) = b.senders.get(to) else { return };
-    slots.thread = Some(gauge);
+    if slots.thread.as_ref().is_none_or(|g| g.thread != to) {
+        let Some(gauge) = ThreadGauge::new(&shared, to) else { return };
+        slots.thread = Some(gauge);
+    }
     match stream.into_std() {
         Ok(stream) => {
             let metrics = slots.open.0.clone();
@@ -835,6 +864,23 @@ mod tests {
         assert_eq!(shed_plan(2, &[100, 50, 6000, 50], &[10, 10, 30, 4], 500), Some((10, 1)));
         assert_eq!(shed_plan(0, &[6000], &[30], 500), None);
         assert_eq!(shed_plan(3, &[6000, 0], &[30, 0], 500), None);
+    }
+
+    #[test]
+    fn a_thread_passes_new_connections_on_only_past_twice_the_least_plus_slack() {
+        assert_eq!(accept_target(0, &[63, 0], 64), 0);
+        assert_eq!(accept_target(0, &[64, 0], 64), 1);
+        assert_eq!(accept_target(0, &[100, 20], 64), 0);
+        assert_eq!(accept_target(0, &[104, 20], 64), 1);
+        assert_eq!(accept_target(1, &[0, 500, 0], 64), 0);
+        assert_eq!(accept_target(0, &[500], 64), 0);
+        assert_eq!(accept_target(2, &[5, 5], 64), 2);
+        // One queue's worth of connections, accepted one at a time by thread 0: about 2:1.
+        let mut open = [0usize, 0];
+        for _ in 0..3000 {
+            open[accept_target(0, &open, 64)] += 1;
+        }
+        assert!(open[0] <= 2 * open[1] + 64 && open[1] > 900, "{open:?}");
     }
 
     #[test]

@@ -48,7 +48,8 @@ pub struct Metrics {
     pub connections_idle_closed: AtomicU64,
     /// Connections closed because a request head took longer than `--header-timeout`.
     pub connections_header_timeouts: AtomicU64,
-    /// Idle connections a busy serving thread handed to a less busy one (`--cpu-affinity`).
+    /// Connections a busy serving thread handed to a less busy one, at accept or idle
+    /// (`--cpu-affinity`).
     pub connections_moved: AtomicU64,
 }
 
@@ -201,7 +202,7 @@ impl Metrics {
         scalar(
             "terrastream_connections_moved_total",
             "counter",
-            "Idle connections a busy serving thread handed to a less busy one (serving threads pinned to CPUs, --cpu-affinity).",
+            "Connections a busy serving thread handed to a less busy one, at accept or between requests (serving threads pinned to CPUs, --cpu-affinity).",
             get(&self.connections_moved),
         );
         out
