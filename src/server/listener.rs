@@ -143,7 +143,7 @@ struct Balance {
 struct ThreadLoad {
     /// Connections it serves.
     open: AtomicUsize,
-    /// Requests it answered on the wire-level fast path.
+    /// Requests it answered (on the wire-level fast path and through hyper).
     answered: AtomicU64,
     /// Connections it should hand to thread `shed_to` at their next idle moment.
     shed: AtomicUsize,
@@ -797,10 +797,16 @@ async fn connection(
         // The head hyper reads next started arriving already.
         activity.read();
     }
+    // hyper's requests count in the thread's load too (`balance_loop`), though only the fast
+    // path's connections can move.
+    let load = conn.slots.thread.as_ref().map(|g| (g.shared.clone(), g.thread));
     let svc = {
         let activity = activity.clone();
         hyper::service::service_fn(move |req: hyper::Request<hyper::body::Incoming>| {
             activity.request_started();
+            if let Some(l) = load.as_ref().and_then(|(s, t)| s.balance.as_ref()?.threads.get(*t)) {
+                l.answered.fetch_add(1, Ordering::Relaxed);
+            }
             let busy = Busy(activity.clone());
             let mut req = req.map(axum::body::Body::new);
             req.extensions_mut().insert(ConnectInfo(Peer(addr)));
