@@ -467,6 +467,41 @@ async fn serving_threads_share_the_port_and_the_limits() {
     }
 }
 
+/// A blocking connection (the client threads are pinned std threads).
+#[cfg(target_os = "linux")]
+fn connect(addr: SocketAddr) -> (std::net::TcpStream, Vec<u8>) {
+    let s = std::net::TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    (s, Vec::new())
+}
+/// Sends `requests`, then reads `n` answers: each a 200 carrying `body`, nothing more.
+#[cfg(target_os = "linux")]
+fn exchange((s, buf): &mut (std::net::TcpStream, Vec<u8>), requests: &[u8], n: usize, body: &[u8]) {
+    use std::io::{Read, Write};
+    s.write_all(requests).unwrap();
+    let mut chunk = vec![0u8; 1 << 16];
+    let mut got = 0;
+    while got < n {
+        // One whole response at the front of `buf`?
+        if let Some(end) = buf.windows(4).position(|w| w == b"\r\n\r\n") {
+            let head = String::from_utf8_lossy(&buf[..end]).to_lowercase();
+            assert!(head.starts_with("http/1.1 200 "), "{head}");
+            let len: usize =
+                head.lines().find_map(|l| l.strip_prefix("content-length: ")).unwrap().parse().unwrap();
+            if buf.len() >= end + 4 + len {
+                assert_eq!(&buf[end + 4..end + 4 + len], body);
+                buf.drain(..end + 4 + len);
+                got += 1;
+                continue;
+            }
+        }
+        let k = s.read(&mut chunk).unwrap();
+        assert!(k > 0, "the server closed a connection");
+        buf.extend_from_slice(&chunk[..k]);
+    }
+    assert!(buf.is_empty(), "more bytes than {n} answers");
+}
+
 /// With one serving thread per CPU (`--cpu-affinity auto`, the default), each thread's socket
 /// takes the connections its CPU receives: a client that connects from one CPU reaches one
 /// thread with all of its connections. Many at once are shared at accept (past twice the other
@@ -477,7 +512,6 @@ async fn serving_threads_share_the_port_and_the_limits() {
 #[cfg(target_os = "linux")]
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn connections_from_one_cpu_are_spread_over_the_serving_threads() {
-    use std::io::{Read, Write};
     use std::sync::Arc;
     use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
@@ -498,20 +532,6 @@ async fn connections_from_one_cpu_are_spread_over_the_serving_threads() {
         set.set(cpu);
         rustix::thread::sched_setaffinity(None, &set).unwrap();
     };
-    let answer = |s: &mut std::net::TcpStream, request: &[u8], body: &[u8]| {
-        s.write_all(request).unwrap();
-        let mut buf = Vec::new();
-        let mut chunk = vec![0u8; 1 << 16];
-        loop {
-            let n = s.read(&mut chunk).unwrap();
-            assert!(n > 0, "the server closed a connection");
-            buf.extend_from_slice(&chunk[..n]);
-            if buf.len() >= body.len() && buf.ends_with(body) {
-                assert!(buf.starts_with(b"HTTP/1.1 200 "), "{}", String::from_utf8_lossy(&buf));
-                return;
-            }
-        }
-    };
     // 80 connections opened at once from one CPU: past 64 more than twice the other thread's
     // count, new ones go to the other thread at accept; every one is answered.
     let moved_before = metric(&metrics(srv.addr).await, "terrastream_connections_moved_total");
@@ -519,10 +539,9 @@ async fn connections_from_one_cpu_are_spread_over_the_serving_threads() {
         let (addr, cpu, request, body) = (srv.addr, cpus[0], get(&path, "").into_bytes(), body.clone());
         tokio::task::spawn_blocking(move || {
             pin(cpu);
-            let mut conns: Vec<_> = (0..80).map(|_| std::net::TcpStream::connect(addr).unwrap()).collect();
-            for s in &mut conns {
-                s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-                answer(s, &request, &body);
+            let mut conns: Vec<_> = (0..80).map(|_| connect(addr)).collect();
+            for c in &mut conns {
+                exchange(c, &request, 1, &body);
             }
         })
         .await
@@ -541,41 +560,11 @@ async fn connections_from_one_cpu_are_spread_over_the_serving_threads() {
         let (request, body) = (get(&path, "").into_bytes(), body.clone());
         std::thread::spawn(move || {
             pin(cpu);
-            let connect = || {
-                let s = std::net::TcpStream::connect(addr).unwrap();
-                s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-                (s, Vec::new())
-            };
-            let mut conns: Vec<_> = (0..8).map(|_| connect()).collect();
+            let mut conns: Vec<_> = (0..8).map(|_| connect(addr)).collect();
             let batch: Vec<u8> = request.repeat(16);
-            let mut chunk = vec![0u8; 1 << 16];
             while !stop.load(Ordering::Relaxed) {
-                for (s, buf) in &mut conns {
-                    s.write_all(&batch).unwrap();
-                    let mut got = 0;
-                    while got < 16 {
-                        // One whole response at the front of `buf`?
-                        if let Some(end) = buf.windows(4).position(|w| w == b"\r\n\r\n") {
-                            let head = String::from_utf8_lossy(&buf[..end]).to_lowercase();
-                            assert!(head.starts_with("http/1.1 200 "), "{head}");
-                            let len: usize = head
-                                .lines()
-                                .find_map(|l| l.strip_prefix("content-length: "))
-                                .unwrap()
-                                .parse()
-                                .unwrap();
-                            if buf.len() >= end + 4 + len {
-                                assert_eq!(&buf[end + 4..end + 4 + len], &body[..]);
-                                buf.drain(..end + 4 + len);
-                                got += 1;
-                                continue;
-                            }
-                        }
-                        let n = s.read(&mut chunk).unwrap();
-                        assert!(n > 0, "the server closed a connection");
-                        buf.extend_from_slice(&chunk[..n]);
-                    }
-                    assert!(buf.is_empty(), "more bytes than 16 answers");
+                for c in &mut conns {
+                    exchange(c, &batch, 16, &body);
                     answered.fetch_add(16, Ordering::Relaxed);
                 }
             }

@@ -110,6 +110,15 @@ const BALANCE_MIN_REQUESTS: u64 = 500;
 /// ones on at accept.
 const ACCEPT_SLACK: usize = 64;
 
+impl Shared {
+    /// Counts a request serving thread `thread` answered (`balance_loop` compares the counts).
+    fn count_answered(&self, thread: usize) {
+        if let Some(l) = self.balance.as_ref().and_then(|b| b.threads.get(thread)) {
+            l.answered.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
 /// A serving thread's connections handed over by other threads.
 pub struct Inbox(tokio::sync::mpsc::UnboundedReceiver<Handed>);
 
@@ -168,9 +177,7 @@ impl ThreadGauge {
 
     /// Counts a request answered.
     fn answered(&self) {
-        if let Some(l) = self.load() {
-            l.answered.fetch_add(1, Ordering::Relaxed);
-        }
+        self.shared.count_answered(self.thread);
     }
 
     /// The thread an idle connection of this one should move to now, if any (taking one from
@@ -196,10 +203,18 @@ impl Drop for ThreadGauge {
 /// The thread that serves a connection thread `me` accepts, given each thread's open
 /// connections: `me`, unless it holds at least `slack` more than twice the least loaded
 /// thread's (the first of equals), which then gets it.
-fn accept_target(me: usize, open: &[usize], slack: usize) -> usize {
-    let Some(&mine) = open.get(me) else { return me };
-    match open.iter().enumerate().min_by_key(|&(i, &n)| (n, i)) {
-        Some((j, &n)) if j != me && mine >= n.saturating_mul(2).saturating_add(slack) => j,
+fn accept_target(me: usize, open: impl IntoIterator<Item = usize>, slack: usize) -> usize {
+    let (mut mine, mut least) = (None, None::<(usize, usize)>);
+    for (i, n) in open.into_iter().enumerate() {
+        if i == me {
+            mine = Some(n);
+        }
+        if least.is_none_or(|(_, m)| n < m) {
+            least = Some((i, n));
+        }
+    }
+    match (mine, least) {
+        (Some(mine), Some((j, n))) if j != me && mine >= n.saturating_mul(2).saturating_add(slack) => j,
         _ => me,
     }
 }
@@ -722,8 +737,7 @@ pub async fn serve(
         let _ = stream.set_nodelay(true);
         metrics.connections_open.fetch_add(1, Ordering::Relaxed);
         let to = shared.balance.as_ref().map_or(me, |b| {
-            let open: Vec<usize> = b.threads.iter().map(|t| t.open.load(Ordering::Relaxed)).collect();
-            accept_target(me, &open, ACCEPT_SLACK)
+            accept_target(me, b.threads.iter().map(|t| t.open.load(Ordering::Relaxed)), ACCEPT_SLACK)
         });
         let slots = Slots {
             _permit: permit,
@@ -804,8 +818,8 @@ async fn connection(
         let activity = activity.clone();
         hyper::service::service_fn(move |req: hyper::Request<hyper::body::Incoming>| {
             activity.request_started();
-            if let Some(l) = load.as_ref().and_then(|(s, t)| s.balance.as_ref()?.threads.get(*t)) {
-                l.answered.fetch_add(1, Ordering::Relaxed);
+            if let Some((s, t)) = &load {
+                s.count_answered(*t);
             }
             let busy = Busy(activity.clone());
             let mut req = req.map(axum::body::Body::new);
@@ -874,17 +888,17 @@ mod tests {
 
     #[test]
     fn a_thread_passes_new_connections_on_only_past_twice_the_least_plus_slack() {
-        assert_eq!(accept_target(0, &[63, 0], 64), 0);
-        assert_eq!(accept_target(0, &[64, 0], 64), 1);
-        assert_eq!(accept_target(0, &[100, 20], 64), 0);
-        assert_eq!(accept_target(0, &[104, 20], 64), 1);
-        assert_eq!(accept_target(1, &[0, 500, 0], 64), 0);
-        assert_eq!(accept_target(0, &[500], 64), 0);
-        assert_eq!(accept_target(2, &[5, 5], 64), 2);
+        assert_eq!(accept_target(0, [63, 0], 64), 0);
+        assert_eq!(accept_target(0, [64, 0], 64), 1);
+        assert_eq!(accept_target(0, [100, 20], 64), 0);
+        assert_eq!(accept_target(0, [104, 20], 64), 1);
+        assert_eq!(accept_target(1, [0, 500, 0], 64), 0);
+        assert_eq!(accept_target(0, [500], 64), 0);
+        assert_eq!(accept_target(2, [5, 5], 64), 2);
         // One queue's worth of connections, accepted one at a time by thread 0: about 2:1.
         let mut open = [0usize, 0];
         for _ in 0..3000 {
-            open[accept_target(0, &open, 64)] += 1;
+            open[accept_target(0, open, 64)] += 1;
         }
         assert!(open[0] <= 2 * open[1] + 64 && open[1] > 900, "{open:?}");
     }
