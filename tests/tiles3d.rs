@@ -438,76 +438,144 @@ async fn served_3d_tiles_are_the_exported_ones_with_blob_caching() {
     srv.stop().await;
 }
 
-/// A GLB's mesh as sets: its vertices (every attribute's bytes) and its triangles over them (each
-/// rotated to start at its least vertex, winding kept), so two listings of one mesh compare equal.
-fn mesh_sets(json: &Value, bin: &[u8]) -> (Vec<Vec<u8>>, Vec<Vec<Vec<u8>>>) {
+/// A GLB's mesh as position sets: its vertices' positions (as `f32`) and its triangles over them
+/// (each rotated to start at its least vertex, winding kept), so two listings of one mesh
+/// compare equal; and each position's unit normal, to compare within a tolerance.
+type MeshSets = (Vec<[u32; 3]>, Vec<[[u32; 3]; 3]>, HashMap<[u32; 3], [f64; 3]>);
+
+fn mesh_sets_of(positions: &[[f32; 3]], normals: &[[f64; 3]], idx: Option<&[usize]>) -> MeshSets {
+    let key = |k: usize| positions[k].map(f32::to_bits);
+    let mut vertices: Vec<[u32; 3]> = (0..positions.len()).map(key).collect();
+    vertices.sort_unstable();
+    let mut tris = Vec::new();
+    for t in idx.unwrap_or(&[]).chunks(3) {
+        let v = [key(t[0]), key(t[1]), key(t[2])];
+        let r = (0..3).map(|k| [v[k], v[(k + 1) % 3], v[(k + 2) % 3]]).min().unwrap();
+        tris.push(r);
+    }
+    tris.sort_unstable();
+    let by_pos = (0..positions.len())
+        .map(|k| {
+            let n = normals[k];
+            let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            (key(k), n.map(|c| c / l))
+        })
+        .collect();
+    (vertices, tris, by_pos)
+}
+
+/// [`mesh_sets_of`] a plain GLB (or a meshopt one decoded to its plain layout).
+fn mesh_sets(json: &Value, bin: &[u8]) -> MeshSets {
     let prim = &json["meshes"][0]["primitives"][0];
-    let view_of = |a: u64| {
-        let acc = &json["accessors"][a as usize];
+    let values = |a: &Value| -> Vec<f64> {
+        let acc = &json["accessors"][a.as_u64().unwrap() as usize];
         let v = &json["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize];
         let o = v["byteOffset"].as_u64().unwrap_or(0) as usize;
-        let l = v["byteLength"].as_u64().unwrap() as usize;
-        (acc.clone(), bin[o..o + l].to_vec(), v["byteStride"].as_u64().unwrap_or(0) as usize)
-    };
-    let mut names: Vec<&String> = prim["attributes"].as_object().unwrap().keys().collect();
-    names.sort();
-    let attrs: Vec<_> = names.iter().map(|n| view_of(prim["attributes"][*n].as_u64().unwrap())).collect();
-    let count = attrs[0].0["count"].as_u64().unwrap() as usize;
-    let vertex =
-        |k: usize| -> Vec<u8> { attrs.iter().flat_map(|(_, b, s)| b[k * s..(k + 1) * s].to_vec()).collect() };
-    let mut vertices: Vec<Vec<u8>> = (0..count).map(vertex).collect();
-    vertices.sort();
-    let mut tris = Vec::new();
-    if let Some(i) = prim["indices"].as_u64() {
-        let (acc, b, _) = view_of(i);
-        let idx: Vec<usize> = match acc["componentType"].as_u64().unwrap() {
-            5121 => b.iter().map(|&x| usize::from(x)).collect(),
-            5123 => b.chunks(2).map(|x| usize::from(u16::from_le_bytes([x[0], x[1]]))).collect(),
-            _ => b.chunks(4).map(|x| u32::from_le_bytes([x[0], x[1], x[2], x[3]]) as usize).collect(),
+        let n = if acc["type"] == "SCALAR" { 1 } else { 3 };
+        let ct = acc["componentType"].as_u64().unwrap();
+        let size = match ct {
+            5120 | 5121 => 1,
+            5122 | 5123 => 2,
+            _ => 4,
         };
-        for t in idx.chunks(3) {
-            let v = [vertex(t[0]), vertex(t[1]), vertex(t[2])];
-            let r = (0..3)
-                .map(|k| vec![v[k].clone(), v[(k + 1) % 3].clone(), v[(k + 2) % 3].clone()])
-                .min()
-                .unwrap();
-            tris.push(r);
-        }
-        tris.sort();
+        let stride = v["byteStride"].as_u64().map_or(n * size, |s| s as usize);
+        let count = acc["count"].as_u64().unwrap() as usize;
+        (0..count)
+            .flat_map(|k| (0..n).map(move |c| o + k * stride + c * size))
+            .map(|at| {
+                let b = &bin[at..at + size];
+                match ct {
+                    5120 => f64::from(b[0] as i8),
+                    5121 => f64::from(b[0]),
+                    5123 => f64::from(u16::from_le_bytes([b[0], b[1]])),
+                    5125 => f64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+                    _ => f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+                }
+            })
+            .collect()
+    };
+    let pos: Vec<[f32; 3]> = values(&prim["attributes"]["POSITION"])
+        .chunks(3)
+        .map(|c| [c[0] as f32, c[1] as f32, c[2] as f32])
+        .collect();
+    let nrm: Vec<[f64; 3]> =
+        values(&prim["attributes"]["NORMAL"]).chunks(3).map(|c| c.try_into().unwrap()).collect();
+    let idx: Option<Vec<usize>> =
+        prim.get("indices").map(|i| values(i).iter().map(|&v| v as usize).collect());
+    mesh_sets_of(&pos, &nrm, idx.as_deref())
+}
+
+/// The same mesh, with every normal within `degrees` of the other's.
+fn assert_same_mesh(got: &MeshSets, want: &MeshSets, degrees: f64, what: &str) {
+    assert_eq!(got.0, want.0, "{what}: not the plain GLB's vertices");
+    assert_eq!(got.1, want.1, "{what}: not the plain GLB's triangles");
+    let cos = degrees.to_radians().cos();
+    for (k, n) in &want.2 {
+        let m = got.2[k];
+        let d = n[0] * m[0] + n[1] * m[1] + n[2] * m[2];
+        assert!(d >= cos, "{what}: a normal {:.2}° off", d.clamp(-1.0, 1.0).acos().to_degrees());
     }
-    (vertices, tris)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn meshopt_3d_tiles_served_and_exported_alike_and_decode_to_the_plain_mesh() {
-    use terrastream::formats::tiles3d::{GlbCompression, meshopt};
+    compressed_3d_tiles(terrastream::formats::tiles3d::GlbCompression::Meshopt).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn draco_3d_tiles_served_and_exported_alike_and_decode_to_the_plain_mesh() {
+    compressed_3d_tiles(terrastream::formats::tiles3d::GlbCompression::Draco).await;
+}
+
+/// An export with `glb` compression against the plain export and the server's `?glb=` form:
+/// every GLB decodes (our decoders; the interop suite uses meshoptimizer's and Google's) to the
+/// plain GLB's mesh, normals within 2° (the octahedral filter's and Draco's 8-bit octahedral
+/// normals against the plain `BYTE` vectors), and the server gives the export's bytes.
+async fn compressed_3d_tiles(glb: terrastream::formats::tiles3d::GlbCompression) {
+    use terrastream::formats::tiles3d::{GlbCompression, draco, meshopt};
+    let name = glb.name();
     let tmp = tempfile::tempdir().unwrap();
     let dir = baked(tmp.path());
     let plain = tmp.path().join("plain");
     let out = tmp.path().join("mo");
     export::export_3dtiles(&Store::new(&dir), &plain, None, &|_, _| {}).unwrap();
-    let r = export::export_3dtiles_with(&Store::new(&dir), &out, None, GlbCompression::Meshopt, &|_, _| {})
-        .unwrap();
+    let r = export::export_3dtiles_with(&Store::new(&dir), &out, None, glb, &|_, _| {}).unwrap();
     // Every GLB: the extension declared and required, the same mesh as the plain GLB, fewer bytes.
-    let (mut plain_bytes, mut mo_bytes, mut meshes) = (0, 0, 0);
+    let (mut plain_bytes, mut mo_bytes, mut meshes, mut dracos) = (0, 0, 0, 0);
     for (rel, mo) in common::tree(&out.join("tiles")) {
         let p = std::fs::read(plain.join("tiles").join(&rel)).unwrap();
         let (json, _) = meshopt::read_glb(&mo).unwrap();
-        for list in ["extensionsUsed", "extensionsRequired"] {
-            assert!(json[list].as_array().unwrap().iter().any(|e| e == "EXT_meshopt_compression"), "{rel}");
-        }
-        assert_eq!(json["buffers"][1]["extensions"]["EXT_meshopt_compression"]["fallback"], true);
-        let (dj, db) = meshopt::decompress_glb(&mo).unwrap();
         let (pj, pb) = meshopt::read_glb(&p).unwrap();
-        assert_eq!(mesh_sets(&dj, &db), mesh_sets(&pj, &pb), "{rel}: not the plain GLB's mesh");
-        meshes += usize::from(pj["meshes"][0]["primitives"][0].get("indices").is_some());
+        let want = mesh_sets(&pj, &pb);
+        let is_mesh = pj["meshes"][0]["primitives"][0].get("indices").is_some();
+        let ext = if glb == GlbCompression::Draco && is_mesh { draco::EXT } else { meshopt::EXT };
+        for list in ["extensionsUsed", "extensionsRequired"] {
+            assert!(json[list].as_array().unwrap().iter().any(|e| e == ext), "{rel}: {ext} not in {list}");
+        }
+        if ext == draco::EXT {
+            let [d] = &draco::decompress_glb(&mo).unwrap()[..] else { panic!("{rel}: one primitive") };
+            let idx: Vec<usize> = d.triangles.iter().flatten().map(|&i| i as usize).collect();
+            let nrm: Vec<[f64; 3]> = d.normals.as_ref().unwrap().iter().map(|n| n.map(f64::from)).collect();
+            assert_same_mesh(&mesh_sets_of(&d.positions, &nrm, Some(&idx)), &want, 2.0, &rel);
+            assert!(
+                json["accessors"].as_array().unwrap().iter().all(|a| a.get("bufferView").is_none()),
+                "{rel}"
+            );
+            dracos += 1;
+        } else {
+            assert_eq!(json["buffers"][1]["extensions"]["EXT_meshopt_compression"]["fallback"], true);
+            let (dj, db) = meshopt::decompress_glb(&mo).unwrap();
+            assert_same_mesh(&mesh_sets(&dj, &db), &want, 2.0, &rel);
+        }
+        meshes += usize::from(is_mesh);
         plain_bytes += p.len();
         mo_bytes += mo.len();
     }
     assert!(meshes > 10, "{meshes} meshes");
+    assert_eq!(dracos, if glb == GlbCompression::Draco { meshes } else { 0 });
     assert_eq!(r.glb_bytes, mo_bytes as u64);
-    // Tiny 16-cell tiles: the JSON chunk weighs (0.74× measured; fuji's big tiles 0.35×).
-    assert!(mo_bytes * 10 < plain_bytes * 9, "meshopt {mo_bytes} bytes, plain {plain_bytes}");
+    // Tiny 16-cell tiles: the JSON chunk weighs (meshopt 0.74× measured; fuji's big tiles 0.35×).
+    assert!(mo_bytes * 10 < plain_bytes * 9, "{name} {mo_bytes} bytes, plain {plain_bytes}");
     // The documents are the plain export's.
     assert_eq!(
         std::fs::read(out.join("tileset.json")).unwrap(),
@@ -521,11 +589,11 @@ async fn meshopt_3d_tiles_served_and_exported_alike_and_decode_to_the_plain_mesh
     let a = srv.addr;
     // The root and an external tileset: every URI carries the option; otherwise the export's.
     for (path, file) in [("tileset.json", "tileset.json"), ("index/4/3/5.json", "index/4/3/5.json")] {
-        let (s, _, body) = get(a, &format!("/tilesets/t/3dtiles/{path}?v={cv}&glb=meshopt"), &[]).await;
+        let (s, _, body) = get(a, &format!("/tilesets/t/3dtiles/{path}?v={cv}&glb={name}"), &[]).await;
         assert_eq!(s, 200, "{path}");
         let text = String::from_utf8_lossy(&body);
         assert!(
-            text.contains(&format!("?v={cv}&glb=meshopt")) && !text.contains(&format!("?v={cv}\"")),
+            text.contains(&format!("?v={cv}&glb={name}")) && !text.contains(&format!("?v={cv}\"")),
             "{path}"
         );
         let mut served: Value = serde_json::from_slice(&body).unwrap();
@@ -538,13 +606,13 @@ async fn meshopt_3d_tiles_served_and_exported_alike_and_decode_to_the_plain_mesh
         let path = format!("/tilesets/t/3dtiles/tiles/{key}/{level}.glb");
         for coding in [None, Some("gzip"), Some("zstd")] {
             let headers: Vec<(&str, &str)> = coding.map(|c| ("Accept-Encoding", c)).into_iter().collect();
-            let (s, h, body) = get(a, &format!("{path}?v={cv}&glb=meshopt"), &headers).await;
+            let (s, h, body) = get(a, &format!("{path}?v={cv}&glb={name}"), &headers).await;
             assert_eq!(s, 200, "{path}");
             assert_eq!(h.get("content-encoding").map(String::as_str), coding, "{path}");
             assert_eq!(
                 decoded(coding, &body),
                 file,
-                "{path} ({coding:?}): served and exported meshopt GLBs differ"
+                "{path} ({coding:?}): served and exported {name} GLBs differ"
             );
         }
         // The plain form stays apart (its own cache entry): the plain export's bytes.
@@ -553,10 +621,10 @@ async fn meshopt_3d_tiles_served_and_exported_alike_and_decode_to_the_plain_mesh
         let (_, _, body) = get(a, &format!("{path}?glb=none"), &[]).await;
         assert_eq!(body, std::fs::read(plain.join(format!("tiles/{key}/{level}.glb"))).unwrap(), "{path}");
     }
-    for path in ["tileset.json?glb=draco", "index/4/3/5.json?glb=", "tiles/0/0/0/0.glb?glb=MESHOPT"] {
+    for path in ["tileset.json?glb=brotli", "index/4/3/5.json?glb=", "tiles/0/0/0/0.glb?glb=MESHOPT"] {
         let (s, _, body) = get(a, &format!("/tilesets/t/3dtiles/{path}"), &[]).await;
         assert_eq!(s, 400, "{path}");
-        assert!(String::from_utf8_lossy(&body).contains("glb=meshopt"), "{path}");
+        assert!(String::from_utf8_lossy(&body).contains("glb=meshopt, glb=draco"), "{path}");
     }
     srv.stop().await;
 }
@@ -753,10 +821,10 @@ fn cli_anchor_and_export_3dtiles() {
         bin()
             .arg("export")
             .arg(&dir)
-            .args(["--format", "3dtiles", "--glb-compression", "draco", "--out"])
+            .args(["--format", "3dtiles", "--glb-compression", "brotli", "--out"])
             .arg(tmp.path().join("w")),
     );
-    assert!(e.contains("none or meshopt"), "{e}");
+    assert!(e.contains("none, meshopt or draco"), "{e}");
     // A placement record that is not JSON, or out of range: refused naming the file.
     for (bad, want) in
         [("{\"anchor\": {\"lon\": 500, \"lat\": 0}}", "longitude 500"), ("not json", "invalid JSON")]

@@ -56,9 +56,10 @@ pub struct ExportArgs {
     /// 3dtiles: place the tileset at LON,LAT[,HEIGHT] (overrides the tileset's own anchor).
     #[arg(long, value_parser = super::bake::parse_anchor, allow_hyphen_values = true)]
     pub anchor: Option<Anchor>,
-    /// 3dtiles: how the GLBs are compressed: none (plain glTF buffers, any reader) or meshopt
+    /// 3dtiles: how the GLBs are compressed: none (plain glTF buffers, any reader), meshopt
     /// (EXT_meshopt_compression: far fewer bytes; the reader must support it: CesiumJS does,
-    /// three.js with GLTFLoader.setMeshoptDecoder).
+    /// three.js with GLTFLoader.setMeshoptDecoder) or draco (KHR_draco_mesh_compression for
+    /// meshes, the fewest bytes; points as meshopt; CesiumJS, three.js with DRACOLoader).
     #[arg(long, default_value = "none", value_parser = parse_glb_compression)]
     pub glb_compression: GlbCompression,
     /// heightmap: the zooms to write, A:B (default: 0 to where the tiles' pixels match the
@@ -74,7 +75,7 @@ pub struct ExportArgs {
 }
 
 fn parse_glb_compression(s: &str) -> Result<GlbCompression, String> {
-    GlbCompression::parse(s).ok_or_else(|| format!("{s:?}: give none or meshopt"))
+    GlbCompression::parse(s).ok_or_else(|| format!("{s:?}: give none, meshopt or draco"))
 }
 
 fn parse_zooms(s: &str) -> Result<(u8, u8), String> {

@@ -46,10 +46,12 @@ fn v_param() -> Value {
 /// every URI a tileset JSON lists.
 fn glb_param() -> Value {
     use crate::formats::tiles3d::GlbCompression;
-    let (none, meshopt) = (GlbCompression::None.name(), GlbCompression::Meshopt.name());
+    let (none, meshopt, draco) =
+        (GlbCompression::None.name(), GlbCompression::Meshopt.name(), GlbCompression::Draco.name());
+    let all: Vec<&str> = GlbCompression::ALL.iter().map(|c| c.name()).collect();
     json!({"name": "glb", "in": "query", "required": false,
-        "schema": {"type": "string", "enum": [none, meshopt], "default": none},
-        "description": format!("`{meshopt}`: GLBs with EXT_meshopt_compression (the reader must support it), and a tileset JSON whose every URI carries `glb={meshopt}`; each form is cached apart. `{none}` or absent: plain glTF. Any other value: 400.")})
+        "schema": {"type": "string", "enum": all, "default": none},
+        "description": format!("`{meshopt}`: GLBs with EXT_meshopt_compression; `{draco}`: mesh GLBs with KHR_draco_mesh_compression and point GLBs with EXT_meshopt_compression (the reader must support the extension); a tileset JSON whose every URI carries the option; each form is cached apart. `{none}` or absent: plain glTF. Any other value: 400.")})
 }
 
 /// `params` (a JSON array) with [`glb_param`] added.
@@ -63,7 +65,7 @@ fn with_glb(mut params: Value) -> Value {
 /// The 400 of a 3D Tiles route, which also refuses a bad `glb=`.
 const GLB_400: (&str, &str) = (
     "400",
-    "Malformed name, key or level (not a non-negative integer of at most 2^32 − 1), or a glb= other than none or meshopt",
+    "Malformed name, key or level (not a non-negative integer of at most 2^32 − 1), or a glb= other than none, meshopt or draco",
 );
 
 /// The error answers every read route can give, plus `extra`.
@@ -366,7 +368,7 @@ mod tests {
                 let glb = glb.unwrap_or_else(|| panic!("{path}: no glb parameter"));
                 let values: Vec<&str> =
                     glb["schema"]["enum"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
-                assert_eq!(values, ["none", "meshopt"], "{path}");
+                assert_eq!(values, ["none", "meshopt", "draco"], "{path}");
                 assert!(values.iter().all(|v| GlbCompression::parse(v).is_some()));
                 assert_eq!(glb["schema"]["default"], GlbCompression::default().name());
                 let bad = item["get"]["responses"]["400"]["description"].as_str().unwrap();

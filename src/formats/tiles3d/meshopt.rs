@@ -13,6 +13,9 @@ use serde_json::{Value, json};
 pub use super::glb::write_glb;
 use super::glb::{ELEMENT_ARRAY_BUFFER, GLTF_U8, GLTF_U16, GLTF_U32};
 
+/// `BYTE`, the normals' component type.
+const GLTF_I8: u64 = 5120;
+
 /// The extension's name, in `extensionsUsed`/`extensionsRequired` and on buffer views.
 pub const EXT: &str = "EXT_meshopt_compression";
 /// Largest element (`byteStride`) the attribute codec takes.
@@ -32,45 +35,49 @@ const TAIL_MIN: usize = 32;
 const CODEAUX: [u8; 16] =
     [0x00, 0x76, 0x87, 0x56, 0x67, 0x78, 0xa9, 0x86, 0x65, 0x89, 0x68, 0x98, 0x01, 0x69, 0, 0];
 
-/// How the 3D Tiles GLBs are compressed: `none` (plain buffers, the default) or `meshopt`
+/// How the 3D Tiles GLBs are compressed: `none` (plain buffers, the default), `meshopt`
 /// (`EXT_meshopt_compression`, which the reader must support: CesiumJS does natively, three.js
-/// with `GLTFLoader.setMeshoptDecoder`).
+/// with `GLTFLoader.setMeshoptDecoder`) or `draco` (`KHR_draco_mesh_compression` for mesh GLBs,
+/// [`super::draco`]: CesiumJS natively, three.js with `DRACOLoader`; the extension covers
+/// triangles only, so point levels' GLBs take `EXT_meshopt_compression` there).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum GlbCompression {
     #[default]
     None,
     Meshopt,
+    Draco,
 }
 
 impl GlbCompression {
-    /// The option's name (`none`, `meshopt`), as `--glb-compression` and `?glb=` take it.
+    /// Every option, in the order documented.
+    pub const ALL: [Self; 3] = [Self::None, Self::Meshopt, Self::Draco];
+
+    /// The option's name (`none`, `meshopt`, `draco`), as `--glb-compression` and `?glb=` take it.
     #[must_use]
     pub fn name(self) -> &'static str {
         match self {
             Self::None => "none",
             Self::Meshopt => "meshopt",
+            Self::Draco => "draco",
         }
     }
 
     /// The option named `s`, if it is one.
     #[must_use]
     pub fn parse(s: &str) -> Option<Self> {
-        match s {
-            "none" => Some(Self::None),
-            "meshopt" => Some(Self::Meshopt),
-            _ => None,
-        }
+        Self::ALL.into_iter().find(|c| c.name() == s)
     }
 
     /// A GLB of [`super::glb()`] in this compression.
     ///
     /// # Errors
-    /// As [`compress_glb`].
-    pub fn apply(self, glb: Vec<u8>) -> Result<Vec<u8>, MeshoptError> {
-        match self {
-            Self::None => Ok(glb),
-            Self::Meshopt => compress_glb(&glb),
-        }
+    /// As [`compress_glb`] and [`super::draco::compress_glb`].
+    pub fn apply(self, glb: Vec<u8>) -> Result<Vec<u8>, super::Tiles3dError> {
+        Ok(match self {
+            Self::None => glb,
+            Self::Draco if super::draco::all_triangles(&glb) => super::draco::compress_glb(&glb)?,
+            Self::Meshopt | Self::Draco => compress_glb(&glb)?,
+        })
     }
 }
 
@@ -748,6 +755,7 @@ pub fn compress_glb(glb: &[u8]) -> Result<Vec<u8>, MeshoptError> {
     let reorder = reorder_mesh(&json, &views, &accessors, &bin)?;
     let mut packed = Vec::new();
     let mut fallback = 0usize;
+    let mut octs = Vec::new();
     let mut new_views = Vec::with_capacity(views.len());
     for (i, view) in views.iter().enumerate() {
         let offset = as_usize(&view["byteOffset"]).unwrap_or(0);
@@ -797,7 +805,21 @@ pub fn compress_glb(glb: &[u8]) -> Result<Vec<u8>, MeshoptError> {
             let (enc, _) = encode_index_buffer(&indices)?;
             ("TRIANGLES", if wide { 4 } else { 2 }, Some((enc, indices.len())))
         } else if let Some(s) = stride.filter(|s| s.is_multiple_of(4) && *s <= MAX_STRIDE) {
-            let enc = encode_vertex_buffer(bytes, s)?;
+            // `BYTE` unit vectors (the normals) through the octahedral filter: two coordinates
+            // carry what three did, and the codec's deltas shrink.
+            let normals = s == 4
+                && !users.is_empty()
+                && users.iter().all(|&a| {
+                    accessors[a]["componentType"].as_u64() == Some(GLTF_I8) && accessors[a]["type"] == "VEC3"
+                });
+            let enc = if normals {
+                filter_oct_encode(bytes).and_then(|b| encode_vertex_buffer(&b, s))?
+            } else {
+                encode_vertex_buffer(bytes, s)?
+            };
+            if normals {
+                octs.push(i);
+            }
             ("ATTRIBUTES", s, Some((enc, len / s)))
         } else {
             ("", 0, None)
@@ -821,6 +843,9 @@ pub fn compress_glb(glb: &[u8]) -> Result<Vec<u8>, MeshoptError> {
                 "buffer": 0, "byteOffset": packed.len(), "byteLength": enc.len(),
                 "byteStride": stride, "mode": mode, "count": count,
             }});
+            if octs.contains(&i) {
+                v["extensions"][EXT]["filter"] = json!("OCTAHEDRAL");
+            }
             fallback += full;
             packed.extend_from_slice(&enc);
         } else {
@@ -947,7 +972,17 @@ pub fn decompress_glb(glb: &[u8]) -> Result<(Value, Vec<u8>), MeshoptError> {
                 .get(o..o.saturating_add(l))
                 .ok_or_else(|| bad("compressed view outside the BIN chunk"))?;
             let bytes = match x["mode"].as_str() {
-                Some("ATTRIBUTES") => decode_vertex_buffer(src, count, stride)?,
+                Some("ATTRIBUTES") => {
+                    let mut b = decode_vertex_buffer(src, count, stride)?;
+                    match x["filter"].as_str() {
+                        None | Some("NONE") => {}
+                        Some("OCTAHEDRAL") if stride == 4 => filter_oct_decode(&mut b),
+                        Some(f) => {
+                            return Err(MeshoptError::Glb(format!("filter {f} with byteStride {stride}")));
+                        }
+                    }
+                    b
+                }
                 Some("TRIANGLES") => {
                     let idx = decode_index_buffer(src, count)?;
                     match stride {
@@ -1148,5 +1183,73 @@ mod tests {
             let _ = decompress_glb(&b);
             let _ = compress_glb(&b);
         }
+    }
+}
+
+/// Normals (`BYTE` x, y, z and one unused byte each) as the octahedral filter's input
+/// (Appendix B, filter 1, K = 8): x, y in 8-bit octahedral coordinates, 127 (1.0), 0. The
+/// decoded vector is within about 1° of the given one (the two 8-bit quantizations together).
+fn filter_oct_encode(bytes: &[u8]) -> Result<Vec<u8>, MeshoptError> {
+    if !bytes.len().is_multiple_of(4) {
+        return Err(MeshoptError::Ragged(bytes.len()));
+    }
+    Ok(bytes
+        .chunks_exact(4)
+        .flat_map(|n| {
+            let v = [f64::from(n[0] as i8), f64::from(n[1] as i8), f64::from(n[2] as i8)];
+            let l1 = v[0].abs() + v[1].abs() + v[2].abs();
+            let [x, y, z] = if l1 > 0.0 { v.map(|c| c / l1) } else { [0.0, 0.0, 1.0] };
+            let (fx, fy) =
+                if z >= 0.0 { (x, y) } else { ((1.0 - y.abs()) * x.signum(), (1.0 - x.abs()) * y.signum()) };
+            [(fx * 127.0).round() as i8 as u8, (fy * 127.0).round() as i8 as u8, 127, 0]
+        })
+        .collect())
+}
+
+/// The octahedral filter's decoding of 8-bit elements, as Appendix B writes it (in `f32`).
+fn filter_oct_decode(bytes: &mut [u8]) {
+    for e in bytes.chunks_exact_mut(4) {
+        let one = f32::from(e[2] as i8);
+        let (mut x, mut y) = (f32::from(e[0] as i8) / one, f32::from(e[1] as i8) / one);
+        let z = 1.0 - x.abs() - y.abs();
+        let t = z.min(0.0);
+        x -= t.copysign(x);
+        y -= t.copysign(y);
+        let len = (x * x + y * y + z * z).sqrt();
+        for (k, c) in [x, y, z].into_iter().enumerate() {
+            e[k] = ((c / len) * 127.0).round() as i8 as u8;
+        }
+    }
+}
+
+#[cfg(test)]
+mod filter_tests {
+    use super::*;
+
+    #[test]
+    fn octahedral_filter_keeps_byte_normals_within_a_degree_and_a_half() {
+        let mut bytes = Vec::new();
+        for x in (-127i32..=127).step_by(9) {
+            for y in (-127i32..=127).step_by(9) {
+                for z in [-127, -90, -40, -1, 0, 1, 40, 90, 127] {
+                    bytes.extend_from_slice(&[x as i8 as u8, y as i8 as u8, z as i8 as u8, 0]);
+                }
+            }
+        }
+        let mut dec = filter_oct_encode(&bytes).unwrap();
+        assert!(dec.chunks_exact(4).all(|e| e[2] == 127 && e[3] == 0));
+        filter_oct_decode(&mut dec);
+        for (a, b) in bytes.chunks_exact(4).zip(dec.chunks_exact(4)) {
+            let v = |e: &[u8]| [0, 1, 2].map(|k| f64::from(e[k] as i8));
+            let (p, q) = (v(a), v(b));
+            let l = |w: [f64; 3]| (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+            if l(p) == 0.0 {
+                continue;
+            }
+            let cos = (p[0] * q[0] + p[1] * q[1] + p[2] * q[2]) / (l(p) * l(q));
+            assert!(cos > 1.5f64.to_radians().cos(), "{p:?} → {q:?}");
+            assert!((l(q) / 127.0 - 1.0).abs() < 0.02, "{q:?} is not a unit vector");
+        }
+        assert!(filter_oct_encode(&[1, 2, 3]).is_err());
     }
 }

@@ -13,8 +13,10 @@
 //! decodes to exactly what the blob decodes to.
 //!
 //! One file per part: [`placement`] (anchor, axes, the east-north-up frame), [`mod@glb`] (the
-//! glTF binary of a blob), [`meshopt`] (its `EXT_meshopt_compression` form, an option), [`tileset`] (tileset JSON, and the GLB of a stored tile as it lists it).
+//! glTF binary of a blob), [`meshopt`] (its `EXT_meshopt_compression` form, an option), [`draco`] (the
+//! `KHR_draco_mesh_compression` form of mesh GLBs, an option), [`tileset`] (tileset JSON, and the GLB of a stored tile as it lists it).
 
+pub mod draco;
 pub mod earth;
 pub mod glb;
 pub mod meshopt;
@@ -49,6 +51,9 @@ pub enum Tiles3dError {
     /// The GLB could not be put into `EXT_meshopt_compression` form.
     #[error(transparent)]
     Meshopt(#[from] MeshoptError),
+    /// The GLB could not be put into `KHR_draco_mesh_compression` form.
+    #[error(transparent)]
+    Draco(#[from] draco::DracoError),
 }
 
 #[cfg(test)]

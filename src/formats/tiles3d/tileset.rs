@@ -364,5 +364,5 @@ fn reference_tile(
 pub fn tile_glb(info: &TilesetInfo, blob: &Blob) -> Result<Vec<u8>, Tiles3dError> {
     let skirt = (info.kind == TilesetKind::Terrain && blob.header.kind == Kind::Mesh)
         .then(|| (mesh_skirt_depth(blob.header.errors.max), Some(&info.manifest.bounds)));
-    Ok(info.glb.apply(glb(blob, &info.place, skirt)?)?)
+    info.glb.apply(glb(blob, &info.place, skirt)?)
 }
