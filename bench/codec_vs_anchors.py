@@ -14,7 +14,9 @@ against its blob and its anchor: raw, gzip -9 and zstd -19 (what `serve` sends w
 `Accept-Encoding` allows: its gzip is level 6, within 0.1 % of -9 on GLBs; zstd needs the `zstd`
 command, else that column is skipped). Bytes per
 item always divide by the blob's vertices or points (a mesh GLB also holds its skirts' vertices,
-counted in the `GLB verts` column). If gltfpack (meshoptimizer's CLI; the npm package is a wasm
+counted in the `GLB verts` column). The same GLBs are measured as our own exports with
+`--glb-compression meshopt` (EXT_meshopt_compression) and `--glb-compression draco`
+(KHR_draco_mesh_compression for the meshes, meshopt for the points). If gltfpack (meshoptimizer's CLI; the npm package is a wasm
 build) is found — $GLTFPACK, `gltfpack` on the PATH, or /tmp/gltfpack/node_modules/.bin/gltfpack
 (`npm install --prefix /tmp/gltfpack gltfpack`) — every GLB also goes through
 `gltfpack -i in.glb -o out.glb FLAGS` for a few FLAGS (EXT_meshopt_compression; its own
@@ -42,6 +44,12 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DATA = os.environ.get("TERRASTREAM_DATA", os.path.join(ROOT, "..", "shared", "data"))
 # $TERRASTREAM_BIN measures another build (say, main's, for a before/after in one sitting).
 EXE = os.environ.get("TERRASTREAM_BIN") or os.path.join(ROOT, "target", "release", "terrastream")
+# `--glb-compression` options measured on every (tile, level): name → what it is.
+COMPRESSIONS = {
+    "meshopt": "EXT_meshopt_compression, normals through its octahedral filter",
+    "draco": "KHR_draco_mesh_compression for meshes, EXT_meshopt_compression for points",
+}
+
 # gltfpack flag sets measured on every GLB: (label, flags). -c / -cc: EXT_meshopt_compression
 # (normal / higher ratio); -vp 16: 16-bit positions (gltfpack's default is 14 bits, coarser
 # than our grid on large tiles).
@@ -127,10 +135,13 @@ def main():
     t3d = os.path.join(tmp, "3dtiles")
     export_cmd = [EXE, "export", out, "--format", "3dtiles", "--out", t3d, "--quiet"]
     export_msg = subprocess.run(export_cmd, check=True, capture_output=True, text=True).stdout.strip()
-    # The same export with EXT_meshopt_compression (`--glb-compression meshopt`, `?glb=meshopt`).
-    t3d_mo = os.path.join(tmp, "3dtiles-meshopt")
-    mo_cmd = [EXE, "export", out, "--format", "3dtiles", "--glb-compression", "meshopt", "--out", t3d_mo, "--quiet"]
-    mo_msg = subprocess.run(mo_cmd, check=True, capture_output=True, text=True).stdout.strip()
+    # The same export compressed: EXT_meshopt_compression (`--glb-compression meshopt`,
+    # `?glb=meshopt`) and KHR_draco_mesh_compression for meshes (`--glb-compression draco`).
+    comp_exports = {}
+    for cname in COMPRESSIONS:
+        cdir = os.path.join(tmp, f"3dtiles-{cname}")
+        ccmd = [EXE, "export", out, "--format", "3dtiles", "--glb-compression", cname, "--out", cdir, "--quiet"]
+        comp_exports[cname] = (cdir, ccmd, subprocess.run(ccmd, check=True, capture_output=True, text=True).stdout.strip())
     gltfpack = find_gltfpack()
     ours = {l["level"]: 0 for l in levels}
     anchor = dict(ours)
@@ -142,8 +153,8 @@ def main():
     glb_zst = dict(ours)
     glb_verts = dict(ours)
     glb_types = {l: set() for l in ours}
-    mo = dict(ours)
-    mo_gz = dict(ours)
+    comp = {c: dict(ours) for c in COMPRESSIONS}
+    comp_gz = {c: dict(ours) for c in COMPRESSIONS}
     packed = {l: {label: 0 for label, _ in MESHOPT} for l in ours}
     packed_gz = {l: {label: 0 for label, _ in MESHOPT} for l in ours}
     packed_verts = {l: {label: 0 for label, _ in MESHOPT} for l in ours}
@@ -169,9 +180,10 @@ def main():
                     glb_gz[level] += len(gzip.compress(data, 9))
                     zb = zstd19(data)
                     glb_zst[level] = None if zb is None or glb_zst[level] is None else glb_zst[level] + zb
-                    mdata = open(os.path.join(t3d_mo, "tiles", str(z), str(x), str(y), f"{level}.glb"), "rb").read()
-                    mo[level] += len(mdata)
-                    mo_gz[level] += len(gzip.compress(mdata, 9))
+                    for cname, (cdir, _, _) in comp_exports.items():
+                        cdata = open(os.path.join(cdir, "tiles", str(z), str(x), str(y), f"{level}.glb"), "rb").read()
+                        comp[cname][level] += len(cdata)
+                        comp_gz[cname][level] += len(gzip.compress(cdata, 9))
                     count, ctype, itype = glb_info(data)
                     glb_verts[level] += count
                     glb_types[level].add(f"{ctype}/{itype}")
@@ -268,27 +280,30 @@ def main():
     print(f"(blobs: {tot['blob']} B raw, {tot['blobgz']} B gzip -9 — gzip saves "
           f"{100 * (1 - tot['blobgz'] / tot['blob']):.1f} % on them)")
 
-    print(f"\nThe same GLBs with EXT_meshopt_compression: `{' '.join(mo_cmd[1:]).replace(tmp, '$TMP')}`")
-    print(f"  {mo_msg.replace(tmp, '$TMP')}")
-    print(f"{'level':>5} {'kind':>6} {'items':>9} | {'mo B':>9} {'B/item':>7} {'mo gz B':>9} {'B/item':>7} | "
-          f"{'mo/blob':>7} {'gz/blob':>7} {'gz/anchor':>9} {'mo/plain':>8} {'gz/plain gz':>11}")
-    mt = {k: 0 for k in ("mo", "gz", "mesh_mo", "mesh_gz", "mesh_blob", "mesh_anchor")}
-    for spec in levels:
-        l = spec["level"]
-        n = items[l]
-        mt["mo"] += mo[l]; mt["gz"] += mo_gz[l]
-        if spec["kind"] == "mesh":
-            mt["mesh_mo"] += mo[l]; mt["mesh_gz"] += mo_gz[l]; mt["mesh_blob"] += ours[l]
-            mt["mesh_anchor"] += anchor[l]
-        print(f"{l:>5} {spec['kind']:>6} {n:>9} | {mo[l]:>9} {mo[l] / n:>7.2f} {mo_gz[l]:>9} {mo_gz[l] / n:>7.2f} | "
-              f"{mo[l] / ours[l]:>7.2f} {mo_gz[l] / ours[l]:>7.2f} {mo_gz[l] / anchor[l]:>9.2f} "
-              f"{mo[l] / glb[l]:>8.2f} {mo_gz[l] / glb_gz[l]:>11.2f}")
-    print(f"{'all':>5} {'':>6} {sum(items.values()):>9} | {mt['mo']:>9} {'':>7} {mt['gz']:>9} {'':>7} | "
-          f"{mt['mo'] / tot['blob']:>7.2f} {mt['gz'] / tot['blob']:>7.2f} {mt['gz'] / tot['anchor']:>9.2f} "
-          f"{mt['mo'] / tot['glb']:>8.2f} {mt['gz'] / tot['gz']:>11.2f}")
-    print(f"meshopt: all levels raw / blobs raw {mt['mo'] / tot['blob']:.2f} (target ≤ 2); meshes gzip / QM+gzip "
-          f"{mt['mesh_gz'] / max(mt['mesh_anchor'], 1):.2f} (target ≤ 1.0); meshes raw / mesh blobs raw "
-          f"{mt['mesh_mo'] / max(mt['mesh_blob'], 1):.2f}")
+    for cname, (_, ccmd, cmsg) in comp_exports.items():
+        mo, mo_gz = comp[cname], comp_gz[cname]
+        print(f"\nThe same GLBs with --glb-compression {cname} ({COMPRESSIONS[cname]}): "
+              f"`{' '.join(ccmd[1:]).replace(tmp, '$TMP')}`")
+        print(f"  {cmsg.replace(tmp, '$TMP')}")
+        print(f"{'level':>5} {'kind':>6} {'items':>9} | {'B':>9} {'B/item':>7} {'gz B':>9} {'B/item':>7} | "
+              f"{'/blob':>7} {'gz/blob':>7} {'gz/anchor':>9} {'/plain':>8} {'gz/plain gz':>11}")
+        mt = {k: 0 for k in ("mo", "gz", "mesh_mo", "mesh_gz", "mesh_blob", "mesh_anchor")}
+        for spec in levels:
+            l = spec["level"]
+            n = items[l]
+            mt["mo"] += mo[l]; mt["gz"] += mo_gz[l]
+            if spec["kind"] == "mesh":
+                mt["mesh_mo"] += mo[l]; mt["mesh_gz"] += mo_gz[l]; mt["mesh_blob"] += ours[l]
+                mt["mesh_anchor"] += anchor[l]
+            print(f"{l:>5} {spec['kind']:>6} {n:>9} | {mo[l]:>9} {mo[l] / n:>7.2f} {mo_gz[l]:>9} {mo_gz[l] / n:>7.2f} | "
+                  f"{mo[l] / ours[l]:>7.2f} {mo_gz[l] / ours[l]:>7.2f} {mo_gz[l] / anchor[l]:>9.2f} "
+                  f"{mo[l] / glb[l]:>8.2f} {mo_gz[l] / glb_gz[l]:>11.2f}")
+        print(f"{'all':>5} {'':>6} {sum(items.values()):>9} | {mt['mo']:>9} {'':>7} {mt['gz']:>9} {'':>7} | "
+              f"{mt['mo'] / tot['blob']:>7.2f} {mt['gz'] / tot['blob']:>7.2f} {mt['gz'] / tot['anchor']:>9.2f} "
+              f"{mt['mo'] / tot['glb']:>8.2f} {mt['gz'] / tot['gz']:>11.2f}")
+        print(f"{cname}: all levels raw / blobs raw {mt['mo'] / tot['blob']:.2f} (target ≤ 2); meshes gzip / QM+gzip "
+              f"{mt['mesh_gz'] / max(mt['mesh_anchor'], 1):.2f} (target ≤ 1.0); meshes raw / mesh blobs raw "
+              f"{mt['mesh_mo'] / max(mt['mesh_blob'], 1):.2f}; all levels gzip / anchors {mt['gz'] / tot['anchor']:.2f}")
 
     if not gltfpack:
         print("\nmeshopt: skipped, gltfpack not found (set $GLTFPACK, or "
