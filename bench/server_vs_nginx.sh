@@ -25,7 +25,8 @@
 # (it gets TOKIO_WORKER_THREADS=WORKERS as well, for builds from before `--threads`).
 # SKIP_GLB=1 leaves out every GLB pass and round (blobs only).
 # GLB_COMPRESSION=meshopt asks for the GLBs with `?glb=meshopt` (EXT_meshopt_compression) and
-# checks them against `export --glb-compression meshopt`.
+# checks them against `export --glb-compression meshopt`; GLB_COMPRESSION=draco the same with
+# `?glb=draco` (KHR_draco_mesh_compression meshes).
 #
 # Needs wrk, nginx (/usr/sbin/nginx), jq and curl >= 7.66 (-Z): apt-get install wrk nginx jq curl
 # Usage: bench/server_vs_nginx.sh [SIZE=2049] [DURATION_S=20] [WRK_THREADS=2] [WORKERS=2] [ROUNDS=3]
@@ -47,7 +48,8 @@ glb_compression="${GLB_COMPRESSION:-none}"
 case "$glb_compression" in
     none) glb_query="" ;;
     meshopt) glb_query="\&glb=meshopt" ;;
-    *) echo "GLB_COMPRESSION: none or meshopt, not $glb_compression" >&2; exit 2 ;;
+    draco) glb_query="\&glb=draco" ;;
+    *) echo "GLB_COMPRESSION: none, meshopt or draco, not $glb_compression" >&2; exit 2 ;;
 esac
 bin="${BIN:-./target/release/terrastream}"
 [ -x "$bin" ] || cargo build --release --quiet

@@ -253,6 +253,100 @@ async fn answers_are_hypers_byte_for_byte() {
     srv.stop().await;
 }
 
+/// Warm 3D Tiles GLBs (plain, `glb=meshopt`, `glb=draco`; identity, gzip and zstd) are answered
+/// on the wire too: byte for byte hyper's answers, with the coding hyper would choose, and only
+/// once the answer is in memory (the first request of each form is the router's, which makes it).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn warm_glbs_are_hypers_byte_for_byte() {
+    let (_tmp, store) = baked_store();
+    let srv = start(&store, |c| c).await;
+    let (_, _, version) = warm(srv.addr).await;
+    let metric_line = |s: u16| {
+        format!(
+            "terrastream_http_requests_total{{route=\"/tilesets/{{name}}/3dtiles/tiles/{{z}}/{{x}}/{{y}}/{{file}}\",status=\"{s}\"}}"
+        )
+    };
+    // A point level's GLB as the tileset lists it (the bake keeps the levels that pay).
+    let points = {
+        let mut c = Client::connect(srv.addr).await;
+        c.send(get("/tilesets/t/3dtiles/tileset.json", "").as_bytes()).await;
+        let text = String::from_utf8(c.response(false).await.body).unwrap();
+        let at = text.find(".glb").and_then(|_| {
+            text.match_indices("tiles/").map(|(i, _)| &text[i + 6..]).find_map(|t| {
+                let uri = &t[..t.find(".glb")?];
+                let plain =
+                    uri.bytes().all(|b| b.is_ascii_digit() || b == b'/') && uri.matches('/').count() == 3;
+                (plain && !uri.ends_with("/0")).then(|| uri.to_owned())
+            })
+        });
+        at.expect("a point level in the tileset")
+    };
+    let mut n200 = 0.0;
+    for (glb, tile) in [
+        ("", "1/1/0/0"),
+        ("&glb=meshopt", "1/1/0/0"),
+        ("&glb=draco", "1/1/0/0"),
+        ("&glb=draco", points.as_str()),
+        ("&glb=none", points.as_str()),
+    ] {
+        let path = format!("/tilesets/t/3dtiles/tiles/{tile}.glb?v={version}{glb}");
+        for accept in [
+            "",
+            "Accept-Encoding: gzip, deflate, br, zstd\r\n",
+            "Accept-Encoding: zstd\r\n",
+            "Accept-Encoding: br\r\n",
+        ] {
+            // The router makes the GLB (and its coded form) on the first request …
+            let mut c = Client::connect(srv.addr).await;
+            c.send(get(&path, accept).as_bytes()).await;
+            let first = c.response(false).await;
+            assert_eq!(first.status(), 200, "{path} {accept:?}: {first:?}");
+            n200 += 1.0;
+            let etag = first.header("etag").unwrap().to_owned();
+            let cases = [
+                ("GET", String::new()),
+                ("HEAD", String::new()),
+                ("GET", format!("If-None-Match: {etag}\r\n")),
+                ("HEAD", format!("If-None-Match: {etag}\r\n")),
+                ("GET", "Connection: close\r\n".to_owned()),
+            ];
+            for (method, extra) in &cases {
+                let head = *method == "HEAD";
+                let req = |more: &str| {
+                    format!("{method} {path} HTTP/1.1\r\nHost: localhost\r\n{accept}{extra}{more}\r\n")
+                };
+                let before = metrics(srv.addr).await;
+                let mut fast = Client::connect(srv.addr).await;
+                fast.send(req("").as_bytes()).await;
+                let a = fast.response(head).await;
+                let mid = metrics(srv.addr).await;
+                // The answer was the fast path's: the connection was never handed to hyper (a
+                // request with a body goes to hyper; its answer must be the same).
+                let mut slow = Client::connect(srv.addr).await;
+                slow.send(req("Content-Length: 0\r\n").as_bytes()).await;
+                let b = slow.response(head).await;
+                assert_eq!(a, b, "{method} {path} {accept:?} {extra:?}");
+                assert_eq!(a.header("vary"), Some("accept-encoding"));
+                let status = a.status();
+                assert!(status == 200 || status == 304, "{a:?}");
+                if status == 200 && !head {
+                    assert_eq!(a.body, first.body, "{path} {accept:?}");
+                    n200 += 2.0;
+                }
+                let wire = |t: &str| metric(t, "terrastream_wire_answers_total");
+                assert_eq!(
+                    wire(&mid) - wire(&before),
+                    1.0,
+                    "{path} {accept:?} {extra:?}: not answered on the wire"
+                );
+            }
+        }
+    }
+    let after = metrics(srv.addr).await;
+    assert!(metric(&after, &metric_line(200)) >= n200, "{after}");
+    srv.stop().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn pipelining_split_heads_and_hand_over() {
     let (_tmp, store) = baked_store();

@@ -43,6 +43,8 @@ use super::http;
 use super::loaders;
 use super::native::{self, BLOB_ROUTE};
 use super::problem::Problem;
+use super::tiles3d;
+use crate::formats::tiles3d::GLB_TYPE;
 
 /// The router behind the in-memory blob fast path.
 #[derive(Clone)]
@@ -114,6 +116,7 @@ fn wire_step(app: &App, buf: &[u8], out: &mut Vec<u8>) -> Step {
     let mut host = 0;
     let mut close = false;
     let mut if_none_match = None;
+    let mut accept_encoding = None;
     for h in req.headers.iter() {
         let name = h.name;
         if name.eq_ignore_ascii_case("host") {
@@ -135,6 +138,12 @@ fn wire_step(app: &App, buf: &[u8], out: &mut Vec<u8>) -> Step {
                 return Step::Handoff;
             }
             if_none_match = Some(h.value);
+        } else if name.eq_ignore_ascii_case("accept-encoding") {
+            // The router reads the first of several; the fast path takes only one.
+            if accept_encoding.is_some() {
+                return Step::Handoff;
+            }
+            accept_encoding = Some(h.value);
         } else if ["content-length", "transfer-encoding", "expect", "upgrade", "range", "if-range"]
             .iter()
             .any(|n| name.eq_ignore_ascii_case(n))
@@ -149,8 +158,16 @@ fn wire_step(app: &App, buf: &[u8], out: &mut Vec<u8>) -> Step {
         Some((p, q)) => (p, Some(q)),
         None => (target, None),
     };
-    let Some((entry, cache)) = lookup(app, path, query) else { return Step::Handoff };
-    app.metrics.cache_hits.fetch_add(1, Ordering::Relaxed);
+    // A blob (counted as a cache hit, as the router's blob handler counts it), or a GLB in the
+    // negotiated coding (`Some(Content-Encoding)`).
+    let (entry, cache, glb) = if let Some((entry, cache)) = lookup(app, path, query) {
+        app.metrics.cache_hits.fetch_add(1, Ordering::Relaxed);
+        (entry, cache, None)
+    } else if let Some((entry, cache, coding)) = tiles3d::cached_glb(app, path, query, accept_encoding) {
+        (entry, cache, Some(coding))
+    } else {
+        return Step::Handoff;
+    };
     let not_modified = if_none_match.is_some_and(|v| conditional::none_match_bytes(v, entry.etag.as_bytes()));
     // The headers in the order hyper writes the router's response (a test compares them).
     out.clear();
@@ -168,10 +185,17 @@ fn wire_step(app: &App, buf: &[u8], out: &mut Vec<u8>) -> Step {
     }
     let len = entry.bytes.len();
     if !not_modified {
-        push_header(out, b"content-type: ", native::BLOB_TYPE.as_bytes());
+        let kind = if glb.is_some() { GLB_TYPE } else { native::BLOB_TYPE };
+        push_header(out, b"content-type: ", kind.as_bytes());
         out.extend_from_slice(b"content-length: ");
         // Writing into a Vec cannot fail.
         let _ = write!(out, "{len}\r\n");
+    }
+    if let Some(coding) = glb {
+        if let Some(token) = coding {
+            push_header(out, b"content-encoding: ", token.as_bytes());
+        }
+        push_header(out, b"vary: ", b"accept-encoding");
     }
     push_header(out, b"access-control-expose-headers: ", http::EXPOSE_HEADERS.as_bytes());
     push_header(out, b"access-control-allow-origin: ", b"*");
@@ -187,7 +211,9 @@ fn wire_step(app: &App, buf: &[u8], out: &mut Vec<u8>) -> Step {
     out.extend_from_slice(b"\r\n\r\n");
     let status = if not_modified { 304 } else { 200 };
     let sent = (!not_modified && method == Method::GET).then_some(len as u64);
-    http::observe_status(app, BLOB_ROUTE, &method, path, status, sent, start);
+    let route = if glb.is_some() { tiles3d::GLB_ROUTE } else { BLOB_ROUTE };
+    http::observe_status(app, route, &method, path, status, sent, start);
+    app.metrics.wire_answers.fetch_add(1, Ordering::Relaxed);
     let body = if sent.is_some() { entry.bytes } else { Bytes::new() };
     Step::Answer { consumed, body, close }
 }

@@ -68,7 +68,7 @@ pub fn router(app: Arc<App>) -> Router {
         .route(BLOB_ROUTE, get(native::blob))
         .route("/tilesets/{name}/3dtiles/tileset.json", get(tiles3d::root))
         .route("/tilesets/{name}/3dtiles/index/{z}/{x}/{file}", get(tiles3d::subtree))
-        .route("/tilesets/{name}/3dtiles/tiles/{z}/{x}/{y}/{file}", get(tiles3d::glb))
+        .route(tiles3d::GLB_ROUTE, get(tiles3d::glb))
         .route("/tilesets/{name}/heights", get(heights::get).post(heights::post))
         .route("/tilesets/{name}/heightmap/tiles.json", get(heightmap::tilejson))
         .route("/tilesets/{name}/heightmap/{z}/{x}/{file}", get(heightmap::tile))

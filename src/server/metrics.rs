@@ -51,6 +51,9 @@ pub struct Metrics {
     /// Connections a busy serving thread handed to a less busy one, at accept or idle
     /// (`--cpu-affinity`).
     pub connections_moved: AtomicU64,
+    /// Requests the wire-level fast path answered itself (in-memory blobs and GLBs), counted in
+    /// the per-route figures too.
+    pub wire_answers: AtomicU64,
 }
 
 impl Metrics {
@@ -204,6 +207,12 @@ impl Metrics {
             "counter",
             "Connections a busy serving thread handed to a less busy one, at accept or between requests (serving threads pinned to CPUs, --cpu-affinity).",
             get(&self.connections_moved),
+        );
+        scalar(
+            "terrastream_wire_answers_total",
+            "counter",
+            "Requests answered by the wire-level fast path in front of hyper (in-memory blobs and 3D Tiles GLBs); also in terrastream_http_requests_total.",
+            get(&self.wire_answers),
         );
         out
     }

@@ -411,11 +411,7 @@ pub(super) async fn glb(
         .ok_or_else(|| Problem::bad_request(format!("tile {file:?} must be named LEVEL.glb")))?;
     let level = parse_level(&ts, level)?;
     let glb = glb_option(query.as_deref())?;
-    let docs = match glb {
-        GlbCompression::None => [GLB, GLB_GZIP, GLB_ZSTD],
-        GlbCompression::Meshopt => GLB_MESHOPT,
-        GlbCompression::Draco => GLB_DRACO,
-    };
+    let docs = glb_docs(glb);
     let ck = (ts.generation, key, docs[0] + u16::from(level));
     let coded_key = coded_doc(coding, docs[1], docs[2]).map(|d| (ts.generation, key, d + u16::from(level)));
     let cache = versioned_cache(&ts, query.as_deref());
@@ -442,6 +438,54 @@ pub(super) async fn glb(
     app.cache.insert(ck, entry.clone());
     let (entry, coding) = coded(&app, &entry, coding, coded_key).await;
     Ok(send_coded(&method, &headers, &entry, coding, GLB_TYPE, cache))
+}
+
+/// The GLB route as the metrics name it (the router's matched path).
+pub(super) const GLB_ROUTE: &str = "/tilesets/{name}/3dtiles/tiles/{z}/{x}/{y}/{file}";
+
+/// The cache documents of a GLB in `glb` compression: plain, gzip, zstd (plus the level).
+fn glb_docs(glb: GlbCompression) -> [u16; 3] {
+    match glb {
+        GlbCompression::None => [GLB, GLB_GZIP, GLB_ZSTD],
+        GlbCompression::Meshopt => GLB_MESHOPT,
+        GlbCompression::Draco => GLB_DRACO,
+    }
+}
+
+/// What [`glb`] answers for a `GET` of `path` (`/tilesets/{name}/3dtiles/tiles/{z}/{x}/{y}/{level}.glb`,
+/// not percent-encoded) with `query` and the request's one `Accept-Encoding` value (if any),
+/// when that answer is already in memory: the entry in the negotiated coding, its
+/// `Cache-Control` and its `Content-Encoding` token. `None` for anything else (another path, a
+/// bad key, level or `glb=`, a GLB or coded form not made yet): the router's way, which owns
+/// every error answer and every GLB it makes. For the wire-level fast path (`server::fast`).
+pub(super) fn cached_glb(
+    app: &App,
+    path: &str,
+    query: Option<&str>,
+    accept: Option<&[u8]>,
+) -> Option<(Entry, &'static str, Option<&'static str>)> {
+    if path.contains('%') {
+        return None;
+    }
+    let mut parts = path.strip_prefix("/tilesets/")?.split('/');
+    let name = parts.next()?;
+    let (t3, tiles) = (parts.next()?, parts.next()?);
+    let (z, x, y, file) = (parts.next()?, parts.next()?, parts.next()?, parts.next()?);
+    if t3 != "3dtiles" || tiles != "tiles" || parts.next().is_some() {
+        return None;
+    }
+    let level = file.strip_suffix(".glb")?;
+    let ts = tileset(app, name).ok()?;
+    let key = parse_key(&ts, z, x, y).ok()?;
+    let level = parse_level(&ts, level).ok()?;
+    let docs = glb_docs(glb_option(query).ok()?);
+    let coding = match accept {
+        None => Coding::negotiate(None),
+        Some(v) => Coding::negotiate(Some(&HeaderValue::from_bytes(v).ok()?)),
+    };
+    let doc = coded_doc(coding, docs[1], docs[2]).unwrap_or(docs[0]);
+    let entry = app.cache.get(&(ts.generation, key, doc + u16::from(level)))?;
+    Some((entry, versioned_cache(&ts, query), coding.token()))
 }
 
 /// A tileset that cannot be placed on the Earth (its geoid grid unreadable, a point outside

@@ -398,22 +398,27 @@ async function main() {
     if (session.page) await session.page.close().catch(() => {});
   }
 
-  // The fuji tileset with EXT_meshopt_compression GLBs: `?glb=meshopt` on the tileset JSON is
-  // carried into every URI it lists, and CesiumJS decodes the extension itself.
-  {
+  // The fuji tileset with compressed GLBs: `?glb=meshopt` (EXT_meshopt_compression) and
+  // `?glb=draco` (KHR_draco_mesh_compression for the meshes, EXT_meshopt_compression for the
+  // points) on the tileset JSON are carried into every URI it lists, and CesiumJS decodes both
+  // extensions itself (Draco with its bundled decoder, ThirdParty/draco_decoder.wasm, in a worker).
+  for (const glb of ['meshopt', 'draco']) {
     const session = {};
-    await checks.run('d. cesium fuji ?glb=meshopt', async (log) => {
+    await checks.run(`d. cesium fuji ?glb=${glb}`, async (log) => {
       needs(served, 'the server is not running');
       needs(browser, `no browser: ${browserError}`);
       const said = await cesiumLoadCheck({
-        browser, pageUrl: `${pageBase}/index.html`, tilesetUrl: `${base}/tilesets/fuji/3dtiles/tileset.json?glb=meshopt`,
-        screenshot: path.join(cfg.out, 'cesium-fuji-meshopt.png'), timeoutMs: 120_000, log, session,
+        browser, pageUrl: `${pageBase}/index.html`, tilesetUrl: `${base}/tilesets/fuji/3dtiles/tileset.json?glb=${glb}`,
+        screenshot: path.join(cfg.out, `cesium-fuji-${glb}.png`), timeoutMs: 120_000, log, session,
       });
       const glbs = session.result.loaded.filter((u) => new URL(u, base).pathname.endsWith('.glb'));
-      const plain = glbs.filter((u) => new URL(u, base).searchParams.get('glb') !== 'meshopt');
-      if (plain.length) throw new CheckFailure(`${plain.length} of ${glbs.length} GLBs loaded without glb=meshopt, e.g. ${plain[0]}`);
-      const got = session.rec.requests.filter((u) => u.includes('.glb') && u.includes('glb=meshopt')).length;
-      return `${said}; all ${glbs.length} GLBs with glb=meshopt (${got} such requests)`;
+      const plain = glbs.filter((u) => new URL(u, base).searchParams.get('glb') !== glb);
+      if (plain.length) throw new CheckFailure(`${plain.length} of ${glbs.length} GLBs loaded without glb=${glb}, e.g. ${plain[0]}`);
+      const got = session.rec.requests.filter((u) => u.includes('.glb') && u.includes(`glb=${glb}`)).length;
+      // CesiumJS fetches its Draco decoder only when a glTF asks for it: proof it decoded one
+      const decoder = session.rec.requests.filter((u) => /\/ThirdParty\/draco_decoder\.(wasm|js)$/.test(new URL(u, base).pathname));
+      if (glb === 'draco' && decoder.length === 0) throw new CheckFailure(`CesiumJS never fetched ThirdParty/draco_decoder.wasm: no Draco mesh decoded (${glbs.length} GLBs loaded)`);
+      return `${said}; all ${glbs.length} GLBs with glb=${glb} (${got} such requests)${glb === 'draco' ? `; CesiumJS's Draco decoder fetched (${decoder.map((u) => path.basename(new URL(u, base).pathname)).join(', ')})` : ''}`;
     });
     if (session.page) await session.page.close().catch(() => {});
   }
