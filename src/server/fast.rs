@@ -9,14 +9,17 @@
 //! `--rate-limit`, or one at its in-flight limit — goes to the router unchanged, which owns
 //! every error answer, disk read and bake.
 //!
-//! In front of hyper, [`FastPath::wire_step`] answers the same requests straight from a
+//! In front of hyper, [`FastPath::wire_step`] answers the same requests — and a `GET`/`HEAD`
+//! of a 3D Tiles GLB whose answer (in the `glb=` form and the coding `Accept-Encoding`
+//! negotiates) the router has already made and cached (`tiles3d::cached_glb`) — straight from a
 //! connection's bytes (see `listener::wire`): it parses the request head with `httparse` and
 //! writes the status line, headers and body itself, into a buffer the connection reuses, so a
 //! hit costs no allocation and one `writev`. It answers only a plain `GET` or `HEAD` of an
-//! in-memory blob over HTTP/1.1 — with `If-None-Match` (`304`) and `Connection: close` — and
+//! in-memory blob or GLB over HTTP/1.1 — with `If-None-Match` (`304`) and `Connection: close` — and
 //! hands the connection to hyper, from the first byte of the first request it does not answer,
 //! for anything else: another route, a body (`Content-Length`, `Transfer-Encoding`), `Range`,
-//! `If-Range`, `Expect`, `Upgrade`, HTTP/1.0, a missing, repeated or unusual `Host`, any byte
+//! `If-Range`, `Expect`, `Upgrade`, HTTP/1.0, a missing, repeated or unusual `Host`, a repeated
+//! `Accept-Encoding`, any byte
 //! outside a conservative set in the request target, an unparsable or oversized head. Its
 //! answers are byte for byte the router's but the date (tests compare both).
 
