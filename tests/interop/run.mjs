@@ -402,14 +402,16 @@ async function main() {
   // `?glb=draco` (KHR_draco_mesh_compression for the meshes, EXT_meshopt_compression for the
   // points) on the tileset JSON are carried into every URI it lists, and CesiumJS decodes both
   // extensions itself (Draco with its bundled decoder, ThirdParty/draco_decoder.wasm, in a worker).
-  for (const glb of ['meshopt', 'draco']) {
+  // Gabon is placed on the Earth: its GLBs have FLOAT positions in each node's east-north-up
+  // frame, which Draco quantizes (24 bits over the primitive's extent).
+  for (const [name, glb] of [['fuji', 'meshopt'], ['fuji', 'draco'], ['gabon', 'draco']]) {
     const session = {};
-    await checks.run(`d. cesium fuji ?glb=${glb}`, async (log) => {
+    await checks.run(`d. cesium ${name} ?glb=${glb}`, async (log) => {
       needs(served, 'the server is not running');
       needs(browser, `no browser: ${browserError}`);
       const said = await cesiumLoadCheck({
-        browser, pageUrl: `${pageBase}/index.html`, tilesetUrl: `${base}/tilesets/fuji/3dtiles/tileset.json?glb=${glb}`,
-        screenshot: path.join(cfg.out, `cesium-fuji-${glb}.png`), timeoutMs: 120_000, log, session,
+        browser, pageUrl: `${pageBase}/index.html`, tilesetUrl: `${base}/tilesets/${name}/3dtiles/tileset.json?glb=${glb}`,
+        screenshot: path.join(cfg.out, `cesium-${name}-${glb}.png`), timeoutMs: 120_000, log, session,
       });
       const glbs = session.result.loaded.filter((u) => new URL(u, base).pathname.endsWith('.glb'));
       const plain = glbs.filter((u) => new URL(u, base).searchParams.get('glb') !== glb);
