@@ -83,14 +83,22 @@ impl Coding {
     /// it and everything else gets the plain body, as RFC 9110 allows). No header, or one
     /// longer than [`MAX_ACCEPT_ENCODING`], means no coding.
     pub(super) fn negotiate(accept: Option<&HeaderValue>) -> Self {
-        let Some(text) = accept.filter(|v| v.len() <= MAX_ACCEPT_ENCODING).and_then(|v| v.to_str().ok())
-        else {
+        accept.map_or(Self::Identity, |v| Self::negotiate_bytes(v.as_bytes()))
+    }
+
+    /// [`Coding::negotiate`] on a header value's bytes, without an allocation (the wire-level
+    /// fast path's): a value that is not visible ASCII means no coding, as
+    /// `HeaderValue::to_str` fails on it.
+    pub(super) fn negotiate_bytes(accept: &[u8]) -> Self {
+        if accept.len() > MAX_ACCEPT_ENCODING || !accept.iter().all(|&b| b == b'\t' || (32..127).contains(&b))
+        {
             return Self::Identity;
-        };
+        }
+        let Ok(text) = std::str::from_utf8(accept) else { return Self::Identity };
         let (mut zstd, mut gzip, mut star) = (None, None, None);
         for item in text.split(',') {
             let mut parts = item.split(';');
-            let name = parts.next().unwrap_or("").trim().to_ascii_lowercase();
+            let name = parts.next().unwrap_or("").trim();
             let mut q = Some(1.0);
             for param in parts {
                 if let Some((k, v)) = param.split_once('=')
@@ -101,11 +109,12 @@ impl Coding {
             }
             // A malformed weight makes the element count as refused.
             let q = q.unwrap_or(0.0);
-            match name.as_str() {
-                "zstd" => zstd = Some(q),
-                "gzip" | "x-gzip" => gzip = Some(gzip.map_or(q, |g: f64| g.max(q))),
-                "*" => star = Some(q),
-                _ => {}
+            if name.eq_ignore_ascii_case("zstd") {
+                zstd = Some(q);
+            } else if name.eq_ignore_ascii_case("gzip") || name.eq_ignore_ascii_case("x-gzip") {
+                gzip = Some(gzip.map_or(q, |g: f64| g.max(q)));
+            } else if name == "*" {
+                star = Some(q);
             }
         }
         let zstd = zstd.or(star).unwrap_or(0.0);
@@ -479,10 +488,7 @@ pub(super) fn cached_glb(
     let key = parse_key(&ts, z, x, y).ok()?;
     let level = parse_level(&ts, level).ok()?;
     let docs = glb_docs(glb_option(query).ok()?);
-    let coding = match accept {
-        None => Coding::negotiate(None),
-        Some(v) => Coding::negotiate(Some(&HeaderValue::from_bytes(v).ok()?)),
-    };
+    let coding = accept.map_or(Coding::Identity, Coding::negotiate_bytes);
     let doc = coded_doc(coding, docs[1], docs[2]).unwrap_or(docs[0]);
     let entry = app.cache.get(&(ts.generation, key, doc + u16::from(level)))?;
     Some((entry, versioned_cache(&ts, query), coding.token()))

@@ -12,26 +12,16 @@ import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
-import { execFileSync } from 'node:child_process';
-import { fileURLToPath } from 'node:url';
 import validator from 'gltf-validator';
 import { compareDracoTrees, EXT } from '../lib/draco-checks.mjs';
 import { glbFiles, readGlb } from '../lib/meshopt-checks.mjs';
-
-const HERE = path.dirname(fileURLToPath(import.meta.url));
-const DATA = process.env.TERRASTREAM_DATA ? path.resolve(process.env.TERRASTREAM_DATA) : path.resolve(HERE, '../../../../shared/data');
-const BIN = process.env.TERRASTREAM_BIN ? path.resolve(process.env.TERRASTREAM_BIN) : path.resolve(HERE, '../../../target/release/terrastream');
+import { fujiExports } from '../lib/fuji-export.mjs';
 
 test('draco GLBs of a fuji export decode (draco3d; MeshoptDecoder for points) to the plain GLBs', async (t) => {
   const tmp = fs.mkdtempSync(path.join(os.tmpdir(), 'ts-draco-'));
   try {
-    const ts = path.join(tmp, 'fuji');
-    execFileSync(BIN, ['bake', '--quiet', path.join(DATA, 'fuji.png'), '--encoding', 'terrain-rgb', '--cell-size', '30',
-      '--max-error', '1', '--levels', '4', '--tile-size', '128', '--out', ts]);
-    const dirs = { plain: path.join(tmp, 'plain'), draco: path.join(tmp, 'draco'), meshopt: path.join(tmp, 'mo') };
-    execFileSync(BIN, ['export', ts, '--format', '3dtiles', '--out', dirs.plain, '--quiet']);
-    execFileSync(BIN, ['export', ts, '--format', '3dtiles', '--glb-compression', 'draco', '--out', dirs.draco, '--quiet']);
-    execFileSync(BIN, ['export', ts, '--format', '3dtiles', '--glb-compression', 'meshopt', '--out', dirs.meshopt, '--quiet']);
+    const dirs = fujiExports(tmp, ['none', 'draco', 'meshopt']);
+    dirs.plain = dirs.none;
     const r = await compareDracoTrees(dirs.plain, dirs.draco);
     const meshopt = glbFiles(dirs.meshopt).reduce((n, rel) => n + fs.statSync(path.join(dirs.meshopt, rel)).size, 0);
     t.diagnostic(`${r.glbs} GLBs (${r.meshes} Draco meshes, ${r.points} meshopt points): draco ${r.draco} bytes, meshopt ${meshopt}, plain ${r.plain}`);

@@ -9,31 +9,22 @@ import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
-import { execFileSync } from 'node:child_process';
-import { fileURLToPath } from 'node:url';
 import validator from 'gltf-validator';
 import { compareTrees } from '../lib/meshopt-checks.mjs';
-
-const HERE = path.dirname(fileURLToPath(import.meta.url));
-const DATA = process.env.TERRASTREAM_DATA ? path.resolve(process.env.TERRASTREAM_DATA) : path.resolve(HERE, '../../../../shared/data');
-const BIN = process.env.TERRASTREAM_BIN ? path.resolve(process.env.TERRASTREAM_BIN) : path.resolve(HERE, '../../../target/release/terrastream');
+import { fujiExports } from '../lib/fuji-export.mjs';
 
 test('meshopt GLBs of a fuji export decode (MeshoptDecoder) to the plain GLBs', async (t) => {
   const tmp = fs.mkdtempSync(path.join(os.tmpdir(), 'ts-meshopt-'));
   try {
-    const ts = path.join(tmp, 'fuji');
-    execFileSync(BIN, ['bake', '--quiet', path.join(DATA, 'fuji.png'), '--encoding', 'terrain-rgb', '--cell-size', '30',
-      '--max-error', '1', '--levels', '4', '--tile-size', '128', '--out', ts]);
-    execFileSync(BIN, ['export', ts, '--format', '3dtiles', '--out', path.join(tmp, 'plain'), '--quiet']);
-    execFileSync(BIN, ['export', ts, '--format', '3dtiles', '--glb-compression', 'meshopt', '--out', path.join(tmp, 'mo'), '--quiet']);
-    const r = await compareTrees(path.join(tmp, 'plain'), path.join(tmp, 'mo'));
+    const dirs = fujiExports(tmp, ['none', 'meshopt']);
+    const r = await compareTrees(dirs.none, dirs.meshopt);
     t.diagnostic(`${r.glbs} GLBs: meshopt ${r.meshopt} bytes, plain ${r.plain}; largest normal angle to the plain GLB's ${r.maxDeg.toFixed(3)}°`);
     assert.ok(r.glbs >= 10, `${r.glbs} GLBs`);
     assert.ok(r.meshopt < r.plain / 2, `meshopt ${r.meshopt} bytes vs plain ${r.plain}`);
     // The Khronos validator does not know the extension: it must report it as unsupported (an
     // info) and find no error or warning in the rest.
     for (const rel of ['tiles/0/0/0/0.glb', 'tiles/0/0/0/3.glb']) {
-      const v = await validator.validateBytes(new Uint8Array(fs.readFileSync(path.join(tmp, 'mo', rel))), { maxIssues: 50 });
+      const v = await validator.validateBytes(new Uint8Array(fs.readFileSync(path.join(dirs.meshopt, rel))), { maxIssues: 50 });
       assert.equal(v.issues.numErrors + v.issues.numWarnings, 0, `${rel}: ${JSON.stringify(v.issues.messages)}`);
       assert.ok(v.issues.messages.some((m) => m.code === 'UNSUPPORTED_EXTENSION' && m.message.includes('EXT_meshopt_compression')), rel);
     }
