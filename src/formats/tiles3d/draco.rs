@@ -111,6 +111,9 @@ fn read_accessor(
     let bytes =
         bin.get(offset..offset.saturating_add(len)).ok_or_else(|| bad("bufferView outside the BIN chunk"))?;
     let stride = as_usize(&v["byteStride"]).unwrap_or(n * size);
+    if stride < n * size {
+        return Err(bad(format!("accessor {index}: byteStride {stride} is shorter than an element")));
+    }
     let start = as_usize(&a["byteOffset"]).unwrap_or(0);
     let end = count
         .checked_sub(1)
