@@ -37,52 +37,6 @@ const TAIL_MIN: usize = 32;
 const CODEAUX: [u8; 16] =
     [0x00, 0x76, 0x87, 0x56, 0x67, 0x78, 0xa9, 0x86, 0x65, 0x89, 0x68, 0x98, 0x01, 0x69, 0, 0];
 
-/// How the 3D Tiles GLBs are compressed: `none` (plain buffers, the default), `meshopt`
-/// (`EXT_meshopt_compression`, which the reader must support: CesiumJS does natively, three.js
-/// with `GLTFLoader.setMeshoptDecoder`) or `draco` (`KHR_draco_mesh_compression` for mesh GLBs,
-/// [`super::draco`]: CesiumJS natively, three.js with `DRACOLoader`; the extension covers
-/// triangles only, so point levels' GLBs take `EXT_meshopt_compression` there).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum GlbCompression {
-    #[default]
-    None,
-    Meshopt,
-    Draco,
-}
-
-impl GlbCompression {
-    /// Every option, in the order documented.
-    pub const ALL: [Self; 3] = [Self::None, Self::Meshopt, Self::Draco];
-
-    /// The option's name (`none`, `meshopt`, `draco`), as `--glb-compression` and `?glb=` take it.
-    #[must_use]
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::None => "none",
-            Self::Meshopt => "meshopt",
-            Self::Draco => "draco",
-        }
-    }
-
-    /// The option named `s`, if it is one.
-    #[must_use]
-    pub fn parse(s: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|c| c.name() == s)
-    }
-
-    /// A GLB of [`super::glb()`] in this compression.
-    ///
-    /// # Errors
-    /// As [`compress_glb`] and [`super::draco::compress_glb`].
-    pub fn apply(self, glb: Vec<u8>) -> Result<Vec<u8>, super::Tiles3dError> {
-        Ok(match self {
-            Self::None => glb,
-            Self::Draco if super::draco::all_triangles(&glb) => super::draco::compress_glb(&glb)?,
-            Self::Meshopt | Self::Draco => compress_glb(&glb)?,
-        })
-    }
-}
-
 /// Errors of the meshopt codecs and of [`compress_glb`].
 #[derive(Debug, Clone, thiserror::Error, PartialEq, Eq)]
 pub enum MeshoptError {

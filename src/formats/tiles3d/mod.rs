@@ -24,7 +24,7 @@ pub mod placement;
 pub mod tileset;
 
 pub use glb::{GENERATOR, GLB_TYPE, glb, mesh_skirt_depth};
-pub use meshopt::{GlbCompression, MeshoptError};
+pub use meshopt::MeshoptError;
 pub use placement::{
     Anchor, AnchorError, AnchorFrom, AnchorRangeError, Axes, DEFAULT_ANCHOR, MAX_ANCHOR_HEIGHT, Placement,
 };
@@ -54,6 +54,52 @@ pub enum Tiles3dError {
     /// The GLB could not be put into `KHR_draco_mesh_compression` form.
     #[error(transparent)]
     Draco(#[from] draco::DracoError),
+}
+
+/// How the 3D Tiles GLBs are compressed: `none` (plain buffers, the default), `meshopt`
+/// (`EXT_meshopt_compression`, which the reader must support: CesiumJS does natively, three.js
+/// with `GLTFLoader.setMeshoptDecoder`) or `draco` (`KHR_draco_mesh_compression` for mesh GLBs,
+/// [`draco`]: CesiumJS natively, three.js with `DRACOLoader`; the extension covers
+/// triangles only, so point levels' GLBs take `EXT_meshopt_compression` there).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum GlbCompression {
+    #[default]
+    None,
+    Meshopt,
+    Draco,
+}
+
+impl GlbCompression {
+    /// Every option, in the order documented.
+    pub const ALL: [Self; 3] = [Self::None, Self::Meshopt, Self::Draco];
+
+    /// The option's name (`none`, `meshopt`, `draco`), as `--glb-compression` and `?glb=` take it.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Meshopt => "meshopt",
+            Self::Draco => "draco",
+        }
+    }
+
+    /// The option named `s`, if it is one.
+    #[must_use]
+    pub fn parse(s: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|c| c.name() == s)
+    }
+
+    /// A GLB of [`super::glb()`] in this compression.
+    ///
+    /// # Errors
+    /// As [`meshopt::compress_glb`] and [`draco::compress_glb`].
+    pub fn apply(self, glb: Vec<u8>) -> Result<Vec<u8>, Tiles3dError> {
+        Ok(match self {
+            Self::None => glb,
+            Self::Draco if draco::all_triangles(&glb) => draco::compress_glb(&glb)?,
+            Self::Meshopt | Self::Draco => meshopt::compress_glb(&glb)?,
+        })
+    }
 }
 
 #[cfg(test)]

@@ -5,10 +5,9 @@
 use serde::Deserialize;
 use serde_json::{Value, json};
 
-use super::Tiles3dError;
 use super::glb::{GENERATOR, glb, mesh_skirt_depth};
-use super::meshopt::GlbCompression;
 use super::placement::{Anchor, Placement};
+use super::{GlbCompression, Tiles3dError};
 use crate::codec::{Blob, Kind};
 use crate::geom::{Bounds, ErrorFigures};
 use crate::store::{IndexChunk, LevelSpec, Manifest, NodeEntry, NodeLevel, SUBTREE_LEVELS, TilesetKind};
