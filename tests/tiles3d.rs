@@ -101,6 +101,18 @@ impl Glb {
             .collect()
     }
 
+    /// The normals a renderer draws: `NORMAL` through the inverse transpose of node 0's
+    /// transform (its `scale`: inverse), normalized.
+    fn rendered_normals(&self) -> Vec<[f64; 3]> {
+        let node = &self.json["nodes"][0];
+        let s: Vec<f64> = node["scale"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let prim = &self.json["meshes"][0]["primitives"][0];
+        self.accessor(prim["attributes"]["NORMAL"].as_u64().unwrap())
+            .into_iter()
+            .map(|n| std::array::from_fn(|a| n[a] / s[a]))
+            .collect()
+    }
+
     /// Positions as the glTF defines them: translation + scale · attribute.
     fn positions(&self) -> Vec<[f64; 3]> {
         let node = &self.json["nodes"][0];
@@ -255,6 +267,41 @@ fn export_writes_every_stored_level_as_a_tile_with_the_blobs_positions() {
                     area += (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
                 }
                 assert!(area > 0.0, "{}: triangles face down", n.key);
+                // Drawn through the node's transform, each vertex's normal is its surface's
+                // (area-weighted over its triangles, from the positions as placed).
+                let mut sums = vec![[0.0f64; 3]; got.len()];
+                for t in idx.chunks(3).take(m.triangles.len()) {
+                    let [a, b, c] = [0, 1, 2].map(|k| got[t[k][0] as usize]);
+                    let (u, v) = ([0, 1, 2].map(|k| b[k] - a[k]), [0, 1, 2].map(|k| c[k] - a[k]));
+                    let x = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+                    for i in t {
+                        sums[i[0] as usize] = [0, 1, 2].map(|k| sums[i[0] as usize][k] + x[k]);
+                    }
+                }
+                let drawn = glb.rendered_normals();
+                for (i, want) in sums.iter().enumerate().take(world.len()) {
+                    let angle = angle_deg(drawn[i], *want);
+                    assert!(
+                        angle < 2.0,
+                        "{} level {} vertex {i}: drawn normal {angle:.1}° off",
+                        n.key,
+                        l.level
+                    );
+                }
+            }
+            if let Geometry::Points(p) = &blob.geometry {
+                let drawn = glb.rendered_normals();
+                for (i, (w, nrm)) in p.positions.iter().zip(&p.normals).enumerate() {
+                    let tip = info.place.gltf_of([0, 1, 2].map(|k| w[k] + f64::from(nrm[k])));
+                    let base = info.place.gltf_of(*w);
+                    let angle = angle_deg(drawn[i], [0, 1, 2].map(|k| tip[k] - base[k]));
+                    assert!(
+                        angle < 2.0,
+                        "{} level {} point {i}: drawn normal {angle:.1}° off",
+                        n.key,
+                        l.level
+                    );
+                }
             }
             checked += 1;
         }
@@ -842,4 +889,11 @@ fn cli_anchor_and_export_3dtiles() {
     );
     assert!(e.contains("tileset.json"), "{e}");
     assert!(!tmp.path().join("y").exists());
+}
+
+/// The angle between two directions, in degrees.
+fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let len = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    (dot / (len(a) * len(b))).clamp(-1.0, 1.0).acos().to_degrees()
 }

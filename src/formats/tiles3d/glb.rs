@@ -1,8 +1,12 @@
 //! The glTF 2.0 binary (GLB) of a decoded blob ([`glb`]). Positions keep the blob's integer
-//! grid: each glTF axis stores `q` (or `Q − q` where the axis is reversed) and the node's
-//! `translation` and `scale` hold the grid's origin and step, so a position decodes to exactly
-//! what the blob decodes to. Where that grid spans more than 16 bits (steep meshes at fine
-//! errors) a coarser one ([`CoarseGrid`]) keeps positions 16-bit within 1/8 of the measured error.
+//! grid on one step for all three axes: glTF renders normals through the inverse transpose of
+//! the node's transform, so a node scale that differs per axis (the blob's x/y step against its
+//! far finer z step) would bend every normal towards the stretched axis. Each glTF axis stores
+//! `k·q` (or `k·(Q − q)` where the axis is reversed), `k` the axis's step in units of the finest,
+//! and the node's `translation` and uniform `scale` hold the grid's origin and step, so a position
+//! decodes to exactly what the blob decodes to. Where that does not fit 16 bits a grid with a
+//! coarser z step ([`CoarseGrid`]) keeps positions 16-bit within 1/8 of the measured error, and
+//! where none does, positions are `FLOAT` metres (scale 1).
 
 use serde_json::{Value, json};
 
@@ -66,22 +70,34 @@ pub fn glb(
             // they turn only where the placement mirrors.
             let flip_top = turns(mesh, place);
             let depth = skirt.filter(|_| !mesh.triangles.is_empty());
-            // The blob's own grid when it fits 16 bits, else a coarser one within the error
-            // budget ([`CoarseGrid`]), else the blob's grid as `FLOAT`.
+            // The blob's own grid when it fits 16 bits on one step for all axes, else one with a
+            // coarser z step (the finest that fits) within the error budget ([`CoarseGrid`]),
+            // else `FLOAT` metres.
             let exact = with_skirts(mesh, min, step, depth, place);
-            let coarse = if exact.1.fits_u16() {
+            let coarse = if exact.1.uniform().is_some() {
                 None
             } else {
                 let below = depth.map_or(0.0, |(d, _)| d);
                 let budget = h.errors.max * COARSE_GRID_ERROR_FRACTION;
-                CoarseGrid::fit(&mesh.positions, &h.bounds, step, below, budget).and_then(|grid| {
+                let mut found = None;
+                for k in 1..=MAX_COARSENING {
+                    // None: this z step exceeds the budget (or nothing fits), so would a coarser.
+                    let Some(grid) =
+                        CoarseGrid::fit(&mesh.positions, &h.bounds, step, below, budget, [0, 0, k])
+                    else {
+                        break;
+                    };
                     let snapped = Mesh {
                         positions: mesh.positions.iter().map(|p| grid.snap(*p)).collect(),
                         triangles: mesh.triangles.clone(),
                     };
                     let (s, p) = with_skirts(&snapped, grid.origin, grid.step, depth, place);
-                    p.fits_u16().then_some((snapped, s, p))
-                })
+                    if p.uniform().is_some() {
+                        found = Some((snapped, s, p));
+                        break;
+                    }
+                }
+                found
             };
             let (base, skirted, pos) = match &coarse {
                 Some((m, s, p)) => (m, s, p),
@@ -200,6 +216,9 @@ fn with_skirts(
 /// position moves by at most half a step (a step where it is clamped into the bounds).
 pub const COARSE_GRID_ERROR_FRACTION: f64 = 1.0 / 8.0;
 
+/// Most halvings of a grid's resolution [`CoarseGrid`] tries on one axis (a factor of 2³²).
+const MAX_COARSENING: u32 = 32;
+
 /// A grid `2^k` times coarser than the blob's on the axes whose span does not fit 16 bits, aligned
 /// with the blob's global grid where the blob's origin lies on it (so neighbours of one depth,
 /// whose z grids are one, round a shared border vertex alike): each integer `g` of the blob's
@@ -220,14 +239,16 @@ pub(crate) struct CoarseGrid {
 }
 
 impl CoarseGrid {
-    /// The least coarsening that fits `world` (with skirts `below` deep under it) in 16 bits per
-    /// axis, or `None` when a coarse step would exceed `budget` or nothing fits.
+    /// The least coarsening, at least `2^at_least` per axis, that fits `world` (with skirts
+    /// `below` deep under it) in 16 bits per axis, or `None` when a coarse step would exceed
+    /// `budget` or nothing fits.
     pub(crate) fn fit(
         world: &[[f64; 3]],
         bounds: &[[f64; 3]; 2],
         step: [f64; 3],
         below: f64,
         budget: f64,
+        at_least: [u32; 3],
     ) -> Option<Self> {
         let [min, max] = *bounds;
         let mut grid = Self {
@@ -271,7 +292,7 @@ impl CoarseGrid {
             }
             glo = glo.min(plo);
             ghi = ghi.max(phi);
-            let mut k = 0u32;
+            let mut k = at_least[a];
             loop {
                 let m = 1i64 << k;
                 let (lo, hi) = (div_ceil(glo, m), glo.max(ghi).div_euclid(m));
@@ -294,7 +315,7 @@ impl CoarseGrid {
                     break;
                 }
                 k += 1;
-                if k > 32 {
+                if k > MAX_COARSENING {
                     return None;
                 }
             }
@@ -400,8 +421,33 @@ impl Positions {
         Self { ints, translation, scale, max }
     }
 
-    fn fits_u16(&self) -> bool {
-        self.max.iter().all(|&m| u16::try_from(m).is_ok())
+    /// The same positions on one step for every axis, the finest of the three, when the others
+    /// are whole multiples of it and every axis then fits 16 bits: glTF renders a normal through
+    /// the inverse transpose of its node's transform, so a scale that differs per axis would bend
+    /// the normals towards the stretched axis (`KHR_mesh_quantization` recommends a uniform one).
+    fn uniform(&self) -> Option<Positions> {
+        let s = self.scale.iter().copied().fold(f64::INFINITY, f64::min);
+        if !(s > 0.0 && s.is_finite()) {
+            return None;
+        }
+        let mut k = [0u32; 3];
+        for ((k, step), max) in k.iter_mut().zip(self.scale).zip(self.max) {
+            let r = step / s;
+            let whole = r.round();
+            if !((1.0..=f64::from(u16::MAX)).contains(&whole) && (r - whole).abs() <= 1e-9 * whole) {
+                return None;
+            }
+            *k = whole as u32;
+            if u64::from(max) * u64::from(*k) > u64::from(u16::MAX) {
+                return None;
+            }
+        }
+        Some(Positions {
+            ints: self.ints.iter().map(|p| std::array::from_fn(|a| p[a] * k[a])).collect(),
+            translation: self.translation,
+            scale: [s; 3],
+            max: std::array::from_fn(|a| self.max[a] * k[a]),
+        })
     }
 }
 
@@ -469,36 +515,32 @@ impl Gltf {
         push(&mut self.json, "accessors", a)
     }
 
+    /// Positions as `UNSIGNED_SHORT` on one step for every axis ([`Positions::uniform`]), the
+    /// node's `scale` that step, else as `FLOAT` metres (scale 1).
     fn positions(&mut self, p: &Positions) -> usize {
         let count = p.ints.len();
-        let (view, component) = if p.fits_u16() {
+        let (view, component, scale, lo, hi) = if let Some(u) = p.uniform() {
             let mut b = Vec::with_capacity(count * 8);
-            for v in &p.ints {
+            for v in &u.ints {
                 for c in v {
                     b.extend_from_slice(&(*c as u16).to_le_bytes());
                 }
                 b.extend_from_slice(&[0, 0]);
             }
-            (self.view(&b, Some(8), ARRAY_BUFFER), GLTF_U16)
+            let (lo, hi) = extent(u.ints.iter().map(|v| v.map(f64::from)));
+            // Whole numbers in the JSON, as the integer components they bound.
+            let (lo, hi) = (json!(lo.map(|v| v as u32)), json!(hi.map(|v| v as u32)));
+            (self.view(&b, Some(8), ARRAY_BUFFER), GLTF_U16, u.scale, lo, hi)
         } else {
-            let mut b = Vec::with_capacity(count * 12);
-            for v in &p.ints {
-                for c in v {
-                    b.extend_from_slice(&(*c as f32).to_le_bytes());
-                }
-            }
-            (self.view(&b, Some(12), ARRAY_BUFFER), GLTF_FLOAT)
+            let metres: Vec<[f32; 3]> = p
+                .ints
+                .iter()
+                .map(|v| std::array::from_fn(|a| (f64::from(v[a]) * p.scale[a]) as f32))
+                .collect();
+            let b: Vec<u8> = metres.iter().flatten().flat_map(|c| c.to_le_bytes()).collect();
+            let (lo, hi) = extent(metres.iter().map(|v| v.map(f64::from)));
+            (self.view(&b, Some(12), ARRAY_BUFFER), GLTF_FLOAT, [1.0; 3], json!(lo), json!(hi))
         };
-        let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
-        for v in &p.ints {
-            for a in 0..3 {
-                lo[a] = lo[a].min(v[a]);
-                hi[a] = hi[a].max(v[a]);
-            }
-        }
-        if p.ints.is_empty() {
-            lo = [0; 3];
-        }
         let acc = self.accessor(json!({
             "bufferView": view, "componentType": component, "count": count, "type": "VEC3",
             "min": lo, "max": hi,
@@ -507,7 +549,7 @@ impl Gltf {
             self.json["extensionsUsed"] = json!(["KHR_mesh_quantization"]);
             self.json["extensionsRequired"] = json!(["KHR_mesh_quantization"]);
         }
-        self.json["nodes"] = json!([{ "mesh": 0, "translation": p.translation, "scale": p.scale }]);
+        self.json["nodes"] = json!([{ "mesh": 0, "translation": p.translation, "scale": scale }]);
         acc
     }
 
@@ -619,6 +661,21 @@ pub fn write_glb(json: &Value, mut bin: Vec<u8>) -> Vec<u8> {
     out.extend_from_slice(&0x004E_4942u32.to_le_bytes());
     out.extend_from_slice(&bin);
     out
+}
+
+/// Per-axis least and greatest of `values` (zeros when there are none), as accessor bounds.
+fn extent(values: impl Iterator<Item = [f64; 3]>) -> ([f64; 3], [f64; 3]) {
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for v in values {
+        for a in 0..3 {
+            lo[a] = lo[a].min(v[a]);
+            hi[a] = hi[a].max(v[a]);
+        }
+    }
+    if lo[0] > hi[0] {
+        return ([0.0; 3], [0.0; 3]);
+    }
+    (lo, hi)
 }
 
 fn push(doc: &mut Value, array: &str, v: Value) -> usize {

@@ -350,8 +350,10 @@ fn steep_meshes_get_16_bit_positions_within_an_eighth_of_their_error() {
                 if coarse { 5123 } else { 5126 },
                 "{max_error}"
             );
+            // One step on every axis (normals render as written): the coarse grid's, or metres.
             let scale = json["nodes"][0]["scale"][1].as_f64().unwrap();
-            assert_eq!(scale, if coarse { 1.0 / 16.0 } else { 1.0 / 64.0 });
+            assert_eq!(scale, if coarse { 1.0 / 16.0 } else { 1.0 });
+            assert_eq!(json["nodes"][0]["scale"], json!([scale, scale, scale]));
             let Geometry::Mesh(world) = &blob.geometry else { panic!() };
             let (lo, hi) = (place.gltf_of(blob.header.bounds[0]), place.gltf_of(blob.header.bounds[1]));
             for (w, g) in world.positions.iter().zip(&got) {
@@ -369,7 +371,7 @@ fn steep_meshes_get_16_bit_positions_within_an_eighth_of_their_error() {
                 }
             }
             if let Some((depth, _)) = skirt {
-                // Skirt vertices hang whole coarse steps (0.7 → 0.75) below a surface vertex.
+                // Skirt vertices hang whole z steps (0.7 → 0.75 coarse) below a surface vertex.
                 let n = world.positions.len();
                 assert!(got.len() > n);
                 for p in &got[n..] {
@@ -378,7 +380,8 @@ fn steep_meshes_get_16_bit_positions_within_an_eighth_of_their_error() {
                         .find(|t| (t[0] - p[0]).abs() < 1e-9 && (t[2] - p[2]).abs() < 1e-9)
                         .unwrap();
                     let d = above[1] - p[1];
-                    assert!(d >= depth && ((d / scale).round() * scale - d).abs() < 1e-9, "{d}");
+                    let z = if coarse { scale } else { q.z_step };
+                    assert!(d >= depth && ((d / z).round() * z - d).abs() < 1e-9, "{d}");
                 }
             }
         }
@@ -394,8 +397,8 @@ fn coarse_grids_of_neighbours_agree_and_stay_in_bounds() {
     let a = [[0.0, 0.0, 3.0 / 64.0], [100.0, 100.0, 3000.0]];
     let b = [[100.0, 0.0, 7.0 / 64.0], [200.0, 100.0, 3000.0]];
     let shared = [100.0, 50.0, 1234.0 + 5.0 / 64.0];
-    let ga = CoarseGrid::fit(&[a[0], a[1], shared], &a, step, 0.0, 1.0).unwrap();
-    let gb = CoarseGrid::fit(&[b[0], b[1], shared], &b, step, 0.0, 1.0).unwrap();
+    let ga = CoarseGrid::fit(&[a[0], a[1], shared], &a, step, 0.0, 1.0, [0; 3]).unwrap();
+    let gb = CoarseGrid::fit(&[b[0], b[1], shared], &b, step, 0.0, 1.0, [0; 3]).unwrap();
     assert_eq!(ga.step, [10.0, 10.0, 1.0 / 16.0]);
     assert_eq!(ga.snap(shared), gb.snap(shared));
     // Seeded random grids: every snapped point in the bounds, within a coarse step, 16 bits.
@@ -419,7 +422,8 @@ fn coarse_grids_of_neighbours_agree_and_stay_in_bounds() {
                 ]
             })
             .collect();
-        let Some(g) = CoarseGrid::fit(&pts, &[min, max], [1.0, 1.0, st], 3.0 * st, f64::INFINITY) else {
+        let Some(g) = CoarseGrid::fit(&pts, &[min, max], [1.0, 1.0, st], 3.0 * st, f64::INFINITY, [0; 3])
+        else {
             panic!()
         };
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -434,10 +438,12 @@ fn coarse_grids_of_neighbours_agree_and_stay_in_bounds() {
     }
     // Nonsense in, no grid out (and no panic).
     for bad in [f64::NAN, f64::INFINITY, 0.0, -1.0] {
-        assert!(CoarseGrid::fit(&[[0.0; 3]], &[[0.0; 3], [1.0; 3]], [1.0, 1.0, bad], 0.0, 1.0).is_none());
+        assert!(
+            CoarseGrid::fit(&[[0.0; 3]], &[[0.0; 3], [1.0; 3]], [1.0, 1.0, bad], 0.0, 1.0, [0; 3]).is_none()
+        );
     }
-    assert!(CoarseGrid::fit(&[[f64::NAN; 3]], &[[0.0; 3], [1.0; 3]], [1.0; 3], 0.0, 1.0).is_none());
-    assert!(CoarseGrid::fit(&[[0.0; 3]], &[[0.0; 3], [1e300; 3]], [1e-300; 3], 0.0, 1.0).is_none());
+    assert!(CoarseGrid::fit(&[[f64::NAN; 3]], &[[0.0; 3], [1.0; 3]], [1.0; 3], 0.0, 1.0, [0; 3]).is_none());
+    assert!(CoarseGrid::fit(&[[0.0; 3]], &[[0.0; 3], [1e300; 3]], [1e-300; 3], 0.0, 1.0, [0; 3]).is_none());
 }
 
 #[test]
@@ -458,5 +464,54 @@ fn glb_container_pads_both_chunks_and_reads_back() {
         assert_eq!(&b[..bin_len], &bin[..]);
         assert!(b[bin_len..].iter().all(|&z| z == 0), "BIN is zero-padded");
         assert!(out[20..20 + jlen].ends_with(b"}") || out[20..20 + jlen].ends_with(b" "));
+    }
+}
+
+/// The normals a renderer draws: glTF transforms a `NORMAL` by the inverse transpose of its
+/// node's transform (here `scale`, rotations aside), then normalizes it.
+fn rendered_normals(glb: &[u8]) -> Vec<[f64; 3]> {
+    let jl = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+    let json: Value = serde_json::from_slice(&glb[20..20 + jl]).unwrap();
+    let bin = &glb[28 + jl..];
+    let acc = &json["accessors"]
+        [json["meshes"][0]["primitives"][0]["attributes"]["NORMAL"].as_u64().unwrap() as usize];
+    assert_eq!(acc["componentType"], 5120);
+    let view = &json["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize];
+    let off = view["byteOffset"].as_u64().unwrap() as usize;
+    let s: Vec<f64> =
+        json["nodes"][0]["scale"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    (0..acc["count"].as_u64().unwrap() as usize)
+        .map(|i| {
+            let n: [f64; 3] = std::array::from_fn(|a| f64::from(bin[off + 4 * i + a] as i8) / 127.0 / s[a]);
+            let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            n.map(|c| c / l)
+        })
+        .collect()
+}
+
+#[test]
+fn normals_render_as_the_surfaces_whatever_the_grids_steps() {
+    // A plane rising 1 m per 2 m east (26.6°). With 10 m cells and 1/64 m height steps the
+    // blob's grid is 640× finer in z than in x and y. Drawn through the node's transform, every
+    // normal must be the plane's: on the blob's own grid, a coarse one, or in metres (0.3 m cells
+    // are no whole number of height steps).
+    let want = glam::DVec3::new(-0.5, 1.0, 0.0).normalize(); // glTF: x east, y up
+    for (xy_step, z_step) in [(10.0, 1.0 / 64.0), (10.0, 0.25), (1.0, 1.0 / 64.0), (0.3, 1.0 / 64.0)] {
+        let mesh = grid_mesh([xy_step, -xy_step], |c, _| c as f64 * xy_step * 0.5 + 100.0);
+        let bounds = Bounds::of_points(&mesh.positions);
+        let q = Quantization { xy_step, z_step };
+        let errors = ErrorFigures { max: 1.0, ..ErrorFigures::default() };
+        let blob =
+            decode(&encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, errors).unwrap()).unwrap();
+        let frame = Georef { dx: xy_step, dy: -xy_step, ..Georef::default() };
+        let place =
+            Placement::of(&manifest(frame, blob.header.bounds()), TilesetKind::Terrain, None).unwrap();
+        for skirt in [None, Some((0.7, None))] {
+            let glb = glb(&blob, &place, skirt).unwrap();
+            for n in &rendered_normals(&glb)[..25] {
+                let angle = glam::DVec3::from_array(*n).angle_between(want).to_degrees();
+                assert!(angle < 1.5, "{xy_step} {z_step} {skirt:?}: {n:?} is {angle:.1}° off");
+            }
+        }
     }
 }
