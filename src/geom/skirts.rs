@@ -2,7 +2,7 @@
 //! at different levels (whose border vertices differ: T-junctions) show no crack; and how deep
 //! they must be.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 use super::{Bounds, Mesh};
 use glam::DVec3;
@@ -26,6 +26,9 @@ pub struct Skirted {
     pub skirt_tops: Vec<u32>,
 }
 
+/// A triangle's edge `(a, b)` in its winding and the triangle's third vertex.
+type Corner = (u32, u32, u32);
+
 /// Adds skirts to a tile mesh: every border edge (used by one triangle) gets a vertical wall
 /// hanging `depth` below it, facing outward, so a neighbour drawn at another level (whose border
 /// vertices differ: a T-junction) shows the wall instead of the background through the crack.
@@ -34,18 +37,18 @@ pub struct Skirted {
 /// the normal of the vertex above it so the wall reads as the surface.
 #[must_use]
 pub fn add_skirts(mesh: &Mesh, depth: f64, outer: Option<&Bounds>) -> Skirted {
-    let mut uses: HashMap<(u32, u32), (u32, u32, u32)> = HashMap::new();
-    let mut count: HashMap<(u32, u32), u32> = HashMap::new();
+    // Per undirected edge: how many triangles use it, and the last one's (a, b, c).
+    let mut edges: FxHashMap<(u32, u32), (u32, Corner)> = FxHashMap::default();
+    edges.reserve(mesh.triangles.len() * 3 / 2 + 16);
     for t in &mesh.triangles {
         for k in 0..3 {
             let (a, b, c) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
-            let key = (a.min(b), a.max(b));
-            *count.entry(key).or_insert(0) += 1;
-            uses.insert(key, (a, b, c));
+            let e = edges.entry((a.min(b), a.max(b))).or_insert((0, (a, b, c)));
+            e.0 += 1;
+            e.1 = (a, b, c);
         }
     }
-    let mut border: Vec<(u32, u32, u32)> =
-        count.iter().filter(|&(_, &n)| n == 1).filter_map(|(k, _)| uses.get(k).copied()).collect();
+    let mut border: Vec<(u32, u32, u32)> = edges.values().filter(|(n, _)| *n == 1).map(|(_, u)| *u).collect();
     border.sort_unstable();
     let on_outer = |p: [f64; 3], q: [f64; 3]| {
         outer.is_some_and(|o| {
@@ -59,7 +62,7 @@ pub fn add_skirts(mesh: &Mesh, depth: f64, outer: Option<&Bounds>) -> Skirted {
     let mut out = mesh.clone();
     let first_skirt_vertex = out.positions.len();
     let first_skirt_triangle = out.triangles.len();
-    let mut skirt_of: HashMap<u32, u32> = HashMap::new();
+    let mut skirt_of: FxHashMap<u32, u32> = FxHashMap::default();
     let mut skirt_tops = Vec::new();
     for (a, b, c) in border {
         let (pa, pb, pc) =

@@ -80,7 +80,7 @@ pub fn glb(
                 let below = depth.map_or(0.0, |(d, _)| d);
                 let budget = h.errors.max * COARSE_GRID_ERROR_FRACTION;
                 let mut found = None;
-                for k in 1..=MAX_COARSENING {
+                for k in exact.1.least_coarsening()..=MAX_COARSENING {
                     // None: this z step exceeds the budget (or nothing fits), so would a coarser.
                     let Some(grid) =
                         CoarseGrid::fit(&mesh.positions, &h.bounds, step, below, budget, [0, 0, k])
@@ -421,6 +421,15 @@ impl Positions {
         Self { ints, translation, scale, max }
     }
 
+    /// The least `k ≥ 1` for which a `2^k` times coarser finest step could fit every axis in 16
+    /// bits once on one step ([`Positions::uniform`]): where to start looking for a coarse grid.
+    fn least_coarsening(&self) -> u32 {
+        let s = self.scale.iter().copied().fold(f64::INFINITY, f64::min);
+        let need = (0..3).map(|a| f64::from(self.max[a]) * self.scale[a] / s).fold(0.0, f64::max)
+            / f64::from(u16::MAX);
+        if need.is_finite() && need > 1.0 { (need.log2().ceil() as u32).clamp(1, MAX_COARSENING) } else { 1 }
+    }
+
     /// The same positions on one step for every axis, the finest of the three, when the others
     /// are whole multiples of it and every axis then fits 16 bits: glTF renders a normal through
     /// the inverse transpose of its node's transform, so a scale that differs per axis would bend
@@ -451,6 +460,18 @@ impl Positions {
     }
 }
 
+/// The 27 offsets of −1, 0, +1 per component (x fastest), as a table: computing them with
+/// integer division and powers per candidate took most of a cold GLB's time.
+const OCT_OFFSETS: [[f64; 3]; 27] = {
+    let mut t = [[0.0; 3]; 27];
+    let mut d = 0;
+    while d < 27 {
+        t[d] = [(d % 3) as f64 - 1.0, (d / 3 % 3) as f64 - 1.0, (d / 9) as f64 - 1.0];
+        d += 1;
+    }
+    t
+};
+
 /// The `BYTE`-normalized unit vector nearest in direction to `n` whose length passes glTF
 /// validators (|len − 1| small): rounding each component alone can miss by 0.7 %.
 fn oct_free_i8(n: [f64; 3]) -> [i8; 3] {
@@ -458,10 +479,8 @@ fn oct_free_i8(n: [f64; 3]) -> [i8; 3] {
     let u = if len > 0.0 && len.is_finite() { n.map(|c| c / len) } else { [0.0, 0.0, 1.0] };
     let base = u.map(|c| (c * 127.0).round());
     let mut best = (f64::INFINITY, [0i8; 3]);
-    for d in 0..27 {
-        let c: [f64; 3] = std::array::from_fn(|a| {
-            (base[a] + f64::from((d / 3_i32.pow(a as u32)) % 3 - 1)).clamp(-127.0, 127.0)
-        });
+    for off in &OCT_OFFSETS {
+        let c: [f64; 3] = std::array::from_fn(|a| (base[a] + off[a]).clamp(-127.0, 127.0));
         let l = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt() / 127.0;
         if l == 0.0 {
             continue;
