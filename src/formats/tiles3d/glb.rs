@@ -706,3 +706,54 @@ fn push(doc: &mut Value, array: &str, v: Value) -> usize {
         0
     }
 }
+
+#[cfg(test)]
+#[allow(clippy::float_cmp)] // powers of two and their multiples are exact
+mod tests {
+    use super::*;
+
+    fn positions(scale: [f64; 3], ints: Vec<[u32; 3]>) -> Positions {
+        let max = std::array::from_fn(|a| ints.iter().map(|p| p[a]).max().unwrap_or(0));
+        Positions { ints, translation: [1.0, 2.0, 3.0], scale, max }
+    }
+
+    #[test]
+    fn uniform_positions_take_the_finest_step_when_the_others_are_whole_multiples() {
+        // 10 m cells, 1/16 m heights: x and z (glTF) count sixteenths of a metre.
+        let p = positions([10.0, 1.0 / 16.0, 10.0], vec![[0, 5, 0], [256, 40, 3]]);
+        let u = p.uniform().unwrap();
+        assert_eq!(u.scale, [1.0 / 16.0; 3]);
+        assert_eq!(u.ints, vec![[0, 5, 0], [256 * 160, 40, 480]]);
+        assert_eq!(u.max, [256 * 160, 40, 480]);
+        assert_eq!(u.translation, p.translation);
+        // The same points in metres, either way.
+        for (a, b) in p.ints.iter().zip(&u.ints) {
+            for k in 0..3 {
+                assert_eq!(f64::from(a[k]) * p.scale[k], f64::from(b[k]) * u.scale[k]);
+            }
+        }
+        // The finest step on any axis (degree rasters: x/y finer than z).
+        let u = positions([1.0 / 64.0, 0.25, 1.0 / 64.0], vec![[7, 3, 9]]).uniform().unwrap();
+        assert_eq!((u.scale, u.ints), ([1.0 / 64.0; 3], vec![[7, 48, 9]]));
+    }
+
+    #[test]
+    fn no_uniform_positions_where_steps_are_not_multiples_or_do_not_fit() {
+        // 0.3 m cells are no whole number of 1/64 m steps.
+        assert!(positions([0.3, 1.0 / 64.0, 0.3], vec![[1, 1, 1]]).uniform().is_none());
+        // 256 cells of 10 m in 1/64 m steps: 163,840 > 65,535.
+        assert!(positions([10.0, 1.0 / 64.0, 10.0], vec![[256, 0, 0]]).uniform().is_none());
+        assert_eq!(positions([10.0, 1.0 / 64.0, 10.0], vec![[256, 0, 0]]).least_coarsening(), 2);
+        // A ratio beyond 16 bits, non-finite and zero steps.
+        assert!(positions([1e6, 1e-3, 1e6], vec![[0, 0, 0]]).uniform().is_none());
+        for bad in [f64::NAN, f64::INFINITY, 0.0, -1.0] {
+            let p = positions([1.0, bad, 1.0], vec![[1, 1, 1]]);
+            assert!(p.uniform().is_none(), "{bad}");
+            assert!((1..=MAX_COARSENING).contains(&p.least_coarsening()));
+        }
+        // Already uniform and in range: kept as is; empty: fine.
+        let p = positions([0.5; 3], vec![[65_535, 0, 1]]);
+        assert_eq!(p.uniform().unwrap().ints, p.ints);
+        assert!(positions([0.5; 3], vec![]).uniform().is_some());
+    }
+}
