@@ -551,14 +551,18 @@ impl Gltf {
             let (lo, hi) = (json!(lo.map(|v| v as u32)), json!(hi.map(|v| v as u32)));
             (self.view(&b, Some(8), ARRAY_BUFFER), GLTF_U16, u.scale, lo, hi)
         } else {
-            let metres: Vec<[f32; 3]> = p
-                .ints
-                .iter()
-                .map(|v| std::array::from_fn(|a| (f64::from(v[a]) * p.scale[a]) as f32))
-                .collect();
-            let b: Vec<u8> = metres.iter().flatten().flat_map(|c| c.to_le_bytes()).collect();
-            let (lo, hi) = extent(metres.iter().map(|v| v.map(f64::from)));
-            (self.view(&b, Some(12), ARRAY_BUFFER), GLTF_FLOAT, [1.0; 3], json!(lo), json!(hi))
+            // Metres from the node's origin; a blob whose extent overflows `f32` (only a
+            // hand-made one) keeps its integers and per-axis steps instead, a valid glTF.
+            let metres = |scale: [f64; 3]| -> Vec<[f32; 3]> {
+                p.ints.iter().map(|v| std::array::from_fn(|a| (f64::from(v[a]) * scale[a]) as f32)).collect()
+            };
+            let (values, scale) = match metres(p.scale) {
+                m if m.iter().flatten().all(|c| c.is_finite()) => (m, [1.0; 3]),
+                _ => (metres([1.0; 3]), p.scale),
+            };
+            let b: Vec<u8> = values.iter().flatten().flat_map(|c| c.to_le_bytes()).collect();
+            let (lo, hi) = extent(values.iter().map(|v| v.map(f64::from)));
+            (self.view(&b, Some(12), ARRAY_BUFFER), GLTF_FLOAT, scale, json!(lo), json!(hi))
         };
         let acc = self.accessor(json!({
             "bufferView": view, "componentType": component, "count": count, "type": "VEC3",
@@ -755,5 +759,23 @@ mod tests {
         let p = positions([0.5; 3], vec![[65_535, 0, 1]]);
         assert_eq!(p.uniform().unwrap().ints, p.ints);
         assert!(positions([0.5; 3], vec![]).uniform().is_some());
+    }
+
+    #[test]
+    fn float_positions_are_metres_and_stay_finite_beyond_f32() {
+        // 0.3 m cells: no uniform grid, so metres from the origin with scale 1.
+        let mut g = Gltf::new(TileKey::new(0, 0, 0), 0);
+        let acc = g.positions(&positions([0.3, 1.0 / 64.0, 0.3], vec![[0, 0, 0], [10, 64, 20]]));
+        assert_eq!(g.json["accessors"][acc]["max"], json!([3.0, 1.0, 6.0]));
+        assert_eq!(g.json["nodes"][0]["scale"], json!([1.0, 1.0, 1.0]));
+        // A (hand-made) extent past f32's range keeps integers and per-axis steps: no infinity,
+        // which JSON would write as null.
+        let mut g = Gltf::new(TileKey::new(0, 0, 0), 0);
+        let acc = g.positions(&positions([1e35, 1e-3, 1e35], vec![[0, 0, 0], [100_000, 7, 3]]));
+        for m in ["min", "max"] {
+            let v = g.json["accessors"][acc][m].as_array().unwrap().clone();
+            assert!(v.iter().all(|c| c.as_f64().is_some_and(f64::is_finite)), "{m}: {v:?}");
+        }
+        assert_eq!(g.json["nodes"][0]["scale"], json!([1e35, 1e-3, 1e35]));
     }
 }
