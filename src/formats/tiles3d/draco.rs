@@ -1,11 +1,12 @@
 //! `KHR_draco_mesh_compression` for the 3D Tiles mesh GLBs ([`compress_glb`]): each indexed
 //! `TRIANGLES` primitive of a plain GLB of [`super::glb()`] becomes one Draco stream (Google's
 //! bitstream 2.2, written by the pure-Rust `draco-core` encoder: EdgeBreaker connectivity,
-//! parallelogram-predicted positions, octahedral normals), which every glTF reader with a Draco
+//! parallelogram-predicted positions, octahedral normals predicted from the decoded triangles
+//! (Draco's geometric normal predictor)), which every glTF reader with a Draco
 //! decoder reads: CesiumJS natively, three.js with `DRACOLoader`.
 //!
 //! What the stream keeps:
-//! - positions on the blob's integer grid (`UNSIGNED_SHORT` with `KHR_mesh_quantization`, the
+//! - positions on the GLB's integer grid (`UNSIGNED_SHORT` with `KHR_mesh_quantization`, the
 //!   plain GLB's accessor) go in as integers, **exactly**: the decoded values are the plain GLB's;
 //! - `FLOAT` positions (tilesets on the Earth, grids wider than 16 bits) are quantized to
 //!   [`FLOAT_POSITION_BITS`] bits over the primitive's extent (a 10 km tile: 0.6 mm steps, the

@@ -515,3 +515,65 @@ fn normals_render_as_the_surfaces_whatever_the_grids_steps() {
         }
     }
 }
+
+#[test]
+fn glbs_of_random_grids_are_valid_with_one_scale_and_compress() {
+    // Seeded random meshes on grids of many cell and height steps (dyadic or not, tiny and
+    // huge), reliefs and errors, north-up and row-order frames, with and without skirts: every
+    // GLB has one finite scale for all axes, JSON without a null (a non-finite number), its
+    // positions within the allowed distance of the blob's, and meshopt and Draco compress it
+    // and decode it back.
+    let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
+    let mut next = || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed
+    };
+    let cells = [10.0, 30.0, 0.3, 1.0, 1.0 / 1024.0, 92.6, 1e4];
+    let zs = [1.0 / 64.0, 1.0 / 8.0, 0.25, 1e-6, 3.0];
+    let reliefs = [1.0, 1e3, 1e5];
+    let errors = [0.0, 0.1, 1.0, 100.0];
+    let mut checked = 0;
+    for _ in 0..120 {
+        let pick = |v: &[f64], r: u64| v[(r % v.len() as u64) as usize];
+        let (cell, z_step) = (pick(&cells, next()), pick(&zs, next()));
+        let (relief, max_error) = (pick(&reliefs, next()), pick(&errors, next()));
+        let dy = if next() % 2 == 0 { -cell } else { cell };
+        let hs: Vec<f64> = (0..25).map(|_| (next() % 10_000) as f64 / 10_000.0 * relief).collect();
+        let mesh = grid_mesh([cell, dy], |c, r| hs[r * 5 + c]);
+        let bounds = Bounds::of_points(&mesh.positions);
+        let q = Quantization { xy_step: cell, z_step };
+        let errs = ErrorFigures { max: max_error, ..ErrorFigures::default() };
+        let Ok(bytes) = encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, errs) else { continue };
+        let blob = decode(&bytes).unwrap();
+        let frame = Georef { dx: cell, dy, ..Georef::default() };
+        let place =
+            Placement::of(&manifest(frame, blob.header.bounds()), TilesetKind::Terrain, None).unwrap();
+        let Geometry::Mesh(world) = &blob.geometry else { panic!() };
+        for skirt in [None, Some((max_error.max(0.5) * 2.0, None))] {
+            let what = format!("cell {cell} z {z_step} relief {relief} error {max_error} dy {dy} {skirt:?}");
+            let glb = glb(&blob, &place, skirt).unwrap();
+            let (json, got) = read_positions(&glb);
+            assert!(!json.to_string().contains("null"), "{what}: {json}");
+            let s: Vec<f64> =
+                json["nodes"][0]["scale"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+            assert!(s[0] > 0.0 && s[0].is_finite() && s.iter().all(|v| *v == s[0]), "{what}: scale {s:?}");
+            // 16-bit grids: exact or within 1/8 of the error; FLOAT metres: within f32 rounding.
+            let span = (0..3).map(|a| (bounds.max[a] - bounds.min[a]).abs()).fold(1.0, f64::max);
+            let tol = (max_error / 8.0).max(span * 1e-6) + 1e-9;
+            for (w, g) in world.positions.iter().zip(&got) {
+                let want = place.gltf_of(*w);
+                for a in 0..3 {
+                    assert!((want[a] - g[a]).abs() <= tol, "{what}: {want:?} vs {g:?}");
+                }
+            }
+            let m = GlbCompression::Meshopt.apply(glb.clone()).unwrap();
+            meshopt::decompress_glb(&m).unwrap();
+            let d = GlbCompression::Draco.apply(glb).unwrap();
+            draco::decompress_glb(&d).unwrap();
+            checked += 1;
+        }
+    }
+    assert!(checked > 100, "{checked}");
+}
