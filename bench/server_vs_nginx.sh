@@ -73,7 +73,10 @@ echo "tileset: ${size}x${size} samples, $blobs blobs, $bytes bytes (mean $((byte
 find "$tmp/store/bench/tiles" -name '*.tsb' -printf '%s\n' | sort -n \
     | awk '{a[NR]=$1} END {printf "blob sizes: min %d, median %d, max %d bytes\n", a[1], a[int((NR+1)/2)], a[NR]}'
 
-sed -E "s#^/tilesets/bench/tiles/(.*)\?v=(.*)\$#/tilesets/bench/3dtiles/tiles/\1.glb?v=\2${glb_query}#" "$tmp/urls.txt" >"$tmp/glb-urls.txt"
+# The 3D Tiles view's URIs carry the GLB revision after the content version (immutable only then).
+glb_revision="$(sed -n 's/^pub const GLB_REVISION: &str = "\(.*\)";$/\1/p' src/formats/tiles3d/mod.rs)"
+[ -n "$glb_revision" ] || { echo "GLB_REVISION not found in src/formats/tiles3d/mod.rs" >&2; exit 1; }
+sed -E "s#^/tilesets/bench/tiles/(.*)\?v=(.*)\$#/tilesets/bench/3dtiles/tiles/\1.glb?v=\2${glb_revision}${glb_query}#" "$tmp/urls.txt" >"$tmp/glb-urls.txt"
 "$bin" export "$tmp/store/bench" --format 3dtiles --glb-compression "$glb_compression" --out "$tmp/3dtiles" --quiet >/dev/null
 glb_bytes=$(find "$tmp/3dtiles/tiles" -name '*.glb' -printf '%s\n' | awk '{s+=$1} END {print s}')
 echo "GLBs (3D Tiles) of the same tiles: $(wc -l <"$tmp/glb-urls.txt") URLs, $glb_bytes bytes (mean $((glb_bytes / blobs)) B/GLB, $(awk -v a="$glb_bytes" -v b="$bytes" 'BEGIN {printf "%.2f", a / b}')x the blobs)"

@@ -24,7 +24,7 @@ use terrastream::bake::BakeOptions;
 use terrastream::bake::PointLevels;
 use terrastream::bake::export;
 use terrastream::codec::{self, Geometry};
-use terrastream::formats::tiles3d::{Anchor, AnchorFrom};
+use terrastream::formats::tiles3d::{Anchor, AnchorFrom, GLB_REVISION};
 use terrastream::raster::{self, LoadOptions};
 use terrastream::server::PartialConfig;
 use terrastream::store::Store;
@@ -424,8 +424,9 @@ async fn served_3d_tiles_are_the_exported_ones_with_blob_caching() {
     assert_eq!(h["access-control-allow-origin"], "*");
     let mut served: Value = serde_json::from_slice(&body).unwrap();
     assert!(
-        body.windows(3 + cv.len()).any(|w| w == format!("?v={cv}").as_bytes()),
-        "URIs name the content version"
+        body.windows(3 + cv.len() + GLB_REVISION.len())
+            .any(|w| w == format!("?v={cv}{GLB_REVISION}").as_bytes()),
+        "URIs name the content version and the GLB revision"
     );
     strip_queries(&mut served);
     let exported: Value = serde_json::from_slice(&std::fs::read(out.join("tileset.json")).unwrap()).unwrap();
@@ -433,7 +434,8 @@ async fn served_3d_tiles_are_the_exported_ones_with_blob_caching() {
     let (s, _, _) = get(a, "/tilesets/t/3dtiles/tileset.json", &[("If-None-Match", &h["etag"])]).await;
     assert_eq!(s, 304);
 
-    let (s, h, body) = get(a, &format!("/tilesets/t/3dtiles/index/4/3/5.json?v={cv}"), &[]).await;
+    let (s, h, body) =
+        get(a, &format!("/tilesets/t/3dtiles/index/4/3/5.json?v={cv}{GLB_REVISION}"), &[]).await;
     assert_eq!(s, 200);
     assert_eq!(h["cache-control"], "public, max-age=31536000, immutable");
     let mut served: Value = serde_json::from_slice(&body).unwrap();
@@ -445,7 +447,7 @@ async fn served_3d_tiles_are_the_exported_ones_with_blob_caching() {
     for (key, level) in [("0/0/0", 0), ("0/0/0", 2), ("2/1/3", 0), ("4/15/15", 0)] {
         let path = format!("/tilesets/t/3dtiles/tiles/{key}/{level}.glb");
         let file = std::fs::read(out.join(format!("tiles/{key}/{level}.glb"))).ok();
-        let (s, h, body) = get(a, &format!("{path}?v={cv}"), &[]).await;
+        let (s, h, body) = get(a, &format!("{path}?v={cv}{GLB_REVISION}"), &[]).await;
         let Some(file) = file else {
             // A level the node does not store (it did not pay).
             assert_eq!(s, 404, "{path}");
@@ -458,6 +460,10 @@ async fn served_3d_tiles_are_the_exported_ones_with_blob_caching() {
         let (s, h2, _) = get(a, &path, &[]).await;
         assert_eq!((s, h2["cache-control"].as_str()), (200, "public, max-age=60, must-revalidate"));
         assert_eq!(h2["etag"], h["etag"]);
+        // A URI of an older GLB revision (the bare content version) is not immutable: caches
+        // holding GLBs of another encoding revalidate them.
+        let (s, h3, _) = get(a, &format!("{path}?v={cv}"), &[]).await;
+        assert_eq!((s, h3["cache-control"].as_str()), (200, "public, max-age=60, must-revalidate"));
         let (s, _, _) = get(a, &path, &[("If-None-Match", &h["etag"])]).await;
         assert_eq!(s, 304);
         let (s, h3, part) = get(a, &path, &[("Range", "bytes=0-11")]).await;
@@ -636,11 +642,13 @@ async fn compressed_3d_tiles(glb: terrastream::formats::tiles3d::GlbCompression)
     let a = srv.addr;
     // The root and an external tileset: every URI carries the option; otherwise the export's.
     for (path, file) in [("tileset.json", "tileset.json"), ("index/4/3/5.json", "index/4/3/5.json")] {
-        let (s, _, body) = get(a, &format!("/tilesets/t/3dtiles/{path}?v={cv}&glb={name}"), &[]).await;
+        let (s, _, body) =
+            get(a, &format!("/tilesets/t/3dtiles/{path}?v={cv}{GLB_REVISION}&glb={name}"), &[]).await;
         assert_eq!(s, 200, "{path}");
         let text = String::from_utf8_lossy(&body);
         assert!(
-            text.contains(&format!("?v={cv}&glb={name}")) && !text.contains(&format!("?v={cv}\"")),
+            text.contains(&format!("?v={cv}{GLB_REVISION}&glb={name}"))
+                && !text.contains(&format!("?v={cv}{GLB_REVISION}\"")),
             "{path}"
         );
         let mut served: Value = serde_json::from_slice(&body).unwrap();
@@ -653,7 +661,7 @@ async fn compressed_3d_tiles(glb: terrastream::formats::tiles3d::GlbCompression)
         let path = format!("/tilesets/t/3dtiles/tiles/{key}/{level}.glb");
         for coding in [None, Some("gzip"), Some("zstd")] {
             let headers: Vec<(&str, &str)> = coding.map(|c| ("Accept-Encoding", c)).into_iter().collect();
-            let (s, h, body) = get(a, &format!("{path}?v={cv}&glb={name}"), &headers).await;
+            let (s, h, body) = get(a, &format!("{path}?v={cv}{GLB_REVISION}&glb={name}"), &headers).await;
             assert_eq!(s, 200, "{path}");
             assert_eq!(h.get("content-encoding").map(String::as_str), coding, "{path}");
             assert_eq!(
@@ -663,7 +671,7 @@ async fn compressed_3d_tiles(glb: terrastream::formats::tiles3d::GlbCompression)
             );
         }
         // The plain form stays apart (its own cache entry): the plain export's bytes.
-        let (_, _, body) = get(a, &format!("{path}?v={cv}"), &[]).await;
+        let (_, _, body) = get(a, &format!("{path}?v={cv}{GLB_REVISION}"), &[]).await;
         assert_eq!(body, std::fs::read(plain.join(format!("tiles/{key}/{level}.glb"))).unwrap(), "{path}");
         let (_, _, body) = get(a, &format!("{path}?glb=none"), &[]).await;
         assert_eq!(body, std::fs::read(plain.join(format!("tiles/{key}/{level}.glb"))).unwrap(), "{path}");

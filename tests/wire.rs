@@ -26,6 +26,7 @@ use tokio::net::TcpStream;
 
 use common::Running;
 use terrastream::bake::{BakeOptions, PointLevels};
+use terrastream::formats::tiles3d::GLB_REVISION;
 use terrastream::server::{PartialConfig, Server};
 
 const OPTS: BakeOptions =
@@ -289,7 +290,7 @@ async fn warm_glbs_are_hypers_byte_for_byte() {
         ("&glb=draco", points.as_str()),
         ("&glb=none", points.as_str()),
     ] {
-        let path = format!("/tilesets/t/3dtiles/tiles/{tile}.glb?v={version}{glb}");
+        let path = format!("/tilesets/t/3dtiles/tiles/{tile}.glb?v={version}{GLB_REVISION}{glb}");
         for accept in [
             "",
             "Accept-Encoding: gzip, deflate, br, zstd\r\n",

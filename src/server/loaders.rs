@@ -73,9 +73,15 @@ pub(super) fn parse_key(ts: &Tileset, z: &str, x: &str, y: &str) -> Result<TileK
 /// `Cache-Control` of a content-addressed document: immutable only when the request names the
 /// tileset's current content version.
 pub(super) fn versioned_cache(ts: &Tileset, query: Option<&str>) -> &'static str {
+    versioned_cache_with(ts, query, "")
+}
+
+/// [`versioned_cache`] for a view whose URIs carry `suffix` after the content version (the 3D
+/// Tiles view's GLB revision, [`crate::formats::tiles3d::GLB_REVISION`]).
+pub(super) fn versioned_cache_with(ts: &Tileset, query: Option<&str>, suffix: &str) -> &'static str {
     let v = query.into_iter().flat_map(|q| q.split('&')).find_map(|kv| kv.strip_prefix("v="));
-    match v {
-        Some(v) if v == ts.content_version => IMMUTABLE,
+    match v.and_then(|v| v.strip_prefix(ts.content_version.as_str())) {
+        Some(rest) if rest == suffix => IMMUTABLE,
         _ => REVALIDATE,
     }
 }

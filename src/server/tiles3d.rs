@@ -25,13 +25,13 @@ use super::App;
 use super::cache::{CacheKey, Entry, GLB, TILES3D_CHUNK};
 use super::conditional::{Conditional, etag_value, send};
 use super::loaders::{
-    NO_CACHE, SHORT, chunk_entry, load_blob, parse_key, parse_level, tileset, versioned_cache,
+    NO_CACHE, SHORT, chunk_entry, load_blob, parse_key, parse_level, tileset, versioned_cache_with,
 };
 use super::problem::Problem;
 use super::registry::{Tileset, etag_of};
 use crate::bake::export;
 use crate::formats::tiles3d::{
-    GLB_TYPE, GlbCompression, TilesetInfo, chunk_tileset, path_cap, planned_entry, tile_glb,
+    GLB_REVISION, GLB_TYPE, GlbCompression, TilesetInfo, chunk_tileset, path_cap, planned_entry, tile_glb,
 };
 use crate::store::{IndexChunk, SUBTREE_LEVELS, chunk_root};
 use crate::tiling::TileKey;
@@ -258,9 +258,9 @@ async fn info(ts: &Arc<Tileset>, with_anchor: bool, glb: GlbCompression) -> Resu
         None
     };
     let query = match glb {
-        GlbCompression::None => format!("?v={}", ts.content_version),
+        GlbCompression::None => format!("?v={}{GLB_REVISION}", ts.content_version),
         GlbCompression::Meshopt | GlbCompression::Draco => {
-            format!("?v={}&glb={}", ts.content_version, glb.name())
+            format!("?v={}{GLB_REVISION}&glb={}", ts.content_version, glb.name())
         }
     };
     let mut info =
@@ -377,7 +377,7 @@ pub(super) async fn subtree(
     };
     let ck = (ts.generation, key, docs[0]);
     let coded_key = coded_doc(coding, docs[1], docs[2]).map(|d| (ts.generation, key, d));
-    let cache = versioned_cache(&ts, query.as_deref());
+    let cache = versioned_cache_with(&ts, query.as_deref(), GLB_REVISION);
     if let Some(e) = coded_key.and_then(|k| app.cache.get(&k)) {
         return Ok(send_coded(&method, &headers, &e, coding, "application/json", cache));
     }
@@ -423,7 +423,7 @@ pub(super) async fn glb(
     let docs = glb_docs(glb);
     let ck = (ts.generation, key, docs[0] + u16::from(level));
     let coded_key = coded_doc(coding, docs[1], docs[2]).map(|d| (ts.generation, key, d + u16::from(level)));
-    let cache = versioned_cache(&ts, query.as_deref());
+    let cache = versioned_cache_with(&ts, query.as_deref(), GLB_REVISION);
     if let Some(e) = coded_key.and_then(|k| app.cache.get(&k)) {
         return Ok(send_coded(&method, &headers, &e, coding, GLB_TYPE, cache));
     }
@@ -491,7 +491,7 @@ pub(super) fn cached_glb(
     let coding = accept.map_or(Coding::Identity, Coding::negotiate_bytes);
     let doc = coded_doc(coding, docs[1], docs[2]).unwrap_or(docs[0]);
     let entry = app.cache.get(&(ts.generation, key, doc + u16::from(level)))?;
-    Some((entry, versioned_cache(&ts, query), coding.token()))
+    Some((entry, versioned_cache_with(&ts, query, GLB_REVISION), coding.token()))
 }
 
 /// A tileset that cannot be placed on the Earth (its geoid grid unreadable, a point outside

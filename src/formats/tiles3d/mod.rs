@@ -56,6 +56,13 @@ pub enum Tiles3dError {
     Draco(#[from] draco::DracoError),
 }
 
+/// The GLB encoding's revision, carried after the content version in every `?v=` of the 3D
+/// Tiles view (`?v=<content version>.g2`): bumped whenever the GLBs of an unchanged tileset
+/// change bytes, so caches holding the older `immutable` GLBs and tileset JSON are bypassed.
+/// `.g2` (2026-12-07): one node scale for all axes (drawn normals), Draco's geometric normal
+/// prediction.
+pub const GLB_REVISION: &str = ".g2";
+
 /// How the 3D Tiles GLBs are compressed: `none` (plain buffers, the default), `meshopt`
 /// (`EXT_meshopt_compression`, which the reader must support: CesiumJS does natively, three.js
 /// with `GLTFLoader.setMeshoptDecoder`) or `draco` (`KHR_draco_mesh_compression` for mesh GLBs,
