@@ -901,7 +901,5 @@ fn cli_anchor_and_export_3dtiles() {
 
 /// The angle between two directions, in degrees.
 fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
-    let dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let len = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    (dot / (len(a) * len(b))).clamp(-1.0, 1.0).acos().to_degrees()
+    glam::DVec3::from_array(a).angle_between(glam::DVec3::from_array(b)).to_degrees()
 }

@@ -74,7 +74,7 @@ pub fn glb(
             // coarser z step (the finest that fits) within the error budget ([`CoarseGrid`]),
             // else `FLOAT` metres.
             let exact = with_skirts(mesh, min, step, depth, place);
-            let coarse = if exact.1.uniform().is_some() {
+            let coarse = if exact.1.uniform_steps().is_some() {
                 None
             } else {
                 let below = depth.map_or(0.0, |(d, _)| d);
@@ -92,7 +92,7 @@ pub fn glb(
                         triangles: mesh.triangles.clone(),
                     };
                     let (s, p) = with_skirts(&snapped, grid.origin, grid.step, depth, place);
-                    if p.uniform().is_some() {
+                    if p.uniform_steps().is_some() {
                         found = Some((snapped, s, p));
                         break;
                     }
@@ -421,21 +421,24 @@ impl Positions {
         Self { ints, translation, scale, max }
     }
 
+    /// The finest of the three steps.
+    fn finest(&self) -> f64 {
+        self.scale.iter().copied().fold(f64::INFINITY, f64::min)
+    }
+
     /// The least `k ≥ 1` for which a `2^k` times coarser finest step could fit every axis in 16
     /// bits once on one step ([`Positions::uniform`]): where to start looking for a coarse grid.
     fn least_coarsening(&self) -> u32 {
-        let s = self.scale.iter().copied().fold(f64::INFINITY, f64::min);
+        let s = self.finest();
         let need = (0..3).map(|a| f64::from(self.max[a]) * self.scale[a] / s).fold(0.0, f64::max)
             / f64::from(u16::MAX);
         if need.is_finite() && need > 1.0 { (need.log2().ceil() as u32).clamp(1, MAX_COARSENING) } else { 1 }
     }
 
-    /// The same positions on one step for every axis, the finest of the three, when the others
-    /// are whole multiples of it and every axis then fits 16 bits: glTF renders a normal through
-    /// the inverse transpose of its node's transform, so a scale that differs per axis would bend
-    /// the normals towards the stretched axis (`KHR_mesh_quantization` recommends a uniform one).
-    fn uniform(&self) -> Option<Positions> {
-        let s = self.scale.iter().copied().fold(f64::INFINITY, f64::min);
+    /// The one step and each axis's step in units of it, when the positions can go on one step
+    /// for every axis ([`Positions::uniform`]); nothing is allocated (the grid search asks often).
+    fn uniform_steps(&self) -> Option<(f64, [u32; 3])> {
+        let s = self.finest();
         if !(s > 0.0 && s.is_finite()) {
             return None;
         }
@@ -451,6 +454,15 @@ impl Positions {
                 return None;
             }
         }
+        Some((s, k))
+    }
+
+    /// The same positions on one step for every axis, the finest of the three, when the others
+    /// are whole multiples of it and every axis then fits 16 bits: glTF renders a normal through
+    /// the inverse transpose of its node's transform, so a scale that differs per axis would bend
+    /// the normals towards the stretched axis (`KHR_mesh_quantization` recommends a uniform one).
+    fn uniform(&self) -> Option<Positions> {
+        let (s, k) = self.uniform_steps()?;
         Some(Positions {
             ints: self.ints.iter().map(|p| std::array::from_fn(|a| p[a] * k[a])).collect(),
             translation: self.translation,
@@ -688,17 +700,9 @@ pub fn write_glb(json: &Value, mut bin: Vec<u8>) -> Vec<u8> {
 
 /// Per-axis least and greatest of `values` (zeros when there are none), as accessor bounds.
 fn extent(values: impl Iterator<Item = [f64; 3]>) -> ([f64; 3], [f64; 3]) {
-    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-    for v in values {
-        for a in 0..3 {
-            lo[a] = lo[a].min(v[a]);
-            hi[a] = hi[a].max(v[a]);
-        }
-    }
-    if lo[0] > hi[0] {
-        return ([0.0; 3], [0.0; 3]);
-    }
-    (lo, hi)
+    let mut b = Bounds::empty();
+    values.for_each(|v| b.extend(v));
+    if b.min.x > b.max.x { ([0.0; 3], [0.0; 3]) } else { (b.min.to_array(), b.max.to_array()) }
 }
 
 fn push(doc: &mut Value, array: &str, v: Value) -> usize {
