@@ -12,7 +12,13 @@ is a visible seam where it is large. Prints, per depth: shared vertices and the 
 90th percentile and maximum. A tile's normals are area-weighted over its own triangles only,
 which is why they differ (neither tile has the other's triangles).
 
-Usage: bench/.venv/bin/python bench/glb_border_normals.py [--keep DIR]
+With `--source FILE` (a DEM with a coordinate system, e.g. ../shared/data/geo/*.tif) the
+tileset is placed on the Earth: each GLB's node `matrix` (east-north-up at its node's centre)
+takes positions and drawn normals to ECEF, and positions within 5 cm are one vertex (f32
+positions relative to two node centres differ by millimetres).
+
+Usage: bench/.venv/bin/python bench/glb_border_normals.py [--keep DIR] [--source FILE] [--tile-size N]
+                                                          [--max-error E]
 """
 import argparse
 import collections
@@ -56,6 +62,14 @@ def placed(path):
     translation = np.array(node.get("translation", [0.0, 0.0, 0.0]))
     pos = translation + accessor(prim["attributes"]["POSITION"]) * scale
     drawn = accessor(prim["attributes"]["NORMAL"]) / scale
+    if "matrix" in node:
+        # glTF y-up → 3D Tiles z-up, then the node's own matrix (column-major) to ECEF.
+        m = np.array(node["matrix"], dtype=np.float64).reshape(4, 4).T
+        y_up_to_z_up = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
+        rot = y_up_to_z_up @ m[:3, :3]
+        off = y_up_to_z_up @ m[:3, 3]
+        pos = pos @ rot.T + off
+        drawn = drawn @ np.linalg.inv(rot)
     drawn /= np.linalg.norm(drawn, axis=1, keepdims=True)
     return pos, drawn
 
@@ -63,11 +77,16 @@ def placed(path):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--keep", help="bake and export into this folder (kept) instead of a temporary one")
+    ap.add_argument("--source", help="a DEM with a coordinate system instead of fuji.png (placed on the Earth)")
+    ap.add_argument("--tile-size", default="256")
+    ap.add_argument("--max-error", default="1")
     args = ap.parse_args()
     tmp = args.keep or tempfile.mkdtemp()
-    store, t3d = os.path.join(tmp, "fuji"), os.path.join(tmp, "3dtiles")
-    bake = [EXE, "bake", "--quiet", os.path.join(DATA, "fuji.png"), "--encoding", "terrain-rgb", "--cell-size", "30",
-            "--max-error", "1", "--tile-size", "256", "--out", store]
+    store, t3d = os.path.join(tmp, "tileset"), os.path.join(tmp, "3dtiles")
+    src = [args.source] if args.source else [os.path.join(DATA, "fuji.png"), "--encoding", "terrain-rgb",
+                                             "--cell-size", "30"]
+    bake = [EXE, "bake", "--quiet", *src, "--max-error", args.max_error, "--tile-size", args.tile_size,
+            "--out", store]
     subprocess.run(bake, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     subprocess.run([EXE, "export", store, "--format", "3dtiles", "--out", t3d, "--quiet"], check=True,
                    stdout=subprocess.DEVNULL)
@@ -80,8 +99,9 @@ def main():
     for depth, tiles in sorted(by_depth.items()):
         seen = {}
         angles = []
+        quantum = 0.05 if args.source else 0.001
         for t, (pos, drawn) in enumerate(tiles):
-            for k, p in enumerate(np.round(pos, 3)):
+            for k, p in enumerate(np.round(pos / quantum)):
                 key = tuple(p)
                 other = seen.get(key)
                 if other is None:

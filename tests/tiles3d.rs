@@ -205,7 +205,37 @@ fn export_writes_every_stored_level_as_a_tile_with_the_blobs_positions() {
 
     let info = export::tiles3d_info(&store, "t", None, String::new()).unwrap();
     assert_eq!(info.place.from, AnchorFrom::Option);
+    // The surface's normals at every sample a mesh GLB draws, per (depth, level): area-weighted
+    // over the top triangles of all the depth's GLBs of that level, as placed (x, −north).
+    let at = |p: [f64; 3]| [(p[0] * 1e3).round() as i64, (p[2] * 1e3).round() as i64];
+    let mut surface: HashMap<(u8, u8, [i64; 2]), [f64; 3]> = HashMap::new();
+    for n in &nodes {
+        for l in &n.levels {
+            let Ok(bytes) =
+                std::fs::read(out.join(format!("tiles/{}/{}/{}/{}.glb", n.key.z, n.key.x, n.key.y, l.level)))
+            else {
+                continue;
+            };
+            let header = codec::decode(&store.read_blob(n.key, l.level).unwrap().unwrap()).unwrap().header;
+            if header.triangle_count == 0 {
+                continue;
+            }
+            let glb = parse_glb(&bytes);
+            let got = glb.positions();
+            let idx = glb.accessor(glb.json["meshes"][0]["primitives"][0]["indices"].as_u64().unwrap());
+            for t in idx.chunks(3).take(header.triangle_count as usize) {
+                let [a, b, c] = [0, 1, 2].map(|k| got[t[k][0] as usize]);
+                let (u, v) = ([0, 1, 2].map(|k| b[k] - a[k]), [0, 1, 2].map(|k| c[k] - a[k]));
+                let x = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+                for i in t {
+                    let s = surface.entry((n.key.z, l.level, at(got[i[0] as usize]))).or_default();
+                    *s = [0, 1, 2].map(|k| s[k] + x[k]);
+                }
+            }
+        }
+    }
     let mut checked = 0;
+    let mut shared = 0;
     let mut coarse = 0;
     for n in &nodes {
         for l in &n.levels {
@@ -268,19 +298,23 @@ fn export_writes_every_stored_level_as_a_tile_with_the_blobs_positions() {
                 }
                 assert!(area > 0.0, "{}: triangles face down", n.key);
                 // Drawn through the node's transform, each vertex's normal is its surface's
-                // (area-weighted over its triangles, from the positions as placed).
-                let mut sums = vec![[0.0f64; 3]; got.len()];
+                // (area-weighted over its triangles, from the positions as placed), over the
+                // triangles of every tile of the depth around it where it lies on a border
+                // (so neighbours draw a shared vertex alike: no lighting seam).
+                let mut own = vec![[0.0f64; 3]; got.len()];
                 for t in idx.chunks(3).take(m.triangles.len()) {
                     let [a, b, c] = [0, 1, 2].map(|k| got[t[k][0] as usize]);
                     let (u, v) = ([0, 1, 2].map(|k| b[k] - a[k]), [0, 1, 2].map(|k| c[k] - a[k]));
                     let x = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
                     for i in t {
-                        sums[i[0] as usize] = [0, 1, 2].map(|k| sums[i[0] as usize][k] + x[k]);
+                        own[i[0] as usize] = [0, 1, 2].map(|k| own[i[0] as usize][k] + x[k]);
                     }
                 }
                 let drawn = glb.rendered_normals();
-                for (i, want) in sums.iter().enumerate().take(world.len()) {
-                    let angle = angle_deg(drawn[i], *want);
+                for (i, p) in got.iter().enumerate().take(world.len()) {
+                    let want = surface[&(n.key.z, l.level, at(*p))];
+                    shared += usize::from(angle_deg(want, own[i]) > 1e-9);
+                    let angle = angle_deg(drawn[i], want);
                     assert!(
                         angle < 2.0,
                         "{} level {} vertex {i}: drawn normal {angle:.1}° off",
@@ -307,6 +341,7 @@ fn export_writes_every_stored_level_as_a_tile_with_the_blobs_positions() {
         }
     }
     assert!(checked > 20);
+    assert!(shared > 100, "border vertices whose neighbours bend their normal: {shared}");
     assert!(coarse < checked, "most tiles keep the blob's grid ({coarse} of {checked} coarser)");
 
     // An export never writes into a folder that holds anything; the folder is left alone.
@@ -794,12 +829,34 @@ async fn on_demand_3d_tiles_list_unbaked_nodes_and_bake_them_when_asked() {
     assert!(!store.join("od/tiles/2/1/1").exists());
     let (s, _, glb) = get(a, "/tilesets/od/3dtiles/tiles/2/1/1/0.glb", &[]).await;
     assert_eq!(s, 200);
-    assert!(!parse_glb(&glb).positions().is_empty());
-    assert!(store.join("od/tiles/2/1/1/0.tsb").is_file());
+    let glb = parse_glb(&glb);
+    assert!(!glb.positions().is_empty());
+    // Its border normals are shared with the tiles around it, so those are baked too (and only
+    // those): the GLB's bytes never depend on what else was asked for first.
+    for (x, y) in (0..4).flat_map(|x| (0..4).map(move |y| (x, y))) {
+        let around = x <= 2 && y <= 2;
+        assert_eq!(store.join(format!("od/tiles/2/{x}/{y}/0.tsb")).is_file(), around, "2/{x}/{y}");
+    }
     let (_, h, body) = get(a, "/tilesets/od/3dtiles/tileset.json", &[]).await;
     assert_eq!(h["cache-control"], "no-cache", "it changes as nodes bake");
-    // The baked node now has its measured levels.
-    assert_eq!(String::from_utf8_lossy(&body).matches("\"provisional\":true").count(), 20);
+    // The baked nodes now have their measured levels.
+    assert_eq!(String::from_utf8_lossy(&body).matches("\"provisional\":true").count(), 21 - 9);
+    // A neighbour draws the vertices they share with the same normals.
+    let (s, _, east) = get(a, "/tilesets/od/3dtiles/tiles/2/2/1/0.glb", &[]).await;
+    assert_eq!(s, 200);
+    let east = parse_glb(&east);
+    let (pw, nw, pe, ne) =
+        (glb.positions(), glb.rendered_normals(), east.positions(), east.rendered_normals());
+    let at = |p: [f64; 3]| [(p[0] * 1e3).round() as i64, (p[2] * 1e3).round() as i64];
+    let west: HashMap<[i64; 2], [f64; 3]> = pw.iter().zip(&nw).map(|(p, n)| (at(*p), *n)).collect();
+    let mut shared = 0;
+    for (p, n) in pe.iter().zip(&ne) {
+        if let Some(w) = west.get(&at(*p)) {
+            shared += 1;
+            assert!(angle_deg(*w, *n) < 1e-6, "{p:?}: {w:?} vs {n:?}");
+        }
+    }
+    assert!(shared >= 10, "{shared} shared vertices");
     srv.stop().await;
     let _ = TileKey::new(0, 0, 0);
 }

@@ -7,10 +7,16 @@
 
 use std::io;
 
+use crate::codec::Blob;
 use crate::formats::interchange::{self, Format};
+use crate::formats::tiles3d::border::FanCache;
 use crate::formats::tiles3d::{
-    Anchor, AnchorRangeError, GlbCompression, Tiles3dError, TilesetInfo, chunk_tileset, path_cap, tile_glb,
+    Anchor, AnchorRangeError, BorderFans, GlbCompression, Tiles3dError, TilesetInfo, around, chunk_tileset,
+    path_cap, takes_neighbours, tile_fans, tile_glb,
 };
+
+/// Tiles whose border fans an export keeps at once (a few hundred bytes to ~50 KB each).
+const FAN_MEMO_TILES: usize = 4096;
 
 /// Errors of the export driver.
 #[derive(Debug, thiserror::Error)]
@@ -240,7 +246,7 @@ pub fn export_3dtiles_with(
         let done = AtomicU64::new(0);
         let glb_bytes = AtomicU64::new(0);
         let blob_bytes = AtomicU64::new(0);
-        work.par_iter().try_for_each(|&(key, level)| -> Result<(), ExportError> {
+        let load = |key: crate::tiling::TileKey, level: u8| -> Result<(Vec<u8>, Blob), ExportError> {
             let path = store.blob_path(key, level);
             let bytes = store.read_blob(key, level)?.ok_or_else(|| StoreError::NoSuchTile {
                 path: store.dir().to_owned(),
@@ -259,7 +265,35 @@ pub fn export_3dtiles_with(
                 }
                 .into());
             }
-            let glb = tile_glb(&info, &blob)
+            Ok((bytes, blob))
+        };
+        // Neighbours' border fans (one normal per shared border vertex), each made once while
+        // the bounded memo holds it: the work runs in index order, so neighbours come close.
+        let present: std::collections::HashSet<(crate::tiling::TileKey, u8)> = work.iter().copied().collect();
+        let fans = FanCache::new(FAN_MEMO_TILES);
+        work.par_iter().try_for_each(|&(key, level)| -> Result<(), ExportError> {
+            let path = store.blob_path(key, level);
+            let (bytes, blob) = load(key, level)?;
+            let around_fans = if takes_neighbours(&info, &blob.header) {
+                around(key)
+                    .into_iter()
+                    .filter(|k| present.contains(&(*k, level)))
+                    .map(|k| {
+                        fans.get_or_make((k, level), || {
+                            let (_, b) = load(k, level)?;
+                            tile_fans(&info, &b).map_err(|source| ExportError::Tiles3d {
+                                path: store.blob_path(k, level),
+                                source,
+                            })
+                        })
+                    })
+                    .collect::<Result<Vec<_>, _>>()?
+            } else {
+                Vec::new()
+            };
+            let neighbours: Vec<&BorderFans> =
+                around_fans.iter().filter_map(|f| f.as_ref().as_ref()).collect();
+            let glb = tile_glb(&info, &blob, &neighbours)
                 .map_err(|source| ExportError::Tiles3d { path: path.clone(), source })?;
             let dest = stage.join(format!("tiles/{}/{}/{}/{level}.glb", key.z, key.x, key.y));
             write_file(&dest, &glb).map_err(io_err(&dest))?;

@@ -97,6 +97,8 @@ pub struct App {
     terrain: terrain::Builds,
     /// Decoded TINs of height queries (`surface=mesh`), shared by requests.
     meshes: Arc<crate::heights::MeshCache>,
+    /// Border fans of terrain blobs (generation, tile, level) for their neighbours' GLBs.
+    fans: Arc<crate::formats::tiles3d::border::FanCache<(u64, crate::tiling::TileKey, u8)>>,
     jobs: admin::Jobs,
     in_flight: AtomicUsize,
     rate: rate_limit::RateLimiter,
@@ -392,6 +394,7 @@ impl Server {
             bakery: bakery::Bakery::start(config.bake_workers, config.bake_queue, metrics.clone(), &baker),
             terrain: terrain::Builds::new(config.bake_workers, config.bake_queue),
             meshes: Arc::new(crate::heights::MeshCache::new(heights::MESH_CACHE_BYTES)),
+            fans: Arc::new(crate::formats::tiles3d::border::FanCache::new(tiles3d::FAN_MEMO_TILES)),
             baker,
             jobs: admin::Jobs::new(),
             in_flight: AtomicUsize::new(0),

@@ -17,7 +17,7 @@
 use std::sync::Arc;
 
 use axum::extract::{Path, RawQuery, State};
-use axum::http::{HeaderMap, HeaderValue, Method, header};
+use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, header};
 use axum::response::Response;
 use bytes::Bytes;
 
@@ -31,7 +31,8 @@ use super::problem::Problem;
 use super::registry::{Tileset, etag_of};
 use crate::bake::export;
 use crate::formats::tiles3d::{
-    GLB_REVISION, GLB_TYPE, GlbCompression, TilesetInfo, chunk_tileset, path_cap, planned_entry, tile_glb,
+    BorderFans, GLB_REVISION, GLB_TYPE, GlbCompression, TilesetInfo, around, chunk_tileset, path_cap,
+    planned_entry, takes_neighbours, tile_fans, tile_glb,
 };
 use crate::store::{IndexChunk, SUBTREE_LEVELS, chunk_root};
 use crate::tiling::TileKey;
@@ -433,21 +434,60 @@ pub(super) async fn glb(
     }
     let blob = load_blob(&app, &ts, key, level).await?;
     let info = info(&ts, false, glb).await?;
-    let glb = tokio::task::spawn_blocking(move || {
-        crate::codec::decode(&blob.bytes).map(|b| tile_glb(&info, &b))
+    let failed = || Problem::internal("glb", format!("making the GLB of tile {key} level {level} failed"));
+    let corrupt = |k: TileKey, e: &dyn std::fmt::Display| {
+        tracing::error!(tileset = %ts.name, tile = %k, level, error = %e, "a verified blob does not decode");
+        Problem::internal("corrupt-blob", format!("tile {k} level {level} does not decode"))
+    };
+    let decoded = tokio::task::spawn_blocking(move || crate::codec::decode(&blob.bytes))
+        .await
+        .map_err(|_| failed())?
+        .map_err(|e| corrupt(key, &e))?;
+    // A terrain mesh's border normals take its neighbours' fans: their blobs (baked first on
+    // demand, so the bytes never depend on what else was asked for); a tile the tileset does
+    // not have is no neighbour.
+    let mut around_blobs = Vec::new();
+    if takes_neighbours(&info, &decoded.header) {
+        let keys = around(key);
+        let loads = futures_util::future::join_all(keys.iter().map(|&k| load_blob(&app, &ts, k, level))).await;
+        for (k, got) in keys.into_iter().zip(loads) {
+            match got {
+                Ok(e) => around_blobs.push((k, e)),
+                Err(p) if p.status == StatusCode::NOT_FOUND => {}
+                Err(p) => return Err(p),
+            }
+        }
+    }
+    let (fans, generation, info2) = (app.fans.clone(), ts.generation, info.clone());
+    let around_fans = tokio::task::spawn_blocking(move || {
+        around_blobs
+            .into_iter()
+            .map(|(k, e)| {
+                fans.get_or_make((generation, k, level), || {
+                    let b = crate::codec::decode(&e.bytes).map_err(|err| (k, err.to_string()))?;
+                    tile_fans(&info2, &b).map_err(|err| (k, err.to_string()))
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()
     })
     .await
-    .map_err(|_| Problem::internal("glb", format!("making the GLB of tile {key} level {level} failed")))?
-    .map_err(|e| {
-        tracing::error!(tileset = %ts.name, tile = %key, level, error = %e, "a verified blob does not decode");
-        Problem::internal("corrupt-blob", format!("tile {key} level {level} does not decode"))
-    })?
+    .map_err(|_| failed())?
+    .map_err(|(k, e)| corrupt(k, &e))?;
+    let glb = tokio::task::spawn_blocking(move || {
+        let neighbours: Vec<&BorderFans> = around_fans.iter().filter_map(|f| f.as_ref().as_ref()).collect();
+        tile_glb(&info, &decoded, &neighbours)
+    })
+    .await
+    .map_err(|_| failed())?
     .map_err(|e| placement_problem(&ts.name, &e))?;
     let entry = Entry { etag: etag_value(&etag_of(&glb)), bytes: Bytes::from(glb) };
     app.cache.insert(ck, entry.clone());
     let (entry, coding) = coded(&app, &entry, coding, coded_key).await;
     Ok(send_coded(&method, &headers, &entry, coding, GLB_TYPE, cache))
 }
+
+/// Tiles whose border fans the server keeps at once (see [`crate::formats::tiles3d::border`]).
+pub(super) const FAN_MEMO_TILES: usize = 4096;
 
 /// The GLB route as the metrics name it (the router's matched path).
 pub(super) const GLB_ROUTE: &str = "/tilesets/{name}/3dtiles/tiles/{z}/{x}/{y}/{file}";

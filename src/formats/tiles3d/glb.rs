@@ -10,6 +10,7 @@
 
 use serde_json::{Value, json};
 
+use super::border::{self, BorderFans};
 use super::earth;
 use super::placement::{Axes, Placement};
 use crate::codec::{Blob, Geometry};
@@ -49,6 +50,11 @@ pub fn mesh_skirt_depth(own: f64) -> f64 {
 /// blob's integers as `FLOAT` (exact below 2²⁴); normals are `BYTE` normalized; indices 8, 16 or
 /// 32 bits, the least that holds the vertex count.
 ///
+/// A mesh vertex that `neighbours` (the [`BorderFans`] of the tiles around, of the same depth
+/// and level) also have takes one normal summed over all their triangles, as theirs does, so
+/// no seam shows between them ([`super::border`]); without neighbours each vertex's normal is
+/// over the tile's own triangles.
+///
 /// On the Earth (`place.earth`), positions are `FLOAT` in the east-north-up frame at the node's
 /// centre, which the node's `matrix` holds ([`super::earth`]); fails only for a point outside
 /// its CRS's or geoid's domain.
@@ -56,10 +62,15 @@ pub fn glb(
     blob: &Blob,
     place: &Placement,
     skirt: Option<(f64, Option<&Bounds>)>,
+    neighbours: &[&BorderFans],
 ) -> Result<Vec<u8>, PlaceError> {
     let h = &blob.header;
+    let shared = match neighbours {
+        [] => Vec::new(),
+        _ => BorderFans::of(blob, place)?.map_or_else(Vec::new, |own| own.shared_normals(neighbours)),
+    };
     if let Some(frame) = &place.earth {
-        return glb_on_earth(blob, frame, skirt);
+        return glb_on_earth(blob, frame, skirt, &shared);
     }
     let step = [h.quant.xy_step, h.quant.xy_step, h.quant.z_step];
     let min = h.bounds[0];
@@ -116,7 +127,7 @@ pub fn glb(
             }
             let g: Vec<glam::DVec3> =
                 all.positions.iter().map(|p| glam::DVec3::from_array(place.gltf_of(*p))).collect();
-            let normals = mesh_normals(&g, &tris[..first_wall], tops);
+            let normals = mesh_normals(&g, &tris[..first_wall], tops, &shared);
             let mut gltf = Gltf::new(h.key, h.level);
             let acc = gltf.positions(pos);
             Ok(gltf.mesh(acc, pos.ints.len(), &tris, &normals).finish())
@@ -139,6 +150,7 @@ fn glb_on_earth(
     blob: &Blob,
     frame: &Frame,
     skirt: Option<(f64, Option<&Bounds>)>,
+    shared: &[(u32, glam::DVec3)],
 ) -> Result<Vec<u8>, PlaceError> {
     let h = &blob.header;
     let b = Bounds::new(h.bounds[0], h.bounds[1]);
@@ -173,7 +185,8 @@ fn glb_on_earth(
                 }
             }
             let dg: Vec<glam::DVec3> = g.iter().map(|p| glam::DVec3::from_array(*p)).collect();
-            let normals = mesh_normals(&dg, &tris[..first_wall], tops);
+            let shared: Vec<_> = shared.iter().map(|&(i, n)| (i, border::to_node(Some(&enu), n))).collect();
+            let normals = mesh_normals(&dg, &tris[..first_wall], tops, &shared);
             let mut gltf = Gltf::new(h.key, h.level);
             let acc = gltf.float_positions(&g, matrix);
             Ok(gltf.mesh(acc, g.len(), &tris, &normals).finish())
@@ -362,16 +375,27 @@ fn turns(mesh: &Mesh, place: &Placement) -> bool {
 }
 
 /// Smooth vertex normals in glTF axes, as `BYTE` vectors: area-weighted sums over the top
-/// triangles (`top`, already facing the right way); a skirt vertex takes the normal of the
-/// border vertex it hangs below (`tops`, in order from the first skirt vertex), so a wall
-/// shades like the surface above it, as Cesium's quantized-mesh skirts do.
-fn mesh_normals(g: &[glam::DVec3], top: &[[u32; 3]], tops: &[u32]) -> Vec<[i8; 3]> {
+/// triangles (`top`, already facing the right way), except the vertices `shared` with
+/// neighbouring tiles, whose sums over all the tiles' triangles it gives; a skirt vertex takes
+/// the normal of the border vertex it hangs below (`tops`, in order from the first skirt
+/// vertex), so a wall shades like the surface above it, as Cesium's quantized-mesh skirts do.
+fn mesh_normals(
+    g: &[glam::DVec3],
+    top: &[[u32; 3]],
+    tops: &[u32],
+    shared: &[(u32, glam::DVec3)],
+) -> Vec<[i8; 3]> {
     let mut sums = vec![glam::DVec3::ZERO; g.len()];
     for t in top {
         let [a, b, c] = t.map(|i| g[i as usize]);
         let n = (b - a).cross(c - a);
         for &i in t {
             sums[i as usize] += n;
+        }
+    }
+    for &(i, n) in shared {
+        if let Some(s) = sums.get_mut(i as usize) {
+            *s = n;
         }
     }
     let first_skirt = g.len() - tops.len();

@@ -16,6 +16,7 @@
 //! glTF binary of a blob), [`meshopt`] (its `EXT_meshopt_compression` form, an option), [`draco`] (the
 //! `KHR_draco_mesh_compression` form of mesh GLBs, an option), [`tileset`] (tileset JSON, and the GLB of a stored tile as it lists it).
 
+pub mod border;
 pub mod draco;
 pub mod earth;
 pub mod glb;
@@ -23,12 +24,15 @@ pub mod meshopt;
 pub mod placement;
 pub mod tileset;
 
+pub use border::BorderFans;
 pub use glb::{GENERATOR, GLB_TYPE, glb, mesh_skirt_depth};
 pub use meshopt::MeshoptError;
 pub use placement::{
     Anchor, AnchorError, AnchorFrom, AnchorRangeError, Axes, DEFAULT_ANCHOR, MAX_ANCHOR_HEIGHT, Placement,
 };
-pub use tileset::{TilesetInfo, chunk_tileset, path_cap, planned_entry, tile_glb};
+pub use tileset::{
+    TilesetInfo, around, chunk_tileset, path_cap, planned_entry, takes_neighbours, tile_fans, tile_glb,
+};
 
 /// Errors of the 3D Tiles view: an anchor that cannot be read or lies out of range, a manifest
 /// that cannot be read as a tileset's.
@@ -57,11 +61,12 @@ pub enum Tiles3dError {
 }
 
 /// The GLB encoding's revision, carried after the content version in every `?v=` of the 3D
-/// Tiles view (`?v=<content version>.g2`): bumped whenever the GLBs of an unchanged tileset
+/// Tiles view (`?v=<content version>.g3`): bumped whenever the GLBs of an unchanged tileset
 /// change bytes, so caches holding the older `immutable` GLBs and tileset JSON are bypassed.
 /// `.g2` (2026-12-07): one node scale for all axes (drawn normals), Draco's geometric normal
-/// prediction.
-pub const GLB_REVISION: &str = ".g2";
+/// prediction. `.g3` (2026-12-07): terrain meshes' border vertices take one normal with their
+/// neighbours' ([`border`]).
+pub const GLB_REVISION: &str = ".g3";
 
 /// How the 3D Tiles GLBs are compressed: `none` (plain buffers, the default), `meshopt`
 /// (`EXT_meshopt_compression`, which the reader must support: CesiumJS does natively, three.js

@@ -147,7 +147,7 @@ fn glb_positions_are_the_blobs_grid_placed_and_triangles_face_up() {
         let blob = decode(&bytes).unwrap();
         let m = manifest(frame, bounds);
         let place = Placement::of(&m, TilesetKind::Terrain, None).unwrap();
-        let glb = glb(&blob, &place, None).unwrap();
+        let glb = glb(&blob, &place, None, &[]).unwrap();
         let (json, got) = read_positions(&glb);
         let big = relief / z_step > 65_535.0;
         assert_eq!(json["accessors"][0]["componentType"], if big { 5126 } else { 5123 });
@@ -183,10 +183,10 @@ fn skirts_hang_on_the_grid_below_inner_borders_only() {
         decode(&encode_mesh(TileKey::new(0, 0, 0), 0, &bounds, q, &mesh, ErrorFigures::default()).unwrap())
             .unwrap();
     let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None).unwrap();
-    let plain = read_positions(&glb(&blob, &place, None).unwrap()).1;
+    let plain = read_positions(&glb(&blob, &place, None, &[]).unwrap()).1;
     // The dataset is larger than the tile on every side but the west one: no skirt there.
     let outer = Bounds::new([0.0, -100.0, 0.0], [100.0, 40.0, 10.0]);
-    let (_, skirted) = read_positions(&glb(&blob, &place, Some((0.3, Some(&outer)))).unwrap());
+    let (_, skirted) = read_positions(&glb(&blob, &place, Some((0.3, Some(&outer))), &[]).unwrap());
     assert_eq!(plain.len(), 25);
     // 16 border vertices, less the 4 on the west edge that get no wall (the corners stay).
     assert!(skirted.len() > 25, "{}", skirted.len());
@@ -205,7 +205,7 @@ fn skirts_hang_on_the_grid_below_inner_borders_only() {
         )
         .unwrap();
         let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None).unwrap();
-        let g = glb(&blob, &place, Some((0.3, None))).unwrap();
+        let g = glb(&blob, &place, Some((0.3, None)), &[]).unwrap();
         let (_, pos) = read_positions(&g);
         let idx = read_indices(&g);
         let centre = pos[..25]
@@ -235,7 +235,7 @@ fn point_normals_are_unit_bytes_in_gltf_axes() {
             .unwrap();
     let frame = Georef { dx: 1.0, dy: -1.0, ..Georef::default() };
     let place = Placement::of(&manifest(frame, bounds), TilesetKind::Terrain, None).unwrap();
-    let glb = glb(&blob, &place, None).unwrap();
+    let glb = glb(&blob, &place, None, &[]).unwrap();
     let jl = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
     let json: Value = serde_json::from_slice(&glb[20..20 + jl]).unwrap();
     let bin = &glb[28 + jl..];
@@ -343,7 +343,7 @@ fn steep_meshes_get_16_bit_positions_within_an_eighth_of_their_error() {
         let place = Placement::of(&manifest(frame.clone(), blob.header.bounds()), TilesetKind::Terrain, None)
             .unwrap();
         for skirt in [None, Some((0.7, None))] {
-            let glb = glb(&blob, &place, skirt).unwrap();
+            let glb = glb(&blob, &place, skirt, &[]).unwrap();
             let (json, got) = read_positions(&glb);
             assert_eq!(
                 json["accessors"][0]["componentType"],
@@ -507,7 +507,7 @@ fn normals_render_as_the_surfaces_whatever_the_grids_steps() {
         let place =
             Placement::of(&manifest(frame, blob.header.bounds()), TilesetKind::Terrain, None).unwrap();
         for skirt in [None, Some((0.7, None))] {
-            let glb = glb(&blob, &place, skirt).unwrap();
+            let glb = glb(&blob, &place, skirt, &[]).unwrap();
             for n in &rendered_normals(&glb)[..25] {
                 let angle = glam::DVec3::from_array(*n).angle_between(want).to_degrees();
                 assert!(angle < 1.5, "{xy_step} {z_step} {skirt:?}: {n:?} is {angle:.1}° off");
@@ -553,7 +553,7 @@ fn glbs_of_random_grids_are_valid_with_one_scale_and_compress() {
         let Geometry::Mesh(world) = &blob.geometry else { panic!() };
         for skirt in [None, Some((max_error.max(0.5) * 2.0, None))] {
             let what = format!("cell {cell} z {z_step} relief {relief} error {max_error} dy {dy} {skirt:?}");
-            let glb = glb(&blob, &place, skirt).unwrap();
+            let glb = glb(&blob, &place, skirt, &[]).unwrap();
             let (json, got) = read_positions(&glb);
             assert!(!json.to_string().contains("null"), "{what}: {json}");
             let s: Vec<f64> =
@@ -576,4 +576,99 @@ fn glbs_of_random_grids_are_valid_with_one_scale_and_compress() {
         }
     }
     assert!(checked > 100, "{checked}");
+}
+
+/// Two tiles of one depth share a column of vertices: with each other's fans both draw one
+/// normal there, the normal of the surface over both tiles' triangles (what one tile over the
+/// whole would draw), whatever the order of the neighbours given; alone each draws its own.
+#[test]
+fn neighbours_draw_one_normal_on_their_shared_border() {
+    let cell = 10.0;
+    let h = |x: f64, y: f64| 40.0 * (x / 23.0).sin() * (y / 17.0).cos() + 0.02 * x * y;
+    // A 5×5 grid mesh whose first column is sample column `col0` of the whole.
+    let tile = |col0: usize| grid_mesh([cell, cell], |c, r| h(((c + col0) as f64) * cell, r as f64 * cell));
+    let offset = |m: Mesh, dx: f64| Mesh {
+        positions: m.positions.iter().map(|p| [p[0] + dx, p[1], p[2]]).collect(),
+        ..m
+    };
+    let q = Quantization { xy_step: cell, z_step: 1.0 / 64.0 };
+    let errors = ErrorFigures { max: 1.0, ..ErrorFigures::default() };
+    let blob = |key: TileKey, m: &Mesh| {
+        decode(&encode_mesh(key, 0, &Bounds::of_points(&m.positions), q, m, errors).unwrap()).unwrap()
+    };
+    let (left, right) = (tile(0), offset(tile(4), 4.0 * cell));
+    let (bl, br) = (blob(TileKey::new(1, 0, 0), &left), blob(TileKey::new(1, 1, 0), &right));
+    // The whole: 9 × 5 samples; the reference normals over all its triangles.
+    let mut whole = Mesh::default();
+    for r in 0..5u32 {
+        for c in 0..9u32 {
+            let (x, y) = (f64::from(c) * cell, f64::from(r) * cell);
+            whole.positions.push([x, y, h(x, y)]);
+        }
+    }
+    for r in 0..4u32 {
+        for c in 0..8u32 {
+            let i = r * 9 + c;
+            whole.triangles.push([i, i + 1, i + 10]);
+            whole.triangles.push([i, i + 10, i + 9]);
+        }
+    }
+    let all = Bounds::of_points(&whole.positions);
+    let frame = Georef { dx: cell, dy: cell, ..Georef::default() };
+    let place = Placement::of(&manifest(frame, all), TilesetKind::Terrain, None).unwrap();
+    let sums = crate::geom::vertex_normal_sums(
+        &whole.positions.iter().map(|p| place.gltf_of(*p)).collect::<Vec<_>>(),
+        &whole.triangles,
+    );
+    let reference = |p: [f64; 3]| {
+        let k = whole.positions.iter().position(|w| (w[0] - p[0]).abs() < 1e-6 && (w[1] - p[1]).abs() < 1e-6);
+        let n = sums[k.unwrap()];
+        if n.y < 0.0 { -n } else { n }
+    };
+    let (fl, fr) =
+        (BorderFans::of(&bl, &place).unwrap().unwrap(), BorderFans::of(&br, &place).unwrap().unwrap());
+    // A tile of the other end shares nothing and changes nothing.
+    let far = offset(tile(40), 40.0 * cell);
+    let ff = BorderFans::of(&blob(TileKey::new(1, 3, 3), &far), &place).unwrap().unwrap();
+    for skirt in [None, Some((2.0, None))] {
+        let gl = glb(&bl, &place, skirt, &[&fr]).unwrap();
+        assert_eq!(
+            gl,
+            glb(&bl, &place, skirt, &[&ff, &fr, &fl]).unwrap(),
+            "order and strangers do not matter"
+        );
+        let gr = glb(&br, &place, skirt, &[&fl, &ff]).unwrap();
+        let alone = glb(&bl, &place, skirt, &[]).unwrap();
+        assert_eq!(alone, glb(&bl, &place, skirt, &[&ff]).unwrap());
+        let (nl, nr, na) = (rendered_normals(&gl), rendered_normals(&gr), rendered_normals(&alone));
+        let (pl, pr) = (read_positions(&gl).1, read_positions(&gr).1);
+        let mut shared = 0;
+        let mut worst_alone = 0.0f64;
+        let Geometry::Mesh(decoded) = &bl.geometry else { panic!("a mesh") };
+        for (i, p) in pl.iter().enumerate().take(25) {
+            let w = place.gltf_of(decoded.positions[i]);
+            assert!((0..3).all(|a| (w[a] - p[a]).abs() < 1e-6), "{w:?} {p:?}");
+            let want = reference(decoded.positions[i]);
+            let a = glam::DVec3::from_array(nl[i]).angle_between(want).to_degrees();
+            assert!(a < 1.5, "{skirt:?} vertex {i}: {a:.2}° off the whole's normal");
+            // One sample: the same x and y (heights are on each blob's own z grid).
+            if let Some(j) =
+                pr.iter().take(25).position(|q| [0, 2].iter().all(|&a| (q[a] - p[a]).abs() < 1e-6))
+            {
+                shared += 1;
+                assert_eq!(nl[i], nr[j], "{skirt:?}: vertex {i} is drawn with two normals");
+                worst_alone =
+                    worst_alone.max(glam::DVec3::from_array(na[i]).angle_between(want).to_degrees());
+            }
+        }
+        assert_eq!(shared, 5);
+        assert!(worst_alone > 3.0, "the test's surface must bend across the border ({worst_alone:.2}°)");
+        if skirt.is_some() {
+            // Skirt vertices hang below the border and take its normal.
+            for (k, p) in pl.iter().enumerate().skip(25) {
+                let top = pl.iter().take(25).position(|t| t[0] == p[0] && t[2] == p[2]).unwrap();
+                assert_eq!(nl[k], nl[top]);
+            }
+        }
+    }
 }

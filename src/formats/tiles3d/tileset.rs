@@ -5,10 +5,11 @@
 use serde::Deserialize;
 use serde_json::{Value, json};
 
+use super::border::BorderFans;
 use super::glb::{GENERATOR, glb, mesh_skirt_depth};
 use super::placement::{Anchor, Placement};
 use super::{GlbCompression, Tiles3dError};
-use crate::codec::{Blob, Kind};
+use crate::codec::{Blob, BlobHeader, Kind};
 use crate::geom::{Bounds, ErrorFigures};
 use crate::store::{IndexChunk, LevelSpec, Manifest, NodeEntry, NodeLevel, SUBTREE_LEVELS, TilesetKind};
 use crate::tiling::{Pyramid, TileKey};
@@ -359,9 +360,46 @@ fn reference_tile(
 }
 
 /// The GLB of one stored (tile, level), from its verified blob: a terrain mesh gets skirts below
-/// its inner borders (none on the dataset's outer border), as the tileset JSON's boxes allow for.
-pub fn tile_glb(info: &TilesetInfo, blob: &Blob) -> Result<Vec<u8>, Tiles3dError> {
+/// its inner borders (none on the dataset's outer border), as the tileset JSON's boxes allow for,
+/// and the vertices it shares with `neighbours` (the [`tile_fans`] of the same level's blobs of
+/// the tiles [`around`] it that exist) one normal with them.
+pub fn tile_glb(
+    info: &TilesetInfo,
+    blob: &Blob,
+    neighbours: &[&BorderFans],
+) -> Result<Vec<u8>, Tiles3dError> {
     let skirt = (info.kind == TilesetKind::Terrain && blob.header.kind == Kind::Mesh)
         .then(|| (mesh_skirt_depth(blob.header.errors.max), Some(&info.manifest.bounds)));
-    info.glb.apply(glb(blob, &info.place, skirt)?)
+    info.glb.apply(glb(blob, &info.place, skirt, neighbours)?)
+}
+
+/// Whether the GLB of `header`'s blob takes its neighbours' [`tile_fans`]: terrain meshes.
+#[must_use]
+pub fn takes_neighbours(info: &TilesetInfo, header: &BlobHeader) -> bool {
+    info.kind == TilesetKind::Terrain && header.kind == Kind::Mesh
+}
+
+/// What the GLB of a neighbouring tile needs of this blob ([`BorderFans`]); `None` where
+/// [`takes_neighbours`] says no, or the mesh has no vertex on its box's edge.
+pub fn tile_fans(info: &TilesetInfo, blob: &Blob) -> Result<Option<BorderFans>, Tiles3dError> {
+    if !takes_neighbours(info, &blob.header) {
+        return Ok(None);
+    }
+    Ok(BorderFans::of(blob, &info.place)?)
+}
+
+/// The up to eight tiles of `key`'s depth around it (edges and corners) that the quadtree has.
+#[must_use]
+pub fn around(key: TileKey) -> Vec<TileKey> {
+    let side = 1i64.checked_shl(u32::from(key.z)).unwrap_or(i64::MAX);
+    let mut out = Vec::with_capacity(8);
+    for dy in -1i64..=1 {
+        for dx in -1i64..=1 {
+            let (x, y) = (i64::from(key.x) + dx, i64::from(key.y) + dy);
+            if (dx, dy) != (0, 0) && (0..side).contains(&x) && (0..side).contains(&y) {
+                out.push(TileKey::new(key.z, x as u32, y as u32));
+            }
+        }
+    }
+    out
 }

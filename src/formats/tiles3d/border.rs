@@ -1,0 +1,221 @@
+//! One normal for a vertex that neighbouring terrain GLBs share. A GLB's normals are
+//! area-weighted over its own triangles, so the two tiles of a border would light the same vertex
+//! with two normals (a visible seam). [`BorderFans`] holds a tile's share of those normals: for
+//! each vertex on the edge of its box, the area-weighted sum over the tile's triangles around it,
+//! in a frame all tiles share (the tileset's glTF frame, or ECEF on the Earth). The GLB of a tile
+//! with its neighbours' fans gives each shared vertex the sum of every tile's share, added in the
+//! order of the tiles' keys: the same function of the same blobs on both sides, so both draw one
+//! normal (up to their own frames' byte rounding on the Earth).
+
+use std::collections::HashMap;
+
+use glam::DVec3;
+
+use super::placement::Placement;
+use crate::codec::{Blob, Geometry};
+use crate::crs::{PlaceError, ecef};
+use crate::tiling::TileKey;
+
+/// A terrain mesh tile's share of the normals of the vertices on its box's edge.
+#[derive(Debug, Clone)]
+pub struct BorderFans {
+    key: TileKey,
+    /// The blob's x/y quantization step: positions closer than a quarter of it are one vertex.
+    step: f64,
+    /// Per vertex on the box's edge: its index in the mesh, its world x and y, and the
+    /// area-weighted sum of the normals of the tile's triangles around it (shared frame, each
+    /// triangle turned to face up).
+    verts: Vec<(u32, [f64; 2], DVec3)>,
+}
+
+impl BorderFans {
+    /// The fans of a mesh blob placed by `place`; `None` for points or a mesh without triangles.
+    /// Fails only for a point outside the CRS's or geoid's domain (on the Earth).
+    pub fn of(blob: &Blob, place: &Placement) -> Result<Option<Self>, PlaceError> {
+        let Geometry::Mesh(mesh) = &blob.geometry else { return Ok(None) };
+        if mesh.triangles.is_empty() {
+            return Ok(None);
+        }
+        let step = blob.header.quant.xy_step;
+        let tol = step / 4.0;
+        let [lo, hi] = blob.header.bounds;
+        let on_edge = |p: &[f64; 3]| {
+            (p[0] - lo[0]).abs() <= tol
+                || (hi[0] - p[0]).abs() <= tol
+                || (p[1] - lo[1]).abs() <= tol
+                || (hi[1] - p[1]).abs() <= tol
+        };
+        // Slot of each vertex on the edge (u32::MAX: inside).
+        let mut slot = vec![u32::MAX; mesh.positions.len()];
+        let mut verts = Vec::new();
+        for (i, p) in mesh.positions.iter().enumerate() {
+            if on_edge(p) {
+                slot[i] = verts.len() as u32;
+                verts.push((i as u32, [p[0], p[1]], DVec3::ZERO));
+            }
+        }
+        if verts.is_empty() {
+            return Ok(None);
+        }
+        // Shared-frame positions of the vertices of triangles that touch the edge, made once.
+        let mut shared: HashMap<u32, (DVec3, DVec3)> = HashMap::new();
+        for t in &mesh.triangles {
+            if t.iter().all(|&i| slot.get(i as usize).is_none_or(|&s| s == u32::MAX)) {
+                continue;
+            }
+            let mut g = [DVec3::ZERO; 3];
+            let mut up = DVec3::ZERO;
+            for (k, &i) in t.iter().enumerate() {
+                let Some(p) = mesh.positions.get(i as usize) else { continue };
+                let e = if let Some(e) = shared.get(&i) {
+                    *e
+                } else {
+                    let e = in_shared_frame(place, *p)?;
+                    shared.insert(i, e);
+                    e
+                };
+                g[k] = e.0;
+                up += e.1;
+            }
+            let mut n = (g[1] - g[0]).cross(g[2] - g[0]);
+            if n.dot(up) < 0.0 {
+                n = -n;
+            }
+            for &i in t {
+                if let Some(&s) = slot.get(i as usize).filter(|&&s| s != u32::MAX) {
+                    verts[s as usize].2 += n;
+                }
+            }
+        }
+        Ok(Some(Self { key: blob.header.key, step, verts }))
+    }
+
+    /// Per vertex this tile shares with at least one of `neighbours` (their fans, any order;
+    /// other tiles' keys): its mesh index and its normal in the shared frame, the sum of every
+    /// sharing tile's fan in the order of their keys. Vertices no neighbour shares are left out
+    /// (they keep the tile's own normal).
+    #[must_use]
+    pub fn shared_normals(&self, neighbours: &[&BorderFans]) -> Vec<(u32, DVec3)> {
+        let mut others: Vec<&BorderFans> = neighbours.iter().copied().filter(|n| n.key != self.key).collect();
+        others.sort_by_key(|n| n.key);
+        others.dedup_by_key(|n| n.key);
+        let index: Vec<HashMap<(i64, i64), Vec<usize>>> = others
+            .iter()
+            .map(|n| {
+                let mut m: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+                for (k, v) in n.verts.iter().enumerate() {
+                    m.entry(cell(v.1, n.step)).or_default().push(k);
+                }
+                m
+            })
+            .collect();
+        let mut out = Vec::new();
+        let mut parts: Vec<(TileKey, DVec3)> = Vec::with_capacity(4);
+        for &(i, xy, own) in &self.verts {
+            parts.clear();
+            parts.push((self.key, own));
+            for (n, m) in others.iter().zip(&index) {
+                let tol = self.step.min(n.step) / 4.0;
+                let (cx, cy) = cell(xy, n.step);
+                let mut found = None;
+                'cells: for dx in -1..=1 {
+                    for dy in -1..=1 {
+                        for &k in m.get(&(cx + dx, cy + dy)).into_iter().flatten() {
+                            let v = &n.verts[k];
+                            if (v.1[0] - xy[0]).abs() <= tol && (v.1[1] - xy[1]).abs() <= tol {
+                                found = Some(v.2);
+                                break 'cells;
+                            }
+                        }
+                    }
+                }
+                if let Some(f) = found {
+                    parts.push((n.key, f));
+                }
+            }
+            if parts.len() > 1 {
+                parts.sort_by_key(|p| p.0);
+                out.push((i, parts.iter().fold(DVec3::ZERO, |s, p| s + p.1)));
+            }
+        }
+        out
+    }
+
+    /// How many vertices lie on the tile's edge.
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.verts.len()
+    }
+
+    /// Whether no vertex lies on the tile's edge.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.verts.is_empty()
+    }
+}
+
+fn cell(xy: [f64; 2], step: f64) -> (i64, i64) {
+    ((xy[0] / step).round() as i64, (xy[1] / step).round() as i64)
+}
+
+/// A world point in the frame all tiles share, and the way up there: the tileset's glTF frame
+/// (y up) in a local placement, ECEF on the Earth (up: the ellipsoid's normal).
+fn in_shared_frame(place: &Placement, p: [f64; 3]) -> Result<(DVec3, DVec3), PlaceError> {
+    match &place.earth {
+        None => Ok((DVec3::from_array(place.gltf_of(p)), DVec3::Y)),
+        Some(frame) => {
+            let e = DVec3::from_array(frame.to_ecef(p)?);
+            let b2 = 1.0 - ecef::E2;
+            Ok((e, DVec3::new(e.x, e.y, e.z / b2)))
+        }
+    }
+}
+
+/// A shared-frame direction in the glTF axes of a node whose frame is `enu` (east-north-up at
+/// the node's centre, column-major → ECEF) on the Earth; unchanged in a local placement.
+#[must_use]
+pub fn to_node(enu: Option<&[f64; 16]>, v: DVec3) -> DVec3 {
+    match enu {
+        None => v,
+        Some(m) => {
+            let col = |c: usize| DVec3::new(m[c * 4], m[c * 4 + 1], m[c * 4 + 2]);
+            let (e, n, u) = (v.dot(col(0)), v.dot(col(1)), v.dot(col(2)));
+            DVec3::new(e, u, -n)
+        }
+    }
+}
+
+/// A bounded memo of tiles' fans for makers of many GLBs (an export, a server), keyed by
+/// whatever names a blob there: each blob's fans are made once while they stay in, not once
+/// per neighbour. Forgets everything when full (every entry can be made again).
+#[derive(Debug)]
+pub struct FanCache<K> {
+    map: std::sync::Mutex<HashMap<K, std::sync::Arc<Option<BorderFans>>>>,
+    capacity: usize,
+}
+
+impl<K: std::hash::Hash + Eq> FanCache<K> {
+    #[must_use]
+    pub fn new(capacity: usize) -> Self {
+        Self { map: std::sync::Mutex::new(HashMap::new()), capacity: capacity.max(1) }
+    }
+
+    /// The fans of `key`, made by `make` when not in (outside the lock: two makers of one
+    /// key may race, and both get the same fans).
+    pub fn get_or_make<E>(
+        &self,
+        key: K,
+        make: impl FnOnce() -> Result<Option<BorderFans>, E>,
+    ) -> Result<std::sync::Arc<Option<BorderFans>>, E> {
+        if let Some(f) = self.map.lock().unwrap_or_else(std::sync::PoisonError::into_inner).get(&key) {
+            return Ok(f.clone());
+        }
+        let f = std::sync::Arc::new(make()?);
+        let mut map = self.map.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if map.len() >= self.capacity {
+            map.clear();
+        }
+        map.insert(key, f.clone());
+        Ok(f)
+    }
+}
