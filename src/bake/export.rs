@@ -275,19 +275,22 @@ pub fn export_3dtiles_with(
             let path = store.blob_path(key, level);
             let (bytes, blob) = load(key, level)?;
             let around_fans = if takes_neighbours(&info, &blob.header) {
-                around(key)
-                    .into_iter()
-                    .filter(|k| present.contains(&(*k, level)))
-                    .map(|k| {
-                        fans.get_or_make((k, level), || {
-                            let (_, b) = load(k, level)?;
-                            tile_fans(&info, &b).map_err(|source| ExportError::Tiles3d {
-                                path: store.blob_path(k, level),
-                                source,
-                            })
+                // Its own fans too (from the memo when a neighbour made them first).
+                let own = fans.get_or_make((key, level), || {
+                    tile_fans(&info, &blob)
+                        .map_err(|source| ExportError::Tiles3d { path: path.clone(), source })
+                })?;
+                let mut all = vec![own];
+                for k in around(key).into_iter().filter(|k| present.contains(&(*k, level))) {
+                    all.push(fans.get_or_make((k, level), || {
+                        let (_, b) = load(k, level)?;
+                        tile_fans(&info, &b).map_err(|source| ExportError::Tiles3d {
+                            path: store.blob_path(k, level),
+                            source,
                         })
-                    })
-                    .collect::<Result<Vec<_>, _>>()?
+                    })?);
+                }
+                all
             } else {
                 Vec::new()
             };

@@ -449,7 +449,8 @@ pub(super) async fn glb(
     let mut around_blobs = Vec::new();
     if takes_neighbours(&info, &decoded.header) {
         let keys = around(key);
-        let loads = futures_util::future::join_all(keys.iter().map(|&k| load_blob(&app, &ts, k, level))).await;
+        let loads =
+            futures_util::future::join_all(keys.iter().map(|&k| load_blob(&app, &ts, k, level))).await;
         for (k, got) in keys.into_iter().zip(loads) {
             match got {
                 Ok(e) => around_blobs.push((k, e)),
@@ -458,32 +459,48 @@ pub(super) async fn glb(
             }
         }
     }
-    let (fans, generation, info2) = (app.fans.clone(), ts.generation, info.clone());
-    let around_fans = tokio::task::spawn_blocking(move || {
-        around_blobs
-            .into_iter()
-            .map(|(k, e)| {
-                fans.get_or_make((generation, k, level), || {
-                    let b = crate::codec::decode(&e.bytes).map_err(|err| (k, err.to_string()))?;
-                    tile_fans(&info2, &b).map_err(|err| (k, err.to_string()))
-                })
-            })
-            .collect::<Result<Vec<_>, _>>()
-    })
-    .await
-    .map_err(|_| failed())?
-    .map_err(|(k, e)| corrupt(k, &e))?;
-    let glb = tokio::task::spawn_blocking(move || {
+    let fans = app.fans.clone();
+    let generation = ts.generation;
+    let made = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, GlbFailure> {
+        // Its own fans (from the memo when a neighbour's GLB made them first), then theirs.
+        let mut around_fans = Vec::with_capacity(around_blobs.len() + 1);
+        if !around_blobs.is_empty() {
+            around_fans.push(fans.get_or_make((generation, key, level), || tile_fans(&info, &decoded))?);
+        }
+        for (k, e) in around_blobs {
+            around_fans.push(fans.get_or_make((generation, k, level), || {
+                let b =
+                    crate::codec::decode(&e.bytes).map_err(|err| GlbFailure::Corrupt(k, err.to_string()))?;
+                Ok::<_, GlbFailure>(tile_fans(&info, &b)?)
+            })?);
+        }
         let neighbours: Vec<&BorderFans> = around_fans.iter().filter_map(|f| f.as_ref().as_ref()).collect();
-        tile_glb(&info, &decoded, &neighbours)
+        Ok(tile_glb(&info, &decoded, &neighbours)?)
     })
     .await
-    .map_err(|_| failed())?
-    .map_err(|e| placement_problem(&ts.name, &e))?;
+    .map_err(|_| failed())?;
+    let glb = match made {
+        Ok(glb) => glb,
+        Err(GlbFailure::Corrupt(k, e)) => return Err(corrupt(k, &e)),
+        Err(GlbFailure::Tiles3d(e)) => return Err(placement_problem(&ts.name, &e)),
+    };
     let entry = Entry { etag: etag_value(&etag_of(&glb)), bytes: Bytes::from(glb) };
     app.cache.insert(ck, entry.clone());
     let (entry, coding) = coded(&app, &entry, coding, coded_key).await;
     Ok(send_coded(&method, &headers, &entry, coding, GLB_TYPE, cache))
+}
+
+/// Why a GLB could not be made: a blob (its own or a neighbour's) that does not decode, or the
+/// 3D Tiles view's own failure (placement, compression).
+enum GlbFailure {
+    Corrupt(TileKey, String),
+    Tiles3d(crate::formats::tiles3d::Tiles3dError),
+}
+
+impl From<crate::formats::tiles3d::Tiles3dError> for GlbFailure {
+    fn from(e: crate::formats::tiles3d::Tiles3dError) -> Self {
+        Self::Tiles3d(e)
+    }
 }
 
 /// Tiles whose border fans the server keeps at once (see [`crate::formats::tiles3d::border`]).

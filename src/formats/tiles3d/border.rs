@@ -10,6 +10,7 @@
 use std::collections::HashMap;
 
 use glam::DVec3;
+use rustc_hash::FxHashMap;
 
 use super::placement::Placement;
 use crate::codec::{Blob, Geometry};
@@ -26,6 +27,10 @@ pub struct BorderFans {
     /// area-weighted sum of the normals of the tile's triangles around it (shared frame, each
     /// triangle turned to face up).
     verts: Vec<(u32, [f64; 2], DVec3)>,
+    /// `verts` by their x and y in whole steps ([`cell`]): distinct grid positions, one each.
+    cells: FxHashMap<(i64, i64), u32>,
+    /// The box of `verts`' x and y (min, max).
+    extent: [[f64; 2]; 2],
 }
 
 impl BorderFans {
@@ -58,7 +63,7 @@ impl BorderFans {
             return Ok(None);
         }
         // Shared-frame positions of the vertices of triangles that touch the edge, made once.
-        let mut shared: HashMap<u32, (DVec3, DVec3)> = HashMap::new();
+        let mut shared: FxHashMap<u32, (DVec3, DVec3)> = FxHashMap::default();
         for t in &mesh.triangles {
             if t.iter().all(|&i| slot.get(i as usize).is_none_or(|&s| s == u32::MAX)) {
                 continue;
@@ -87,7 +92,12 @@ impl BorderFans {
                 }
             }
         }
-        Ok(Some(Self { key: blob.header.key, step, verts }))
+        let mut cells = FxHashMap::default();
+        for (k, v) in verts.iter().enumerate() {
+            cells.entry(cell(v.1, step)).or_insert(k as u32);
+        }
+        let extent = [[lo[0], lo[1]], [hi[0], hi[1]]];
+        Ok(Some(Self { key: blob.header.key, step, verts, cells, extent }))
     }
 
     /// Per vertex this tile shares with at least one of `neighbours` (their fans, any order;
@@ -99,36 +109,24 @@ impl BorderFans {
         let mut others: Vec<&BorderFans> = neighbours.iter().copied().filter(|n| n.key != self.key).collect();
         others.sort_by_key(|n| n.key);
         others.dedup_by_key(|n| n.key);
-        let index: Vec<HashMap<(i64, i64), Vec<usize>>> = others
-            .iter()
-            .map(|n| {
-                let mut m: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
-                for (k, v) in n.verts.iter().enumerate() {
-                    m.entry(cell(v.1, n.step)).or_default().push(k);
-                }
-                m
-            })
-            .collect();
         let mut out = Vec::new();
         let mut parts: Vec<(TileKey, DVec3)> = Vec::with_capacity(4);
         for &(i, xy, own) in &self.verts {
             parts.clear();
             parts.push((self.key, own));
-            for (n, m) in others.iter().zip(&index) {
+            for n in &others {
                 let tol = self.step.min(n.step) / 4.0;
-                let (cx, cy) = cell(xy, n.step);
-                let mut found = None;
-                'cells: for dx in -1..=1 {
-                    for dy in -1..=1 {
-                        for &k in m.get(&(cx + dx, cy + dy)).into_iter().flatten() {
-                            let v = &n.verts[k];
-                            if (v.1[0] - xy[0]).abs() <= tol && (v.1[1] - xy[1]).abs() <= tol {
-                                found = Some(v.2);
-                                break 'cells;
-                            }
-                        }
-                    }
+                let [lo, hi] = n.extent;
+                if (0..2).any(|a| xy[a] < lo[a] - tol || xy[a] > hi[a] + tol) {
+                    continue;
                 }
+                // At most one of its vertices lies within a quarter step (they are a step apart).
+                let (cx, cy) = cell(xy, n.step);
+                let found = PROBE
+                    .iter()
+                    .filter_map(|(dx, dy)| n.cells.get(&(cx + dx, cy + dy)).map(|&k| &n.verts[k as usize]))
+                    .find(|v| (v.1[0] - xy[0]).abs() <= tol && (v.1[1] - xy[1]).abs() <= tol)
+                    .map(|v| v.2);
                 if let Some(f) = found {
                     parts.push((n.key, f));
                 }
@@ -139,6 +137,12 @@ impl BorderFans {
             }
         }
         out
+    }
+
+    /// The tile whose fans these are.
+    #[must_use]
+    pub fn key(&self) -> TileKey {
+        self.key
     }
 
     /// How many vertices lie on the tile's edge.
@@ -153,6 +157,9 @@ impl BorderFans {
         self.verts.is_empty()
     }
 }
+
+/// The cells around a position's own cell, its own first.
+const PROBE: [(i64, i64); 9] = [(0, 0), (-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)];
 
 fn cell(xy: [f64; 2], step: f64) -> (i64, i64) {
     ((xy[0] / step).round() as i64, (xy[1] / step).round() as i64)

@@ -53,7 +53,8 @@ pub fn mesh_skirt_depth(own: f64) -> f64 {
 /// A mesh vertex that `neighbours` (the [`BorderFans`] of the tiles around, of the same depth
 /// and level) also have takes one normal summed over all their triangles, as theirs does, so
 /// no seam shows between them ([`super::border`]); without neighbours each vertex's normal is
-/// over the tile's own triangles.
+/// over the tile's own triangles. `neighbours` may hold this blob's own fans (its key), which
+/// are then not made again.
 ///
 /// On the Earth (`place.earth`), positions are `FLOAT` in the east-north-up frame at the node's
 /// centre, which the node's `matrix` holds ([`super::earth`]); fails only for a point outside
@@ -65,9 +66,18 @@ pub fn glb(
     neighbours: &[&BorderFans],
 ) -> Result<Vec<u8>, PlaceError> {
     let h = &blob.header;
-    let shared = match neighbours {
-        [] => Vec::new(),
-        _ => BorderFans::of(blob, place)?.map_or_else(Vec::new, |own| own.shared_normals(neighbours)),
+    // The tile's own fans: given among `neighbours` (a memo's), else made here.
+    let shared = if neighbours.iter().any(|n| n.key() != h.key) {
+        let made;
+        let own = if let Some(own) = neighbours.iter().find(|n| n.key() == h.key) {
+            Some(*own)
+        } else {
+            made = BorderFans::of(blob, place)?;
+            made.as_ref()
+        };
+        own.map_or_else(Vec::new, |own| own.shared_normals(neighbours))
+    } else {
+        Vec::new()
     };
     if let Some(frame) = &place.earth {
         return glb_on_earth(blob, frame, skirt, &shared);
