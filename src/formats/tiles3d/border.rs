@@ -21,42 +21,52 @@ use crate::tiling::TileKey;
 #[derive(Debug, Clone)]
 pub struct BorderFans {
     key: TileKey,
-    /// The blob's x/y quantization step: positions closer than a quarter of it are one vertex.
-    step: f64,
-    /// Per vertex on the box's edge: its index in the mesh, its world x and y, and the
-    /// area-weighted sum of the normals of the tile's triangles around it (shared frame, each
-    /// triangle turned to face up).
-    verts: Vec<(u32, [f64; 2], DVec3)>,
-    /// `verts` by their x and y in whole steps ([`cell`]): distinct grid positions, one each.
-    cells: FxHashMap<(i64, i64), u32>,
-    /// The box of `verts`' x and y (min, max).
-    extent: [[f64; 2]; 2],
+    /// Per vertex on the box's edge: its index in the mesh and the area-weighted sum of the
+    /// normals of the tile's triangles around it (shared frame, each triangle turned to face up).
+    verts: Vec<(u32, DVec3)>,
+    /// Index into `verts` by the vertex's sample (column, row) of the dataset's grid
+    /// ([`Placement::samples`]): what two tiles' vertices of one sample share, whatever each
+    /// blob's own rounding of its position.
+    by_sample: FxHashMap<(i64, i64), u32>,
 }
 
 impl BorderFans {
-    /// The fans of a mesh blob placed by `place`; `None` for points or a mesh without triangles.
-    /// Fails only for a point outside the CRS's or geoid's domain (on the Earth).
+    /// The fans of a mesh blob placed by `place`; `None` for points or a mesh without triangles
+    /// or samples. A vertex off the dataset's sample grid (by more than a quarter cell: not a
+    /// sample) takes no part. Fails only for a point outside the CRS's or geoid's domain (on the
+    /// Earth).
     pub fn of(blob: &Blob, place: &Placement) -> Result<Option<Self>, PlaceError> {
         let Geometry::Mesh(mesh) = &blob.geometry else { return Ok(None) };
         if mesh.triangles.is_empty() {
             return Ok(None);
         }
-        let step = blob.header.quant.xy_step;
-        let tol = step / 4.0;
-        let [lo, hi] = blob.header.bounds;
-        let on_edge = |p: &[f64; 3]| {
-            (p[0] - lo[0]).abs() <= tol
-                || (hi[0] - p[0]).abs() <= tol
-                || (p[1] - lo[1]).abs() <= tol
-                || (hi[1] - p[1]).abs() <= tol
+        let [x0, y0, dx, dy] = place.samples;
+        if !(dx.is_finite() && dy.is_finite() && dx != 0.0 && dy != 0.0 && x0.is_finite() && y0.is_finite()) {
+            return Ok(None);
+        }
+        let sample = |p: &[f64; 3]| {
+            let (c, r) = ((p[0] - x0) / dx, (p[1] - y0) / dy);
+            let near = (c - c.round()).abs() <= 0.25 && (r - r.round()).abs() <= 0.25;
+            // Within i64 (a NaN or a huge value is no sample).
+            (near && c.abs() < 1e15 && r.abs() < 1e15).then(|| (c.round() as i64, r.round() as i64))
         };
-        // Slot of each vertex on the edge (u32::MAX: inside).
+        let samples: Vec<Option<(i64, i64)>> = mesh.positions.iter().map(sample).collect();
+        let (mut lo, mut hi) = ((i64::MAX, i64::MAX), (i64::MIN, i64::MIN));
+        for &(c, r) in samples.iter().flatten() {
+            (lo, hi) = ((lo.0.min(c), lo.1.min(r)), (hi.0.max(c), hi.1.max(r)));
+        }
+        // Slot of each vertex on the box's edge (u32::MAX: inside, or no sample).
         let mut slot = vec![u32::MAX; mesh.positions.len()];
         let mut verts = Vec::new();
-        for (i, p) in mesh.positions.iter().enumerate() {
-            if on_edge(p) {
+        let mut by_sample = FxHashMap::default();
+        for (i, s) in samples.iter().enumerate() {
+            if let &Some((c, r)) = s
+                && (c == lo.0 || c == hi.0 || r == lo.1 || r == hi.1)
+                && !by_sample.contains_key(&(c, r))
+            {
                 slot[i] = verts.len() as u32;
-                verts.push((i as u32, [p[0], p[1]], DVec3::ZERO));
+                by_sample.insert((c, r), verts.len() as u32);
+                verts.push((i as u32, DVec3::ZERO));
             }
         }
         if verts.is_empty() {
@@ -88,16 +98,11 @@ impl BorderFans {
             }
             for &i in t {
                 if let Some(&s) = slot.get(i as usize).filter(|&&s| s != u32::MAX) {
-                    verts[s as usize].2 += n;
+                    verts[s as usize].1 += n;
                 }
             }
         }
-        let mut cells = FxHashMap::default();
-        for (k, v) in verts.iter().enumerate() {
-            cells.entry(cell(v.1, step)).or_insert(k as u32);
-        }
-        let extent = [[lo[0], lo[1]], [hi[0], hi[1]]];
-        Ok(Some(Self { key: blob.header.key, step, verts, cells, extent }))
+        Ok(Some(Self { key: blob.header.key, verts, by_sample }))
     }
 
     /// Per vertex this tile shares with at least one of `neighbours` (their fans, any order;
@@ -111,24 +116,13 @@ impl BorderFans {
         others.dedup_by_key(|n| n.key);
         let mut out = Vec::new();
         let mut parts: Vec<(TileKey, DVec3)> = Vec::with_capacity(4);
-        for &(i, xy, own) in &self.verts {
+        for (sample, &k) in &self.by_sample {
+            let (i, own) = self.verts[k as usize];
             parts.clear();
             parts.push((self.key, own));
             for n in &others {
-                let tol = self.step.min(n.step) / 4.0;
-                let [lo, hi] = n.extent;
-                if (0..2).any(|a| xy[a] < lo[a] - tol || xy[a] > hi[a] + tol) {
-                    continue;
-                }
-                // At most one of its vertices lies within a quarter step (they are a step apart).
-                let (cx, cy) = cell(xy, n.step);
-                let found = PROBE
-                    .iter()
-                    .filter_map(|(dx, dy)| n.cells.get(&(cx + dx, cy + dy)).map(|&k| &n.verts[k as usize]))
-                    .find(|v| (v.1[0] - xy[0]).abs() <= tol && (v.1[1] - xy[1]).abs() <= tol)
-                    .map(|v| v.2);
-                if let Some(f) = found {
-                    parts.push((n.key, f));
+                if let Some(&j) = n.by_sample.get(sample) {
+                    parts.push((n.key, n.verts[j as usize].1));
                 }
             }
             if parts.len() > 1 {
@@ -136,6 +130,7 @@ impl BorderFans {
                 out.push((i, parts.iter().fold(DVec3::ZERO, |s, p| s + p.1)));
             }
         }
+        out.sort_unstable_by_key(|v| v.0);
         out
     }
 
@@ -156,13 +151,6 @@ impl BorderFans {
     pub fn is_empty(&self) -> bool {
         self.verts.is_empty()
     }
-}
-
-/// The cells around a position's own cell, its own first.
-const PROBE: [(i64, i64); 9] = [(0, 0), (-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)];
-
-fn cell(xy: [f64; 2], step: f64) -> (i64, i64) {
-    ((xy[0] / step).round() as i64, (xy[1] / step).round() as i64)
 }
 
 /// A world point in the frame all tiles share, and the way up there: the tileset's glTF frame

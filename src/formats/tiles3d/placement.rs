@@ -158,6 +158,9 @@ pub struct Placement {
     pub axes: Axes,
     /// The exact frame of a tileset with a coordinate system.
     pub earth: Option<EarthFrame>,
+    /// The dataset's sample grid: sample (col, row) lies at world x = `x0 + col·dx`,
+    /// y = `y0 + row·dy` (`[x0, y0, dx, dy]`), which names the samples tiles share.
+    pub samples: [f64; 4],
 }
 
 impl Placement {
@@ -192,7 +195,8 @@ impl Placement {
             (None, Some(a)) => (a, AnchorFrom::Option),
             (None, None) => (DEFAULT_ANCHOR, AnchorFrom::Default),
         };
-        Ok(Self { anchor, from, origin, axes, earth })
+        let f = &m.frame;
+        Ok(Self { anchor, from, origin, axes, earth, samples: [f.x0, f.y0, f.dx, f.dy] })
     }
 
     /// How far a GLB's positions may lie from where they belong, metres: on the Earth, the f32

@@ -591,7 +591,7 @@ fn neighbours_draw_one_normal_on_their_shared_border() {
         positions: m.positions.iter().map(|p| [p[0] + dx, p[1], p[2]]).collect(),
         ..m
     };
-    let q = Quantization { xy_step: cell, z_step: 1.0 / 64.0 };
+    let q = Quantization { xy_step: 1.0 / 64.0, z_step: 1.0 / 64.0 };
     let errors = ErrorFigures { max: 1.0, ..ErrorFigures::default() };
     let blob = |key: TileKey, m: &Mesh| {
         decode(&encode_mesh(key, 0, &Bounds::of_points(&m.positions), q, m, errors).unwrap()).unwrap()
@@ -627,6 +627,12 @@ fn neighbours_draw_one_normal_on_their_shared_border() {
     };
     let (fl, fr) =
         (BorderFans::of(&bl, &place).unwrap().unwrap(), BorderFans::of(&br, &place).unwrap().unwrap());
+    // Vertices of one sample are shared though each blob rounds its position its own way
+    // (here 5 cm, 3.2 steps, apart: a blob's grid starts at its own corner).
+    let nudged = offset(tile(4), 4.0 * cell + 0.05);
+    let fnudged = BorderFans::of(&blob(TileKey::new(1, 1, 0), &nudged), &place).unwrap().unwrap();
+    assert_eq!(fl.shared_normals(&[&fnudged]).len(), 5);
+    assert_eq!(fl.shared_normals(&[&fr]).len(), 5);
     // A tile of the other end shares nothing and changes nothing.
     let far = offset(tile(40), 40.0 * cell);
     let ff = BorderFans::of(&blob(TileKey::new(1, 3, 3), &far), &place).unwrap().unwrap();
