@@ -418,6 +418,52 @@ fn export_places_geographic_and_unreferenced_sources() {
     // (to the centimetre: the bounds are the blobs', grown to their quantization grid).
     assert!((info.place.anchor.lon - (138.5 + 32.0 / 1200.0)).abs() < 1e-7, "{:?}", info.place.anchor);
     assert!((info.place.anchor.lat - (35.5 - 32.0 / 1200.0)).abs() < 1e-7, "{:?}", info.place.anchor);
+
+    // On the Earth each GLB has its own east-north-up frame (node `matrix`), yet the vertices two
+    // neighbours both draw are drawn with one normal (each rounded to bytes in its own frame).
+    let out = tmp.path().join("geo3d");
+    export::export_3dtiles(&Store::new(&dir), &out, None, &|_, _| {}).unwrap();
+    let ecef = |glb: &Glb| {
+        let node = &glb.json["nodes"][0];
+        let m: Vec<f64> = node["matrix"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let prim = &glb.json["meshes"][0]["primitives"][0];
+        // glTF y-up → 3D Tiles z-up after the node's matrix (column-major).
+        let apply = |v: &[f64], w: f64| {
+            let r: [f64; 3] = std::array::from_fn(|row| {
+                (0..3).map(|c| m[c * 4 + row] * v[c]).sum::<f64>() + w * m[12 + row]
+            });
+            [r[0], -r[2], r[1]]
+        };
+        let pos: Vec<[f64; 3]> = glb
+            .accessor(prim["attributes"]["POSITION"].as_u64().unwrap())
+            .iter()
+            .map(|p| apply(p, 1.0))
+            .collect();
+        let nrm: Vec<[f64; 3]> = glb
+            .accessor(prim["attributes"]["NORMAL"].as_u64().unwrap())
+            .iter()
+            .map(|n| apply(n, 0.0))
+            .collect();
+        (pos, nrm)
+    };
+    let tiles: Vec<_> = (0..2)
+        .flat_map(|x| (0..2).map(move |y| (x, y)))
+        .map(|(x, y)| ecef(&parse_glb(&std::fs::read(out.join(format!("tiles/1/{x}/{y}/0.glb"))).unwrap())))
+        .collect();
+    let (mut shared, mut worst) = (0, 0.0f64);
+    for (a, (pa, na)) in tiles.iter().enumerate() {
+        for (pb, nb) in &tiles[a + 1..] {
+            for (p, n) in pa.iter().zip(na) {
+                let near = pb.iter().position(|q| (0..3).all(|k| (p[k] - q[k]).abs() < 0.01));
+                if let Some(j) = near {
+                    shared += 1;
+                    worst = worst.max(angle_deg(*n, nb[j]));
+                }
+            }
+        }
+    }
+    assert!(shared >= 30, "{shared} shared vertices");
+    assert!(worst < 2.0, "neighbours draw a shared vertex {worst:.2}° apart");
 }
 
 /// One GET ([`common::get_async`]); these routes never answer chunked.
