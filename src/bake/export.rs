@@ -15,8 +15,8 @@ use crate::formats::tiles3d::{
     path_cap, takes_neighbours, tile_fans, tile_glb,
 };
 
-/// Tiles whose border fans an export keeps at once (a few hundred bytes to ~50 KB each).
-const FAN_MEMO_TILES: usize = 4096;
+/// Memory an export's memo of border fans may hold (about 80 bytes a border vertex).
+const FAN_MEMO_BYTES: usize = 256 << 20;
 
 /// Errors of the export driver.
 #[derive(Debug, thiserror::Error)]
@@ -270,7 +270,7 @@ pub fn export_3dtiles_with(
         // Neighbours' border fans (one normal per shared border vertex), each made once while
         // the bounded memo holds it: the work runs in index order, so neighbours come close.
         let present: std::collections::HashSet<(crate::tiling::TileKey, u8)> = work.iter().copied().collect();
-        let fans = FanCache::new(FAN_MEMO_TILES);
+        let fans = FanCache::new(FAN_MEMO_BYTES);
         work.par_iter().try_for_each(|&(key, level)| -> Result<(), ExportError> {
             let path = store.blob_path(key, level);
             let (bytes, blob) = load(key, level)?;

@@ -394,7 +394,7 @@ impl Server {
             bakery: bakery::Bakery::start(config.bake_workers, config.bake_queue, metrics.clone(), &baker),
             terrain: terrain::Builds::new(config.bake_workers, config.bake_queue),
             meshes: Arc::new(crate::heights::MeshCache::new(heights::MESH_CACHE_BYTES)),
-            fans: Arc::new(crate::formats::tiles3d::border::FanCache::new(tiles3d::FAN_MEMO_TILES)),
+            fans: Arc::new(crate::formats::tiles3d::border::FanCache::new(tiles3d::FAN_MEMO_BYTES)),
             baker,
             jobs: admin::Jobs::new(),
             in_flight: AtomicUsize::new(0),

@@ -503,8 +503,8 @@ impl From<crate::formats::tiles3d::Tiles3dError> for GlbFailure {
     }
 }
 
-/// Tiles whose border fans the server keeps at once (see [`crate::formats::tiles3d::border`]).
-pub(super) const FAN_MEMO_TILES: usize = 4096;
+/// Memory the server's memo of border fans may hold (see [`crate::formats::tiles3d::border`]).
+pub(super) const FAN_MEMO_BYTES: usize = 64 << 20;
 
 /// The GLB route as the metrics name it (the router's matched path).
 pub(super) const GLB_ROUTE: &str = "/tilesets/{name}/3dtiles/tiles/{z}/{x}/{y}/{file}";

@@ -146,6 +146,12 @@ impl BorderFans {
         self.verts.len()
     }
 
+    /// About how much memory the fans hold, bytes.
+    #[must_use]
+    pub fn bytes(&self) -> usize {
+        std::mem::size_of::<Self>() + self.verts.len() * (std::mem::size_of::<(u32, DVec3)>() + 40)
+    }
+
     /// Whether no vertex lies on the tile's edge.
     #[must_use]
     pub fn is_empty(&self) -> bool {
@@ -180,19 +186,24 @@ pub fn to_node(enu: Option<&[f64; 16]>, v: DVec3) -> DVec3 {
     }
 }
 
+/// A tile's fans as the memo hands them out (`None`: the tile has none).
+pub type Memoized = std::sync::Arc<Option<BorderFans>>;
+
 /// A bounded memo of tiles' fans for makers of many GLBs (an export, a server), keyed by
 /// whatever names a blob there: each blob's fans are made once while they stay in, not once
-/// per neighbour. Forgets everything when full (every entry can be made again).
+/// per neighbour. Holds at most `budget` bytes (by [`BorderFans::bytes`]); forgets everything
+/// when full (every entry can be made again).
 #[derive(Debug)]
 pub struct FanCache<K> {
-    map: std::sync::Mutex<HashMap<K, std::sync::Arc<Option<BorderFans>>>>,
-    capacity: usize,
+    /// The entries and the bytes they hold.
+    map: std::sync::Mutex<(HashMap<K, Memoized>, usize)>,
+    budget: usize,
 }
 
 impl<K: std::hash::Hash + Eq> FanCache<K> {
     #[must_use]
-    pub fn new(capacity: usize) -> Self {
-        Self { map: std::sync::Mutex::new(HashMap::new()), capacity: capacity.max(1) }
+    pub fn new(budget: usize) -> Self {
+        Self { map: std::sync::Mutex::new((HashMap::new(), 0)), budget }
     }
 
     /// The fans of `key`, made by `make` when not in (outside the lock: two makers of one
@@ -201,16 +212,28 @@ impl<K: std::hash::Hash + Eq> FanCache<K> {
         &self,
         key: K,
         make: impl FnOnce() -> Result<Option<BorderFans>, E>,
-    ) -> Result<std::sync::Arc<Option<BorderFans>>, E> {
-        if let Some(f) = self.map.lock().unwrap_or_else(std::sync::PoisonError::into_inner).get(&key) {
+    ) -> Result<Memoized, E> {
+        if let Some(f) = self.map.lock().unwrap_or_else(std::sync::PoisonError::into_inner).0.get(&key) {
             return Ok(f.clone());
         }
         let f = std::sync::Arc::new(make()?);
-        let mut map = self.map.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-        if map.len() >= self.capacity {
+        let size = f.as_ref().as_ref().map_or(0, BorderFans::bytes) + 64;
+        let mut guard = self.map.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let (map, used) = &mut *guard;
+        if *used + size > self.budget {
             map.clear();
+            *used = 0;
         }
-        map.insert(key, f.clone());
+        if size <= self.budget && map.insert(key, f.clone()).is_none() {
+            *used += size;
+        }
         Ok(f)
+    }
+
+    /// Entries and bytes held now.
+    #[must_use]
+    pub fn held(&self) -> (usize, usize) {
+        let guard = self.map.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        (guard.0.len(), guard.1)
     }
 }

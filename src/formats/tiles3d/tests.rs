@@ -678,3 +678,31 @@ fn neighbours_draw_one_normal_on_their_shared_border() {
         }
     }
 }
+
+/// The memo of fans makes each entry once while it holds it, and never holds more than its
+/// budget: full, it starts over.
+#[test]
+fn fan_memo_makes_once_and_stays_within_its_budget() {
+    let memo = border::FanCache::new(1000);
+    let made = std::cell::Cell::new(0);
+    let get = |k: u32| {
+        memo.get_or_make(k, || {
+            made.set(made.get() + 1);
+            Ok::<_, ()>(None)
+        })
+        .unwrap()
+    };
+    get(1);
+    get(1);
+    assert_eq!(made.get(), 1);
+    for k in (0..100).chain(0..100) {
+        get(k);
+        let (entries, bytes) = memo.held();
+        assert!(bytes <= 1000 && entries >= 1, "{entries} entries, {bytes} bytes");
+    }
+    assert!(made.get() > 150, "entries were forgotten and made again: {}", made.get());
+    // An entry larger than the whole budget is returned, not kept.
+    let tiny = border::FanCache::new(10);
+    tiny.get_or_make(0, || Ok::<_, ()>(None)).unwrap();
+    assert_eq!(tiny.held(), (0, 0));
+}
