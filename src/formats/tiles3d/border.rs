@@ -172,18 +172,14 @@ fn in_shared_frame(place: &Placement, p: [f64; 3]) -> Result<(DVec3, DVec3), Pla
     }
 }
 
-/// A shared-frame direction in the glTF axes of a node whose frame is `enu` (east-north-up at
-/// the node's centre, column-major → ECEF) on the Earth; unchanged in a local placement.
+/// A shared-frame (ECEF) direction in the glTF axes of a node on the Earth whose frame is `enu`
+/// (east-north-up at the node's centre, column-major → ECEF). In a local placement the shared
+/// frame is the glTF frame already.
 #[must_use]
-pub fn to_node(enu: Option<&[f64; 16]>, v: DVec3) -> DVec3 {
-    match enu {
-        None => v,
-        Some(m) => {
-            let col = |c: usize| DVec3::new(m[c * 4], m[c * 4 + 1], m[c * 4 + 2]);
-            let (e, n, u) = (v.dot(col(0)), v.dot(col(1)), v.dot(col(2)));
-            DVec3::new(e, u, -n)
-        }
-    }
+pub fn to_node(enu: &[f64; 16], v: DVec3) -> DVec3 {
+    let col = |c: usize| DVec3::new(enu[c * 4], enu[c * 4 + 1], enu[c * 4 + 2]);
+    let (e, n, u) = (v.dot(col(0)), v.dot(col(1)), v.dot(col(2)));
+    DVec3::new(e, u, -n)
 }
 
 /// A tile's fans as the memo hands them out (`None`: the tile has none).

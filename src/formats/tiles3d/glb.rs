@@ -195,7 +195,7 @@ fn glb_on_earth(
                 }
             }
             let dg: Vec<glam::DVec3> = g.iter().map(|p| glam::DVec3::from_array(*p)).collect();
-            let shared: Vec<_> = shared.iter().map(|&(i, n)| (i, border::to_node(Some(&enu), n))).collect();
+            let shared: Vec<_> = shared.iter().map(|&(i, n)| (i, border::to_node(&enu, n))).collect();
             let normals = mesh_normals(&dg, &tris[..first_wall], tops, &shared);
             let mut gltf = Gltf::new(h.key, h.level);
             let acc = gltf.float_positions(&g, matrix);

@@ -368,12 +368,13 @@ pub fn tile_glb(
     blob: &Blob,
     neighbours: &[&BorderFans],
 ) -> Result<Vec<u8>, Tiles3dError> {
-    let skirt = (info.kind == TilesetKind::Terrain && blob.header.kind == Kind::Mesh)
+    let skirt = takes_neighbours(info, &blob.header)
         .then(|| (mesh_skirt_depth(blob.header.errors.max), Some(&info.manifest.bounds)));
     info.glb.apply(glb(blob, &info.place, skirt, neighbours)?)
 }
 
-/// Whether the GLB of `header`'s blob takes its neighbours' [`tile_fans`]: terrain meshes.
+/// Whether the GLB of `header`'s blob takes its neighbours' [`tile_fans`] (and skirts): terrain
+/// meshes.
 #[must_use]
 pub fn takes_neighbours(info: &TilesetInfo, header: &BlobHeader) -> bool {
     info.kind == TilesetKind::Terrain && header.kind == Kind::Mesh
