@@ -140,22 +140,10 @@ impl BorderFans {
         self.key
     }
 
-    /// How many vertices lie on the tile's edge.
-    #[must_use]
-    pub fn len(&self) -> usize {
-        self.verts.len()
-    }
-
     /// About how much memory the fans hold, bytes.
     #[must_use]
     pub fn bytes(&self) -> usize {
         std::mem::size_of::<Self>() + self.verts.len() * (std::mem::size_of::<(u32, DVec3)>() + 40)
-    }
-
-    /// Whether no vertex lies on the tile's edge.
-    #[must_use]
-    pub fn is_empty(&self) -> bool {
-        self.verts.is_empty()
     }
 }
 
