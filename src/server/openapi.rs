@@ -39,7 +39,7 @@ fn job(desc: &str) -> Value {
 
 fn v_param() -> Value {
     json!({"name": "v", "in": "query", "required": false, "schema": {"type": "string"},
-        "description": "The tileset's content_version, as the server's own URIs carry it (on the 3D Tiles routes under /3dtiles/ followed by the GLB revision, e.g. `.g3`). When it matches, the response is `Cache-Control: public, max-age=31536000, immutable`; otherwise it is revalidated after 60 s."})
+        "description": "The tileset's content_version, as the server's own URIs carry it (on the 3D Tiles routes under /3dtiles/ followed by the GLB revision, e.g. `.g4`). When it matches, the response is `Cache-Control: public, max-age=31536000, immutable`; otherwise it is revalidated after 60 s."})
 }
 
 /// `glb=` of the 3D Tiles routes (`server::tiles3d`): how the GLBs are compressed, carried into

@@ -65,6 +65,21 @@ pub fn glb(
     skirt: Option<(f64, Option<&Bounds>)>,
     neighbours: &[&BorderFans],
 ) -> Result<Vec<u8>, PlaceError> {
+    glb_and_normals(blob, place, skirt, neighbours).map(|(glb, _)| glb)
+}
+
+/// [`glb()`], and for a mesh the normals its `BYTE`s were rounded from ([`ExactNormals`]), which
+/// a coarser encoding (Draco's octahedral normals) rounds again from these rather than from the
+/// bytes.
+///
+/// # Errors
+/// As [`glb()`].
+pub fn glb_and_normals(
+    blob: &Blob,
+    place: &Placement,
+    skirt: Option<(f64, Option<&Bounds>)>,
+    neighbours: &[&BorderFans],
+) -> Result<(Vec<u8>, Option<ExactNormals>), PlaceError> {
     let h = &blob.header;
     // The tile's own fans: given among `neighbours` (a memo's), else made here.
     let shared = if neighbours.iter().any(|n| n.key() != h.key) {
@@ -140,7 +155,7 @@ pub fn glb(
             let normals = mesh_normals(&g, &tris[..first_wall], tops, &shared);
             let mut gltf = Gltf::new(h.key, h.level);
             let acc = gltf.positions(pos);
-            Ok(gltf.mesh(acc, pos.ints.len(), &tris, &normals).finish())
+            Ok((gltf.mesh(acc, pos.ints.len(), &tris, &normals.bytes()).finish(), Some(normals)))
         }
         Geometry::Points(points) => {
             let pos = Positions::new(&points.positions, min, step, place);
@@ -149,7 +164,7 @@ pub fn glb(
                 points.normals.iter().map(|n| oct_free_i8(map.map(|(a, s)| s * f64::from(n[a])))).collect();
             let mut gltf = Gltf::new(h.key, h.level);
             let acc = gltf.positions(&pos);
-            Ok(gltf.points(acc, &normals).finish())
+            Ok((gltf.points(acc, &normals).finish(), None))
         }
     }
 }
@@ -161,7 +176,7 @@ fn glb_on_earth(
     frame: &Frame,
     skirt: Option<(f64, Option<&Bounds>)>,
     shared: &[(u32, glam::DVec3)],
-) -> Result<Vec<u8>, PlaceError> {
+) -> Result<(Vec<u8>, Option<ExactNormals>), PlaceError> {
     let h = &blob.header;
     let b = Bounds::new(h.bounds[0], h.bounds[1]);
     let enu = earth::node_frame(frame, &b)?;
@@ -199,7 +214,7 @@ fn glb_on_earth(
             let normals = mesh_normals(&dg, &tris[..first_wall], tops, &shared);
             let mut gltf = Gltf::new(h.key, h.level);
             let acc = gltf.float_positions(&g, matrix);
-            Ok(gltf.mesh(acc, g.len(), &tris, &normals).finish())
+            Ok((gltf.mesh(acc, g.len(), &tris, &normals.bytes()).finish(), Some(normals)))
         }
         Geometry::Points(points) => {
             let g = earth::gltf_positions(frame, &enu, &points.positions)?;
@@ -214,7 +229,7 @@ fn glb_on_earth(
                 .collect::<Result<Vec<_>, PlaceError>>()?;
             let mut gltf = Gltf::new(h.key, h.level);
             let acc = gltf.float_positions(&g, matrix);
-            Ok(gltf.points(acc, &normals).finish())
+            Ok((gltf.points(acc, &normals).finish(), None))
         }
     }
 }
@@ -384,18 +399,48 @@ fn turns(mesh: &Mesh, place: &Placement) -> bool {
     area < 0.0
 }
 
-/// Smooth vertex normals in glTF axes, as `BYTE` vectors: area-weighted sums over the top
-/// triangles (`top`, already facing the right way), except the vertices `shared` with
-/// neighbouring tiles, whose sums over all the tiles' triangles it gives; a skirt vertex takes
-/// the normal of the border vertex it hangs below (`tops`, in order from the first skirt
-/// vertex), so a wall shades like the surface above it, as Cesium's quantized-mesh skirts do.
+/// A mesh GLB's vertex normals before they are rounded ([`glb_and_normals`]): each vertex's
+/// direction (not of unit length) and what an encoder that rounds it coarser may do with it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExactNormals {
+    /// Per vertex, in glTF axes; `[0, 1, 0]` (up) for a vertex of no triangle.
+    pub directions: Vec<[f64; 3]>,
+    /// Per vertex, in the same order.
+    pub roles: Vec<NormalRole>,
+}
+
+/// What an encoder may do with one vertex's normal when it rounds it ([`ExactNormals`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NormalRole {
+    /// The tile's own: any rounding within the encoder's stated bound.
+    Own,
+    /// Shared with the neighbouring tiles of a border, which draw the same direction: the
+    /// nearest rounding only, as each of them does, so both sides draw the same bytes.
+    Shared,
+    /// A skirt vertex: exactly what vertex `top` (the border vertex above it) draws.
+    Below(u32),
+}
+
+impl ExactNormals {
+    /// As `BYTE` vectors (the plain GLB's).
+    fn bytes(&self) -> Vec<[i8; 3]> {
+        self.directions.iter().map(|d| oct_free_i8(*d)).collect()
+    }
+}
+
+/// Smooth vertex normals in glTF axes: area-weighted sums over the top triangles (`top`,
+/// already facing the right way), except the vertices `shared` with neighbouring tiles, whose
+/// sums over all the tiles' triangles it gives; a skirt vertex takes the normal of the border
+/// vertex it hangs below (`tops`, in order from the first skirt vertex), so a wall shades like
+/// the surface above it, as Cesium's quantized-mesh skirts do.
 fn mesh_normals(
     g: &[glam::DVec3],
     top: &[[u32; 3]],
     tops: &[u32],
     shared: &[(u32, glam::DVec3)],
-) -> Vec<[i8; 3]> {
+) -> ExactNormals {
     let mut sums = vec![glam::DVec3::ZERO; g.len()];
+    let mut roles = vec![NormalRole::Own; g.len()];
     for t in top {
         let [a, b, c] = t.map(|i| g[i as usize]);
         let n = (b - a).cross(c - a);
@@ -406,14 +451,18 @@ fn mesh_normals(
     for &(i, n) in shared {
         if let Some(s) = sums.get_mut(i as usize) {
             *s = n;
+            roles[i as usize] = NormalRole::Shared;
         }
     }
     let first_skirt = g.len() - tops.len();
     for (k, &top) in tops.iter().enumerate() {
         sums[first_skirt + k] = sums[top as usize];
+        roles[first_skirt + k] = NormalRole::Below(top);
     }
     // A vertex of no triangle (there are none in a decoded mesh) points up.
-    sums.iter().map(|s| oct_free_i8(if s.length() > 0.0 { s.to_array() } else { [0.0, 1.0, 0.0] })).collect()
+    let directions =
+        sums.iter().map(|s| if s.length() > 0.0 { s.to_array() } else { [0.0, 1.0, 0.0] }).collect();
+    ExactNormals { directions, roles }
 }
 
 /// Positions on the blob's grid, per glTF axis: the stored integers, the node's translation

@@ -25,7 +25,7 @@ pub mod placement;
 pub mod tileset;
 
 pub use border::BorderFans;
-pub use glb::{GENERATOR, GLB_TYPE, glb, mesh_skirt_depth};
+pub use glb::{ExactNormals, GENERATOR, GLB_TYPE, NormalRole, glb, glb_and_normals, mesh_skirt_depth};
 pub use meshopt::MeshoptError;
 pub use placement::{
     Anchor, AnchorError, AnchorFrom, AnchorRangeError, Axes, DEFAULT_ANCHOR, MAX_ANCHOR_HEIGHT, Placement,
@@ -61,12 +61,13 @@ pub enum Tiles3dError {
 }
 
 /// The GLB encoding's revision, carried after the content version in every `?v=` of the 3D
-/// Tiles view (`?v=<content version>.g3`): bumped whenever the GLBs of an unchanged tileset
+/// Tiles view (`?v=<content version>.g4`): bumped whenever the GLBs of an unchanged tileset
 /// change bytes, so caches holding the older `immutable` GLBs and tileset JSON are bypassed.
 /// `.g2` (2026-12-07): one node scale for all axes (drawn normals), Draco's geometric normal
 /// prediction. `.g3` (2026-12-07): terrain meshes' border vertices take one normal with their
-/// neighbours' ([`border`]).
-pub const GLB_REVISION: &str = ".g3";
+/// neighbours' ([`border`]). `.g4` (2026-12-07): Draco meshes' normals rounded from the exact
+/// directions, towards Draco's prediction ([`draco::compress_glb_with`]).
+pub const GLB_REVISION: &str = ".g4";
 
 /// How the 3D Tiles GLBs are compressed: `none` (plain buffers, the default), `meshopt`
 /// (`EXT_meshopt_compression`, which the reader must support: CesiumJS does natively, three.js
@@ -106,9 +107,18 @@ impl GlbCompression {
     /// # Errors
     /// As [`meshopt::compress_glb`] and [`draco::compress_glb`].
     pub fn apply(self, glb: Vec<u8>) -> Result<Vec<u8>, Tiles3dError> {
+        self.apply_with(glb, None)
+    }
+
+    /// [`Self::apply`] to a GLB of [`glb_and_normals`], whose `normals` (its mesh's, when
+    /// given) Draco rounds from ([`draco::compress_glb_with`]).
+    ///
+    /// # Errors
+    /// As [`Self::apply`].
+    pub fn apply_with(self, glb: Vec<u8>, normals: Option<&ExactNormals>) -> Result<Vec<u8>, Tiles3dError> {
         Ok(match self {
             Self::None => glb,
-            Self::Draco if draco::all_triangles(&glb) => draco::compress_glb(&glb)?,
+            Self::Draco if draco::all_triangles(&glb) => draco::compress_glb_with(&glb, normals)?,
             Self::Meshopt | Self::Draco => meshopt::compress_glb(&glb)?,
         })
     }

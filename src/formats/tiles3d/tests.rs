@@ -706,3 +706,100 @@ fn fan_memo_makes_once_and_stays_within_its_budget() {
     tiny.get_or_make(0, || Ok::<_, ()>(None)).unwrap();
     assert_eq!(tiny.held(), (0, 0));
 }
+
+/// Draco GLBs round normals from the exact directions: a tile's own vertex moves at most
+/// [`draco::STEER_DEGREES`] (to Draco's own prediction, which then costs no correction, so the
+/// stream is smaller than the bytes' rounding), a vertex shared with a neighbour takes the
+/// nearest rounding on both sides (one normal on the border, as in plain GLBs), a skirt vertex
+/// exactly its top's.
+#[test]
+fn draco_normals_steer_within_their_bound_and_keep_borders_whole() {
+    use super::glb::{NormalRole, glb_and_normals};
+    let (cell, n) = (10.0, 17usize);
+    let h = |x: f64, y: f64| 60.0 * (x / 47.0).sin() * (y / 31.0).cos() + 0.03 * x * y;
+    let tile = |col0: usize| {
+        let mut m = Mesh::default();
+        for r in 0..n {
+            for c in 0..n {
+                let x = (c + col0) as f64 * cell;
+                m.positions.push([x, r as f64 * cell, h(x, r as f64 * cell)]);
+            }
+        }
+        for r in 0..n as u32 - 1 {
+            for c in 0..n as u32 - 1 {
+                let i = r * n as u32 + c;
+                m.triangles.push([i, i + 1, i + n as u32 + 1]);
+                m.triangles.push([i, i + n as u32 + 1, i + n as u32]);
+            }
+        }
+        m
+    };
+    let q = Quantization { xy_step: 1.0 / 16.0, z_step: 1.0 / 16.0 };
+    let errors = ErrorFigures { max: 1.0, ..ErrorFigures::default() };
+    let blob = |key: TileKey, m: &Mesh| {
+        decode(&encode_mesh(key, 0, &Bounds::of_points(&m.positions), q, m, errors).unwrap()).unwrap()
+    };
+    let (left, right) = (tile(0), tile(n - 1));
+    let (bl, br) = (blob(TileKey::new(1, 0, 0), &left), blob(TileKey::new(1, 1, 0), &right));
+    let all = Bounds::of_points(&[left.positions.clone(), right.positions.clone()].concat());
+    let frame = Georef { dx: cell, dy: cell, ..Georef::default() };
+    let place = Placement::of(&manifest(frame, all), TilesetKind::Terrain, None).unwrap();
+    let (fl, fr) =
+        (BorderFans::of(&bl, &place).unwrap().unwrap(), BorderFans::of(&br, &place).unwrap().unwrap());
+    let skirt = Some((2.0, None));
+    // Per side: (plain positions, exact normals, decoded Draco normals in plain order).
+    let side = |b: &crate::codec::Blob| {
+        let (plain, exact) = glb_and_normals(b, &place, skirt, &[&fl, &fr]).unwrap();
+        let exact = exact.unwrap();
+        let steered = draco::compress_glb_with(&plain, Some(&exact)).unwrap();
+        let unsteered = draco::compress_glb(&plain).unwrap();
+        assert!(
+            steered.len() * 100 < unsteered.len() * 97,
+            "steering saves nothing: {} vs {} bytes",
+            steered.len(),
+            unsteered.len()
+        );
+        let (json, pos) = read_positions(&plain);
+        let [d] = &draco::decompress_glb(&steered).unwrap()[..] else { panic!("one primitive") };
+        let t: Vec<f64> =
+            json["nodes"][0]["translation"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let s = json["nodes"][0]["scale"][0].as_f64().unwrap();
+        let normals: Vec<[f64; 3]> = pos
+            .iter()
+            .map(|p| {
+                let k = d
+                    .positions
+                    .iter()
+                    .position(|q| (0..3).all(|a| (t[a] + s * f64::from(q[a]) - p[a]).abs() < 1e-9));
+                d.normals.as_ref().unwrap()[k.expect("every vertex decoded")].map(f64::from)
+            })
+            .collect();
+        (pos, exact, normals)
+    };
+    let (pl, el, nl) = side(&bl);
+    let (pr, _, nr) = side(&br);
+    let (mut own, mut shared, mut skirts) = (0, 0, 0);
+    for (i, role) in el.roles.iter().enumerate() {
+        let angle = glam::DVec3::from_array(el.directions[i])
+            .angle_between(glam::DVec3::from_array(nl[i]))
+            .to_degrees();
+        match *role {
+            NormalRole::Own => {
+                own += 1;
+                assert!(angle <= draco::STEER_DEGREES + 1e-3, "vertex {i}: {angle:.3}° off");
+            }
+            NormalRole::Shared => {
+                shared += 1;
+                assert!(angle <= 1.0, "shared vertex {i}: {angle:.3}° off");
+                let j = pr.iter().position(|q| [0, 2].iter().all(|&a| (q[a] - pl[i][a]).abs() < 1e-6));
+                assert_eq!(nl[i], nr[j.expect("on the neighbour")], "vertex {i}: two normals on the border");
+            }
+            NormalRole::Below(top) => {
+                skirts += 1;
+                assert_eq!(nl[i], nl[top as usize], "skirt vertex {i}");
+            }
+        }
+    }
+    assert_eq!(shared, n);
+    assert!(own > 200 && skirts > 40, "{own} own, {skirts} skirt vertices");
+}

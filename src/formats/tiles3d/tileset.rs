@@ -6,7 +6,7 @@ use serde::Deserialize;
 use serde_json::{Value, json};
 
 use super::border::BorderFans;
-use super::glb::{GENERATOR, glb, mesh_skirt_depth};
+use super::glb::{GENERATOR, glb_and_normals, mesh_skirt_depth};
 use super::placement::{Anchor, Placement};
 use super::{GlbCompression, Tiles3dError};
 use crate::codec::{Blob, BlobHeader, Kind};
@@ -370,7 +370,8 @@ pub fn tile_glb(
 ) -> Result<Vec<u8>, Tiles3dError> {
     let skirt = takes_neighbours(info, &blob.header)
         .then(|| (mesh_skirt_depth(blob.header.errors.max), Some(&info.manifest.bounds)));
-    info.glb.apply(glb(blob, &info.place, skirt, neighbours)?)
+    let (glb, normals) = glb_and_normals(blob, &info.place, skirt, neighbours)?;
+    info.glb.apply_with(glb, normals.as_ref())
 }
 
 /// Whether the GLB of `header`'s blob takes its neighbours' [`tile_fans`] (and skirts): terrain

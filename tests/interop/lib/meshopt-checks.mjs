@@ -119,8 +119,9 @@ export function primitiveOf(json, viewBytes, prim) {
 // vertices (multiset of keys: positions, exact), the same triangles over them (multiset of
 // triangles as key triples, each rotated to a canonical start: the winding must match), and at
 // each position the same number of normals, each decoded one within MAX_NORMAL_DEG of its own
-// plain one (a perfect matching where a position repeats).
-export function comparePrimitives(a, b, name, label) {
+// plain one (a perfect matching where a position repeats; `maxNormalDeg` where another bound
+// applies).
+export function comparePrimitives(a, b, name, label, maxNormalDeg = MAX_NORMAL_DEG) {
   if (a.names !== b.names || a.mode !== b.mode) throw new Error(`${name}: attributes ${a.names} mode ${a.mode}, ${label} ${b.names} mode ${b.mode}`);
   if (a.count !== b.count) throw new Error(`${name}: ${a.count} vertices, ${label} ${b.count}`);
   const same = (x, y) => x.length === y.length && x.every((v, k) => v === y[k]);
@@ -149,7 +150,7 @@ export function comparePrimitives(a, b, name, label) {
     a.keys.forEach((key, k) => (byKey.get(key) ?? byKey.set(key, { a: [], b: [] }).get(key)).a.push(k));
     b.keys.forEach((key, k) => byKey.get(key).b.push(k));
     for (const [key, g] of byKey) {
-      const fits = (i, j) => angleDeg(a.normals, 3 * i, b.normals, 3 * j) <= MAX_NORMAL_DEG;
+      const fits = (i, j) => angleDeg(a.normals, 3 * i, b.normals, 3 * j) <= maxNormalDeg;
       // Kuhn's matching of the decoded normals at this position to the plain ones (a position
       // holds one vertex, or a few).
       const taken = new Map();
@@ -167,7 +168,7 @@ export function comparePrimitives(a, b, name, label) {
       for (const j of g.b) {
         if (!place(j, new Set())) {
           const near = Math.min(...g.a.map((i) => angleDeg(a.normals, 3 * i, b.normals, 3 * j)));
-          throw new Error(`${name}: the ${label} normal (${Array.from(b.normals.slice(3 * j, 3 * j + 3), (x) => x.toFixed(4))}) at position ${key} is ${near.toFixed(3)}° from the plain one${g.a.length > 1 ? ` nearest it, but ${g.a.length} vertices share the position and no pairing keeps every one within ${MAX_NORMAL_DEG}°` : ` (> ${MAX_NORMAL_DEG}°)`}`);
+          throw new Error(`${name}: the ${label} normal (${Array.from(b.normals.slice(3 * j, 3 * j + 3), (x) => x.toFixed(4))}) at position ${key} is ${near.toFixed(3)}° from the plain one${g.a.length > 1 ? ` nearest it, but ${g.a.length} vertices share the position and no pairing keeps every one within ${maxNormalDeg}°` : ` (> ${maxNormalDeg}°)`}`);
         }
       }
       for (const [i, j] of taken) maxDeg = Math.max(maxDeg, angleDeg(a.normals, 3 * i, b.normals, 3 * j));
