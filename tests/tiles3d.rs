@@ -423,29 +423,7 @@ fn export_places_geographic_and_unreferenced_sources() {
     // neighbours both draw are drawn with one normal (each rounded to bytes in its own frame).
     let out = tmp.path().join("geo3d");
     export::export_3dtiles(&Store::new(&dir), &out, None, &|_, _| {}).unwrap();
-    let ecef = |glb: &Glb| {
-        let node = &glb.json["nodes"][0];
-        let m: Vec<f64> = node["matrix"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
-        let prim = &glb.json["meshes"][0]["primitives"][0];
-        // glTF y-up → 3D Tiles z-up after the node's matrix (column-major).
-        let apply = |v: &[f64], w: f64| {
-            let r: [f64; 3] = std::array::from_fn(|row| {
-                (0..3).map(|c| m[c * 4 + row] * v[c]).sum::<f64>() + w * m[12 + row]
-            });
-            [r[0], -r[2], r[1]]
-        };
-        let pos: Vec<[f64; 3]> = glb
-            .accessor(prim["attributes"]["POSITION"].as_u64().unwrap())
-            .iter()
-            .map(|p| apply(p, 1.0))
-            .collect();
-        let nrm: Vec<[f64; 3]> = glb
-            .accessor(prim["attributes"]["NORMAL"].as_u64().unwrap())
-            .iter()
-            .map(|n| apply(n, 0.0))
-            .collect();
-        (pos, nrm)
-    };
+    let ecef = ecef_mesh;
     let tiles: Vec<_> = (0..2)
         .flat_map(|x| (0..2).map(move |y| (x, y)))
         .map(|(x, y)| ecef(&parse_glb(&std::fs::read(out.join(format!("tiles/1/{x}/{y}/0.glb"))).unwrap())))
@@ -464,6 +442,118 @@ fn export_places_geographic_and_unreferenced_sources() {
     }
     assert!(shared >= 30, "{shared} shared vertices");
     assert!(worst < 2.0, "neighbours draw a shared vertex {worst:.2}° apart");
+}
+
+/// A GLB's mesh on the Earth: positions and normals in ECEF (through its node's `matrix`).
+fn ecef_mesh(glb: &Glb) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+    let node = &glb.json["nodes"][0];
+    let m: Vec<f64> = node["matrix"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let prim = &glb.json["meshes"][0]["primitives"][0];
+    // glTF y-up → 3D Tiles z-up after the node's matrix (column-major).
+    let apply = |v: &[f64], w: f64| {
+        let r: [f64; 3] =
+            std::array::from_fn(|row| (0..3).map(|c| m[c * 4 + row] * v[c]).sum::<f64>() + w * m[12 + row]);
+        [r[0], -r[2], r[1]]
+    };
+    let pos = glb
+        .accessor(prim["attributes"]["POSITION"].as_u64().unwrap())
+        .iter()
+        .map(|p| apply(p, 1.0))
+        .collect();
+    let nrm =
+        glb.accessor(prim["attributes"]["NORMAL"].as_u64().unwrap()).iter().map(|n| apply(n, 0.0)).collect();
+    (pos, nrm)
+}
+
+/// A geographic grid's pole row is one point of the Earth, drawn by a vertex per sample in every
+/// tile along it: all draw the pole's up, so no seam meets there (each triangle fan alone gave
+/// them directions tens of degrees apart).
+#[test]
+fn a_geographic_grids_pole_is_drawn_with_one_normal() {
+    let tmp = tempfile::tempdir().unwrap();
+    let side = 65;
+    let heights = raster::synth::terrain(side, side, 9);
+    let dir = tmp.path().join("cap");
+    for (name, lat0, dy) in [("north.tif", 90.0, -0.5), ("south.tif", -90.0, 0.5)] {
+        let geo = tmp.path().join(name);
+        let mut f = std::fs::File::create(&geo).unwrap();
+        raster::geotiff::write_tiled_f32(
+            &mut f,
+            (side, side),
+            32,
+            raster::geotiff::Model::Geographic,
+            (-20.0, lat0),
+            (0.5, dy),
+            None,
+            false,
+            |c, r| 1000.0 + 30.0 * heights[(r * side + c) as usize],
+        )
+        .unwrap();
+        drop(f);
+        let _ = std::fs::remove_dir_all(&dir);
+        let o = BakeOptions { tile_size: 32, max_error: 1.0, levels: 1, point_levels: PointLevels::All };
+        common::bake_file(&geo, &o, &dir);
+        let out = tmp.path().join(format!("{name}.3d"));
+        export::export_3dtiles(&Store::new(&dir), &out, None, &|_, _| {}).unwrap();
+        let mut at_pole = 0;
+        for (rel, bytes) in common::tree(&out.join("tiles")) {
+            let (pos, nrm) = ecef_mesh(&parse_glb(&bytes));
+            for (p, n) in pos.iter().zip(&nrm) {
+                if p[0].hypot(p[1]) < 1.0 && p[2].signum() == lat0.signum() {
+                    at_pole += 1;
+                    let off = angle_deg(*n, [0.0, 0.0, lat0.signum()]);
+                    assert!(off < 1.5, "{name} {rel}: a pole vertex drawn {off:.2}° off up");
+                }
+            }
+        }
+        assert!(at_pole >= 64, "{name}: {at_pole} pole vertices");
+    }
+}
+
+/// A geographic grid that goes around the Earth (its last column on the meridian of its first)
+/// has the antimeridian as a border like any other: the tiles on both sides of it draw their
+/// shared vertices with one normal.
+#[test]
+fn a_grid_around_the_earth_draws_one_normal_across_the_antimeridian() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (w, h) = (65, 17);
+    let heights = raster::synth::terrain(w, h, 4);
+    let geo = tmp.path().join("globe.tif");
+    let mut f = std::fs::File::create(&geo).unwrap();
+    let step = 360.0 / f64::from(w - 1);
+    raster::geotiff::write_tiled_f32(
+        &mut f,
+        (w, h),
+        32,
+        raster::geotiff::Model::Geographic,
+        (-180.0, 45.0),
+        (step, -step),
+        None,
+        false,
+        // The last column is the first's meridian: the same heights.
+        |c, r| heights[(r * w + c % (w - 1)) as usize],
+    )
+    .unwrap();
+    drop(f);
+    let dir = tmp.path().join("globe");
+    let o = BakeOptions { tile_size: 16, max_error: 1.0, levels: 1, point_levels: PointLevels::All };
+    common::bake_file(&geo, &o, &dir);
+    let out = tmp.path().join("globe3d");
+    export::export_3dtiles(&Store::new(&dir), &out, None, &|_, _| {}).unwrap();
+    // Depth 2: four tiles around the Earth; x = 0 starts at −180°, x = 3 ends at +180°.
+    let tile =
+        |x: u32| ecef_mesh(&parse_glb(&std::fs::read(out.join(format!("tiles/2/{x}/0/0.glb"))).unwrap()));
+    let ((pw, nw), (pe, ne)) = (tile(0), tile(3));
+    let (mut shared, mut worst) = (0, 0.0f64);
+    for (p, n) in pw.iter().zip(&nw) {
+        // One place (cells are 625 km wide; f32 positions of 90°-wide tiles round by centimetres).
+        if let Some(j) = pe.iter().position(|q| (0..3).all(|k| (p[k] - q[k]).abs() < 1.0)) {
+            shared += 1;
+            worst = worst.max(angle_deg(*n, ne[j]));
+        }
+    }
+    assert!(shared >= 10, "{shared} vertices on the antimeridian");
+    assert!(worst < 2.5, "the antimeridian's vertices drawn {worst:.2}° apart");
 }
 
 /// One GET ([`common::get_async`]); these routes never answer chunked.

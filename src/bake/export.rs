@@ -281,7 +281,7 @@ pub fn export_3dtiles_with(
                         .map_err(|source| ExportError::Tiles3d { path: path.clone(), source })
                 })?;
                 let mut all = vec![own];
-                for k in around(key).into_iter().filter(|k| present.contains(&(*k, level))) {
+                for k in around(&info, key).into_iter().filter(|k| present.contains(&(*k, level))) {
                     all.push(fans.get_or_make((k, level), || {
                         let (_, b) = load(k, level)?;
                         tile_fans(&info, &b).map_err(|source| ExportError::Tiles3d {

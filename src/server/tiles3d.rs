@@ -448,7 +448,7 @@ pub(super) async fn glb(
     // not have is no neighbour.
     let mut around_blobs = Vec::new();
     if takes_neighbours(&info, &decoded.header) {
-        let keys = around(key);
+        let keys = around(&info, key);
         let loads =
             futures_util::future::join_all(keys.iter().map(|&k| load_blob(&app, &ts, k, level))).await;
         for (k, got) in keys.into_iter().zip(loads) {

@@ -25,8 +25,8 @@ pub struct BorderFans {
     /// normals of the tile's triangles around it (shared frame, each triangle turned to face up).
     verts: Vec<(u32, DVec3)>,
     /// Index into `verts` by the vertex's sample (column, row) of the dataset's grid
-    /// ([`Placement::samples`]): what two tiles' vertices of one sample share, whatever each
-    /// blob's own rounding of its position.
+    /// ([`Placement::samples`]; the column modulo [`Placement::wrap_cols`]): what two tiles'
+    /// vertices of one sample share, whatever each blob's own rounding of its position.
     by_sample: FxHashMap<(i64, i64), u32>,
 }
 
@@ -51,6 +51,8 @@ impl BorderFans {
             (near && c.abs() < 1e15 && r.abs() < 1e15).then(|| (c.round() as i64, r.round() as i64))
         };
         let samples: Vec<Option<(i64, i64)>> = mesh.positions.iter().map(sample).collect();
+        // Around the Earth, column `n` is column 0.
+        let key = |(c, r): (i64, i64)| (place.wrap_cols.map_or(c, |n| c.rem_euclid(n)), r);
         let (mut lo, mut hi) = ((i64::MAX, i64::MAX), (i64::MIN, i64::MIN));
         for &(c, r) in samples.iter().flatten() {
             (lo, hi) = ((lo.0.min(c), lo.1.min(r)), (hi.0.max(c), hi.1.max(r)));
@@ -62,10 +64,10 @@ impl BorderFans {
         for (i, s) in samples.iter().enumerate() {
             if let &Some((c, r)) = s
                 && (c == lo.0 || c == hi.0 || r == lo.1 || r == hi.1)
-                && !by_sample.contains_key(&(c, r))
+                && !by_sample.contains_key(&key((c, r)))
             {
                 slot[i] = verts.len() as u32;
-                by_sample.insert((c, r), verts.len() as u32);
+                by_sample.insert(key((c, r)), verts.len() as u32);
                 verts.push((i as u32, DVec3::ZERO));
             }
         }

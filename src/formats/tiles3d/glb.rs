@@ -169,6 +169,9 @@ pub fn glb_and_normals(
     }
 }
 
+/// How near a pole (degrees of latitude, 0.1 mm there) a geographic grid's sample is the pole.
+const POLE_DEGREES: f64 = 1e-9;
+
 /// [`glb`] for a tileset on the Earth: every position from its world point through the exact
 /// frame, relative to the east-north-up frame at the node's centre.
 fn glb_on_earth(
@@ -210,7 +213,20 @@ fn glb_on_earth(
                 }
             }
             let dg: Vec<glam::DVec3> = g.iter().map(|p| glam::DVec3::from_array(*p)).collect();
-            let shared: Vec<_> = shared.iter().map(|&(i, n)| (i, border::to_node(&enu, n))).collect();
+            let mut shared: Vec<_> = shared.iter().map(|&(i, n)| (i, border::to_node(&enu, n))).collect();
+            // On a geographic grid every sample of a pole's row is the pole: one point of the
+            // Earth that many vertices draw (of this tile and of every tile along that row), each
+            // with the normal of its own triangles, up to 24° apart on ETOPO1. All draw the
+            // ellipsoid's normal there, as every tile does.
+            if frame.grid.crs.is_geographic() {
+                let first_skirt = all.positions.len() - tops.len();
+                for (i, p) in all.positions.iter().enumerate().take(first_skirt) {
+                    let lat = frame.crs_xy(p[0], p[1]).1;
+                    if lat.abs() >= 90.0 - POLE_DEGREES {
+                        shared.push((i as u32, border::to_node(&enu, glam::DVec3::Z * lat.signum())));
+                    }
+                }
+            }
             let normals = mesh_normals(&dg, &tris[..first_wall], tops, &shared);
             let mut gltf = Gltf::new(h.key, h.level);
             let acc = gltf.float_positions(&g, matrix);

@@ -66,7 +66,9 @@ pub enum Tiles3dError {
 /// `.g2` (2026-12-07): one node scale for all axes (drawn normals), Draco's geometric normal
 /// prediction. `.g3` (2026-12-07): terrain meshes' border vertices take one normal with their
 /// neighbours' ([`border`]). `.g4` (2026-12-07): Draco meshes' normals rounded from the exact
-/// directions, towards Draco's prediction ([`draco::compress_glb_with`]).
+/// directions, towards Draco's prediction ([`draco::compress_glb_with`]); on a geographic grid
+/// the pole's vertices draw the pole's up, and a grid around the Earth shares its antimeridian
+/// vertices' normals.
 pub const GLB_REVISION: &str = ".g4";
 
 /// How the 3D Tiles GLBs are compressed: `none` (plain buffers, the default), `meshopt`

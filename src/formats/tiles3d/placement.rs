@@ -161,6 +161,10 @@ pub struct Placement {
     /// The dataset's sample grid: sample (col, row) lies at world x = `x0 + col·dx`,
     /// y = `y0 + row·dy` (`[x0, y0, dx, dy]`), which names the samples tiles share.
     pub samples: [f64; 4],
+    /// A geographic grid whose columns go once around the Earth, its last column on the
+    /// meridian of its first (ETOPO, GEBCO): that column count, by which column `n` is column 0
+    /// (the antimeridian is a border like any other).
+    pub wrap_cols: Option<i64>,
 }
 
 impl Placement {
@@ -195,8 +199,14 @@ impl Placement {
             (None, Some(a)) => (a, AnchorFrom::Option),
             (None, None) => (DEFAULT_ANCHOR, AnchorFrom::Default),
         };
+        let cols = i64::from(m.source.width) - 1;
+        let wrap_cols = earth
+            .as_ref()
+            .filter(|f| f.grid.crs.is_geographic() && cols >= 2)
+            .filter(|f| (cols as f64 * f.grid.de.abs() - 360.0).abs() <= 1e-6)
+            .map(|_| cols);
         let f = &m.frame;
-        Ok(Self { anchor, from, origin, axes, earth, samples: [f.x0, f.y0, f.dx, f.dy] })
+        Ok(Self { anchor, from, origin, axes, earth, samples: [f.x0, f.y0, f.dx, f.dy], wrap_cols })
     }
 
     /// How far a GLB's positions may lie from where they belong, metres: on the Earth, the f32

@@ -390,14 +390,23 @@ pub fn tile_fans(info: &TilesetInfo, blob: &Blob) -> Result<Option<BorderFans>, 
     Ok(BorderFans::of(blob, &info.place)?)
 }
 
-/// The up to eight tiles of `key`'s depth around it (edges and corners) that the quadtree has.
+/// The up to eight tiles of `key`'s depth around it (edges and corners) that the quadtree has;
+/// across the antimeridian too when the grid goes around the Earth.
 #[must_use]
-pub fn around(key: TileKey) -> Vec<TileKey> {
+pub fn around(info: &TilesetInfo, key: TileKey) -> Vec<TileKey> {
     let side = 1i64.checked_shl(u32::from(key.z)).unwrap_or(i64::MAX);
+    // Around the Earth ([`Placement::wrap_cols`]) the first column of tiles neighbours the last.
+    let wrap =
+        info.place.wrap_cols.and(info.pyramid).map(|p| i64::from(p.nodes_at(key.z).0)).filter(|&n| n >= 3);
     let mut out = Vec::with_capacity(8);
     for dy in -1i64..=1 {
         for dx in -1i64..=1 {
-            let (x, y) = (i64::from(key.x) + dx, i64::from(key.y) + dy);
+            let (mut x, y) = (i64::from(key.x) + dx, i64::from(key.y) + dy);
+            if let Some(n) = wrap
+                && i64::from(key.x) < n
+            {
+                x = x.rem_euclid(n);
+            }
             if (dx, dy) != (0, 0) && (0..side).contains(&x) && (0..side).contains(&y) {
                 out.push(TileKey::new(key.z, x as u32, y as u32));
             }
