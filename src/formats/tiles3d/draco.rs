@@ -165,7 +165,7 @@ fn steered_normals(pos: &[f64], idx: &[f64], exact: &ExactNormals) -> Vec<[f64; 
     for (i, role) in exact.roles.iter().enumerate().take(n) {
         if let NormalRole::Below(top) = *role {
             let top = top as usize;
-            if top < n && !matches!(exact.roles[top], NormalRole::Below(_)) {
+            if top < n && matches!(exact.roles.get(top), Some(NormalRole::Own | NormalRole::Shared)) {
                 coords[i] = coords[top];
             }
         }
@@ -658,6 +658,62 @@ mod tests {
             let g = normals[k].map(f64::from);
             let dot = (g[0] * w[0] + g[1] * w[1] + g[2] * w[2]) / l;
             assert!(dot > 1.5f64.to_radians().cos(), "normal {k}: {g:?} vs {w:?}");
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(48))]
+        /// Whatever exact normals come with a GLB (zero, huge or non-finite directions, roles
+        /// naming vertices that are not there or other skirts, fewer roles than vertices), the
+        /// steered compression neither panics nor fails, and every finite own normal decodes
+        /// within the bound of its direction.
+        #[test]
+        fn any_exact_normals_steer_within_the_bound(
+            float in proptest::bool::ANY,
+            dirs in proptest::collection::vec(
+                (-2.0f64..2.0, -2.0f64..2.0, -2.0f64..2.0, 0u8..12),
+                169,
+            ),
+            roles in proptest::collection::vec((0u8..4, 0u32..200), 150..=169),
+        ) {
+            let glb = plain(12, float, 4);
+            let directions: Vec<[f64; 3]> = dirs
+                .iter()
+                .map(|&(x, y, z, k)| match k {
+                    0 => [0.0; 3],
+                    1 => [f64::NAN, y, z],
+                    2 => [x * 1e300, y * 1e300, z],
+                    _ => [x, y, z],
+                })
+                .collect();
+            let roles: Vec<NormalRole> = roles
+                .iter()
+                .map(|&(k, t)| match k {
+                    0 | 1 => NormalRole::Own,
+                    2 => NormalRole::Shared,
+                    _ => NormalRole::Below(t),
+                })
+                .collect();
+            let exact = ExactNormals { directions: directions.clone(), roles: roles.clone() };
+            let out = compress_glb_with(&glb, Some(&exact)).unwrap();
+            let [d] = &decompress_glb(&out).unwrap()[..] else { panic!("one primitive") };
+            if !float {
+                let (pj, pb) = read_glb(&glb).unwrap();
+                let (_, _, _, p) = read_accessor(&pj, &pb, 0).unwrap();
+                let cos = (STEER_DEGREES + 1e-3).to_radians().cos();
+                for (k, q) in d.positions.iter().enumerate() {
+                    let src = (0..169)
+                        .find(|&v| (0..3).all(|a| p[3 * v + a] as f32 == q[a]))
+                        .unwrap();
+                    let w = directions[src];
+                    let l = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+                    if roles.get(src) == Some(&NormalRole::Own) && l > 1e-9 && l.is_finite() {
+                        let g = d.normals.as_ref().unwrap()[k].map(f64::from);
+                        let dot = (g[0] * w[0] + g[1] * w[1] + g[2] * w[2]) / l;
+                        proptest::prop_assert!(dot >= cos, "vertex {src}: {g:?} vs {w:?}");
+                    }
+                }
+            }
         }
     }
 
