@@ -703,7 +703,7 @@ mod tests {
                 let cos = (STEER_DEGREES + 1e-3).to_radians().cos();
                 for (k, q) in d.positions.iter().enumerate() {
                     let src = (0..169)
-                        .find(|&v| (0..3).all(|a| p[3 * v + a] as f32 == q[a]))
+                        .find(|&v| (0..3).all(|a| (p[3 * v + a] as f32).to_bits() == q[a].to_bits()))
                         .unwrap();
                     let w = directions[src];
                     let l = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
