@@ -121,7 +121,12 @@ fn steered_normals(pos: &[f64], idx: &[f64], exact: &ExactNormals) -> Vec<[f64; 
         let b = unit(tb.quantized_octahedral_coords_to_unit_vector(s, t).map(f64::from));
         a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
     };
-    let nearest = |d: [f64; 3]| tb.float_vector_to_quantized_octahedral_coords(&d.map(|c| c as f32));
+    // What Draco stores for the unit vector we give it for grid point `c`: `c` itself, except
+    // at some points of the octahedron's folded edges, which come back as a neighbour.
+    let stored = |(s, t): (i32, i32)| {
+        tb.float_vector_to_quantized_octahedral_coords(&tb.quantized_octahedral_coords_to_unit_vector(s, t))
+    };
+    let nearest = |d: [f64; 3]| stored(tb.float_vector_to_quantized_octahedral_coords(&d.map(|c| c as f32)));
     let max = tb.max_quantized_value();
     let mut coords = vec![(0, 0); n];
     for i in 0..n {
@@ -146,6 +151,7 @@ fn steered_normals(pos: &[f64], idx: &[f64], exact: &ExactNormals) -> Vec<[f64; 
                             {
                                 continue;
                             }
+                            let c = stored(c);
                             let v = cos(d, c);
                             if v >= cos_bound && v > best.0 {
                                 best = (v, c);
