@@ -38,6 +38,12 @@ pub enum TerrainError {
     Codec(#[from] crate::formats::qmesh::QmError),
     #[error("--terrain-error-scale must be finite and > 0, got {0}")]
     Scale(f64),
+    #[error(
+        "globe terrain holds ellipsoidal heights within ±32,000 m; the dataset's heights reach {lo:.1} … {hi:.1} m: \
+         are they in decimetres or centimetres (--z-scale 0.1 or 0.01), or is an undeclared no-data \
+         value among them?"
+    )]
+    Heights { lo: f32, hi: f32 },
 }
 
 /// The terrain options a user sets.
@@ -63,6 +69,8 @@ pub struct TerrainSource<'a> {
     height: u32,
     sea: Arc<Geoid>,
     pub coverage: Coverage,
+    /// The most relief a tile can have ([`TileSamples::relief`]), from the dataset's heights.
+    relief: Option<f64>,
     /// Where a WGS 84 point can fall on the source at all (the coverage, widened by a margin),
     /// for a projected source: outside it a sample is no data without being transformed.
     /// `None` where the test would not be safe (a geographic source, the antimeridian, a pole).
@@ -111,9 +119,32 @@ impl<'a> TerrainSource<'a> {
         georef: &Georef,
         options: TerrainOptions,
     ) -> Result<Self, TerrainError> {
+        Self::with_heights(reader, georef, options, reader.height_range())
+    }
+
+    /// [`Self::new`] with the reader's height range given (`None`: not known), for a caller
+    /// that keeps it rather than have the reader find it again.
+    pub fn with_heights(
+        reader: &'a dyn WindowReader,
+        georef: &Georef,
+        options: TerrainOptions,
+        heights: Option<(f32, f32)>,
+    ) -> Result<Self, TerrainError> {
         if !(options.error_scale.is_finite() && options.error_scale > 0.0) {
             return Err(TerrainError::Scale(options.error_scale));
         }
+        // Ellipsoidal heights: the geoid's undulation (within −107…+86 m everywhere, EGM96 and
+        // EGM2008 alike) added to orthometric ones, and the sea-level fill outside the data.
+        let relief = match heights {
+            Some((lo, hi)) => {
+                let (low, high) = (f64::from(lo).min(0.0) - 110.0, f64::from(hi).max(0.0) + 90.0);
+                if low < -32_000.0 || high > 32_000.0 {
+                    return Err(TerrainError::Heights { lo, hi });
+                }
+                Some(high - low)
+            }
+            None => None,
+        };
         let frame =
             georef.frame().map_err(|e| TerrainError::Frame(e.to_string()))?.ok_or(TerrainError::NotPlaced)?;
         let sea = Geoid::egm96().map_err(|e| TerrainError::Frame(e.to_string()))?;
@@ -125,6 +156,7 @@ impl<'a> TerrainSource<'a> {
             height,
             sea,
             coverage: Coverage { rects: Vec::new(), max_zoom: 0 },
+            relief,
             near: None,
             options,
         };
@@ -428,7 +460,7 @@ impl<'a> TerrainSource<'a> {
                 heights.push(hgt.unwrap_or_else(|| self.sea.undulation(lon, lat).unwrap_or(0.0)));
             }
         }
-        Ok(TileSamples { id, heights, nodata })
+        Ok(TileSamples { id, heights, nodata, relief: self.relief })
     }
 
     /// Tile `id`, built (every extension; the metadata one at its zooms).

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use terrastream::bake::shard::InputOptions;
 use terrastream::bake::{self, BakeOptions, BakeSummary};
 use terrastream::crs::{Crs, VerticalDatum};
@@ -312,6 +312,15 @@ pub fn run(a: &BakeArgs, quiet: bool) -> Result<()> {
             opened.name
         );
     }
+    // The globe terrain's source is made before the bake (its frame, geoid grid and heights
+    // checked), so a bake that cannot make its terrain stops before writing anything.
+    let terrain = if a.terrain.terrain {
+        let src =
+            bake::qmesh::TerrainSource::new(&opened.dataset, opened.dataset.georef(), a.terrain.options());
+        Some(src.with_context(|| format!("--terrain: {}", opened.name))?)
+    } else {
+        None
+    };
     let baker = a.baker.open()?;
     let progress = tiles_bar(quiet, a.time_limit);
     let input = bake::TerrainInput::of_dataset(&opened.dataset);
@@ -323,15 +332,19 @@ pub fn run(a: &BakeArgs, quiet: bool) -> Result<()> {
         terrastream::bake::export::write_anchor(&store, anchor)?;
     }
     print_summary(&summary, out);
-    if a.terrain.terrain {
-        bake_globe_terrain(&opened, &a.terrain, &store, quiet)?;
+    if let Some(src) = &terrain {
+        bake_globe_terrain(&opened, src, &store, quiet)?;
     }
     Ok(())
 }
 
 /// The `--terrain` stage: every quantized-mesh tile of the dataset into `store`'s `terrain/`.
-fn bake_globe_terrain(opened: &Opened, t: &TerrainArgs, store: &Store, quiet: bool) -> Result<()> {
-    let src = bake::qmesh::TerrainSource::new(&opened.dataset, opened.dataset.georef(), t.options())?;
+fn bake_globe_terrain(
+    opened: &Opened,
+    src: &bake::qmesh::TerrainSource<'_>,
+    store: &Store,
+    quiet: bool,
+) -> Result<()> {
     let version = store
         .read_file(terrastream::store::MANIFEST_FILE)?
         .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
@@ -340,7 +353,7 @@ fn bake_globe_terrain(opened: &Opened, t: &TerrainArgs, store: &Store, quiet: bo
     let bar = Bar::stderr("terrain {bar:40} {pos}/{len} tiles  {per_sec}  ETA {eta}  {elapsed}", quiet, None);
     bar.bar().set_length(src.coverage.tile_count());
     bar.show();
-    let stats = bake::qmesh::bake_terrain_tiles(&src, store, &opened.name, &version, &|done, _| {
+    let stats = bake::qmesh::bake_terrain_tiles(src, store, &opened.name, &version, &|done, _| {
         bar.bar().set_position(done);
     });
     bar.finish();

@@ -106,7 +106,7 @@ pub struct DatasetSummary {
 
 /// What the opening scan of a dataset found ([`Dataset::scan_record`]), so that the same files
 /// can be opened again without reading every sample ([`Dataset::open_scanned`]).
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ScanRecord {
     /// The files as scanned: a file whose length or modification time differs is scanned again.
     pub files: Vec<FileStamp>,
@@ -117,7 +117,14 @@ pub struct ScanRecord {
     pub crc32: String,
     /// The fallback grid's shape and the CRC-32 of its bytes, when the dataset has no-data.
     pub fallback: Option<FallbackRecord>,
+    /// The lowest and highest height ([`Dataset::height_range`]); absent from the records of
+    /// older builds, which are then scanned again.
+    #[serde(default)]
+    pub heights: Option<[f32; 2]>,
 }
+
+// The recorded heights are finite (the scan refuses others), so equality is an equivalence.
+impl Eq for ScanRecord {}
 
 impl ScanRecord {
     /// The length in bytes of the recorded fallback grid, when there is one and its shape is
@@ -159,6 +166,8 @@ pub enum ScanMismatch {
     Size { width: u32, height: u32, recorded_width: u32, recorded_height: u32 },
     #[error("the recorded fallback grid is missing or does not match the dataset")]
     Fallback,
+    #[error("the scan record has no height range (made by an older build)")]
+    NoHeights,
 }
 
 /// The shape of a recorded fallback grid (block columns and rows) and its bytes' CRC-32.
@@ -192,6 +201,8 @@ struct TiffSource {
     chunk: (u32, u32),
     tiles_across: u32,
     nodata: Option<f64>,
+    /// The chunks the file leaves out ([`geotiff::Header::sparse`]).
+    sparse: Vec<u32>,
     buffer_bytes: u64,
 }
 
@@ -214,6 +225,7 @@ impl BlockSource for TiffSource {
             // Reopened: the file must still be the one opened first.
             if dec.chunk_dimensions() != self.chunk
                 || h.nodata.map(f64::to_bits) != self.nodata.map(f64::to_bits)
+                || h.sparse != self.sparse
             {
                 return Err(RasterError::corrupt(path, "TIFF", "the file changed while being read"));
             }
@@ -221,9 +233,7 @@ impl BlockSource for TiffSource {
         };
         let index = by * self.tiles_across + bx;
         super::guard_decoder(path, "TIFF", || {
-            dec.read_chunk(index)
-                .map(|r| geotiff::extend_values_of(&r, self.nodata, out))
-                .map_err(|e| geotiff::map_err(path, e))
+            geotiff::extend_chunk_values(path, &mut dec, index, self.nodata, &self.sparse, out)
         })?;
         open_files::POOL.give(self.owner, Handle::Tiff(dec));
         Ok(())
@@ -430,6 +440,8 @@ pub struct Dataset {
     summary: DatasetSummary,
     /// A warped dataset: what warping measures as its blocks are read (complete after the scan).
     warp: Option<Arc<Mutex<super::warp::WarpStats>>>,
+    /// The lowest and highest height of the dataset (found by the scan).
+    heights: Option<(f32, f32)>,
 }
 
 /// An input that names no file of a supported kind, or a dataset that cannot be assembled.
@@ -609,7 +621,8 @@ fn open_part(
             }
             let owner = open_files::new_owner();
             open_files::POOL.give(owner, Handle::Tiff(Box::new(dec)));
-            let source = TiffSource { owner, chunk, tiles_across, nodata: h.nodata, buffer_bytes };
+            let source =
+                TiffSource { owner, chunk, tiles_across, nodata: h.nodata, sparse: h.sparse, buffer_bytes };
             Ok((part(Box::new(source), "geotiff", h.width, h.height), h.georef, h.crs))
         }
         Format::Hgt => {
@@ -730,9 +743,13 @@ impl Dataset {
                 return Ok(Err(ScanMismatch::Fallback));
             }
         }
+        let Some([lo, hi]) = record.heights.filter(|[lo, hi]| lo <= hi) else {
+            return Ok(Err(ScanMismatch::NoHeights));
+        };
         ds.summary.nodata_filled = record.nodata_filled;
         ds.summary.nodata_fallback = record.nodata_fallback;
         ds.summary.crc32.clone_from(&record.crc32);
+        ds.heights = Some((lo, hi));
         Ok(Ok(ds))
     }
 
@@ -753,6 +770,7 @@ impl Dataset {
                 rows: f.rows as u32,
                 crc32: format!("{:08x}", crc32fast::hash(b)),
             }),
+            heights: self.heights.map(|(lo, hi)| [lo, hi]),
         };
         Ok((record, bytes))
     }
@@ -939,6 +957,7 @@ impl Dataset {
                 warp: None,
             },
             warp: warp_stats,
+            heights: None,
         };
         Ok(ds)
     }
@@ -1145,6 +1164,8 @@ impl Dataset {
                 ),
             });
         }
+        // No-data is filled from its neighbours' values (weighted means), so within these too.
+        self.heights = Some((min, max));
         self.summary.nodata_filled = nodata;
         if nodata > 0 {
             let grid = nodata::fallback_grid(bc as usize, br as usize, means).ok_or_else(|| {
@@ -1357,6 +1378,10 @@ impl WindowReader for Dataset {
         (self.width, self.height)
     }
 
+    fn height_range(&self) -> Option<(f32, f32)> {
+        self.heights
+    }
+
     fn read_window(&self, cols: &[u32], rows: &[u32], out: &mut Vec<f32>) -> Result<(), RasterError> {
         out.clear();
         out.reserve(cols.len() * rows.len());
@@ -1519,6 +1544,7 @@ mod tests {
             nodata_fallback: 1,
             crc32: String::new(),
             fallback: Some(FallbackRecord { cols, rows, crc32: String::new() }),
+            heights: Some([0.0, 1.0]),
         };
         assert_eq!(record(600, 400, 3, 2).fallback_len(), Some(24));
         assert_eq!(record(600, 400, 3, 3).fallback_len(), None);

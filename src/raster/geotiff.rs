@@ -13,7 +13,7 @@
 use std::io::{Read, Seek};
 use std::path::Path;
 
-use tiff::decoder::{Decoder, DecodingResult};
+use tiff::decoder::{ChunkType, Decoder, DecodingResult};
 use tiff::tags::Tag;
 use tiff::{ColorType, TiffError, TiffFormatError};
 
@@ -150,6 +150,9 @@ pub(super) struct Header {
     pub nodata: Option<f64>,
     pub georef: FileGeoref,
     pub crs: FileCrs,
+    /// Chunks (tiles or strips) the file does not store, sorted: offset or byte count 0, as GDAL
+    /// writes with `SPARSE_OK=TRUE`. GDAL reads them as the no-data value, or 0 without one.
+    pub sparse: Vec<u32>,
 }
 
 /// Opens a TIFF whose signature was already checked and reads its header: one band of a
@@ -227,7 +230,45 @@ pub(super) fn open<R: Read + Seek>(
     };
 
     check_extent(path, georef, width, height)?;
-    Ok((dec, Header { width, height, nodata, georef, crs }))
+    let sparse = sparse_chunks(path, &mut dec)?;
+    Ok((dec, Header { width, height, nodata, georef, crs, sparse }))
+}
+
+/// The chunks a file leaves out (see [`Header::sparse`]): read from the offset and byte count
+/// tags, whose lengths the decoder has already checked against the chunk count.
+fn sparse_chunks<R: Read + Seek>(path: &Path, dec: &mut Decoder<R>) -> Result<Vec<u32>, RasterError> {
+    let (offsets, counts) = match dec.get_chunk_type() {
+        ChunkType::Tile => (Tag::TileOffsets, Tag::TileByteCounts),
+        ChunkType::Strip => (Tag::StripOffsets, Tag::StripByteCounts),
+    };
+    let offsets = dec.get_tag_u64_vec(offsets).map_err(|e| map_err(path, e))?;
+    let counts = dec.get_tag_u64_vec(counts).map_err(|e| map_err(path, e))?;
+    Ok((0u32..)
+        .zip(offsets.iter().zip(&counts))
+        .filter(|&(_, (&o, &c))| o == 0 || c == 0)
+        .map(|(k, _)| k)
+        .collect())
+}
+
+/// Chunk `index`'s samples as f32 (no-data as NaN), appended to `out`; a chunk the file leaves
+/// out reads as GDAL reads it: no-data where the file declares a no-data value, else 0.
+pub(super) fn extend_chunk_values<R: Read + Seek>(
+    path: &Path,
+    dec: &mut Decoder<R>,
+    index: u32,
+    nodata: Option<f64>,
+    sparse: &[u32],
+    out: &mut Vec<f32>,
+) -> Result<(), RasterError> {
+    if sparse.binary_search(&index).is_ok() {
+        let (w, h) = dec.chunk_data_dimensions(index);
+        let fill = if nodata.is_some() { f32::NAN } else { 0.0 };
+        out.extend(std::iter::repeat_n(fill, w as usize * h as usize));
+        return Ok(());
+    }
+    let chunk = dec.read_chunk(index).map_err(|e| map_err(path, e))?;
+    extend_values_of(&chunk, nodata, out);
+    Ok(())
 }
 
 /// Converts one decoded image or chunk to f32 values, no-data as NaN.
@@ -258,8 +299,44 @@ pub(super) fn extend_values_of(result: &DecodingResult, nodata: Option<f64>, out
 pub(super) fn decode(path: &Path, reader: impl Read + Seek, limits: Limits) -> Result<Decoded, RasterError> {
     let (mut dec, h) = open(path, reader, limits.decoder_bytes())?;
     check_size(path, h.width.into(), h.height.into(), limits)?;
-    let values = values_of(&dec.read_image().map_err(|e| map_err(path, e))?, h.nodata);
+    let values = if h.sparse.is_empty() {
+        values_of(&dec.read_image().map_err(|e| map_err(path, e))?, h.nodata)
+    } else {
+        sparse_image(path, &mut dec, &h)?
+    };
     Ok(Decoded { width: h.width, height: h.height, values, georef: h.georef, crs: h.crs, format: "geotiff" })
+}
+
+/// The whole image of a file that leaves chunks out, put together chunk by chunk.
+fn sparse_image<R: Read + Seek>(
+    path: &Path,
+    dec: &mut Decoder<R>,
+    h: &Header,
+) -> Result<Vec<f32>, RasterError> {
+    let (tw, th) = dec.chunk_dimensions();
+    let (w, hh) = (h.width as usize, h.height as usize);
+    let across = match dec.get_chunk_type() {
+        ChunkType::Tile => h.width.div_ceil(tw.max(1)),
+        ChunkType::Strip => 1,
+    };
+    let chunks = across as usize * hh.div_ceil(th.max(1) as usize);
+    let mut image = vec![f32::NAN; w * hh];
+    let mut chunk = Vec::new();
+    for k in 0..chunks {
+        let index = k as u32;
+        chunk.clear();
+        extend_chunk_values(path, dec, index, h.nodata, &h.sparse, &mut chunk)?;
+        let (cw, ch) = dec.chunk_data_dimensions(index);
+        let (c0, r0) = ((index % across) as usize * tw as usize, (index / across) as usize * th as usize);
+        let (cw, ch) = (cw as usize, ch as usize);
+        if chunk.len() != cw * ch || c0 + cw > w || r0 + ch > hh {
+            return Err(RasterError::corrupt(path, FORMAT, format!("chunk {index} does not fit the image")));
+        }
+        for (r, row) in chunk.chunks_exact(cw).enumerate() {
+            image[(r0 + r) * w + c0..][..cw].copy_from_slice(row);
+        }
+    }
+    Ok(image)
 }
 
 /// Rejects a georeference whose far corner cannot be represented: finite origin and steps can
@@ -554,12 +631,31 @@ mod tests {
     /// Writes a tiled u16 TIFF by hand (the encoder only writes strips): `tile`² tiles, edge
     /// tiles padded as the format requires.
     fn tiled_tiff(dir: &Path, w: u32, h: u32, tile: u32, data: &[u16]) -> PathBuf {
+        sparse_tiff(dir, w, h, tile, data, &[], None)
+    }
+
+    /// [`tiled_tiff`] leaving the tiles `skip` out (offset and byte count 0, as GDAL's
+    /// `SPARSE_OK=TRUE` writes them), with an optional GDAL_NODATA.
+    fn sparse_tiff(
+        dir: &Path,
+        w: u32,
+        h: u32,
+        tile: u32,
+        data: &[u16],
+        skip: &[usize],
+        nodata: Option<&str>,
+    ) -> PathBuf {
         let mut buf = Cursor::new(Vec::new());
         let mut enc = TiffEncoder::new(&mut buf).unwrap();
         let mut d = enc.image_directory().unwrap();
         let (mut offsets, mut counts) = (Vec::new(), Vec::new());
         for ty in 0..h.div_ceil(tile) {
             for tx in 0..w.div_ceil(tile) {
+                if skip.contains(&offsets.len()) {
+                    offsets.push(0);
+                    counts.push(0);
+                    continue;
+                }
                 let mut t = vec![0_u16; (tile * tile) as usize];
                 for r in 0..tile {
                     for c in 0..tile {
@@ -583,6 +679,9 @@ mod tests {
         d.write_tag(Tag::TileLength, tile).unwrap();
         d.write_tag(Tag::TileOffsets, &offsets[..]).unwrap();
         d.write_tag(Tag::TileByteCounts, &counts[..]).unwrap();
+        if let Some(n) = nodata {
+            d.write_tag(Tag::GdalNodata, n).unwrap();
+        }
         d.finish().unwrap();
         write(dir, "tiled.tif", &buf.into_inner())
     }
@@ -783,6 +882,44 @@ mod tests {
         let r = load(&p).unwrap();
         assert_eq!((r.heights.width, r.heights.height), (w, h));
         assert_eq!(r.heights.data, data.iter().map(|&v| f32::from(v)).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn sparse_tiles_read_as_gdal_reads_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (40, 36);
+        let data: Vec<u16> = (0..w * h).map(|i| (i % 977) as u16 + 100).collect();
+        // 3 × 3 tiles of 16: leave out the first, the centre and the last (a padded edge tile).
+        let skip = [0, 4, 8];
+        let skipped = |k: u32| {
+            let (c, r) = (k % w, k / w);
+            skip.contains(&((r / 16 * 3 + c / 16) as usize))
+        };
+        // Without a no-data value the missing tiles are 0, as GDAL reads them.
+        let p = sparse_tiff(dir.path(), w, h, 16, &data, &skip, None);
+        let r = load(&p).unwrap();
+        assert_eq!(r.nodata_filled, 0);
+        for (k, (&got, &v)) in (0u32..).zip(r.heights.data.iter().zip(&data)) {
+            assert_eq!(got, if skipped(k) { 0.0 } else { f32::from(v) }, "sample {k}");
+        }
+        // With one they are no-data, filled like any other; every stored sample is kept.
+        let p = sparse_tiff(dir.path(), w, h, 16, &data, &skip, Some("-9999"));
+        let r = load(&p).unwrap();
+        let missing = (0..w * h).filter(|&k| skipped(k)).count() as u64;
+        assert_eq!(r.nodata_filled, missing);
+        for (k, (&got, &v)) in (0u32..).zip(r.heights.data.iter().zip(&data)) {
+            if !skipped(k) {
+                assert_eq!(got, f32::from(v), "sample {k}");
+            }
+            assert!((100.0..=1076.0).contains(&got), "sample {k}: {got}");
+        }
+        // The out-of-core reader (block by block) reads the same.
+        let opts = crate::raster::dataset::DatasetOptions::default();
+        let ds = crate::raster::dataset::Dataset::open(&[p], &opts, &|_, _, _| {}).unwrap();
+        let (cols, rows): (Vec<u32>, Vec<u32>) = ((0..w).collect(), (0..h).collect());
+        let mut got = Vec::new();
+        crate::raster::WindowReader::read_window(&ds, &cols, &rows, &mut got).unwrap();
+        assert_eq!(got, r.heights.data);
     }
 
     #[test]

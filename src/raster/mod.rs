@@ -62,11 +62,21 @@ pub trait WindowReader: Sync {
     /// row-major over `rows`.
     /// Errors: a reader backed by files reports what it could not read.
     fn read_window(&self, cols: &[u32], rows: &[u32], out: &mut Vec<f32>) -> Result<(), RasterError>;
+    /// The lowest and highest height any window holds (no-data filled within them), where the
+    /// reader knows them; `None` where it does not.
+    fn height_range(&self) -> Option<(f32, f32)> {
+        None
+    }
 }
 
 impl WindowReader for Heightfield {
     fn size(&self) -> (u32, u32) {
         (self.width, self.height)
+    }
+    fn height_range(&self) -> Option<(f32, f32)> {
+        let finite = self.data.iter().copied().filter(|v| v.is_finite());
+        let (lo, hi) = finite.fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+        (lo <= hi).then_some((lo, hi))
     }
     fn read_window(&self, cols: &[u32], rows: &[u32], out: &mut Vec<f32>) -> Result<(), RasterError> {
         out.clear();

@@ -246,7 +246,11 @@ fn open_source(root: &std::path::Path, spec: &SourceSpec) -> Result<registry::On
         error_scale: spec.terrain_error_scale.unwrap_or(1.0),
         max_zoom: spec.terrain_max_zoom,
     };
-    Ok(registry::OnDemand { source: Arc::new(registry::Source { raster, opts, pyramid, terrain }), options })
+    let heights = crate::raster::WindowReader::height_range(&raster.heights);
+    Ok(registry::OnDemand {
+        source: Arc::new(registry::Source { raster, opts, pyramid, terrain, heights }),
+        options,
+    })
 }
 
 /// Is `name` a staging entry the admin API creates in the store (`.upload-jN`, `.job-jN`) or a

@@ -28,6 +28,8 @@ pub struct Source {
     pub pyramid: Pyramid,
     /// Its globe terrain's options (`/terrain/…`).
     pub terrain: crate::bake::qmesh::TerrainOptions,
+    /// The raster's lowest and highest height, found once (its terrain's edge lattice).
+    pub heights: Option<(f32, f32)>,
 }
 
 /// One tileset as served. Immutable: a change on disk replaces the whole value (and so starts a

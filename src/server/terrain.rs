@@ -134,7 +134,7 @@ async fn layer_entry(app: &Arc<App>, ts: &Arc<Tileset>) -> Result<Entry, Problem
     } else if let Some(src) = ts.source.clone() {
         let (name2, version) = (ts.name.clone(), ts.content_version.clone());
         tokio::task::spawn_blocking(move || {
-            TerrainSource::new(&src.raster.heights, &src.raster.georef, src.terrain)
+            TerrainSource::with_heights(&src.raster.heights, &src.raster.georef, src.terrain, src.heights)
                 .map(|t| serde_json::to_vec_pretty(&t.layer(&name2, "", &version)).unwrap_or_default())
         })
         .await
@@ -317,7 +317,12 @@ async fn build_once(app: &Arc<App>, ts: &Arc<Tileset>, id: TileId) -> Result<Byt
             let Some(src) = ts.source.clone() else { return Err(no_terrain(&ts.name)) };
             let name = ts.name.clone();
             let built = tokio::task::spawn_blocking(move || {
-                let t = TerrainSource::new(&src.raster.heights, &src.raster.georef, src.terrain)?;
+                let t = TerrainSource::with_heights(
+                    &src.raster.heights,
+                    &src.raster.georef,
+                    src.terrain,
+                    src.heights,
+                )?;
                 if !t.coverage.has(id) {
                     return Ok(None);
                 }

@@ -3,7 +3,7 @@
 //! from the height field (so they agree across edges too), the header, the water mask. Pure.
 
 use super::codec::{self, Header, QMAX, QmError, QmTile, WATERMASK_SIDE, WaterMask};
-use super::grid::{CELLS, MIN_STEP, SAMPLES, TileId, cell_degrees, edge_lattice, zoom_error};
+use super::grid::{CELLS, MIN_STEP, SAMPLES, TileId, cell_degrees, edge_lattice_for, zoom_error};
 use crate::crs::ecef;
 use crate::tiling::NodeGrid;
 
@@ -19,6 +19,10 @@ pub struct TileSamples {
     /// Per inner sample (`SAMPLES²`, row-major from the south-west): true where the source has
     /// no data and the height is the sea-level fill.
     pub nodata: Vec<bool>,
+    /// The most relief any tile of the dataset can have (metres, ellipsoidal, the sea-level
+    /// fill included), where known: the zoom's edge lattice is made coarse enough to hold it
+    /// ([`edge_lattice_for`]), so no tile's height step outgrows its edges' lattice.
+    pub relief: Option<f64>,
 }
 
 impl TileSamples {
@@ -52,8 +56,8 @@ pub enum BuildError {
     Size { tile: TileId, heights: usize },
     #[error("tile {tile}: non-finite height at sample ({i}, {j})")]
     NonFinite { tile: TileId, i: i64, j: i64 },
-    #[error("tile {tile}: heights span {range:.0} m, more than a tile can quantize")]
-    Range { tile: TileId, range: f64 },
+    #[error("tile {tile}: heights reach {lo:.0} … {hi:.0} m, beyond the ±32,000 m a tile can hold")]
+    Range { tile: TileId, lo: f64, hi: f64 },
     #[error("tile {tile}: {0}", tile = .1)]
     Tin(crate::tin::TinError, TileId),
     #[error(transparent)]
@@ -91,7 +95,7 @@ pub fn build_tile(
     let n = SAMPLES as usize;
     let last = n - 1;
     let bound = zoom_error(id.z, error_scale);
-    let lattice = edge_lattice(id.z);
+    let lattice = edge_lattice_for(id.z, s.relief);
     let chord = chord_coefficient(id.z);
     // Edge samples on the zoom's lattice: both tiles of an edge round the same heights alike.
     let mut h: Vec<f64> = Vec::with_capacity(n * n);
@@ -103,8 +107,8 @@ pub fn build_tile(
         }
     }
     let (lo, hi) = h.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
-    if hi - lo > 32_000.0 || lo.abs() > 32_000.0 || hi.abs() > 32_000.0 {
-        return Err(BuildError::Range { tile: id, range: hi - lo });
+    if lo.abs() > 32_000.0 || hi.abs() > 32_000.0 {
+        return Err(BuildError::Range { tile: id, lo, hi });
     }
     let step = pow2_at_least((hi - lo) / f64::from(QMAX - 1));
     let min = (lo / step).floor() * step;

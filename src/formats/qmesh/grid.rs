@@ -135,6 +135,22 @@ pub fn edge_lattice(z: u8) -> f64 {
     2f64.powi(e.log2().floor() as i32).clamp(MIN_STEP, 1.0)
 }
 
+/// The edge lattice of zoom `z` for a dataset whose tiles' heights all lie within `relief` metres
+/// of each other (ellipsoidal, the sea-level fill included; `None`: not known): [`edge_lattice`],
+/// or coarser where a tile with that much relief would need a coarser height step than the
+/// lattice — the smallest power of two that holds `relief` in a tile's 15-bit range with room
+/// for the edges' rounding. Every tile of the dataset then has a step that divides its lattice,
+/// so both tiles of every edge decode the very same heights; only fine zooms of datasets with
+/// kilometres of relief are coarsened (e.g. 2.8 km: zoom 16 and deeper).
+#[must_use]
+pub fn edge_lattice_for(z: u8, relief: Option<f64>) -> f64 {
+    let fine = edge_lattice(z);
+    match relief {
+        Some(r) if r.is_finite() && r > 0.0 => fine.max(2f64.powi((r / 32_000.0).log2().ceil() as i32)),
+        _ => fine,
+    }
+}
+
 /// The finest height step of a tile (2⁻⁹ m): every multiple of it below 32 km is exact in the
 /// header's `f32` heights.
 pub const MIN_STEP: f64 = 1.0 / 512.0;

@@ -47,6 +47,6 @@ impl TileSamples {
                 heights.push(h.unwrap_or_else(|| fill(lon, lat)));
             }
         }
-        Self { id, heights, nodata }
+        Self { id, heights, nodata, relief: None }
     }
 }

@@ -197,3 +197,49 @@ fn bad_samples_are_refused() {
     let s = TileSamples::from_fn(id, |_, _| Some(1.0e6), |_, _| 0.0);
     assert!(matches!(build_tile(&s, 1.0, None), Err(BuildError::Range { .. })));
 }
+
+/// A 2.5 km high plateau whose edge (a cliff down to sea level) crosses the shared edge of two
+/// zoom-17 tiles: more relief than 32,767 steps of the zoom's lattice (1/32 m) hold. Told the
+/// dataset's relief, both tiles coarsen the lattice alike: the edge decodes to the same heights
+/// on both sides and every sample stays within the bound; not told it, the tiles miss the
+/// lattice (their edges are a height step apart).
+#[test]
+fn relief_beyond_the_lattice_keeps_edges_exact_when_the_dataset_relief_is_known() {
+    let z = 17u8;
+    let (x, y) = ((7.7 + 180.0) / 180.0 * f64::from(1u32 << z), (46.4 + 90.0) / 180.0 * f64::from(1u32 << z));
+    let (x, y) = (x as u32, y as u32);
+    let a = TileId::new(z, x, y).unwrap();
+    let (edge_lon, mid_lat) = (a.rect().east, f64::midpoint(a.rect().south, a.rect().north));
+    let cliff = move |lon: f64, lat: f64| {
+        let above = lat - mid_lat > 0.3 * (lon - edge_lon);
+        Some(if above { 2_450.0 + 3_000.0 * (lon - edge_lon) } else { 48.0 })
+    };
+    let build = |id: TileId, relief: Option<f64>| {
+        let mut s = TileSamples::from_fn(id, cliff, |_, _| 48.0);
+        s.relief = relief;
+        let b = build_tile(&s, 1.0, None).unwrap();
+        let d = decode(&b.bytes).unwrap();
+        (b, d)
+    };
+    let b = TileId::new(z, x + 1, y).unwrap();
+    let ((ta, _), (tb, _)) = (build(a, None), build(b, None));
+    assert!(!ta.lattice_exact && !tb.lattice_exact, "the tiles outgrow the zoom's own lattice");
+    let ((ta, da), (tb, db)) = (build(a, Some(2_700.0)), build(b, Some(2_700.0)));
+    assert!(ta.lattice_exact && tb.lattice_exact);
+    assert!(
+        ta.max_error <= ta.bound && tb.max_error <= tb.bound,
+        "{} {} of {}",
+        ta.max_error,
+        tb.max_error,
+        ta.bound
+    );
+    let edge = |id: TileId, d: &QmTile, ks: &[u32]| -> Vec<(u16, f64)> {
+        let p = positions(id, d);
+        ks.iter().map(|&k| (d.v[k as usize], p[k as usize].2)).collect()
+    };
+    let (east, west) = (edge(a, &da, &da.east), edge(b, &db, &db.west));
+    assert!(east.len() > 2);
+    assert_eq!(east, west, "the same edge vertices at the same heights");
+    let (lo, hi) = east.iter().fold((f64::MAX, f64::MIN), |(l, h), e| (l.min(e.1), h.max(e.1)));
+    assert!(hi - lo > 2_000.0, "the cliff crosses the shared edge");
+}
