@@ -392,3 +392,59 @@ fn served_terrain_is_the_baked_one_and_on_demand_builds_the_same_bytes() {
         assert_eq!(h["content-type"], "application/problem+json", "{path}");
     }
 }
+
+/// A fine DEM (2 m cells) of a plateau 2.4–2.6 km above sea level: at its deepest zooms the
+/// tiles on its edge hold the plateau and the sea-level fill beside it, more relief than the
+/// zoom's own edge lattice (1/32 m at zoom 17) holds in a tile's 15 bits. The lattice follows the
+/// dataset's relief instead: every same-zoom pair shares its edges, no tile misses the lattice,
+/// and every zoom's measured error is within its bound.
+#[test]
+fn a_high_plateau_at_fine_resolution_keeps_its_edges_and_its_bound() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (w, h) = (300u32, 300u32);
+    let heights: Vec<f32> = (0..w * h)
+        .map(|k| {
+            let (c, r) = (f64::from(k % w), f64::from(k / w));
+            (2_500.0 + 80.0 * (c / 23.0).sin() * (r / 31.0).cos() + 0.02 * c) as f32
+        })
+        .collect();
+    let tif = tmp.path().join("plateau.tif");
+    let bytes =
+        terrastream::raster::geotiff::encode_f32(w, h, &heights, (650_000.0, 5_170_000.0), (2.0, -2.0))
+            .unwrap();
+    std::fs::write(&tif, bytes).unwrap();
+    let out = tmp.path().join("t");
+    ok(bin()
+        .args(["bake", "--levels", "1", "--gpu", "off", "--terrain", "--crs", "EPSG:32632", "--out"])
+        .arg(&out)
+        .arg(&tif));
+    let stats: Value =
+        serde_json::from_slice(&std::fs::read(out.join("terrain/stats.json")).unwrap()).unwrap();
+    assert_eq!(stats["lattice_misses"], 0, "{stats}");
+    let deepest = stats["max_zoom"].as_u64().unwrap();
+    assert!(deepest >= 17, "2 m cells reach zoom 17: {deepest}");
+    for (z, s) in stats["per_zoom"].as_object().unwrap() {
+        let (e, b) = (s["max_error"].as_f64().unwrap(), s["bound"].as_f64().unwrap());
+        assert!(e <= b, "zoom {z}: measured {e} over the bound {b}");
+    }
+    let all = tiles(&out);
+    let edge_tiles = all
+        .iter()
+        .filter(|(id, t)| u64::from(id.z) == deepest && t.header.max_height - t.header.min_height > 2_000.0);
+    assert!(edge_tiles.count() > 0, "tiles hold the plateau's edge");
+    assert!(assert_edges_shared(&all) > 0);
+    // On demand (the server finds the same relief in its copy of the raster): the same bytes.
+    let store = tmp.path().join("store");
+    std::fs::create_dir_all(&store).unwrap();
+    let server = serve_store(&store, &[format!("od={},levels=1,crs=EPSG:32632", tif.display())]);
+    for (i, id) in all.keys().filter(|id| u64::from(id.z) + 1 >= deepest).enumerate() {
+        if i % 7 != 0 {
+            continue;
+        }
+        let file = std::fs::read(out.join(format!("terrain/{}/{}/{}.terrain", id.z, id.x, id.y))).unwrap();
+        let path = format!("/tilesets/od/terrain/{}/{}/{}.terrain", id.z, id.x, id.y);
+        let (s, _, od) = get(server.addr, &path, &[("Accept", ALL)]);
+        assert_eq!(s, 200, "{path}");
+        assert!(od == file, "{id}: built on demand differs from baked");
+    }
+}
