@@ -370,6 +370,13 @@ fn bake_globe_terrain(
         stats.bytes_gzip_all as f64 / 1e6,
         store.describe("terrain/layer.json"),
     );
+    if stats.lattice_misses > 0 {
+        eprintln!(
+            "warning: terrain: {} tiles have more relief than their edge lattice holds; their edges may differ \
+             from their neighbours' by a height step (see terrain/stats.json)",
+            stats.lattice_misses
+        );
+    }
     // The same terrain as static 3D Tiles (the bytes `serve` sends under terrain/3dtiles/).
     let w = bake::terrain3d::write_terrain_3dtiles(store)?;
     outln!(

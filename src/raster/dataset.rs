@@ -619,6 +619,28 @@ fn open_part(
                     ),
                 ));
             }
+            // A sparse file declares chunks it does not store: as a VRT of a vast extent, a few
+            // bytes can declare a continent of no-data.
+            let chunks = u64::from(tiles_across) * u64::from(h.height.div_ceil(chunk.1.max(1)));
+            let stored =
+                chunks.saturating_sub(h.sparse.len() as u64) * u64::from(chunk.0) * u64::from(chunk.1);
+            let declared = u64::from(h.width) * u64::from(h.height);
+            if !h.sparse.is_empty() && !opts.allow_sparse && declared / super::MAX_SPARSENESS > stored {
+                return Err(dataset_error(
+                    path,
+                    format!(
+                        "is a sparse GeoTIFF storing {} of its {chunks} {}s: at most {stored} of its {}×{} samples \
+                         ({declared}) are stored, the rest would be {} and baked as flat terrain (at most {} \
+                         samples for each stored one are accepted); pass --allow-sparse to bake it anyway",
+                        chunks - h.sparse.len() as u64,
+                        if dec.get_chunk_type() == ChunkType::Tile { "tile" } else { "strip" },
+                        h.width,
+                        h.height,
+                        if h.nodata.is_some() { "no-data, filled" } else { "0" },
+                        super::MAX_SPARSENESS,
+                    ),
+                ));
+            }
             let owner = open_files::new_owner();
             open_files::POOL.give(owner, Handle::Tiff(Box::new(dec)));
             let source =

@@ -922,6 +922,28 @@ mod tests {
         assert_eq!(got, r.heights.data);
     }
 
+    /// A sparse file storing 1 of 100 tiles declares 100 times its data: refused as a VRT of a
+    /// vast extent is, unless --allow-sparse.
+    #[test]
+    fn mostly_missing_sparse_files_are_refused_unless_allowed() {
+        use crate::raster::dataset::{Dataset, DatasetOptions};
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (160, 160);
+        let data = vec![7_u16; (w * h) as usize];
+        let skip: Vec<usize> = (1..100).collect();
+        let p = sparse_tiff(dir.path(), w, h, 16, &data, &skip, Some("0"));
+        let e =
+            Dataset::open(std::slice::from_ref(&p), &DatasetOptions::default(), &|_, _, _| {}).err().unwrap();
+        let msg = e.to_string();
+        assert!(
+            msg.contains("tiled.tif") && msg.contains("sparse") && msg.contains("--allow-sparse"),
+            "{msg}"
+        );
+        let opts = DatasetOptions { allow_sparse: true, ..DatasetOptions::default() };
+        let ds = Dataset::open(&[p], &opts, &|_, _, _| {}).unwrap();
+        assert_eq!(ds.summary().nodata_filled, u64::from(w * h) - 256);
+    }
+
     #[test]
     fn three_bands_unsupported() {
         let dir = tempfile::tempdir().unwrap();
