@@ -1578,4 +1578,41 @@ mod tests {
         );
         assert_eq!(ScanRecord { fallback: None, ..record(600, 400, 3, 2) }.fallback_len(), None);
     }
+
+    /// A sparse GeoTIFF read block by block gives what the whole-file decode gives.
+    #[test]
+    fn sparse_tiffs_read_block_by_block_as_whole() {
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (40, 36);
+        let data: Vec<u16> = (0..w * h).map(|i| (i % 977) as u16 + 100).collect();
+        let p = crate::raster::test_util::sparse_tiff(dir.path(), w, h, 16, &data, &[0, 4, 8], Some("-9999"));
+        let whole = crate::raster::test_util::load(&p).unwrap();
+        let ds = Dataset::open(std::slice::from_ref(&p), &DatasetOptions::default(), &|_, _, _| {}).unwrap();
+        let (cols, rows): (Vec<u32>, Vec<u32>) = ((0..w).collect(), (0..h).collect());
+        let mut got = Vec::new();
+        ds.read_window(&cols, &rows, &mut got).unwrap();
+        assert_eq!(got, whole.heights.data);
+        assert_eq!(ds.summary().nodata_filled, whole.nodata_filled);
+    }
+
+    /// A sparse file storing 1 of 100 tiles declares 100 times its data: refused as a VRT of a
+    /// vast extent is, unless --allow-sparse.
+    #[test]
+    fn mostly_missing_sparse_files_are_refused_unless_allowed() {
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (160, 160);
+        let data = vec![7_u16; (w * h) as usize];
+        let skip: Vec<usize> = (1..100).collect();
+        let p = crate::raster::test_util::sparse_tiff(dir.path(), w, h, 16, &data, &skip, Some("0"));
+        let e =
+            Dataset::open(std::slice::from_ref(&p), &DatasetOptions::default(), &|_, _, _| {}).err().unwrap();
+        let msg = e.to_string();
+        assert!(
+            msg.contains("tiled.tif") && msg.contains("sparse") && msg.contains("--allow-sparse"),
+            "{msg}"
+        );
+        let opts = DatasetOptions { allow_sparse: true, ..DatasetOptions::default() };
+        let ds = Dataset::open(&[p], &opts, &|_, _, _| {}).unwrap();
+        assert_eq!(ds.summary().nodata_filled, u64::from(w * h) - 256);
+    }
 }

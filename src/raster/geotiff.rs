@@ -576,7 +576,7 @@ mod tests {
     use tiff::encoder::{TiffEncoder, colortype};
     use tiff::tags::Tag;
 
-    use super::super::test_util::{assert_names_path, load, write};
+    use super::super::test_util::{assert_names_path, load, sparse_tiff, write};
     use super::super::{FileGeoref, Georef, RasterError, metres_per_degree};
 
     /// `GeoTIFF` tags to attach to a test image.
@@ -632,58 +632,6 @@ mod tests {
     /// tiles padded as the format requires.
     fn tiled_tiff(dir: &Path, w: u32, h: u32, tile: u32, data: &[u16]) -> PathBuf {
         sparse_tiff(dir, w, h, tile, data, &[], None)
-    }
-
-    /// [`tiled_tiff`] leaving the tiles `skip` out (offset and byte count 0, as GDAL's
-    /// `SPARSE_OK=TRUE` writes them), with an optional GDAL_NODATA.
-    fn sparse_tiff(
-        dir: &Path,
-        w: u32,
-        h: u32,
-        tile: u32,
-        data: &[u16],
-        skip: &[usize],
-        nodata: Option<&str>,
-    ) -> PathBuf {
-        let mut buf = Cursor::new(Vec::new());
-        let mut enc = TiffEncoder::new(&mut buf).unwrap();
-        let mut d = enc.image_directory().unwrap();
-        let (mut offsets, mut counts) = (Vec::new(), Vec::new());
-        for ty in 0..h.div_ceil(tile) {
-            for tx in 0..w.div_ceil(tile) {
-                if skip.contains(&offsets.len()) {
-                    offsets.push(0);
-                    counts.push(0);
-                    continue;
-                }
-                let mut t = vec![0_u16; (tile * tile) as usize];
-                for r in 0..tile {
-                    for c in 0..tile {
-                        let (col, row) = (tx * tile + c, ty * tile + r);
-                        if col < w && row < h {
-                            t[(r * tile + c) as usize] = data[(row * w + col) as usize];
-                        }
-                    }
-                }
-                offsets.push(d.write_data(&t[..]).unwrap() as u32);
-                counts.push(tile * tile * 2);
-            }
-        }
-        d.write_tag(Tag::ImageWidth, w).unwrap();
-        d.write_tag(Tag::ImageLength, h).unwrap();
-        d.write_tag(Tag::BitsPerSample, 16_u16).unwrap();
-        d.write_tag(Tag::SamplesPerPixel, 1_u16).unwrap();
-        d.write_tag(Tag::PhotometricInterpretation, 1_u16).unwrap();
-        d.write_tag(Tag::Compression, 1_u16).unwrap();
-        d.write_tag(Tag::TileWidth, tile).unwrap();
-        d.write_tag(Tag::TileLength, tile).unwrap();
-        d.write_tag(Tag::TileOffsets, &offsets[..]).unwrap();
-        d.write_tag(Tag::TileByteCounts, &counts[..]).unwrap();
-        if let Some(n) = nodata {
-            d.write_tag(Tag::GdalNodata, n).unwrap();
-        }
-        d.finish().unwrap();
-        write(dir, "tiled.tif", &buf.into_inner())
     }
 
     /// A header-only strip TIFF declaring `w × h` u16 samples (one tiny strip).
@@ -913,35 +861,7 @@ mod tests {
             }
             assert!((100.0..=1076.0).contains(&got), "sample {k}: {got}");
         }
-        // The out-of-core reader (block by block) reads the same.
-        let opts = crate::raster::dataset::DatasetOptions::default();
-        let ds = crate::raster::dataset::Dataset::open(&[p], &opts, &|_, _, _| {}).unwrap();
-        let (cols, rows): (Vec<u32>, Vec<u32>) = ((0..w).collect(), (0..h).collect());
-        let mut got = Vec::new();
-        crate::raster::WindowReader::read_window(&ds, &cols, &rows, &mut got).unwrap();
-        assert_eq!(got, r.heights.data);
-    }
-
-    /// A sparse file storing 1 of 100 tiles declares 100 times its data: refused as a VRT of a
-    /// vast extent is, unless --allow-sparse.
-    #[test]
-    fn mostly_missing_sparse_files_are_refused_unless_allowed() {
-        use crate::raster::dataset::{Dataset, DatasetOptions};
-        let dir = tempfile::tempdir().unwrap();
-        let (w, h) = (160, 160);
-        let data = vec![7_u16; (w * h) as usize];
-        let skip: Vec<usize> = (1..100).collect();
-        let p = sparse_tiff(dir.path(), w, h, 16, &data, &skip, Some("0"));
-        let e =
-            Dataset::open(std::slice::from_ref(&p), &DatasetOptions::default(), &|_, _, _| {}).err().unwrap();
-        let msg = e.to_string();
-        assert!(
-            msg.contains("tiled.tif") && msg.contains("sparse") && msg.contains("--allow-sparse"),
-            "{msg}"
-        );
-        let opts = DatasetOptions { allow_sparse: true, ..DatasetOptions::default() };
-        let ds = Dataset::open(&[p], &opts, &|_, _, _| {}).unwrap();
-        assert_eq!(ds.summary().nodata_filled, u64::from(w * h) - 256);
+        // The out-of-core reader: `dataset::tests::sparse_tiffs_read_block_by_block_as_whole`.
     }
 
     #[test]

@@ -946,7 +946,11 @@ pub fn shared_test_data(name: &str, what: &str) -> Option<PathBuf> {
 pub(crate) mod test_util {
     //! Helpers shared by the format tests: temp files and default options.
 
+    use std::io::Cursor;
     use std::path::{Path, PathBuf};
+
+    use tiff::encoder::TiffEncoder;
+    use tiff::tags::Tag;
 
     use super::{LoadOptions, LoadedRaster, RasterError};
 
@@ -959,6 +963,58 @@ pub(crate) mod test_util {
 
     pub fn load(path: &Path) -> Result<LoadedRaster, RasterError> {
         super::load(path, &LoadOptions::default())
+    }
+
+    /// A tiled u16 TIFF (tiles of `tile`², row-major) leaving the tiles `skip` out (offset and byte count 0, as GDAL's
+    /// `SPARSE_OK=TRUE` writes them), with an optional GDAL_NODATA.
+    pub fn sparse_tiff(
+        dir: &Path,
+        w: u32,
+        h: u32,
+        tile: u32,
+        data: &[u16],
+        skip: &[usize],
+        nodata: Option<&str>,
+    ) -> PathBuf {
+        let mut buf = Cursor::new(Vec::new());
+        let mut enc = TiffEncoder::new(&mut buf).unwrap();
+        let mut d = enc.image_directory().unwrap();
+        let (mut offsets, mut counts) = (Vec::new(), Vec::new());
+        for ty in 0..h.div_ceil(tile) {
+            for tx in 0..w.div_ceil(tile) {
+                if skip.contains(&offsets.len()) {
+                    offsets.push(0);
+                    counts.push(0);
+                    continue;
+                }
+                let mut t = vec![0_u16; (tile * tile) as usize];
+                for r in 0..tile {
+                    for c in 0..tile {
+                        let (col, row) = (tx * tile + c, ty * tile + r);
+                        if col < w && row < h {
+                            t[(r * tile + c) as usize] = data[(row * w + col) as usize];
+                        }
+                    }
+                }
+                offsets.push(d.write_data(&t[..]).unwrap() as u32);
+                counts.push(tile * tile * 2);
+            }
+        }
+        d.write_tag(Tag::ImageWidth, w).unwrap();
+        d.write_tag(Tag::ImageLength, h).unwrap();
+        d.write_tag(Tag::BitsPerSample, 16_u16).unwrap();
+        d.write_tag(Tag::SamplesPerPixel, 1_u16).unwrap();
+        d.write_tag(Tag::PhotometricInterpretation, 1_u16).unwrap();
+        d.write_tag(Tag::Compression, 1_u16).unwrap();
+        d.write_tag(Tag::TileWidth, tile).unwrap();
+        d.write_tag(Tag::TileLength, tile).unwrap();
+        d.write_tag(Tag::TileOffsets, &offsets[..]).unwrap();
+        d.write_tag(Tag::TileByteCounts, &counts[..]).unwrap();
+        if let Some(n) = nodata {
+            d.write_tag(Tag::GdalNodata, n).unwrap();
+        }
+        d.finish().unwrap();
+        write(dir, "tiled.tif", &buf.into_inner())
     }
 
     /// The error's message must start with the path, as every `RasterError` promises.
