@@ -141,12 +141,19 @@ pub fn edge_lattice(z: u8) -> f64 {
 /// lattice — the smallest power of two that holds `relief` in a tile's 15-bit range with room
 /// for the edges' rounding. Every tile of the dataset then has a step that divides its lattice,
 /// so both tiles of every edge decode the very same heights; only fine zooms of datasets with
-/// kilometres of relief are coarsened (e.g. 2.8 km: zoom 16 and deeper).
+/// kilometres of relief are coarsened (e.g. 2.8 km: zoom 16 and deeper). Where that lattice
+/// would exceed the zoom's error itself (e.g. 2.8 km of relief at zoom 20, a 10 cm DEM), a
+/// tile's 15 bits cannot hold both the relief and the bound: the zoom's own lattice is kept, so
+/// every tile of ordinary relief keeps its bound and only tiles of more relief than it holds
+/// miss it (counted, and warned about, by the bake).
 #[must_use]
 pub fn edge_lattice_for(z: u8, relief: Option<f64>) -> f64 {
     let fine = edge_lattice(z);
     match relief {
-        Some(r) if r.is_finite() && r > 0.0 => fine.max(2f64.powi((r / 32_000.0).log2().ceil() as i32)),
+        Some(r) if r.is_finite() && r > 0.0 => {
+            let floor = 2f64.powi((r / 32_000.0).log2().ceil() as i32);
+            if floor <= zoom_error(z, 1.0) { fine.max(floor) } else { fine }
+        }
         _ => fine,
     }
 }
@@ -240,12 +247,30 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::float_cmp)] // powers of two, exact
     fn lattice_and_errors() {
         assert!((LEVEL0_ERROR - 77_067.34).abs() < 0.01);
         for z in 0..=MAX_ZOOM {
             let s = edge_lattice(z);
             assert!((MIN_STEP..=1.0).contains(&s) && s.log2().fract() == 0.0);
             assert!(s <= zoom_error(z, 1.0) / 16.0 || s == MIN_STEP);
+            // Relief coarsens the lattice to hold it in 15 bits, never past the zoom's error.
+            for relief in [None, Some(0.0), Some(500.0), Some(2_800.0), Some(20_000.0), Some(f64::NAN)] {
+                let l = edge_lattice_for(z, relief);
+                assert!(l >= s && l.log2().fract() == 0.0, "zoom {z}, {relief:?}: {l}");
+                if l > s {
+                    assert!(
+                        l <= zoom_error(z, 1.0) && relief.unwrap() <= 32_766.0 * l,
+                        "zoom {z}, {relief:?}: {l}"
+                    );
+                }
+            }
         }
+        // 2.8 km of relief: the lattice is coarsened at zoom 16 (its own 1/16 m holds 2,048 m), not at
+        // zoom 12, and not past zoom 19 (1/8 m against e(20) = 7.3 cm).
+        assert_eq!(edge_lattice_for(12, Some(2_800.0)), edge_lattice(12));
+        assert_eq!(edge_lattice_for(16, Some(2_800.0)), 0.125);
+        assert_eq!(edge_lattice_for(19, Some(2_800.0)), 0.125);
+        assert_eq!(edge_lattice_for(20, Some(2_800.0)), edge_lattice(20));
     }
 }
