@@ -311,6 +311,14 @@ pub(crate) fn read(keys: &GeoKeys) -> Res<KeysCrs> {
                 "a geocentric model (X, Y, Z in ECEF) is not a heightfield grid",
             );
         }
+        Some(32767) => {
+            return refuse(
+                GT_MODEL_TYPE,
+                32767,
+                "user-defined: a coordinate system this reader cannot take from GeoKeys; reproject the file to an \
+                 EPSG CRS first (gdalwarp -t_srs EPSG:…)",
+            );
+        }
         Some(other) => return refuse(GT_MODEL_TYPE, other, "expected 1 (projected) or 2 (geographic)"),
     }
     match raster {

@@ -443,3 +443,11 @@ fn tables() {
     assert!(ELLIPSOIDS.iter().all(|e| e.2 > 6.3e6 && e.2 < 6.4e6));
     assert!(PRIME_MERIDIANS.iter().any(|p| p.0 == 8903 && (p.2 - 2.337_229_17).abs() < 1e-8));
 }
+
+#[test]
+fn a_user_defined_model_says_to_reproject() {
+    // GDAL writes model type 32767 for projections GeoTIFF cannot name (Mollweide, ESRI:54009).
+    let dir = [1, 1, 1, 1, 1024, 0, 1, 32767];
+    let e = read(&GeoKeys { dir: &dir, ..GeoKeys::default() }).err().unwrap();
+    assert!(e.starts_with("GTModelTypeGeoKey 32767:") && e.contains("gdalwarp -t_srs"), "{e}");
+}
